@@ -1,0 +1,1 @@
+"""balloon-wind firmware: fixed-step, allocation-free EKF turning raw IMU/baro packets into WIND_COV."""

@@ -1,0 +1,1 @@
+"""balloon-wind ground station: WIND_COV in, display, logs, plots and scores out."""

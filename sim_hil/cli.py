@@ -1,0 +1,72 @@
+"""``balloon-sim``: the HIL simulator's command line (CONTRACT.md)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from firmware_py.config import ConfigError
+from sim_hil.packets import SensorPacketEncoder, TlogWriter
+from sim_hil.scenarios import SCENARIOS, WIND_CHOICES, resolve
+from sim_hil.simulator import Simulation, write_truth_csv
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="balloon-sim", description="Tethered-balloon HIL simulator")
+    p.add_argument("--scenario", default="paper-reference", help="named scenario (see --list-scenarios)")
+    p.add_argument("--duration", type=float, default=600.0, help="simulated seconds")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--out", help="FILE.tlog (as fast as possible) or a UDP endpoint (paced)")
+    p.add_argument("--truth", help="truth CSV, one row per IMU sample")
+    p.add_argument("--config", help="TOML design file (overrides the scenario)")
+    p.add_argument("--wind", choices=sorted(WIND_CHOICES), help="override the scenario's wind model")
+    p.add_argument("--list-scenarios", action="store_true")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.list_scenarios:
+        for name, sc in SCENARIOS.items():
+            print(f"{name:20s} {sc.description}")
+        return 0
+    try:
+        sc = resolve(args.scenario, args.config, args.wind)
+    except ConfigError as exc:
+        print(f"balloon-sim: {exc}", file=sys.stderr)
+        return 2
+    if args.duration <= 0:
+        print("balloon-sim: --duration must be > 0", file=sys.stderr)
+        return 2
+    sim = Simulation(sc.design, sc.wind, sc.truth, args.duration, args.seed)
+    enc = SensorPacketEncoder()
+    t0 = time.perf_counter()
+    n = 0
+    out = args.out
+    if out and not out.endswith(".tlog"):
+        from sim_hil.link import stream_udp  # network edge, only when asked for
+
+        n = stream_udp(sim, enc, out, args)
+    elif out:
+        with open(out, "wb") as fh:
+            w = TlogWriter(fh)
+            for s in sim.samples():
+                for frame in enc.encode(s):
+                    w.write(s.time_usec, frame)
+                n += 1
+    else:
+        n = sim.run()
+    if args.truth:
+        write_truth_csv(args.truth, sim.truth[:n])
+    wall = time.perf_counter() - t0
+    print(
+        f"balloon-sim: {sc.name} seed {args.seed}: {n} IMU samples, {args.duration:.0f} s simulated "
+        f"in {wall:.1f} s ({args.duration / max(wall, 1e-9):.0f}x real time)",
+        file=sys.stderr,
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,98 @@
+"""Named scenarios (CONTRACT.md): a design + wind + truth options. The paper's Figs. 6-12 cases and
+a few of our own. "better" = 10x smaller 1-sigma error of that sensor."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+from firmware_py.config import ConfigError, Design, SensorsConfig, design_from_dict, load_toml
+from sim_hil.dynamics import TruthConfig
+from sim_hil.wind import WindConfig
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    description: str
+    design: Design = field(default_factory=Design)
+    wind: WindConfig = field(default_factory=WindConfig)
+    truth: TruthConfig = field(default_factory=TruthConfig)
+
+
+def _with(**sections) -> Design:
+    return replace(Design(), **sections)
+
+
+_REF = Design()
+_S = _REF.sensors
+_B = _REF.balloon
+
+SCENARIOS: dict[str, Scenario] = {
+    s.name: s
+    for s in (
+        Scenario("paper-reference", "r = 1.0 m, 100 m tether, 3 m/s VdH + Kaimal wind, Table 2 sensors"),
+        Scenario("reduced-balloon", "r = 0.92 m (paper Fig. 7)", _with(balloon=replace(_B, radius_m=0.92))),
+        Scenario("increased-balloon", "r = 1.15 m (paper Fig. 8)", _with(balloon=replace(_B, radius_m=1.15))),
+        Scenario("better-accel", "accelerometer 0.001 m/s^2 (Fig. 9)", _with(sensors=replace(_S, accel_mps2=0.001))),
+        Scenario("better-baro", "barometer 0.1 m (Fig. 10)", _with(sensors=replace(_S, baro_m=0.1))),
+        Scenario("better-gyro-rate", "gyro 0.1 deg/s (Fig. 11)", _with(sensors=replace(_S, gyro_dps=0.1))),
+        Scenario(
+            "better-orientation",
+            "magnetometer 0.0005 gauss: the orientation source that is not also a rate sensor (Fig. 12)",
+            _with(sensors=replace(_S, mag_gauss=0.0005)),
+        ),
+        Scenario(
+            "realistic-mems",
+            "MEMS-grade noise densities with turn-on biases, gyro bias walk, baro offset, quantisation",
+            _with(sensors=SensorsConfig(accel_mps2=0.014, baro_m=0.1, gyro_dps=0.07, mag_gauss=0.002)),
+            truth=TruthConfig(
+                gyro_bias_dps=0.3, gyro_bias_walk_dps_rt_s=0.002, accel_bias_mps2=0.02,
+                baro_offset_m=1.0, mag_bias_gauss=0.0, quantize=True,
+            ),  # fmt: skip
+        ),
+        Scenario("multisine", "paper reference balloon in a 3 m/s multisine wind (frequency response)",
+                 wind=WindConfig(kind="multisine")),
+        Scenario("steady", "paper reference balloon in a steady 3 m/s wind", wind=WindConfig(kind="steady")),
+        Scenario("calm", "no wind: the balloon stands above the anchor", wind=WindConfig(kind="steady", mean_mps=0.0)),
+        Scenario("rope-drag", "paper reference with Hoerner cross-flow drag on the rope",
+                 truth=TruthConfig(rope_drag=True)),
+    )
+}
+
+WIND_CHOICES = {
+    "vdh": {"kind": "vdh"},
+    "vdh-paper": {"kind": "vdh", "vdh_amplitude": "paper"},
+    "multisine": {"kind": "multisine"},
+    "steady": {"kind": "steady"},
+}
+
+
+def resolve(name: str, config_path: str | None = None, wind_choice: str | None = None) -> Scenario:
+    """The scenario ``name``, overridden by a TOML config file's sections and a ``--wind`` choice."""
+    if name not in SCENARIOS:
+        raise ConfigError(f"unknown scenario '{name}'; known: {', '.join(SCENARIOS)}")
+    sc = SCENARIOS[name]
+    if config_path:
+        data = load_toml(config_path)
+        design_from_dict(data)  # validates sections and keys
+        merged = {
+            sec: {**_as_dict(getattr(sc.design, sec)), **data.get(sec, {})}
+            for sec in ("balloon", "tether", "site", "sensors")
+        }
+        sc = replace(
+            sc,
+            design=design_from_dict(merged),
+            wind=WindConfig.from_dict({**_as_dict(sc.wind), **data.get("wind", {})}),
+            truth=TruthConfig.from_dict({**_as_dict(sc.truth), **data.get("truth", {})}),
+        )
+    if wind_choice:
+        if wind_choice not in WIND_CHOICES:
+            raise ConfigError(f"unknown --wind '{wind_choice}'; known: {', '.join(WIND_CHOICES)}")
+        sc = replace(sc, wind=replace(sc.wind, **WIND_CHOICES[wind_choice]))
+    return sc
+
+
+def _as_dict(obj) -> dict:
+    from dataclasses import asdict
+
+    return {k: v for k, v in asdict(obj).items() if v is not None}

@@ -1,0 +1,116 @@
+"""Sensor models at the centre of mass: accelerometer (specific force, FRD), gyroscope, magnetometer,
+barometer and thermometer. Table 2's figures as 1-sigma white noise by default; turn-on biases, bias
+random walk and quantisation as options (``TruthConfig``).
+
+Noise is drawn in blocks (one numpy call per block of samples), then consumed as plain floats.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from firmware_py.atmosphere import G0, isa_pressure_pa, isa_temperature_k
+from firmware_py.config import Design
+from sim_hil.dynamics import TruthConfig
+
+BLOCK = 4096
+ACC_LSB = 16 * G0 / 65536.0
+GYRO_LSB = math.radians(4000.0) / 65536.0
+MAG_LSB = 16.0 / 65536.0
+
+
+def _quant(x: float, lsb: float) -> float:
+    return round(x / lsb) * lsb
+
+
+class SensorSuite:
+    """Turns truth (specific force, rates, attitude, height) into noisy sensor readings."""
+
+    def __init__(self, design: Design, truth: TruthConfig, imu_hz: float, seed: int) -> None:
+        self._rng = np.random.default_rng(np.random.SeedSequence([seed, 0x53454E53]))
+        s = design.sensors
+        self._sig = (s.accel_mps2, math.radians(s.gyro_dps), s.mag_gauss)
+        self._baro_m = s.baro_m
+        self._thermo_k = s.thermometer_k
+        self._quantize = truth.quantize
+        dec = math.radians(design.site.mag_declination_deg)
+        self.field_ned = (
+            truth.mag_field_h_gauss * math.cos(dec),
+            truth.mag_field_h_gauss * math.sin(dec),
+            truth.mag_field_z_gauss,
+        )
+        self.ground_pressure_pa = (design.site.ground_pressure_hpa or 1013.25) * 100.0
+        self.ground_temperature_k = design.site.ground_temperature_c + 273.15
+        r = self._rng
+        self.gyro_bias = [float(x) for x in r.normal(0.0, math.radians(truth.gyro_bias_dps), 3)]
+        self.accel_bias = [float(x) for x in r.normal(0.0, truth.accel_bias_mps2, 3)]
+        self.mag_bias = [float(x) for x in r.normal(0.0, truth.mag_bias_gauss, 3)]
+        self.baro_offset_m = float(r.normal(0.0, truth.baro_offset_m)) if truth.baro_offset_m else 0.0
+        self._walk = math.radians(truth.gyro_bias_walk_dps_rt_s) * math.sqrt(1.0 / imu_hz)
+        self._noise: list[list[float]] = []
+        self._k = BLOCK
+
+    def _draw(self) -> list[float]:
+        if self._k >= len(self._noise):
+            self._noise = self._rng.standard_normal((BLOCK, 14)).tolist()
+            self._k = 0
+        row = self._noise[self._k]
+        self._k += 1
+        return row
+
+    def imu(
+        self, f_ned: tuple[float, float, float], omega_b: tuple[float, float, float], q: list[float]
+    ) -> tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]:
+        """Accelerometer (specific force f = a - g, FRD, m/s^2), gyro (rad/s), magnetometer (gauss)."""
+        n = self._draw()
+        q0, q1, q2, q3 = q
+        # R^T (NED -> body) rows
+        r00 = q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3
+        r01 = 2.0 * (q1 * q2 + q0 * q3)
+        r02 = 2.0 * (q1 * q3 - q0 * q2)
+        r10 = 2.0 * (q1 * q2 - q0 * q3)
+        r11 = q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3
+        r12 = 2.0 * (q2 * q3 + q0 * q1)
+        r20 = 2.0 * (q1 * q3 + q0 * q2)
+        r21 = 2.0 * (q2 * q3 - q0 * q1)
+        r22 = q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3
+        fn, fe, fd = f_ned
+        sa, sg, sm = self._sig
+        ab, gb, mb = self.accel_bias, self.gyro_bias, self.mag_bias
+        acc = (
+            r00 * fn + r01 * fe + r02 * fd + ab[0] + sa * n[0],
+            r10 * fn + r11 * fe + r12 * fd + ab[1] + sa * n[1],
+            r20 * fn + r21 * fe + r22 * fd + ab[2] + sa * n[2],
+        )
+        gyro = (omega_b[0] + gb[0] + sg * n[3], omega_b[1] + gb[1] + sg * n[4], omega_b[2] + gb[2] + sg * n[5])
+        bn, be, bd = self.field_ned
+        mag = (
+            r00 * bn + r01 * be + r02 * bd + mb[0] + sm * n[6],
+            r10 * bn + r11 * be + r12 * bd + mb[1] + sm * n[7],
+            r20 * bn + r21 * be + r22 * bd + mb[2] + sm * n[8],
+        )
+        if self._walk:
+            w = self._walk
+            self.gyro_bias = [gb[0] + w * n[9], gb[1] + w * n[10], gb[2] + w * n[11]]
+        if self._quantize:
+            acc = (_quant(acc[0], ACC_LSB), _quant(acc[1], ACC_LSB), _quant(acc[2], ACC_LSB))
+            gyro = (_quant(gyro[0], GYRO_LSB), _quant(gyro[1], GYRO_LSB), _quant(gyro[2], GYRO_LSB))
+            mag = (_quant(mag[0], MAG_LSB), _quant(mag[1], MAG_LSB), _quant(mag[2], MAG_LSB))
+        return acc, gyro, mag
+
+    def baro(self, height_m: float) -> tuple[float, float]:
+        """(absolute pressure hPa, temperature C) at the balloon's height above the site (ISA)."""
+        n = self._draw()
+        t0 = self.ground_temperature_k
+        temp_k = isa_temperature_k(height_m, t0)
+        p = isa_pressure_pa(height_m + self.baro_offset_m, self.ground_pressure_pa, t0)
+        rho = p / (287.05 * temp_k)
+        p += rho * G0 * self._baro_m * n[12]
+        hpa = p / 100.0
+        temp_c = temp_k - 273.15 + self._thermo_k * n[13]
+        if self._quantize:
+            hpa = round(hpa, 2)
+            temp_c = round(temp_c, 2)
+        return hpa, temp_c

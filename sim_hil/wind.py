@@ -1,0 +1,206 @@
+"""Wind generation: Van der Hoven low-frequency band (paper Eqs. 1-2), IEC 61400-1 Kaimal turbulence
+above the spectral gap, a multisine for frequency-response tests, and a steady wind.
+
+All generators are vectorised: a whole flight is synthesised up front (inverse FFT for the
+unit-consistent spectra, a matrix of cosines for the paper's 47 discrete lines), so the cost per
+simulated sample does not depend on the number of frequency lines. The wind field is uniform in
+space (no shear); the balloon sees it at its own position.
+"""
+
+from __future__ import annotations
+
+import csv
+import functools
+import math
+from dataclasses import dataclass
+from importlib import resources
+
+import numpy as np
+
+from firmware_py.config import ConfigError, build_section
+
+SECONDS_PER_HOUR = 3600.0
+KAIMAL_LAMBDA_M = 42.0  # IEC 61400-1 turbulence scale parameter above 60 m height
+IEC_IREF = {"A": 0.16, "B": 0.14, "C": 0.12}
+
+
+@dataclass(frozen=True)
+class WindConfig:
+    kind: str = "vdh"  # vdh | multisine | steady
+    mean_mps: float = 3.0
+    from_deg: float = 270.0  # meteorological: where the wind comes from (270 = westerly, blows east)
+    vdh_amplitude: str = "consistent"  # consistent: A = sqrt(2 S df); paper: Eq. (2) as printed
+    gap_cph: float = 5.0  # Van der Hoven below this frequency, Kaimal above (no band counted twice)
+    turbulence: str = "kaimal"  # kaimal | none
+    turbulence_intensity: float = 0.10  # sigma_u / U (Cabauw 8.5 % at 99 m); ignored if iec_class set
+    iec_class: str = ""  # "A" | "B" | "C": sigma_u = I_ref (0.75 U + 5.6)
+    vertical: bool = False  # also a Kaimal w component
+    multisine_hz: tuple[float, ...] = (0.003, 0.01, 0.02, 0.05, 0.1, 0.2)
+    multisine_amplitude_mps: float = 0.3
+    sample_hz: float = 20.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("vdh", "multisine", "steady"):
+            raise ConfigError(f"wind.kind must be vdh, multisine or steady, got {self.kind!r}")
+        if self.vdh_amplitude not in ("consistent", "paper"):
+            raise ConfigError(f"wind.vdh_amplitude must be consistent or paper, got {self.vdh_amplitude!r}")
+        if self.turbulence not in ("kaimal", "none"):
+            raise ConfigError(f"wind.turbulence must be kaimal or none, got {self.turbulence!r}")
+        if self.iec_class not in ("", "A", "B", "C"):
+            raise ConfigError(f"wind.iec_class must be A, B or C, got {self.iec_class!r}")
+        if self.mean_mps < 0 or self.sample_hz <= 0 or self.gap_cph <= 0:
+            raise ConfigError("wind.mean_mps >= 0, sample_hz > 0 and gap_cph > 0 are required")
+        if self.sample_hz / 2 <= max(self.multisine_hz, default=0.0):
+            raise ConfigError("wind.multisine_hz must lie below the Nyquist frequency of sample_hz")
+
+    @property
+    def sigma_u_mps(self) -> float:
+        if self.iec_class:
+            return IEC_IREF[self.iec_class] * (0.75 * self.mean_mps + 5.6)
+        return self.turbulence_intensity * self.mean_mps
+
+    @classmethod
+    def from_dict(cls, values: dict) -> WindConfig:
+        if "multisine_hz" in values:
+            values = dict(values, multisine_hz=tuple(float(f) for f in values["multisine_hz"]))
+        return build_section(cls, "wind", values)
+
+
+# ---------------------------------------------------------------- spectra (pure functions)
+
+
+@functools.lru_cache(maxsize=1)
+def load_van_der_hoven() -> tuple[np.ndarray, np.ndarray]:
+    """The shipped 48-point digitisation: (f in Hz, f*S(f) in (m/s)^2)."""
+    text = resources.files("sim_hil").joinpath("data/van_der_hoven_spectrum.csv").read_text()
+    rows = [r for r in csv.reader(line for line in text.splitlines() if line and not line.startswith("#"))]
+    data = np.array([[float(a), float(b)] for a, b in rows[1:]])
+    return data[:, 0] / SECONDS_PER_HOUR, data[:, 1]
+
+
+def van_der_hoven_psd(f_hz: np.ndarray) -> np.ndarray:
+    """One-sided PSD S(f) in (m/s)^2/Hz: f*S interpolated linearly in ln f, zero outside the table."""
+    f_tab, fs_tab = load_van_der_hoven()
+    f = np.asarray(f_hz, dtype=float)
+    out = np.zeros_like(f)
+    inside = (f >= f_tab[0]) & (f <= f_tab[-1])
+    out[inside] = np.interp(np.log(f[inside]), np.log(f_tab), fs_tab) / f[inside]
+    return out
+
+
+def kaimal_psd(f_hz: np.ndarray, sigma_mps: float, length_scale_m: float, mean_mps: float) -> np.ndarray:
+    """IEC 61400-1 Kaimal one-sided PSD S(f) = 4 sigma^2 (L/U) / (1 + 6 f L/U)^(5/3)."""
+    lu = length_scale_m / max(mean_mps, 0.1)
+    return 4.0 * sigma_mps**2 * lu / (1.0 + 6.0 * np.asarray(f_hz) * lu) ** (5.0 / 3.0)
+
+
+KAIMAL_COMPONENTS = {  # (sigma ratio to sigma_u, integral length scale L_k = ratio * Lambda)
+    "u": (1.0, 8.1),
+    "v": (0.8, 2.7),
+    "w": (0.5, 0.66),
+}
+
+
+def longitudinal_psd(cfg: WindConfig, f_hz: np.ndarray) -> np.ndarray:
+    """Unit-consistent target PSD of the along-wind component: VdH below the gap, Kaimal above."""
+    f = np.asarray(f_hz, dtype=float)
+    gap_hz = cfg.gap_cph / SECONDS_PER_HOUR
+    s = np.where(f < gap_hz, van_der_hoven_psd(f), 0.0)
+    if cfg.turbulence == "kaimal":
+        s = s + np.where(f >= gap_hz, component_kaimal_psd(cfg, "u", f), 0.0)
+    return s
+
+
+def component_kaimal_psd(cfg: WindConfig, comp: str, f_hz: np.ndarray) -> np.ndarray:
+    ratio, scale = KAIMAL_COMPONENTS[comp]
+    return kaimal_psd(f_hz, ratio * cfg.sigma_u_mps, scale * KAIMAL_LAMBDA_M, cfg.mean_mps)
+
+
+def paper_line_amplitudes(f_lo_hz: float, f_hi_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """Paper Eq. (2) as printed, on the table's own lines inside [f_lo, f_hi):
+    A_i = (2/pi) sqrt(((S_i + S_{i+1})/2) (w_{i+1} - w_i)) with w in rad/s and S in (m/s)^2/Hz.
+
+    Its variance sum(A_i^2)/2 = (4/pi) sum(S_mean df) is 4/pi = 1.27 times the trapezoidal integral of S.
+    Returns (angular frequencies w_i in rad/s, amplitudes in m/s).
+    """
+    f_tab, fs_tab = load_van_der_hoven()
+    s_tab = fs_tab / f_tab
+    w = 2.0 * math.pi * f_tab
+    amp = (2.0 / math.pi) * np.sqrt(0.5 * (s_tab[:-1] + s_tab[1:]) * np.diff(w))
+    keep = (f_tab[:-1] >= f_lo_hz) & (f_tab[:-1] < f_hi_hz)
+    return w[:-1][keep], amp[keep]
+
+
+# ---------------------------------------------------------------- synthesis
+
+
+def fft_grid(duration_s: float, sample_hz: float) -> tuple[int, float]:
+    """Length M (even) of the synthesis grid covering the flight and its frequency step 1/(M dt)."""
+    n = int(math.ceil(duration_s * sample_hz)) + 2
+    m = n + (n % 2)
+    return m, sample_hz / m
+
+
+def synthesize(psd: np.ndarray, m: int, rng: np.random.Generator) -> np.ndarray:
+    """Sum of cosines A_k cos(2 pi f_k t + phi_k), A_k = sqrt(2 S(f_k) df), f_k = k df (k = 1..M/2-1),
+    uniform random phases, evaluated at all M samples with one inverse real FFT (paper Eq. 1 on a
+    uniform grid). ``psd`` holds S(f_k)*df for k = 0..M/2 (the DC and Nyquist bins are not used)."""
+    amp = np.sqrt(2.0 * psd)
+    amp[0] = 0.0
+    amp[-1] = 0.0
+    phases = rng.uniform(0.0, 2.0 * math.pi, size=amp.size)
+    spectrum = 0.5 * m * amp * np.exp(1j * phases)
+    return np.fft.irfft(spectrum, n=m)
+
+
+@dataclass(frozen=True)
+class WindSeries:
+    """A generated wind: NED air velocity and its time derivative, sampled every ``dt_s`` from t = 0."""
+
+    dt_s: float
+    ned: np.ndarray  # (n, 3) m/s
+    rate: np.ndarray  # (n, 3) m/s^2
+
+    def at(self, t_s: float) -> np.ndarray:
+        """Linearly interpolated NED wind at time t (held at the ends)."""
+        x = np.clip(t_s / self.dt_s, 0.0, len(self.ned) - 1.000001)
+        i = int(x)
+        frac = x - i
+        return self.ned[i] * (1.0 - frac) + self.ned[i + 1] * frac
+
+
+def generate_wind(cfg: WindConfig, duration_s: float, seed: int) -> WindSeries:
+    """The wind for one flight: along-wind u, cross-wind v, vertical w, rotated into NED."""
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x57494E44]))
+    m, df = fft_grid(duration_s, cfg.sample_hz)
+    t = np.arange(m) / cfg.sample_hz
+    f = np.arange(m // 2 + 1) * df
+    u = np.zeros(m)
+    v = np.zeros(m)
+    w = np.zeros(m)
+    if cfg.kind == "vdh":
+        if cfg.vdh_amplitude == "consistent":
+            u += synthesize(longitudinal_psd(cfg, f) * df, m, rng)
+        else:
+            omega, amp = paper_line_amplitudes(0.0, cfg.gap_cph / SECONDS_PER_HOUR)
+            xi = rng.uniform(0.0, 2.0 * math.pi, size=amp.size)
+            for k in range(amp.size):  # 47 lines at most: vectorised over time
+                u += amp[k] * np.cos(omega[k] * t + xi[k])
+            if cfg.turbulence == "kaimal":
+                above = np.where(f >= cfg.gap_cph / SECONDS_PER_HOUR, 1.0, 0.0)
+                u += synthesize(component_kaimal_psd(cfg, "u", f) * above * df, m, rng)
+        if cfg.turbulence == "kaimal":
+            above = np.where(f >= cfg.gap_cph / SECONDS_PER_HOUR, 1.0, 0.0)
+            v += synthesize(component_kaimal_psd(cfg, "v", f) * above * df, m, rng)
+            if cfg.vertical:
+                w += synthesize(component_kaimal_psd(cfg, "w", f) * above * df, m, rng)
+    elif cfg.kind == "multisine":
+        phases = rng.uniform(0.0, 2.0 * math.pi, size=len(cfg.multisine_hz))
+        for fk, ph in zip(cfg.multisine_hz, phases, strict=True):
+            u += cfg.multisine_amplitude_mps * np.cos(2.0 * math.pi * fk * t + ph)
+    to_rad = math.radians(cfg.from_deg + 180.0)
+    c, s = math.cos(to_rad), math.sin(to_rad)
+    speed = cfg.mean_mps + u
+    ned = np.column_stack([speed * c - v * s, speed * s + v * c, w])
+    rate = np.gradient(ned, 1.0 / cfg.sample_hz, axis=0)
+    return WindSeries(1.0 / cfg.sample_hz, ned, rate)
