@@ -198,7 +198,9 @@ def derivative(
     return [vn, ve, vd, an_, ae_, ad_, dq0, dq1, dq2, dq3, dp, dq, dr], tension
 
 
-def rk4_step(s: list[float], h: float, w0: tuple, wm: tuple, w1: tuple, ph: BalloonPhysics, k1: list[float]) -> list[float]:
+def rk4_step(
+    s: list[float], h: float, w0: tuple, wm: tuple, w1: tuple, ph: BalloonPhysics, k1: list[float]
+) -> list[float]:
     """One classical Runge-Kutta step of size h. ``w0, wm, w1`` are the wind (n, e, d, dn, de, dd) at
     t, t + h/2, t + h; ``k1`` is the derivative at t (already evaluated by the caller for the sensors)."""
     h2 = 0.5 * h

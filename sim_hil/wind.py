@@ -107,13 +107,19 @@ def longitudinal_psd(cfg: WindConfig, f_hz: np.ndarray) -> np.ndarray:
     gap_hz = cfg.gap_cph / SECONDS_PER_HOUR
     s = np.where(f < gap_hz, van_der_hoven_psd(f), 0.0)
     if cfg.turbulence == "kaimal":
-        s = s + np.where(f >= gap_hz, component_kaimal_psd(cfg, "u", f), 0.0)
+        s = s + above_gap_psd(cfg, "u", f)
     return s
 
 
 def component_kaimal_psd(cfg: WindConfig, comp: str, f_hz: np.ndarray) -> np.ndarray:
     ratio, scale = KAIMAL_COMPONENTS[comp]
     return kaimal_psd(f_hz, ratio * cfg.sigma_u_mps, scale * KAIMAL_LAMBDA_M, cfg.mean_mps)
+
+
+def above_gap_psd(cfg: WindConfig, comp: str, f_hz: np.ndarray) -> np.ndarray:
+    """Kaimal PSD of one component, zero below the spectral gap (that band belongs to Van der Hoven)."""
+    f = np.asarray(f_hz, dtype=float)
+    return np.where(f >= cfg.gap_cph / SECONDS_PER_HOUR, component_kaimal_psd(cfg, comp, f), 0.0)
 
 
 def paper_line_amplitudes(f_lo_hz: float, f_hi_hz: float) -> tuple[np.ndarray, np.ndarray]:
@@ -141,11 +147,24 @@ def fft_grid(duration_s: float, sample_hz: float) -> tuple[int, float]:
     return m, sample_hz / m
 
 
-def synthesize(psd: np.ndarray, m: int, rng: np.random.Generator) -> np.ndarray:
-    """Sum of cosines A_k cos(2 pi f_k t + phi_k), A_k = sqrt(2 S(f_k) df), f_k = k df (k = 1..M/2-1),
+def band_variances(psd_fn, m: int, df: float) -> np.ndarray:
+    """Variance of S in each FFT bin [f_k - df/2, f_k + df/2], k = 0..M/2, by quadrature of the
+    cumulative integral on a fine logarithmic grid (exact for the low, coarse bins where a Riemann sum
+    S(f_k) df would over-count a steep spectrum)."""
+    edges = (np.arange(m // 2 + 2) - 0.5) * df
+    edges[0] = 0.0
+    fine = np.geomspace(df / 8.0, edges[-1], 400_000)
+    s = psd_fn(fine)
+    cum = np.concatenate([[0.0], np.cumsum(0.5 * (s[1:] + s[:-1]) * np.diff(fine))])
+    return np.diff(np.interp(edges, fine, cum, left=0.0))
+
+
+def synthesize(var: np.ndarray, m: int, rng: np.random.Generator) -> np.ndarray:
+    """Sum of cosines A_k cos(2 pi f_k t + phi_k), A_k = sqrt(2 var_k), f_k = k df (k = 1..M/2-1),
     uniform random phases, evaluated at all M samples with one inverse real FFT (paper Eq. 1 on a
-    uniform grid). ``psd`` holds S(f_k)*df for k = 0..M/2 (the DC and Nyquist bins are not used)."""
-    amp = np.sqrt(2.0 * psd)
+    uniform grid). ``var`` holds the band variance of each bin k = 0..M/2 (DC and Nyquist unused), so
+    the series' variance is the integral of S over [df/2, (M/2 - 1/2) df]."""
+    amp = np.sqrt(2.0 * var)
     amp[0] = 0.0
     amp[-1] = 0.0
     phases = rng.uniform(0.0, 2.0 * math.pi, size=amp.size)
@@ -174,26 +193,23 @@ def generate_wind(cfg: WindConfig, duration_s: float, seed: int) -> WindSeries:
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x57494E44]))
     m, df = fft_grid(duration_s, cfg.sample_hz)
     t = np.arange(m) / cfg.sample_hz
-    f = np.arange(m // 2 + 1) * df
     u = np.zeros(m)
     v = np.zeros(m)
     w = np.zeros(m)
     if cfg.kind == "vdh":
         if cfg.vdh_amplitude == "consistent":
-            u += synthesize(longitudinal_psd(cfg, f) * df, m, rng)
+            u += synthesize(band_variances(lambda x: longitudinal_psd(cfg, x), m, df), m, rng)
         else:
             omega, amp = paper_line_amplitudes(0.0, cfg.gap_cph / SECONDS_PER_HOUR)
             xi = rng.uniform(0.0, 2.0 * math.pi, size=amp.size)
             for k in range(amp.size):  # 47 lines at most: vectorised over time
                 u += amp[k] * np.cos(omega[k] * t + xi[k])
             if cfg.turbulence == "kaimal":
-                above = np.where(f >= cfg.gap_cph / SECONDS_PER_HOUR, 1.0, 0.0)
-                u += synthesize(component_kaimal_psd(cfg, "u", f) * above * df, m, rng)
+                u += synthesize(band_variances(lambda x: above_gap_psd(cfg, "u", x), m, df), m, rng)
         if cfg.turbulence == "kaimal":
-            above = np.where(f >= cfg.gap_cph / SECONDS_PER_HOUR, 1.0, 0.0)
-            v += synthesize(component_kaimal_psd(cfg, "v", f) * above * df, m, rng)
+            v += synthesize(band_variances(lambda x: above_gap_psd(cfg, "v", x), m, df), m, rng)
             if cfg.vertical:
-                w += synthesize(component_kaimal_psd(cfg, "w", f) * above * df, m, rng)
+                w += synthesize(band_variances(lambda x: above_gap_psd(cfg, "w", x), m, df), m, rng)
     elif cfg.kind == "multisine":
         phases = rng.uniform(0.0, 2.0 * math.pi, size=len(cfg.multisine_hz))
         for fk, ph in zip(cfg.multisine_hz, phases, strict=True):

@@ -1,0 +1,9 @@
+import pytest
+
+from firmware_py.config import Design
+from sim_hil.dynamics import BalloonPhysics, TruthConfig
+
+
+@pytest.fixture
+def ref_physics() -> BalloonPhysics:
+    return BalloonPhysics.from_design(Design(), TruthConfig())

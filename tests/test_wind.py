@@ -1,0 +1,134 @@
+"""Wind generator: variance = integral of S, spectrum shape, determinism, mean, multisine."""
+
+import math
+
+import numpy as np
+import pytest
+
+from sim_hil.wind import (
+    SECONDS_PER_HOUR,
+    WindConfig,
+    component_kaimal_psd,
+    fft_grid,
+    generate_wind,
+    load_van_der_hoven,
+    longitudinal_psd,
+    paper_line_amplitudes,
+)
+
+SEEDS = range(6)
+
+
+def along_wind(series, cfg):
+    to = math.radians(cfg.from_deg + 180.0)
+    return series.ned[:, 0] * math.cos(to) + series.ned[:, 1] * math.sin(to)
+
+
+def test_variance_equals_integral_of_spectrum():
+    cfg = WindConfig(gap_cph=2.0, turbulence_intensity=0.12)
+    duration = 3600.0
+    m, df = fft_grid(duration, cfg.sample_hz)
+    # analytic target: integral of S over the resolved band [df/2, fs/2 - df/2], by quadrature
+    f_fine = np.linspace(df / 2, cfg.sample_hz / 2 - df / 2, 4_000_001)
+    target = np.trapezoid(longitudinal_psd(cfg, f_fine), f_fine)
+    variances = [np.var(along_wind(generate_wind(cfg, duration, seed), cfg)) for seed in SEEDS]
+    # the full-period variance of a random-phase sum of cosines is sum(A^2)/2 for every seed;
+    # the window is two samples short of the period, the quadratures differ (stated tolerance: 2 %)
+    assert np.mean(variances) == pytest.approx(target, rel=0.02)
+    assert np.std(variances) / np.mean(variances) < 0.01
+
+
+def test_paper_amplitude_formula_gives_four_over_pi_of_the_integral():
+    f_tab, fs_tab = load_van_der_hoven()
+    omega, amp = paper_line_amplitudes(0.0, 1.0)
+    s = fs_tab / f_tab
+    trapz = np.sum(0.5 * (s[:-1] + s[1:]) * np.diff(f_tab))
+    assert len(amp) == 47
+    assert np.sum(amp**2) / 2 == pytest.approx(4.0 / math.pi * trapz, rel=1e-9)
+    # and it is ~4/pi of the exact integral of the digitised spectrum too
+    exact = np.trapezoid(fs_tab, np.log(f_tab))
+    assert 1.0 < np.sum(amp**2) / 2 / exact < 1.5
+
+
+def test_paper_mode_time_series_variance_matches_its_lines():
+    cfg = WindConfig(vdh_amplitude="paper", turbulence="none", gap_cph=800.0)
+    omega, amp = paper_line_amplitudes(20.0 / SECONDS_PER_HOUR, 800.0 / SECONDS_PER_HOUR)
+    expected = np.sum(amp**2) / 2  # lines fast enough to average out in 4 h; the slower ones are offsets
+    detrended = []
+    for seed in SEEDS:
+        u = along_wind(generate_wind(cfg, 4 * 3600.0, seed), cfg)
+        n = int(60.0 * cfg.sample_hz)
+        kernel = np.ones(n) / n
+        slow = np.convolve(u, kernel, mode="same")
+        detrended.append(np.var((u - slow)[n:-n]))
+    # lines above 20 c/h (3 min periods) survive a 60 s moving-average detrend mostly intact
+    assert 0.5 * expected < np.mean(detrended) < 1.1 * expected
+
+
+def test_periodogram_follows_kaimal_target():
+    cfg = WindConfig(gap_cph=0.5, turbulence_intensity=0.15)
+    duration = 1800.0
+    psd = []
+    for seed in SEEDS:
+        x = along_wind(generate_wind(cfg, duration, seed), cfg)
+        x = x - x.mean()
+        spec = np.abs(np.fft.rfft(x)) ** 2 * 2.0 / (cfg.sample_hz * len(x))
+        psd.append(spec)
+    f = np.fft.rfftfreq(len(x), 1.0 / cfg.sample_hz)
+    mean_psd = np.mean(psd, axis=0)
+    target = component_kaimal_psd(cfg, "u", f)
+    edges = np.geomspace(0.005, 2.0, 12)
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        band = (f >= lo) & (f < hi)
+        ratio = mean_psd[band].sum() / target[band].sum()
+        assert 0.7 < ratio < 1.3, (lo, hi, ratio)
+
+
+def test_same_seed_same_series_and_different_seed_differs():
+    cfg = WindConfig()
+    a = generate_wind(cfg, 300.0, 7).ned
+    b = generate_wind(cfg, 300.0, 7).ned
+    c = generate_wind(cfg, 300.0, 8).ned
+    assert np.array_equal(a, b)
+    assert not np.allclose(a, c)
+
+
+def test_mean_equals_v0_and_direction():
+    cfg = WindConfig(mean_mps=5.0, from_deg=315.0)
+    means = np.array([generate_wind(cfg, 1200.0, s).ned.mean(axis=0) for s in SEEDS])
+    mean_vec = means.mean(axis=0)
+    assert math.hypot(mean_vec[0], mean_vec[1]) == pytest.approx(5.0, abs=0.1)
+    # from the north-west: blows towards the south-east
+    assert math.degrees(math.atan2(mean_vec[1], mean_vec[0])) % 360 == pytest.approx(135.0, abs=2.0)
+
+
+def test_kaimal_cross_and_vertical_components():
+    cfg = WindConfig(gap_cph=0.5, turbulence_intensity=0.2, vertical=True, from_deg=0.0)
+    s = generate_wind(cfg, 3600.0, 3)
+    # from north -> along-wind is -N, cross-wind is -E
+    m, df = fft_grid(3600.0, cfg.sample_hz)
+    f = np.linspace(df / 2, cfg.sample_hz / 2, 2_000_001)
+    for k, comp in ((1, "v"), (2, "w")):
+        expected = np.trapezoid(component_kaimal_psd(cfg, comp, f), f)
+        assert np.var(s.ned[:, k]) == pytest.approx(expected, rel=0.05)
+    assert np.std(s.ned[:, 2]) < np.std(s.ned[:, 1]) < np.std(s.ned[:, 0])
+
+
+def test_multisine_has_its_lines_at_equal_amplitude():
+    cfg = WindConfig(kind="multisine", multisine_hz=(0.01, 0.05, 0.2), multisine_amplitude_mps=0.4)
+    s = generate_wind(cfg, 1000.0, 1)
+    x = along_wind(s, cfg)[: int(1000 * cfg.sample_hz)]
+    spec = np.abs(np.fft.rfft(x - x.mean())) * 2.0 / len(x)
+    f = np.fft.rfftfreq(len(x), 1.0 / cfg.sample_hz)
+    for fk in cfg.multisine_hz:
+        assert spec[np.argmin(abs(f - fk))] == pytest.approx(0.4, rel=0.02)
+    assert np.mean(x) == pytest.approx(3.0, abs=0.02)
+
+
+def test_bad_wind_config_is_rejected():
+    from firmware_py.config import ConfigError
+
+    with pytest.raises(ConfigError):
+        WindConfig(kind="hurricane")
+    with pytest.raises(ConfigError):
+        WindConfig.from_dict({"mean_mps": 3.0, "colour": "blue"})
