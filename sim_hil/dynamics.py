@@ -39,6 +39,7 @@ class TruthConfig:
     physics_hz: float = 200.0
     isa_density: bool = True  # False: constant ground density (energy-conservation tests)
     drag: bool = True
+    spatial_filter: bool = True  # the balloon feels the wind averaged over its diameter (wind.py)
     # sensor errors beyond Table 2's white noise (the realistic-mems scenario; NOTES.md figures)
     gyro_bias_dps: float = 0.0  # 1-sigma turn-on bias per axis
     gyro_bias_walk_dps_rt_s: float = 0.0  # bias random walk, deg/s per sqrt(s)

@@ -62,7 +62,9 @@ class Simulation:
         self.baro_every = max(1, round(imu_hz / baro_hz))
         self.n_imu = int(round(duration_s * imu_hz))
         self.imu_hz = imu_hz
-        self.wind = wind_series or generate_wind(wind, duration_s + 1.0, seed)
+        self.wind = wind_series or generate_wind(
+            wind, duration_s + 1.0, seed, 2.0 * design.balloon.radius_m if truth.spatial_filter else 0.0
+        )
         self.sensors = SensorSuite(design, truth, imu_hz, seed)
         self.state = resting_state(self.physics, math.radians(truth.initial_yaw_deg))
         self.truth = np.zeros((self.n_imu, len(TRUTH_COLUMNS)))

@@ -188,8 +188,19 @@ class WindSeries:
         return self.ned[i] * (1.0 - frac) + self.ned[i + 1] * frac
 
 
-def generate_wind(cfg: WindConfig, duration_s: float, seed: int) -> WindSeries:
-    """The wind for one flight: along-wind u, cross-wind v, vertical w, rotated into NED."""
+def spatial_average(x: np.ndarray, sample_hz: float, length_m: float, mean_mps: float) -> np.ndarray:
+    """The wind a body of size ``length_m`` feels: frozen turbulence (Taylor) averaged along the wind
+    over the body, i.e. a moving average over L/U seconds, applied as its transfer function
+    sinc(f L / U) on the periodic grid. Eddies smaller than the balloon push on it from both sides."""
+    if length_m <= 0.0 or mean_mps <= 0.0:
+        return x
+    f = np.fft.rfftfreq(len(x), 1.0 / sample_hz)
+    return np.fft.irfft(np.fft.rfft(x) * np.sinc(f * length_m / mean_mps), n=len(x))
+
+
+def generate_wind(cfg: WindConfig, duration_s: float, seed: int, averaging_length_m: float = 0.0) -> WindSeries:
+    """The wind for one flight: along-wind u, cross-wind v, vertical w, rotated into NED, optionally
+    as felt by a body of the given size (``spatial_average``)."""
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x57494E44]))
     m, df = fft_grid(duration_s, cfg.sample_hz)
     t = np.arange(m) / cfg.sample_hz
@@ -214,6 +225,8 @@ def generate_wind(cfg: WindConfig, duration_s: float, seed: int) -> WindSeries:
         phases = rng.uniform(0.0, 2.0 * math.pi, size=len(cfg.multisine_hz))
         for fk, ph in zip(cfg.multisine_hz, phases, strict=True):
             u += cfg.multisine_amplitude_mps * np.cos(2.0 * math.pi * fk * t + ph)
+    if averaging_length_m > 0.0 and cfg.kind == "vdh":
+        u, v, w = (spatial_average(c, cfg.sample_hz, averaging_length_m, cfg.mean_mps) for c in (u, v, w))
     to_rad = math.radians(cfg.from_deg + 180.0)
     c, s = math.cos(to_rad), math.sin(to_rad)
     speed = cfg.mean_mps + u

@@ -1,0 +1,311 @@
+"""The logic that decides what to fuse and when (PX4's control.cpp): input validation, the
+fixed-step clock with jitter/gap/duplicate/reorder/backwards handling, barometer zeroing, air
+density, mode switching (ground -> free ascent <-> taut) with hysteresis, and resets."""
+
+from __future__ import annotations
+
+import math
+
+from firmware_py.atmosphere import G0, air_density, hypsometric_height_m
+from firmware_py.config import Design
+from firmware_py.ekf import FusionStatus, WindEkf
+from firmware_py.measurements import fuse_accel, fuse_baro, fuse_heading, fuse_taut, enter_taut
+from firmware_py.model import BalloonModel
+from firmware_py.state import (
+    MODE_FREE,
+    MODE_GROUND,
+    MODE_NAMES,
+    MODE_TAUT,
+    POS_D,
+    VEL_D,
+    WIND_E,
+    WIND_N,
+    FilterConfig,
+)
+
+ACC_MAX = 160.0  # m/s^2 (16 g)
+GYRO_MAX = 35.0  # rad/s (2000 deg/s)
+MAG_MAX = 4.0  # gauss
+P_MIN_HPA, P_MAX_HPA = 300.0, 1100.0
+T_MIN_C, T_MAX_C = -60.0, 85.0
+BARO_ZERO_S = 1.0
+REORDER_WINDOW_US = 1_000_000
+MAG_EVERY = 10  # heading fusion at 10 Hz
+TAUT_EVERY = 5  # taut constraints at 20 Hz
+ALIGN_RESET_COUNT = 40  # 2 s of rejected alignment at 20 Hz
+
+
+class Counters:
+    __slots__ = (
+        "imu_samples", "baro_samples", "rejected", "duplicates", "reordered", "jitter", "gaps",
+        "long_gaps", "time_resets", "numeric_resets", "taut_resets", "mode_switches",
+    )  # fmt: skip
+
+    def __init__(self) -> None:
+        for name in self.__slots__:
+            setattr(self, name, 0)
+
+    def as_dict(self) -> dict[str, int]:
+        return {name: getattr(self, name) for name in self.__slots__}
+
+
+def _finite3(a: float, b: float, c: float, limit: float) -> bool:
+    return (
+        math.isfinite(a) and math.isfinite(b) and math.isfinite(c)
+        and abs(a) <= limit and abs(b) <= limit and abs(c) <= limit
+    )  # fmt: skip
+
+
+def quat_from_accel_mag(ax: float, ay: float, az: float, mx: float, my: float, mz: float, dec: float):
+    """Attitude of a resting body from gravity (specific force = -g) and the magnetic heading."""
+    roll = math.atan2(-ay, -az)
+    pitch = math.atan2(ax, math.hypot(ay, az))
+    # de-rotate the magnetometer by roll and pitch, then heading
+    cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
+    bx = mx * cp + my * sr * sp + mz * cr * sp
+    by = my * cr - mz * sr
+    yaw = math.atan2(-by, bx) + dec if (bx or by) else 0.0
+    cr2, sr2 = math.cos(roll / 2), math.sin(roll / 2)
+    cp2, sp2 = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy2, sy2 = math.cos(yaw / 2), math.sin(yaw / 2)
+    return (
+        cr2 * cp2 * cy2 + sr2 * sp2 * sy2,
+        sr2 * cp2 * cy2 - cr2 * sp2 * sy2,
+        cr2 * sp2 * cy2 + sr2 * cp2 * sy2,
+        cr2 * cp2 * sy2 - sr2 * sp2 * cy2,
+    )
+
+
+class Estimator:
+    """Raw sensor samples in, wind estimate out. One call per received sample, bounded work."""
+
+    def __init__(self, design: Design, cfg: FilterConfig | None = None) -> None:
+        self.design = design
+        self.cfg = cfg or FilterConfig()
+        self.model = BalloonModel.from_design(design)
+        self.ekf = WindEkf(self.model, self.cfg, design.sensors)
+        s = design.sensors
+        self.accel_var = s.accel_mps2**2 + self.cfg.accel_model_mps2**2
+        self.accel_static_var = s.accel_mps2**2 + self.cfg.accel_static_mps2**2
+        self.baro_var = s.baro_m**2
+        self.mag_sigma = s.mag_gauss
+        self.declination = math.radians(design.site.mag_declination_deg)
+        self.dt_us = round(1e6 / self.cfg.imu_rate_hz)
+        self.max_gap_steps = max(1, round(self.cfg.max_gap_s * self.cfg.imu_rate_hz))
+        self.counters = Counters()
+        self.accel_status = [FusionStatus(f"accel_{a}") for a in "xyz"]
+        self.baro_status = FusionStatus("baro")
+        self.heading_status = FusionStatus("heading")
+        self.taut_status = [FusionStatus(n) for n in ("radius", "radial_rate", "align_n", "align_e")]
+        self.mode_time = [0.0, 0.0, 0.0]
+        self._init_clock()
+        self._init_baro()
+
+    # ------------------------------------------------------------------ state of the clock / baro
+
+    def _init_clock(self) -> None:
+        self.initialised = False
+        self.t_filter_us = 0
+        self.t_last_us = -1
+        self.t_boot_us = 0
+        self.step = 0
+        self._last_gyro = (0.0, 0.0, 0.0)
+        self._release_count = 0
+        self._dwell = 0
+        self._slack = 0
+        self._height_above = 0
+
+    def _init_baro(self) -> None:
+        gp = self.design.site.ground_pressure_hpa
+        self.p_ref_pa = gp * 100.0 if gp is not None else math.nan
+        self._zeroing = gp is None
+        self.ref_pos_d = 0.0 if gp is not None else -self.model.radius_m
+        self.t_ref_k = math.nan
+        self._zero_sum = 0.0
+        self._zero_n = 0
+        self.rho = air_density(101325.0, 293.15)
+        self.height_baro = math.nan
+        self._baro_pending = False
+        self._baro_p_pa = math.nan
+        self._baro_t_k = math.nan
+
+    def reset(self) -> None:
+        """Forget everything (time went backwards: the vehicle rebooted)."""
+        self._init_clock()
+        self._init_baro()
+        self.ekf.mode = MODE_GROUND
+
+    # ------------------------------------------------------------------ inputs
+
+    def on_baro(self, t_us: int, pressure_hpa: float, temperature_c: float) -> bool:
+        """A barometer + thermometer sample. Zeroes the height during the first second unless the
+        config gives the ground pressure; the sample is fused at the next IMU step."""
+        if not (
+            math.isfinite(pressure_hpa) and math.isfinite(temperature_c)
+            and P_MIN_HPA <= pressure_hpa <= P_MAX_HPA and T_MIN_C <= temperature_c <= T_MAX_C
+        ):  # fmt: skip
+            self.counters.rejected += 1
+            return False
+        p = pressure_hpa * 100.0
+        tk = temperature_c + 273.15
+        self.counters.baro_samples += 1
+        self.rho = air_density(p, tk)
+        if math.isnan(self.t_ref_k):
+            self.t_ref_k = tk
+        if self._zeroing:
+            if not self.initialised:
+                return True
+            if t_us - self.t_boot_us < BARO_ZERO_S * 1e6 or self._zero_n == 0:
+                self._zero_sum += p
+                self._zero_n += 1
+                return True
+            self.p_ref_pa = self._zero_sum / self._zero_n
+            self._zeroing = False
+        self._baro_p_pa = p
+        self._baro_t_k = tk
+        self.height_baro = hypsometric_height_m(p, self.p_ref_pa, 0.5 * (self.t_ref_k + tk))
+        self._baro_pending = True
+        return True
+
+    def on_imu(
+        self, t_us: int, ax: float, ay: float, az: float, gx: float, gy: float, gz: float,
+        mx: float = math.nan, my: float = math.nan, mz: float = math.nan,
+    ) -> bool:  # fmt: skip
+        """One IMU sample: specific force (FRD, m/s^2), rates (rad/s), field (gauss, NaN if none).
+        Returns True when the filter advanced."""
+        c = self.counters
+        if not (_finite3(ax, ay, az, ACC_MAX) and _finite3(gx, gy, gz, GYRO_MAX)):
+            c.rejected += 1
+            return False
+        mag_ok = _finite3(mx, my, mz, MAG_MAX) and (mx != 0.0 or my != 0.0 or mz != 0.0)
+        if not self.initialised:
+            if not mag_ok:
+                c.rejected += 1
+                return False
+            self._initialise(t_us, ax, ay, az, mx, my, mz)
+            c.imu_samples += 1
+            return True
+        d = t_us - self.t_last_us
+        if d == 0:
+            c.duplicates += 1
+            return False
+        if d < 0:
+            if d > -REORDER_WINDOW_US:
+                c.reordered += 1
+                return False
+            c.time_resets += 1
+            self.reset()
+            self._initialise(t_us, ax, ay, az, mx, my, mz) if mag_ok else None
+            return False
+        c.imu_samples += 1
+        self.t_last_us = t_us
+        steps = (t_us - self.t_filter_us + self.dt_us // 2) // self.dt_us
+        if steps <= 0:
+            c.jitter += 1
+        elif steps > 1:
+            c.gaps += 1
+            if steps > self.max_gap_steps:
+                c.long_gaps += 1
+                self.t_filter_us = t_us - self.max_gap_steps * self.dt_us
+                steps = self.max_gap_steps
+        ekf = self.ekf
+        for i in range(steps):
+            g = (gx, gy, gz) if i == steps - 1 else self._last_gyro
+            ekf.predict(g[0], g[1], g[2], self.rho)
+            self.t_filter_us += self.dt_us
+            self.step += 1
+            self.mode_time[ekf.mode] += 1.0 / self.cfg.imu_rate_hz
+        self._last_gyro = (gx, gy, gz)
+        ekf.begin_update()
+        fuse_accel(ekf, ax, ay, az, self.accel_var if ekf.mode == MODE_FREE else self.accel_static_var,
+                   self.accel_status)
+        if self._baro_pending and not math.isnan(self.height_baro):
+            fuse_baro(ekf, self.height_baro, self.ref_pos_d, self.baro_var, self.baro_status)
+            self._baro_pending = False
+        if mag_ok and self.step % MAG_EVERY == 0:
+            fuse_heading(ekf, mx, my, mz, self.declination, self.mag_sigma, self.heading_status)
+        if ekf.mode == MODE_TAUT and self.step % TAUT_EVERY == 0:
+            cfg = self.cfg
+            fuse_taut(ekf, cfg.radial_m**2, cfg.radial_rate_mps**2, cfg.align_rad**2, self.taut_status)
+            align_n, align_e = self.taut_status[2], self.taut_status[3]
+            if max(align_n.consecutive_rejects, align_e.consecutive_rejects) >= ALIGN_RESET_COUNT:
+                # the tilt contradicts the taut state for 2 s: start the taut state again from the tilt
+                self.counters.taut_resets += 1
+                align_n.consecutive_rejects = align_e.consecutive_rejects = 0
+                enter_taut(ekf, self._height_for_taut(), self.rho)
+        if not ekf.end_update():
+            c.numeric_resets += 1
+            self._reinitialise_in_flight()
+            return True
+        self._update_mode(ax, ay, az)
+        return True
+
+    # ------------------------------------------------------------------ helpers
+
+    def _initialise(self, t_us: int, ax: float, ay: float, az: float, mx: float, my: float, mz: float) -> None:
+        q = quat_from_accel_mag(ax, ay, az, mx, my, mz, self.declination)
+        self.ekf.initialise(q, -self.model.radius_m)
+        self.initialised = True
+        self.t_boot_us = t_us
+        self.t_last_us = t_us
+        self.t_filter_us = t_us
+
+    def _reinitialise_in_flight(self) -> None:
+        """State went non-finite: restart the covariance, keep what is known from the barometer."""
+        ekf = self.ekf
+        h = self.height_baro if math.isfinite(self.height_baro) else 0.0
+        ekf.initialise((1.0, 0.0, 0.0, 0.0), self.ref_pos_d - h)
+        ekf.P[0, 0] = ekf.P[1, 1] = 100.0**2
+        ekf.mode = MODE_FREE if h > self.cfg.release_height_m else MODE_GROUND
+        ekf.resets += 1
+
+    def _height_for_taut(self) -> float:
+        """Height of the balloon's centre above the anchor: barometer if it has one, else the state."""
+        if math.isfinite(self.height_baro):
+            return self.height_baro - self.ref_pos_d
+        return -float(self.ekf.x[POS_D])
+
+    def _switch(self, mode: int) -> None:
+        self.ekf.mode = mode
+        self.counters.mode_switches += 1
+        self._dwell = 0
+
+    def _update_mode(self, ax: float, ay: float, az: float) -> None:
+        ekf = self.ekf
+        cfg = self.cfg
+        self._dwell += 1
+        dwell_ok = self._dwell >= cfg.mode_dwell_s * cfg.imu_rate_hz
+        if ekf.mode == MODE_GROUND:
+            lifted = abs(math.sqrt(ax * ax + ay * ay + az * az) - G0) > cfg.release_accel_mps2
+            self._release_count = self._release_count + 1 if lifted else 0
+            high = math.isfinite(self.height_baro) and self.height_baro > cfg.release_height_m
+            self._height_above = self._height_above + 1 if high else 0
+            if self._release_count >= 3 or self._height_above >= 50:
+                self._switch(MODE_FREE)
+            return
+        x = ekf.x
+        pn, pe, pd = float(x[0]), float(x[1]), float(x[2])
+        dist = math.sqrt(pn * pn + pe * pe + pd * pd)
+        length = self.model.taut_radius_m
+        if ekf.mode == MODE_FREE:
+            stalled = -pd > 0.5 * length and -float(x[VEL_D]) < 0.3
+            if dwell_ok and (dist >= length - cfg.taut_margin_m or stalled):
+                self._switch(MODE_TAUT)
+                enter_taut(ekf, self._height_for_taut(), self.rho)
+        else:
+            self._slack = 0 if ekf.forces.taut else self._slack + 1
+            if dwell_ok and self._slack >= cfg.mode_dwell_s * cfg.imu_rate_hz:
+                self._switch(MODE_FREE)
+
+    # ------------------------------------------------------------------ outputs
+
+    @property
+    def mode_name(self) -> str:
+        return MODE_NAMES[self.ekf.mode]
+
+    def wind(self) -> tuple[float, float]:
+        return float(self.ekf.x[WIND_N]), float(self.ekf.x[WIND_E])
+
+    def height_m(self) -> float:
+        """Estimated height of the balloon's centre above the anchor."""
+        return -float(self.ekf.x[POS_D])

@@ -1,0 +1,255 @@
+"""EKF core: fixed-size memory, prediction, sequential scalar fusion, covariance hygiene.
+
+Everything the filter touches per sample is allocated here, once. The per-sample path uses numpy
+only with ``out=`` arguments and plain Python floats, so a steady-state step creates no numpy array
+(tests/test_allocation.py counts numpy's tracemalloc domain). A C port maps each array to a static
+buffer and each ``np.*(..., out=)`` call to a loop.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from firmware_py.model import BalloonModel, Forces, accelerations
+from firmware_py.state import (
+    ATT_D,
+    ATT_E,
+    ATT_N,
+    DRAG,
+    GB_X,
+    GB_Y,
+    GB_Z,
+    MODE_GROUND,
+    MODE_TAUT,
+    N_STATES,
+    POS_D,
+    POS_E,
+    POS_N,
+    VEL_D,
+    VEL_E,
+    VEL_N,
+    WIND_E,
+    WIND_N,
+    FilterConfig,
+)
+
+N = N_STATES
+
+
+class FusionStatus:
+    """Per-fusion bookkeeping, as PX4's estimator_innovations / test ratios."""
+
+    __slots__ = ("name", "innov", "innov_var", "test_ratio", "fused", "rejected", "consecutive_rejects")
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.innov = 0.0
+        self.innov_var = 0.0
+        self.test_ratio = 0.0
+        self.fused = 0
+        self.rejected = 0
+        self.consecutive_rejects = 0
+
+
+def rotation(q0: float, q1: float, q2: float, q3: float) -> tuple[float, ...]:
+    """Body(FRD) -> NED rotation matrix of a unit quaternion, row-major 9-tuple."""
+    return (
+        q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3, 2.0 * (q1 * q2 - q0 * q3), 2.0 * (q1 * q3 + q0 * q2),
+        2.0 * (q1 * q2 + q0 * q3), q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3, 2.0 * (q2 * q3 - q0 * q1),
+        2.0 * (q1 * q3 - q0 * q2), 2.0 * (q2 * q3 + q0 * q1), q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3,
+    )  # fmt: skip
+
+
+class WindEkf:
+    def __init__(self, model: BalloonModel, cfg: FilterConfig, sensors) -> None:
+        self.model = model
+        self.cfg = cfg
+        self.dtype = np.float32 if cfg.float32 else np.float64
+        dt = 1.0 / cfg.imu_rate_hz
+        self.dt = dt
+        z = self.dtype
+        self.x = np.zeros(N, z)
+        self.q = np.array([1.0, 0.0, 0.0, 0.0], z)  # nominal attitude, body -> NED
+        self.P = np.zeros((N, N), z)
+        self.F = np.eye(N, dtype=z)
+        self.Qd = np.zeros(N, z)
+        self._t1 = np.zeros((N, N), z)
+        self._t2 = np.zeros((N, N), z)
+        self.h = np.zeros(N, z)
+        self._ph = np.zeros(N, z)
+        self._k = np.zeros(N, z)
+        self._v = np.zeros(N, z)
+        self.dx = np.zeros(N, z)
+        self.P_diag = np.einsum("ii->i", self.P)  # writable view of the diagonal
+        self.var_min = np.full(N, 1e-9, z)
+        self.var_max = np.array(
+            [1e4] * 3 + [400.0] * 3 + [0.3] * 3 + [math.radians(5.0) ** 2] * 3 + [100.0] * 2 + [1.0], z
+        )
+        self.forces = Forces()
+        # process noise per step (diagonal): white acceleration, gyro noise, random walks
+        g = math.radians(sensors.gyro_dps)
+        qv = cfg.accel_process_mps2**2 * dt
+        self._q_flight = [0.25 * qv * dt * dt] * 3 + [qv] * 3 + [g * g * dt * dt] * 3 + [
+            (math.radians(cfg.gyro_bias_walk_dps_rt_s)) ** 2 * dt
+        ] * 3 + [cfg.wind_walk_mps_rt_s**2 * dt] * 2 + [cfg.drag_walk_rt_s**2 * dt]
+        self._q_ground = [1e-8] * 6 + self._q_flight[6:12] + [cfg.wind_walk_mps_rt_s**2 * dt] * 2 + [0.0]
+        self.mode = MODE_GROUND
+        self.resets = 0
+        self.recover_after = int(cfg.recover_after_s * cfg.imu_rate_hz)
+
+    # ------------------------------------------------------------------ initialisation
+
+    def initialise(self, q: tuple[float, float, float, float], pos_d: float) -> None:
+        """Resting on the ground station, attitude from the first accelerometer/magnetometer sample."""
+        c = self.cfg
+        self.x.fill(0.0)
+        self.x[POS_D] = pos_d
+        self.x[DRAG] = 1.0
+        self.q[0], self.q[1], self.q[2], self.q[3] = q
+        self.P.fill(0.0)
+        tilt = math.radians(c.init_tilt_deg) ** 2
+        init = [0.01] * 3 + [1e-4] * 3 + [tilt, tilt, math.radians(c.init_yaw_deg) ** 2]
+        init += [math.radians(c.init_gyro_bias_dps) ** 2] * 3 + [c.init_wind_mps**2] * 2 + [c.init_drag**2]
+        for i, v in enumerate(init):
+            self.P[i, i] = v
+        self.mode = MODE_GROUND
+
+    # ------------------------------------------------------------------ prediction
+
+    def predict(self, gx: float, gy: float, gz: float, rho: float) -> None:
+        """One fixed step: attitude from the bias-corrected gyro, translation from the mode's model."""
+        dt = self.dt
+        x = self.x
+        pn, pe, pd, vn, ve, vd, _, _, _, bx, by, bz, wn, we, k = x.tolist()
+        q0, q1, q2, q3 = self.q.tolist()
+        # attitude: q <- q (x) exp(omega dt / 2), omega = gyro - bias (paper's Omega)
+        wx, wy, wz = gx - bx, gy - by, gz - bz
+        ang = math.sqrt(wx * wx + wy * wy + wz * wz) * dt
+        if ang > 1e-12:
+            s = math.sin(0.5 * ang) / ang * dt
+            c = math.cos(0.5 * ang)
+            ax, ay, az = wx * s, wy * s, wz * s
+            q0, q1, q2, q3 = (
+                q0 * c - q1 * ax - q2 * ay - q3 * az,
+                q0 * ax + q1 * c + q2 * az - q3 * ay,
+                q0 * ay - q1 * az + q2 * c + q3 * ax,
+                q0 * az + q1 * ay - q2 * ax + q3 * c,
+            )
+        n = 1.0 / math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+        self.q[0], self.q[1], self.q[2], self.q[3] = q0 * n, q1 * n, q2 * n, q3 * n
+        r = rotation(q0 * n, q1 * n, q2 * n, q3 * n)
+        F = self.F
+        ground = self.mode == MODE_GROUND
+        if ground:
+            for i in range(3):
+                F[POS_N + i, VEL_N + i] = 0.0
+                for j in range(3):
+                    F[VEL_N + i, VEL_N + j] = 0.0
+                    F[VEL_N + i, POS_N + j] = 0.0
+                F[VEL_N + i, WIND_N] = 0.0
+                F[VEL_N + i, WIND_E] = 0.0
+                F[VEL_N + i, DRAG] = 0.0
+                x[VEL_N + i] = 0.0
+        else:
+            f = accelerations(self.model, rho, pn, pe, pd, vn, ve, vd, wn, we, k, self.mode == MODE_TAUT, self.forces)
+            an, ae, ad = f.an, f.ae, f.ad
+            x[POS_N] = pn + (vn + 0.5 * an * dt) * dt
+            x[POS_E] = pe + (ve + 0.5 * ae * dt) * dt
+            x[POS_D] = pd + (vd + 0.5 * ad * dt) * dt
+            x[VEL_N] = vn + an * dt
+            x[VEL_E] = ve + ae * dt
+            x[VEL_D] = vd + ad * dt
+            j, jp, dk = f.j, f.jp, f.dk
+            for i in range(3):
+                F[POS_N + i, VEL_N + i] = dt
+                for c3 in range(3):
+                    F[VEL_N + i, VEL_N + c3] = (1.0 if i == c3 else 0.0) - j[3 * i + c3] * dt
+                    F[VEL_N + i, POS_N + c3] = jp[3 * i + c3] * dt
+                F[VEL_N + i, WIND_N] = j[3 * i] * dt
+                F[VEL_N + i, WIND_E] = j[3 * i + 1] * dt
+                F[VEL_N + i, DRAG] = dk[i] * dt
+        # attitude error (NED) driven by the gyro-bias error: d(att)/dt = -R d(bias)
+        for i in range(3):
+            for c3 in range(3):
+                F[ATT_N + i, GB_X + c3] = -r[3 * i + c3] * dt
+        np.matmul(F, self.P, out=self._t1)
+        np.matmul(self._t1, F.T, out=self.P)
+        q = self._q_ground if ground else self._q_flight
+        for i in range(N):
+            self.Qd[i] = q[i]
+        np.add(self.P_diag, self.Qd, out=self.P_diag)
+
+    # ------------------------------------------------------------------ fusion
+
+    def begin_update(self) -> None:
+        self.dx.fill(0.0)
+
+    def fuse(
+        self, innov: float, r: float, status: FusionStatus, gate_sigma: float | None = None, recover: bool = True
+    ) -> bool:
+        """Sequential scalar update with the row in ``self.h`` (all rows of one step share the same
+        linearisation point, so a sequence equals one batch update with diagonal R)."""
+        innov -= float(np.dot(self.h, self.dx))
+        np.dot(self.P, self.h, out=self._ph)
+        s = float(np.dot(self.h, self._ph)) + r
+        gate = self.cfg.gate_sigma if gate_sigma is None else gate_sigma
+        status.innov = innov
+        status.innov_var = s
+        if not (s > 0.0 and math.isfinite(innov)):
+            status.rejected += 1
+            status.consecutive_rejects += 1
+            return False
+        ratio = innov * innov / (gate * gate * s)
+        status.test_ratio = ratio
+        if ratio > 1.0:
+            status.rejected += 1
+            status.consecutive_rejects += 1
+            if not recover or status.consecutive_rejects < self.recover_after:
+                return False
+            # persistently inconsistent: the model, not the sensor, is off. Fuse with the noise
+            # inflated to put the innovation on the gate, so the state walks back without a jump.
+            r += innov * innov / (gate * gate) - s
+            s = innov * innov / (gate * gate)
+            status.fused -= 1
+        np.multiply(self._ph, 1.0 / s, out=self._k)
+        np.multiply(self._k, innov, out=self._v)
+        np.add(self.dx, self._v, out=self.dx)
+        np.outer(self._k, self._ph, out=self._t1)
+        np.subtract(self.P, self._t1, out=self.P)
+        status.fused += 1
+        status.consecutive_rejects = 0
+        return True
+
+    def end_update(self) -> bool:
+        """Apply the accumulated correction (attitude error into the quaternion), then fix the
+        covariance: symmetrise, clamp the variances. Returns False if the state went non-finite."""
+        np.add(self.x, self.dx, out=self.x)
+        x = self.x
+        dn, de, dd = float(x[ATT_N]), float(x[ATT_E]), float(x[ATT_D])
+        if dn != 0.0 or de != 0.0 or dd != 0.0:
+            q0, q1, q2, q3 = self.q.tolist()
+            hn, he, hd = 0.5 * dn, 0.5 * de, 0.5 * dd
+            # q <- dq (x) q with dq = (1, d/2) in NED
+            a0 = q0 - hn * q1 - he * q2 - hd * q3
+            a1 = q1 + hn * q0 + he * q3 - hd * q2
+            a2 = q2 - hn * q3 + he * q0 + hd * q1
+            a3 = q3 + hn * q2 - he * q1 + hd * q0
+            n = 1.0 / math.sqrt(a0 * a0 + a1 * a1 + a2 * a2 + a3 * a3)
+            self.q[0], self.q[1], self.q[2], self.q[3] = a0 * n, a1 * n, a2 * n, a3 * n
+            x[ATT_N] = x[ATT_E] = x[ATT_D] = 0.0
+        if x[DRAG] < 0.2:
+            x[DRAG] = 0.2
+        self.fix_covariance()
+        return math.isfinite(float(np.sum(self.x))) and math.isfinite(float(np.sum(self.P)))
+
+    def fix_covariance(self) -> None:
+        np.add(self.P, self.P.T, out=self._t2)
+        np.multiply(self._t2, 0.5, out=self.P)
+        np.clip(self.P_diag, self.var_min, self.var_max, out=self.P_diag)
+
+    # ------------------------------------------------------------------ outputs
+
+    def wind_accuracy(self) -> float:
+        return math.sqrt(max(0.0, float(self.P[WIND_N, WIND_N]) + float(self.P[WIND_E, WIND_E])))

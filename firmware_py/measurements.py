@@ -1,0 +1,188 @@
+"""Measurement models (paper Eq. 9) and their fusion, one function per kind. Each sets the row
+``ekf.h`` and calls ``ekf.fuse`` with the innovation and its noise; innovations, test ratios and
+counts land in the ``FusionStatus`` it is given.
+
+- specific force (accelerometer, 3 scalars): f = R^T (a(x) - g)
+- barometric height: -p_d - h_ref
+- heading (magnetometer + declination): yaw about NED down
+- taut constraints: |p| = L + r, radial velocity 0, body down axis along the rope force (2 scalars)
+"""
+
+from __future__ import annotations
+
+import math
+
+from firmware_py.atmosphere import G0
+from firmware_py.ekf import FusionStatus, WindEkf, rotation
+from firmware_py.state import (
+    ATT_D,
+    ATT_E,
+    ATT_N,
+    DRAG,
+    MODE_FREE,
+    POS_D,
+    POS_E,
+    POS_N,
+    VEL_D,
+    VEL_E,
+    VEL_N,
+    WIND_E,
+    WIND_N,
+)
+
+
+UNGATED = 1e6  # constraints of the model are not tested against the data
+
+
+def fuse_accel(ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status: list[FusionStatus]) -> None:
+    """Specific force in FRD against the force model: tilt (through g) and wind (through drag)."""
+    r = rotation(*ekf.q.tolist())
+    f = ekf.forces
+    # On the ground and on the taut tether the balloon is quasi-static: the accelerometer is a gravity
+    # reference for the tilt, its residual accelerations are noise. The wind reaches the filter there
+    # through the rope-force alignment (fuse_taut). In free ascent the force model is trusted.
+    ground = ekf.mode != MODE_FREE
+    if ground:
+        yn, ye, yd = 0.0, 0.0, -G0
+    else:
+        yn, ye, yd = f.an, f.ae, f.ad - G0
+    meas = (fx, fy, fz)
+    h = ekf.h
+    j, dk, jp = f.j, f.dk, f.jp
+    for i in range(3):
+        cn, ce, cd = r[i], r[3 + i], r[6 + i]  # row i of R^T
+        pred = cn * yn + ce * ye + cd * yd
+        h.fill(0.0)
+        # d/d att: R^T [y x]
+        h[ATT_N] = ce * yd - cd * ye
+        h[ATT_E] = cd * yn - cn * yd
+        h[ATT_D] = cn * ye - ce * yn
+        if not ground:
+            for c in range(3):
+                rj = cn * j[c] + ce * j[3 + c] + cd * j[6 + c]
+                h[VEL_N + c] = -rj
+                h[POS_N + c] = cn * jp[c] + ce * jp[3 + c] + cd * jp[6 + c]
+                if c < 2:
+                    h[WIND_N + c] = rj
+            h[DRAG] = cn * dk[0] + ce * dk[1] + cd * dk[2]
+        ekf.fuse(meas[i] - pred, var, status[i])
+
+
+def fuse_baro(ekf: WindEkf, height_m: float, ref_pos_d: float, var: float, status: FusionStatus) -> None:
+    """Barometric height above the reference (hypsometric, computed by the caller)."""
+    ekf.h.fill(0.0)
+    ekf.h[POS_D] = -1.0
+    pred = -(float(ekf.x[POS_D]) - ref_pos_d)
+    ekf.fuse(height_m - pred, var, status)
+
+
+def fuse_heading(
+    ekf: WindEkf, mx: float, my: float, mz: float, declination_rad: float, sigma_gauss: float, status: FusionStatus
+) -> None:
+    """Tilt-compensated magnetic heading against the declination. The azimuth of R m depends on the
+    tilt too (by tan(inclination) per radian: 2.25 for a 66 deg field), so the row carries the tilt
+    terms, taken from the measured field itself (no assumed strength or inclination)."""
+    r = rotation(*ekf.q.tolist())
+    mn = r[0] * mx + r[1] * my + r[2] * mz
+    me = r[3] * mx + r[4] * my + r[5] * mz
+    md = r[6] * mx + r[7] * my + r[8] * mz
+    h2 = mn * mn + me * me
+    horiz = math.sqrt(h2)
+    if horiz < 1e-3:
+        status.rejected += 1
+        return
+    innov = declination_rad - math.atan2(me, mn)
+    innov = (innov + math.pi) % (2.0 * math.pi) - math.pi
+    ekf.h.fill(0.0)
+    ekf.h[ATT_N] = -mn * md / h2
+    ekf.h[ATT_E] = -me * md / h2
+    ekf.h[ATT_D] = 1.0
+    var = (sigma_gauss / horiz) ** 2 + math.radians(0.5) ** 2
+    ekf.fuse(innov, var, status)
+
+
+def enter_taut(ekf: WindEkf, height_m: float, rho: float) -> None:
+    """Initialise the taut configuration from what the sensors say about it, not from the free-ascent
+    dead reckoning (whose horizontal position and wind drift: nothing measures them absolutely):
+    - the chord's polar angle from the barometric height, cos(theta) = h / (L + r);
+    - its azimuth from the balloon's tilt: the body's down axis leans towards the anchor;
+    - the wind from the static balance, drag = (N_b - W) tan(theta) along the lean;
+    - velocity zero; position, velocity and wind covariances reset to match."""
+    m = ekf.model
+    x = ekf.x
+    ell = m.taut_radius_m
+    cos_t = min(max(height_m / ell, 0.2), 1.0)
+    sin_t = math.sqrt(1.0 - cos_t * cos_t)
+    r = rotation(*ekf.q.tolist())
+    zn, ze = r[2], r[5]  # horizontal part of the body's down axis
+    lean = math.hypot(zn, ze)
+    if lean > 1e-3:
+        an, ae = -zn / lean, -ze / lean  # the balloon lies away from where its bottom points
+    else:
+        an = ae = 0.0
+    x[POS_N] = ell * sin_t * an
+    x[POS_E] = ell * sin_t * ae
+    x[POS_D] = -ell * cos_t
+    lift = (rho * m.volume_m3 - m.mass_kg - m.rope_kg_m * m.tether_length_m) * G0
+    drag = max(lift, 0.0) * sin_t / cos_t
+    k = max(float(x[DRAG]), 0.2)
+    speed = math.sqrt(drag / (k * rho * m.half_cd_area_m2)) if drag > 0.0 else 0.0
+    x[WIND_N] = speed * an
+    x[WIND_E] = speed * ae
+    for i in range(3):
+        x[VEL_N + i] = 0.0
+    P = ekf.P
+    for i in (POS_N, POS_E, POS_D, VEL_N, VEL_E, VEL_D, WIND_N, WIND_E):
+        P[i, :] = 0.0
+        P[:, i] = 0.0
+    for i in (POS_N, POS_E, POS_D):
+        P[i, i] = 4.0**2
+    for i in (VEL_N, VEL_E, VEL_D):
+        P[i, i] = 0.5**2
+    P[WIND_N, WIND_N] = P[WIND_E, WIND_E] = 1.5**2
+
+
+def fuse_taut(
+    ekf: WindEkf, radial_var: float, radial_rate_var: float, align_var: float, status: list[FusionStatus]
+) -> None:
+    """Restricted radial motion (paper Sec. 2.3): |p| = L + r, no radial velocity, and the balloon's
+    down axis along the rope force (tension towards the anchor + the rope's weight, Eq. 5)."""
+    pn, pe, pd, vn, ve, vd = ekf.x[:6].tolist()
+    dist = math.sqrt(pn * pn + pe * pe + pd * pd)
+    if dist < 1.0:
+        return
+    e = (pn / dist, pe / dist, pd / dist)
+    h = ekf.h
+    h.fill(0.0)
+    for i in range(3):
+        h[POS_N + i] = e[i]
+    ekf.fuse(ekf.model.taut_radius_m - dist, radial_var, status[0], UNGATED)
+    h.fill(0.0)
+    for i in range(3):
+        h[VEL_N + i] = e[i]
+    ekf.fuse(-(vn * e[0] + ve * e[1] + vd * e[2]), radial_rate_var, status[1], UNGATED)
+    f = ekf.forces
+    if not f.taut:
+        return
+    m = ekf.model
+    weight = m.rope_kg_m * G0 * m.tether_length_m
+    tension = f.tension_n
+    fn, fe, fd = -tension * e[0], -tension * e[1], -tension * e[2] + weight
+    fmag = math.sqrt(fn * fn + fe * fe + fd * fd)
+    n = (fn / fmag, fe / fmag, fd / fmag)
+    r = rotation(*ekf.q.tolist())
+    z = (r[2], r[5], r[8])  # body down axis in NED
+    dz_datt = ((0.0, z[2], -z[1]), (-z[2], 0.0, z[0]))
+    for c in range(2):
+        a = [((1.0 if c == i else 0.0) - n[c] * n[i]) / fmag for i in range(3)]  # row c of (I - n n^T)/|F|
+        ae = a[0] * e[0] + a[1] * e[1] + a[2] * e[2]
+        h.fill(0.0)
+        h[ATT_N], h[ATT_E], h[ATT_D] = dz_datt[c]
+        g = f.m_eff_kg * ae  # dn_c/du = -g jr
+        for i in range(3):
+            h[VEL_N + i] = -g * f.jr[i]  # -(dn/dv) with dn/dv = +g jr
+            h[POS_N + i] = tension / dist * (a[i] - ae * e[i])  # -(dn/dp)
+        h[WIND_N] = g * f.jr[0]
+        h[WIND_E] = g * f.jr[1]
+        h[DRAG] = g * f.dkr
+        ekf.fuse(n[c] - z[c], align_var, status[2 + c], recover=False)

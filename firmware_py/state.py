@@ -1,0 +1,66 @@
+"""Named state indices and the filter's tuning (the [filter] config section).
+
+Error-state EKF: position, velocity, wind and the drag scale are total states; the attitude is a
+nominal quaternion with a 3-element rotation-vector error (NED frame) in the covariance; the gyro
+bias turns the gyro into the angular-rate estimate (gyro - bias).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from firmware_py.config import build_section
+
+POS_N, POS_E, POS_D = 0, 1, 2  # m, NED from the anchor, the balloon's centre
+VEL_N, VEL_E, VEL_D = 3, 4, 5  # m/s NED (body velocity U^B of paper Eq. 8 is R^T v)
+ATT_N, ATT_E, ATT_D = 6, 7, 8  # rad, attitude error rotation vector (true = (I + [d x]) estimate)
+GB_X, GB_Y, GB_Z = 9, 10, 11  # rad/s gyro bias, body FRD (angular rate Omega = gyro - bias)
+WIND_N, WIND_E = 12, 13  # m/s air velocity, horizontal (the paper's wind is horizontal)
+DRAG = 14  # drag scale: multiplies 1/2 rho Cd pi r^2 (Cd is uncertain in the drag crisis)
+N_STATES = 15
+STATE_NAMES = (
+    "pos_n", "pos_e", "pos_d", "vel_n", "vel_e", "vel_d", "att_n", "att_e", "att_d",
+    "gbias_x", "gbias_y", "gbias_z", "wind_n", "wind_e", "drag_scale",
+)  # fmt: skip
+
+# operating modes
+MODE_GROUND, MODE_FREE, MODE_TAUT = 0, 1, 2
+MODE_NAMES = ("ground", "free", "taut")
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """Tuning ([filter] section). Noise figures are 1-sigma; *_rt_s are per sqrt(second)."""
+
+    imu_rate_hz: float = 100.0
+    float32: bool = False
+    # process noise
+    accel_process_mps2: float = 0.3  # unmodelled force per unit mass (turbulent gusts, Froude-Krylov)
+    wind_walk_mps_rt_s: float = 0.15  # wind random walk
+    drag_walk_rt_s: float = 0.002  # drag-scale random walk
+    gyro_bias_walk_dps_rt_s: float = 0.005
+    # measurement model errors added to the sensor noise of [sensors]
+    accel_model_mps2: float = 0.15  # specific-force model error in free ascent
+    accel_static_mps2: float = 0.3  # accelerations of the quasi-static balloon (ground, taut)
+    align_rad: float = 0.03  # balloon-to-rope-force alignment error (rotational oscillation)
+    radial_m: float = 0.3  # tether length + stretch uncertainty when taut
+    radial_rate_mps: float = 0.15
+    # gates (innovation test in sigmas)
+    gate_sigma: float = 5.0
+    recover_after_s: float = 1.0  # a fusion rejected this long is taken again, noise inflated to the gate
+    # initial uncertainty
+    init_wind_mps: float = 6.0
+    init_drag: float = 0.1
+    init_gyro_bias_dps: float = 0.5
+    init_tilt_deg: float = 3.0
+    init_yaw_deg: float = 10.0
+    # mode logic
+    taut_margin_m: float = 1.5  # enter taut when the distance reaches length - margin
+    mode_dwell_s: float = 1.0
+    release_accel_mps2: float = 1.5  # |f| - g that signals the release
+    release_height_m: float = 3.0
+    max_gap_s: float = 0.5  # predict through gaps up to this, then flag and re-anchor
+
+    @classmethod
+    def from_dict(cls, values: dict) -> FilterConfig:
+        return build_section(cls, "filter", values)
