@@ -240,6 +240,12 @@ class Estimator:
         self._update_mode(ax, ay, az)
         return True
 
+    def coast(self, seconds: float) -> None:
+        """No sensor data arrived for a while: grow the covariance by the process noise of the
+        elapsed time (the state stays; the gap logic re-anchors the clock when data resumes)."""
+        if self.initialised:
+            self.ekf.inflate(seconds * self.cfg.imu_rate_hz)
+
     # ------------------------------------------------------------------ helpers
 
     def _initialise(self, t_us: int, ax: float, ay: float, az: float, mx: float, my: float, mz: float) -> None:

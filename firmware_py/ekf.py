@@ -181,6 +181,14 @@ class WindEkf:
             self.Qd[i] = q[i]
         np.add(self.P_diag, self.Qd, out=self.P_diag)
 
+    def inflate(self, steps: float) -> None:
+        """Covariance growth of ``steps`` prediction steps without the state moving (sensor silence)."""
+        q = self._q_ground if self.mode == MODE_GROUND else self._q_flight
+        for i in range(N):
+            self.Qd[i] = q[i] * steps
+        np.add(self.P_diag, self.Qd, out=self.P_diag)
+        self.fix_covariance()
+
     # ------------------------------------------------------------------ fusion
 
     def begin_update(self) -> None:

@@ -1,0 +1,132 @@
+"""The firmware's main loop body: MAVLink messages in, estimator, WIND_COV + HEARTBEAT out.
+
+Accepts HIGHRES_IMU (105) and HIL_SENSOR (107, what PX4-style simulators send; same fields and
+``fields_updated`` bits) for the IMU, barometer and thermometer, and SCALED_PRESSURE (29) when the IMU
+messages carry no barometer. Everything else is counted and ignored.
+"""
+
+from __future__ import annotations
+
+import math
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from firmware_py.config import Design
+from firmware_py.control import Estimator
+from firmware_py.mavio import LinkStats
+from firmware_py.outputs import WindCovOutput
+from firmware_py.state import FilterConfig
+
+FW_SYSID = 1
+FW_COMPID = mavlink.MAV_COMP_ID_AUTOPILOT1
+TLOG_EPOCH_US = 1_767_225_600_000_000
+ACC_GYRO_BITS = 0x3F
+MAG_BITS = 0x1C0
+PRESSURE_BIT = 0x200
+TEMPERATURE_BIT = 0x1000
+
+
+class Firmware:
+    def __init__(self, design: Design, cfg: FilterConfig | None = None, sink=None, wind_cov_hz: float = 10.0) -> None:
+        self.est = Estimator(design, cfg)
+        self.out = WindCovOutput(self.est.cfg.imu_rate_hz, design.site.altitude_amsl_m)
+        self.sink = sink
+        self.mav = mavlink.MAVLink(None, srcSystem=FW_SYSID, srcComponent=FW_COMPID)
+        self.period_us = round(1e6 / wind_cov_hz)
+        self.stats = LinkStats()
+        self.other_messages = 0
+        self.wind_cov_sent = 0
+        self._next_wind_us = 0
+        self._next_hb_us = 0
+        self._highres_baro = False
+        self._last_temp_c = math.nan
+        self._last_t_us = -1
+        self.last_fields: tuple | None = None
+
+    # ----------------------------------------------------------------- input
+
+    def handle(self, msg) -> None:
+        mid = msg.get_msgId()
+        if mid in (mavlink.MAVLINK_MSG_ID_HIGHRES_IMU, mavlink.MAVLINK_MSG_ID_HIL_SENSOR):
+            self._imu(msg)
+        elif mid == mavlink.MAVLINK_MSG_ID_SCALED_PRESSURE:
+            if not self._highres_baro:
+                self.est.on_baro(msg.time_boot_ms * 1000, msg.press_abs, msg.temperature / 100.0)
+        else:
+            self.other_messages += 1
+
+    def _imu(self, m) -> None:
+        bits = m.fields_updated or 0xFFFF  # 0: a sender that does not fill the field
+        t = m.time_usec
+        est = self.est
+        if bits & PRESSURE_BIT:
+            self._highres_baro = True
+            temp = m.temperature if bits & TEMPERATURE_BIT else self._last_temp_c
+            if bits & TEMPERATURE_BIT:
+                self._last_temp_c = m.temperature
+            est.on_baro(t, m.abs_pressure, temp if math.isfinite(temp) else 15.0)
+        if bits & ACC_GYRO_BITS != ACC_GYRO_BITS:
+            est.counters.rejected += 1
+            return
+        if bits & MAG_BITS == MAG_BITS:
+            mx, my, mz = m.xmag, m.ymag, m.zmag
+        else:
+            mx = my = mz = math.nan
+        resets = est.counters.time_resets
+        if est.on_imu(t, m.xacc, m.yacc, m.zacc, m.xgyro, m.ygyro, m.zgyro, mx, my, mz):
+            self.out.update(est, t)
+            self.emit_due(t)
+        if est.counters.time_resets != resets:
+            self.out.reset()
+            self._next_wind_us = self._next_hb_us = 0
+
+    # ----------------------------------------------------------------- output
+
+    def emit_due(self, t_us: int) -> None:
+        """WIND_COV at its rate and HEARTBEAT at 1 Hz, on the sensor clock."""
+        if t_us >= self._next_hb_us:
+            self.heartbeat(t_us)
+            self._next_hb_us = t_us + 1_000_000
+        if t_us >= self._next_wind_us:
+            self.wind_cov(t_us)
+            self._next_wind_us = t_us - t_us % self.period_us + self.period_us
+
+    def heartbeat(self, t_us: int) -> None:
+        frame = self.mav.heartbeat_encode(
+            mavlink.MAV_TYPE_FREE_BALLOON, mavlink.MAV_AUTOPILOT_GENERIC, 0, self.est.ekf.mode,
+            mavlink.MAV_STATE_ACTIVE if self.est.initialised else mavlink.MAV_STATE_STANDBY,
+        ).pack(self.mav)  # fmt: skip
+        self._send(frame, t_us)
+
+    def wind_cov(self, t_us: int) -> None:
+        fields = self.out.fields(self.est)
+        self.last_fields = fields
+        self._send(self.mav.wind_cov_encode(*fields).pack(self.mav), t_us)
+        self.wind_cov_sent += 1
+
+    def _send(self, frame: bytes, t_us: int) -> None:
+        if self.sink is None:
+            return
+        if hasattr(self.sink, "send_at"):
+            self.sink.send_at(frame, TLOG_EPOCH_US + t_us)
+        else:
+            self.sink.send(frame)
+
+    def coast(self, now_s: float) -> None:
+        """Sensors silent: keep talking (WIND_COV every call, HEARTBEAT each second), honestly."""
+        self.est.coast(0.1)
+        t = max(self.est.t_last_us, 0)
+        if now_s - getattr(self, "_last_hb_wall", 0.0) >= 1.0:
+            self._last_hb_wall = now_s
+            self.heartbeat(t)
+        self.wind_cov(t)
+
+    def summary(self) -> str:
+        c = self.est.counters
+        return (
+            f"balloon-fw: {c.imu_samples} IMU samples, {c.baro_samples} baro samples, "
+            f"{c.rejected} rejected, {self.stats.bad_frames} bad frames, {c.duplicates} duplicates, "
+            f"{c.reordered} reordered, {c.gaps} gaps, "
+            f"{c.time_resets + c.numeric_resets + c.taut_resets} resets, {c.mode_switches} mode switches, "
+            f"{self.wind_cov_sent} WIND_COV sent, final mode {self.est.mode_name}"
+        )

@@ -1,0 +1,211 @@
+"""MAVLink I/O at the program's edge: endpoints (tlog / raw capture / UDP / serial) to decoded
+messages, and sinks (tlog / UDP). Parsing is pymavlink's; bad frames are counted, never raised."""
+
+from __future__ import annotations
+
+import os
+import socket
+import struct
+import time
+from collections.abc import Iterator
+from typing import BinaryIO
+
+from pymavlink.dialects.v20 import common as mavlink
+
+TLOG_HEADER = 8
+MAGIC_V2, MAGIC_V1 = 0xFD, 0xFE
+
+
+class LinkStats:
+    __slots__ = ("bytes", "frames", "bad_frames", "garbage_bytes", "lost", "_last_seq")
+
+    def __init__(self) -> None:
+        self.bytes = self.frames = self.bad_frames = self.garbage_bytes = self.lost = 0
+        self._last_seq: dict[tuple[int, int], int] = {}
+
+    def sequence(self, msg) -> None:
+        """Count lost packets from the per-(system, component) sequence numbers."""
+        key = (msg.get_srcSystem(), msg.get_srcComponent())
+        seq = msg.get_seq()
+        last = self._last_seq.get(key)
+        if last is not None:
+            gap = (seq - last - 1) % 256
+            if gap < 128:
+                self.lost += gap
+        self._last_seq[key] = seq
+
+
+class Decoder:
+    """Byte stream -> MAVLink messages with pymavlink's robust parser."""
+
+    def __init__(self, stats: LinkStats) -> None:
+        self.mav = mavlink.MAVLink(None)
+        self.mav.robust_parsing = True
+        self.stats = stats
+
+    def feed(self, data: bytes) -> list:
+        self.stats.bytes += len(data)
+        out = []
+        try:
+            msgs = self.mav.parse_buffer(data) or []
+        except mavlink.MAVError:
+            self.stats.bad_frames += 1
+            return out
+        for m in msgs:
+            if m.get_type() == "BAD_DATA":
+                self.stats.bad_frames += 1
+                continue
+            self.stats.frames += 1
+            self.stats.sequence(m)
+            out.append(m)
+        return out
+
+    def decode_frame(self, frame: bytes):
+        """One complete frame (from a tlog record); None and counted if it is corrupt."""
+        self.stats.bytes += len(frame)
+        try:
+            m = self.mav.decode(bytearray(frame))
+        except Exception:  # pymavlink raises MAVError and struct/index errors on corrupt frames
+            self.stats.bad_frames += 1
+            return None
+        self.stats.frames += 1
+        self.stats.sequence(m)
+        return m
+
+
+def frame_length(buf: bytes, i: int) -> int:
+    """Length of the MAVLink frame starting at buf[i] (0 if it is not a frame start)."""
+    if i + 3 > len(buf):
+        return 0
+    if buf[i] == MAGIC_V2:
+        return 12 + buf[i + 1] + (13 if buf[i + 2] & 0x01 else 0)
+    if buf[i] == MAGIC_V1:
+        return 8 + buf[i + 1]
+    return 0
+
+
+def tlog_messages(path: str, stats: LinkStats) -> Iterator:
+    """Messages of a telemetry log: [8-byte big-endian us timestamp][frame] records. A corrupt record
+    is skipped by resynchronising on the next plausible record start."""
+    with open(path, "rb") as fh:
+        buf = fh.read()
+    dec = Decoder(stats)
+    i, n = 0, len(buf)
+    while i + TLOG_HEADER < n:
+        j = i + TLOG_HEADER
+        ln = frame_length(buf, j)
+        if ln == 0 or j + ln > n:
+            # resync: the next byte that could start a record
+            k = j + 1
+            while k < n and buf[k] not in (MAGIC_V2, MAGIC_V1):
+                k += 1
+            stats.garbage_bytes += k - j
+            i = k - TLOG_HEADER
+            if k >= n:
+                break
+            continue
+        m = dec.decode_frame(buf[j : j + ln])
+        i = j + ln
+        if m is not None:
+            yield m
+
+
+def raw_messages(fh: BinaryIO, stats: LinkStats, chunk: int = 65536) -> Iterator:
+    dec = Decoder(stats)
+    while data := fh.read(chunk):
+        yield from dec.feed(data)
+
+
+class UdpLink:
+    """``udpin:HOST:PORT`` (bind and listen; replies go to the last sender) or ``udpout:HOST:PORT``
+    (send there; packets coming back are read too)."""
+
+    def __init__(self, spec: str) -> None:
+        kind, host, port = spec.split(":", 2)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self.peer: tuple[str, int] | None = None
+        if kind == "udpin":
+            self.sock.bind((host, int(port)))
+        elif kind == "udpout":
+            self.peer = (host, int(port))
+            self.sock.bind(("127.0.0.1" if host.startswith("127.") else "0.0.0.0", 0))
+        else:
+            raise ValueError(f"not a UDP endpoint: {spec}")
+        self.sock.setblocking(False)
+        self.fixed_peer = kind == "udpout"
+
+    def recv(self, timeout_s: float) -> bytes:
+        self.sock.settimeout(timeout_s)
+        try:
+            data, addr = self.sock.recvfrom(65536)
+        except (TimeoutError, BlockingIOError, socket.timeout):
+            return b""
+        except OSError:  # e.g. ICMP port unreachable reported on a connected-style socket
+            return b""
+        if not self.fixed_peer:
+            self.peer = addr
+        return data
+
+    def send(self, data: bytes) -> None:
+        if self.peer is not None:
+            try:
+                self.sock.sendto(data, self.peer)
+            except OSError:
+                pass  # nobody listening yet: UDP drops it, as a radio would
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+class SerialLink:
+    """A serial port (``/dev/ttyUSB0:57600``, ``/dev/pts/3`` or a pyserial URL)."""
+
+    def __init__(self, spec: str) -> None:
+        import serial
+
+        path, _, baud = spec.rpartition(":")
+        if not path or not baud.isdigit():
+            path, baud = spec, "57600"
+        self.port = serial.serial_for_url(path, baudrate=int(baud), timeout=0)
+
+    def recv(self, timeout_s: float) -> bytes:
+        self.port.timeout = timeout_s
+        return self.port.read(4096)
+
+    def send(self, data: bytes) -> None:
+        self.port.write(data)
+
+    def close(self) -> None:
+        self.port.close()
+
+
+def is_live(spec: str) -> bool:
+    return spec.startswith(("udpin:", "udpout:")) or not os.path.isfile(spec)
+
+
+def open_link(spec: str):
+    if spec.startswith(("udpin:", "udpout:")):
+        return UdpLink(spec)
+    return SerialLink(spec)
+
+
+class TlogSink:
+    def __init__(self, path: str) -> None:
+        self.fh = open(path, "wb")
+
+    def send(self, data: bytes) -> None:
+        self.fh.write(struct.pack(">Q", int(time.time() * 1e6)) + data)
+
+    def send_at(self, data: bytes, t_us: int) -> None:
+        self.fh.write(struct.pack(">Q", t_us) + data)
+
+    def close(self) -> None:
+        self.fh.close()
+
+
+def open_sink(spec: str):
+    """``*.tlog`` file, UDP endpoint or serial port."""
+    if spec.endswith(".tlog"):
+        return TlogSink(spec)
+    return open_link(spec)
