@@ -1,0 +1,34 @@
+"""Shared by the benchmarks: fly a scenario through the simulator and the firmware in one process
+(the same Estimator object the program runs, fed sample by sample) and score it."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from firmware_py.control import Estimator
+from ground_station.score import Score, gains, score
+from sim_hil.scenarios import SCENARIOS
+from sim_hil.simulator import TRUTH_COLUMNS, Simulation
+
+
+def fly(name: str, duration_s: float, seed: int, scenario=None):
+    sc = scenario or SCENARIOS[name]
+    sim = Simulation(sc.design, sc.wind, sc.truth, duration_s, seed)
+    est = Estimator(sc.design)
+    rows = np.zeros((sim.n_imu, 4))
+    for i, s in enumerate(sim.samples()):
+        if s.baro:
+            est.on_baro(s.time_usec, *s.baro)
+        est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
+        wn, we = est.wind()
+        rows[i] = (s.time_usec * 1e-6, wn, we, est.ekf.wind_accuracy())
+    truth = {c: sim.truth[:, k] for k, c in enumerate(TRUTH_COLUMNS)}
+    return rows, truth, est
+
+
+def score_flight(rows, truth) -> Score:
+    return score(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], truth["time_s"], truth["wind_n"], truth["wind_e"])
+
+
+def gain_flight(rows, truth, freqs) -> dict[float, float]:
+    return gains(rows[:, 0], rows[:, 1], rows[:, 2], truth["time_s"], truth["wind_n"], truth["wind_e"], freqs)
