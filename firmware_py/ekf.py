@@ -82,7 +82,9 @@ class WindEkf:
         self._k = np.zeros(N, z)
         self._v = np.zeros(N, z)
         self.dx = np.zeros(N, z)
-        self.P_diag = np.einsum("ii->i", self.P)  # writable view of the diagonal
+        self._s = np.zeros((), z)  # 0-d operands/results: a Python scalar in a ufunc allocates a 0-d array
+        self._r = np.zeros((), z)
+        self._make_views()
         self.var_min = np.full(N, 1e-9, z)
         self.var_max = np.array(
             [1e4] * 3 + [400.0] * 3 + [0.3] * 3 + [math.radians(5.0) ** 2] * 3 + [100.0] * 2 + [1.0], z
@@ -95,9 +97,28 @@ class WindEkf:
             (math.radians(cfg.gyro_bias_walk_dps_rt_s)) ** 2 * dt
         ] * 3 + [cfg.wind_walk_mps_rt_s**2 * dt] * 2 + [cfg.drag_walk_rt_s**2 * dt]
         self._q_ground = [1e-8] * 6 + self._q_flight[6:12] + [cfg.wind_walk_mps_rt_s**2 * dt] * 2 + [0.0]
+        self._qd_flight = np.array(self._q_flight, z)
+        self._qd_ground = np.array(self._q_ground, z)
+        self._f_ground = False
+        self._f_taut = False
+        self._set_static_jacobian(True)
         self.mode = MODE_GROUND
         self.resets = 0
         self.recover_after = int(cfg.recover_after_s * cfg.imu_rate_hz)
+
+    _VIEWS = ("P_diag", "_k_col", "_ph_row")
+
+    def _make_views(self) -> None:
+        self.P_diag = np.einsum("ii->i", self.P)  # writable view of the diagonal
+        self._k_col = self._k.reshape(N, 1)  # views for the outer product without np.outer's overhead
+        self._ph_row = self._ph.reshape(1, N)
+
+    def __getstate__(self) -> dict:  # copies (snapshots, tests) must rebuild the views on their arrays
+        return {k: v for k, v in self.__dict__.items() if k not in self._VIEWS}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._make_views()
 
     # ------------------------------------------------------------------ initialisation
 
@@ -142,16 +163,10 @@ class WindEkf:
         r = rotation(q0 * n, q1 * n, q2 * n, q3 * n)
         F = self.F
         ground = self.mode == MODE_GROUND
+        if ground != self._f_ground:
+            self._set_static_jacobian(ground)
         if ground:
-            for i in range(3):
-                F[POS_N + i, VEL_N + i] = 0.0
-                for j in range(3):
-                    F[VEL_N + i, VEL_N + j] = 0.0
-                    F[VEL_N + i, POS_N + j] = 0.0
-                F[VEL_N + i, WIND_N] = 0.0
-                F[VEL_N + i, WIND_E] = 0.0
-                F[VEL_N + i, DRAG] = 0.0
-                x[VEL_N + i] = 0.0
+            x[VEL_N] = x[VEL_E] = x[VEL_D] = 0.0
         else:
             f = accelerations(self.model, rho, pn, pe, pd, vn, ve, vd, wn, we, k, self.mode == MODE_TAUT, self.forces)
             an, ae, ad = f.an, f.ae, f.ad
@@ -161,25 +176,43 @@ class WindEkf:
             x[VEL_N] = vn + an * dt
             x[VEL_E] = ve + ae * dt
             x[VEL_D] = vd + ad * dt
-            j, jp, dk = f.j, f.jp, f.dk
-            for i in range(3):
-                F[POS_N + i, VEL_N + i] = dt
-                for c3 in range(3):
-                    F[VEL_N + i, VEL_N + c3] = (1.0 if i == c3 else 0.0) - j[3 * i + c3] * dt
-                    F[VEL_N + i, POS_N + c3] = jp[3 * i + c3] * dt
-                F[VEL_N + i, WIND_N] = j[3 * i] * dt
-                F[VEL_N + i, WIND_E] = j[3 * i + 1] * dt
-                F[VEL_N + i, DRAG] = dk[i] * dt
+            # d(vel)/d(vel) = I - J dt, d(vel)/d(wind) = J dt, d(vel)/d(drag), d(vel)/d(pos) (taut)
+            j0, j1, j2, j3, j4, j5, j6, j7, j8 = f.j
+            F[3, 3], F[3, 4], F[3, 5] = 1.0 - j0 * dt, -j1 * dt, -j2 * dt
+            F[4, 3], F[4, 4], F[4, 5] = -j3 * dt, 1.0 - j4 * dt, -j5 * dt
+            F[5, 3], F[5, 4], F[5, 5] = -j6 * dt, -j7 * dt, 1.0 - j8 * dt
+            F[3, WIND_N], F[3, WIND_E] = j0 * dt, j1 * dt
+            F[4, WIND_N], F[4, WIND_E] = j3 * dt, j4 * dt
+            F[5, WIND_N], F[5, WIND_E] = j6 * dt, j7 * dt
+            F[3, DRAG], F[4, DRAG], F[5, DRAG] = f.dk[0] * dt, f.dk[1] * dt, f.dk[2] * dt
+            if f.taut or self._f_taut:
+                p0, p1, p2, p3, p4, p5, p6, p7, p8 = f.jp
+                F[3, 0], F[3, 1], F[3, 2] = p0 * dt, p1 * dt, p2 * dt
+                F[4, 0], F[4, 1], F[4, 2] = p3 * dt, p4 * dt, p5 * dt
+                F[5, 0], F[5, 1], F[5, 2] = p6 * dt, p7 * dt, p8 * dt
+                self._f_taut = f.taut
         # attitude error (NED) driven by the gyro-bias error: d(att)/dt = -R d(bias)
-        for i in range(3):
-            for c3 in range(3):
-                F[ATT_N + i, GB_X + c3] = -r[3 * i + c3] * dt
+        r0, r1, r2, r3, r4, r5, r6, r7, r8 = r
+        F[6, 9], F[6, 10], F[6, 11] = -r0 * dt, -r1 * dt, -r2 * dt
+        F[7, 9], F[7, 10], F[7, 11] = -r3 * dt, -r4 * dt, -r5 * dt
+        F[8, 9], F[8, 10], F[8, 11] = -r6 * dt, -r7 * dt, -r8 * dt
         np.matmul(F, self.P, out=self._t1)
         np.matmul(self._t1, F.T, out=self.P)
-        q = self._q_ground if ground else self._q_flight
-        for i in range(N):
-            self.Qd[i] = q[i]
-        np.add(self.P_diag, self.Qd, out=self.P_diag)
+        np.add(self.P_diag, self._qd_ground if ground else self._qd_flight, out=self.P_diag)
+
+    def _set_static_jacobian(self, ground: bool) -> None:
+        """The parts of F that change only with the mode: on the ground the balloon is held still."""
+        F = self.F
+        F[0:6, :] = 0.0
+        for i in range(6):
+            F[i, i] = 1.0
+        if not ground:
+            for i in range(3):
+                F[POS_N + i, VEL_N + i] = self.dt
+        self._f_ground = ground
+        self._f_taut = False
+        if ground:
+            F[3, 3] = F[4, 4] = F[5, 5] = 0.0
 
     def inflate(self, steps: float) -> None:
         """Covariance growth of ``steps`` prediction steps without the state moving (sensor silence)."""
@@ -199,9 +232,11 @@ class WindEkf:
     ) -> bool:
         """Sequential scalar update with the row in ``self.h`` (all rows of one step share the same
         linearisation point, so a sequence equals one batch update with diagonal R)."""
-        innov -= float(np.dot(self.h, self.dx))
+        np.dot(self.h, self.dx, out=self._r)
+        innov -= float(self._r)
         np.dot(self.P, self.h, out=self._ph)
-        s = float(np.dot(self.h, self._ph)) + r
+        np.dot(self.h, self._ph, out=self._r)
+        s = float(self._r) + r
         gate = self.cfg.gate_sigma if gate_sigma is None else gate_sigma
         status.innov = innov
         status.innov_var = s
@@ -221,10 +256,12 @@ class WindEkf:
             r += innov * innov / (gate * gate) - s
             s = innov * innov / (gate * gate)
             status.fused -= 1
-        np.multiply(self._ph, 1.0 / s, out=self._k)
-        np.multiply(self._k, innov, out=self._v)
+        self._s[()] = 1.0 / s
+        np.multiply(self._ph, self._s, out=self._k)
+        self._s[()] = innov
+        np.multiply(self._k, self._s, out=self._v)
         np.add(self.dx, self._v, out=self.dx)
-        np.outer(self._k, self._ph, out=self._t1)
+        np.multiply(self._k_col, self._ph_row, out=self._t1)
         np.subtract(self.P, self._t1, out=self.P)
         status.fused += 1
         status.consecutive_rejects = 0
@@ -235,7 +272,7 @@ class WindEkf:
         covariance: symmetrise, clamp the variances. Returns False if the state went non-finite."""
         np.add(self.x, self.dx, out=self.x)
         x = self.x
-        dn, de, dd = float(x[ATT_N]), float(x[ATT_E]), float(x[ATT_D])
+        dn, de, dd = x[ATT_N : ATT_D + 1].tolist()
         if dn != 0.0 or de != 0.0 or dd != 0.0:
             q0, q1, q2, q3 = self.q.tolist()
             hn, he, hd = 0.5 * dn, 0.5 * de, 0.5 * dd
@@ -250,11 +287,16 @@ class WindEkf:
         if x[DRAG] < 0.2:
             x[DRAG] = 0.2
         self.fix_covariance()
-        return math.isfinite(float(np.sum(self.x))) and math.isfinite(float(np.sum(self.P)))
+        # a NaN/inf anywhere in P reaches its diagonal within one prediction
+        np.add.reduce(self.x, out=self._r)
+        finite = math.isfinite(float(self._r))
+        np.add.reduce(self.P_diag, out=self._r)
+        return finite and math.isfinite(float(self._r))
 
     def fix_covariance(self) -> None:
         np.add(self.P, self.P.T, out=self._t2)
-        np.multiply(self._t2, 0.5, out=self.P)
+        self._s[()] = 0.5
+        np.multiply(self._t2, self._s, out=self.P)
         np.clip(self.P_diag, self.var_min, self.var_max, out=self.P_diag)
 
     # ------------------------------------------------------------------ outputs

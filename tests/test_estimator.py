@@ -1,0 +1,134 @@
+"""Estimator accuracy against truth, numerics, float32, time handling, bad input."""
+
+import copy
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from firmware_py.config import Design
+from firmware_py.control import Estimator
+from firmware_py.state import MODE_TAUT, WIND_E, WIND_N, FilterConfig
+from ground_station.score import score
+from tests.flights import feed, stream
+
+
+def check_covariance(P):
+    assert np.all(np.isfinite(P))
+    assert np.allclose(P, P.T, atol=1e-9 * max(1.0, np.abs(P).max()))
+    assert np.linalg.eigvalsh(0.5 * (P + P.T)).min() > 0.0
+
+
+@pytest.mark.parametrize("seed", [11, 12])
+def test_paper_reference_accuracy(seed):
+    samples, truth = stream("paper-reference", 300.0, seed)
+    est = Estimator(Design())
+    rows = feed(est, samples, record=True)
+    s = score(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], truth["time_s"], truth["wind_n"], truth["wind_e"])
+    assert s.band_rmse_mps <= 0.3
+    assert abs(s.speed_error_pct) <= 5.0
+    assert abs(s.direction_error_deg) <= 5.0
+    assert 0.5 <= s.accuracy_ratio <= 2.0
+    assert est.ekf.mode == MODE_TAUT
+    assert est.counters.mode_switches >= 2  # ground -> free -> taut
+    check_covariance(est.ekf.P)
+
+
+def test_float32_mode_is_stable_on_the_same_data():
+    samples, truth = stream("paper-reference", 300.0, 11)
+    est = Estimator(Design(), FilterConfig(float32=True))
+    assert est.ekf.P.dtype == np.float32
+    rows = feed(est, samples, record=True)
+    assert np.all(np.isfinite(rows))
+    s = score(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], truth["time_s"], truth["wind_n"], truth["wind_e"])
+    assert s.band_rmse_mps <= 0.35
+    assert est.counters.numeric_resets == 0
+    check_covariance(est.ekf.P.astype(np.float64))
+
+
+@pytest.fixture(scope="module")
+def flying():
+    """An estimator in steady taut flight at t = 150 s, and the samples after it."""
+    samples, _ = stream("paper-reference", 300.0, 11)
+    est = Estimator(Design())
+    feed(est, samples[:15000])
+    assert est.ekf.mode == MODE_TAUT
+    return est, samples[15000:]
+
+
+def test_invalid_samples_leave_the_state_unchanged_and_are_counted(flying):
+    est = copy.deepcopy(flying[0])
+    x, P, q = est.ekf.x.copy(), est.ekf.P.copy(), est.ekf.q.copy()
+    t = est.t_last_us + 10_000
+    bad = [
+        (t, math.nan, 0.0, -9.8, 0.0, 0.0, 0.0),
+        (t, 0.0, math.inf, -9.8, 0.0, 0.0, 0.0),
+        (t, 0.0, 0.0, -9.8, 0.0, -math.inf, 0.0),
+        (t, 1e6, 0.0, -9.8, 0.0, 0.0, 0.0),
+        (t, 0.0, 0.0, -9.8, 100.0, 0.0, 0.0),
+    ]
+    for b in bad:
+        assert not est.on_imu(*b)
+    assert not est.on_baro(t, math.nan, 20.0)
+    assert not est.on_baro(t, 5000.0, 20.0)
+    assert not est.on_baro(t, 1000.0, 400.0)
+    assert est.counters.rejected == len(bad) + 3
+    assert np.array_equal(est.ekf.x, x) and np.array_equal(est.ekf.P, P) and np.array_equal(est.ekf.q, q)
+
+
+def test_duplicates_reordering_gaps_and_time_going_back(flying):
+    est = copy.deepcopy(flying[0])
+    samples = flying[1]
+    s0 = samples[0]
+    feed(est, [s0])
+    c = est.counters
+    x = est.ekf.x.copy()
+    assert not est.on_imu(s0.time_usec, *s0.accel, *s0.gyro, *s0.mag)  # duplicate
+    assert c.duplicates == 1 and np.array_equal(est.ekf.x, x)
+    old = replace(s0, time_usec=s0.time_usec - 30_000)
+    assert not est.on_imu(old.time_usec, *old.accel, *old.gyro, *old.mag)  # late, reordered
+    assert c.reordered == 1
+    # a 0.3 s dropout: predicted through, counted as a gap, the estimate stays sane
+    feed(est, samples[31:200])
+    assert c.gaps == 1 and c.long_gaps == 0
+    wn, we = est.wind()
+    assert abs(math.hypot(wn, we) - 3.0) < 1.5
+    # a 5 s dropout: bounded work (0.5 s predicted), flagged
+    feed(est, samples[700:800])
+    assert c.long_gaps == 1
+    # time going back by more than a second: the vehicle rebooted -> reset
+    feed(est, [replace(samples[0], time_usec=1000)])
+    assert c.time_resets == 1 and est.ekf.mode != MODE_TAUT
+
+
+def perturb_wind(est, dn, de):
+    """A wind error the filter knows it may have: its wind variance back at the initial value."""
+    ekf = est.ekf
+    ekf.x[WIND_N] += dn
+    ekf.x[WIND_E] += de
+    for i in (WIND_N, WIND_E):
+        ekf.P[i, :] = 0.0
+        ekf.P[:, i] = 0.0
+        ekf.P[i, i] = est.cfg.init_wind_mps**2
+
+
+def test_converges_from_large_initial_wind_errors(flying):
+    for dn, de in ((10.0, -10.0), (-8.0, 6.0), (0.0, 9.0)):
+        est = copy.deepcopy(flying[0])
+        perturb_wind(est, dn, de)
+        rows = feed(est, flying[1][:9000], record=True)
+        _, truth = stream("paper-reference", 300.0, 11)
+        i0 = 15000 + 6000
+        err = np.hypot(rows[6000:, 1] - truth["wind_n"][i0:24000], rows[6000:, 2] - truth["wind_e"][i0:24000])
+        assert np.sqrt(np.mean(err**2)) < 0.6, (dn, de)
+        check_covariance(est.ekf.P)
+
+
+def test_sensor_silence_grows_the_reported_accuracy(flying):
+    est = copy.deepcopy(flying[0])
+    before = est.ekf.wind_accuracy()
+    for _ in range(30):
+        est.coast(1.0)
+    assert est.ekf.wind_accuracy() > 1.5 * before
+    check_covariance(est.ekf.P)
