@@ -1,0 +1,113 @@
+"""Property tests (hypothesis) of filter stability."""
+
+import copy
+import math
+
+import numpy as np
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from firmware_py.config import Design
+from firmware_py.control import Estimator
+from firmware_py.state import MODE_FREE, MODE_TAUT, N_STATES
+from tests.flights import feed, stream
+
+SETTINGS = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+
+
+def fresh_in_flight() -> Estimator:
+    est = _flying_template()
+    return copy.deepcopy(est)
+
+
+_TEMPLATE: list[Estimator] = []
+
+
+def _flying_template() -> Estimator:
+    if not _TEMPLATE:
+        samples, _ = stream("paper-reference", 300.0, 11)
+        est = Estimator(Design())
+        feed(est, samples[:6000])
+        assert est.ekf.mode == MODE_TAUT
+        _TEMPLATE.append(est)
+    return _TEMPLATE[0]
+
+
+def assert_healthy(est: Estimator) -> None:
+    P = est.ekf.P.astype(float)
+    x = est.ekf.x.astype(float)
+    assert np.all(np.isfinite(x)) and np.all(np.isfinite(P))
+    assert np.allclose(P, P.T, rtol=0, atol=1e-9 * max(1.0, np.abs(P).max()))
+    assert np.linalg.eigvalsh(0.5 * (P + P.T)).min() > 0.0
+    assert np.all(np.diag(P) <= est.ekf.var_max.astype(float) * (1 + 1e-9))
+    assert abs(float(np.linalg.norm(est.ekf.q)) - 1.0) < 1e-6
+
+
+finite = st.floats(min_value=-1.0, max_value=1.0, allow_nan=False)
+sample = st.tuples(
+    st.integers(min_value=-3, max_value=60),  # time step in units of 10 ms (<= 0: jitter/dup/reorder)
+    st.tuples(st.floats(-30, 30), st.floats(-30, 30), st.floats(-40, 20)),  # specific force
+    st.tuples(st.floats(-3, 3), st.floats(-3, 3), st.floats(-3, 3)),  # rates
+    st.tuples(finite, finite, finite),  # field
+    st.one_of(st.none(), st.tuples(st.floats(800.0, 1050.0), st.floats(-20.0, 40.0))),  # baro
+)
+
+
+@SETTINGS
+@given(st.lists(sample, min_size=1, max_size=120), st.sampled_from(["ground", "flight"]))
+def test_arbitrary_bounded_sequences_keep_the_filter_healthy(seq, where):
+    est = Estimator(Design()) if where == "ground" else fresh_in_flight()
+    t = max(est.t_last_us, 0)
+    if where == "ground":
+        est.on_imu(t, 0.0, 0.0, -9.81, 0.0, 0.0, 0.0, 0.2, 0.0, 0.45)
+    for dt, acc, gyro, mag, baro in seq:
+        t += dt * 10_000
+        if baro:
+            est.on_baro(t, *baro)
+        est.on_imu(t, *acc, *gyro, *mag)
+        assert_healthy(est)
+
+
+bad_float = st.sampled_from([math.nan, math.inf, -math.inf, 1e9, -1e9])
+
+
+@SETTINGS
+@given(st.integers(0, 8), bad_float, st.booleans())
+def test_invalid_inputs_leave_the_state_unchanged_and_are_counted(field, value, baro):
+    est = fresh_in_flight()
+    x, P, q = est.ekf.x.copy(), est.ekf.P.copy(), est.ekf.q.copy()
+    before = est.counters.rejected
+    t = est.t_last_us + 10_000
+    if baro:
+        args = [1000.0, 20.0]
+        args[field % 2] = value
+        assert not est.on_baro(t, *args)
+    else:
+        args = [0.0, 0.0, -9.81, 0.0, 0.0, 0.0]
+        if field < 6:
+            args[field] = value
+            assert not est.on_imu(t, *args)
+        else:
+            # a bad magnetometer alone is dropped, the rest of the sample is used
+            assert est.on_imu(t, *args, *[value if i == field - 6 else 0.3 for i in range(3)])
+            return
+    assert est.counters.rejected == before + 1
+    assert np.array_equal(est.ekf.x, x) and np.array_equal(est.ekf.P, P) and np.array_equal(est.ekf.q, q)
+
+
+@settings(max_examples=6, deadline=None)
+@given(st.floats(-10.0, 10.0), st.floats(-10.0, 10.0))
+def test_converges_on_simulated_data_from_any_initial_wind_error(dn, de):
+    """Start the filter with a wind error of up to 10 m/s per axis (and its initial variance) during
+    free ascent; after the taut phase settles the wind is right."""
+    samples, truth = stream("paper-reference", 300.0, 11)
+    est = Estimator(Design())
+    feed(est, samples[:800])  # released at 5 s: in free ascent now
+    assert est.ekf.mode == MODE_FREE
+    est.ekf.x[N_STATES - 3] += dn
+    est.ekf.x[N_STATES - 2] += de
+    rows = feed(est, samples[800:12000], record=True)
+    late = slice(12000 - 800 - 3000, None)
+    err = np.hypot(rows[late, 1] - truth["wind_n"][9000:12000], rows[late, 2] - truth["wind_e"][9000:12000])
+    assert np.sqrt(np.mean(err**2)) < 0.6
+    assert_healthy(est)
