@@ -9,7 +9,7 @@ import math
 from firmware_py.atmosphere import G0, air_density, hypsometric_height_m
 from firmware_py.config import Design
 from firmware_py.ekf import FusionStatus, WindEkf
-from firmware_py.measurements import fuse_accel, fuse_baro, fuse_heading, fuse_taut, enter_taut
+from firmware_py.measurements import enter_taut, fuse_accel, fuse_baro, fuse_heading, fuse_taut
 from firmware_py.model import BalloonModel
 from firmware_py.state import (
     MODE_FREE,

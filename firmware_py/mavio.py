@@ -139,7 +139,7 @@ class UdpLink:
         self.sock.settimeout(timeout_s)
         try:
             data, addr = self.sock.recvfrom(65536)
-        except (TimeoutError, BlockingIOError, socket.timeout):
+        except (TimeoutError, BlockingIOError):
             return b""
         except OSError:  # e.g. ICMP port unreachable reported on a connected-style socket
             return b""

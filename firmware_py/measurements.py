@@ -30,7 +30,6 @@ from firmware_py.state import (
     WIND_N,
 )
 
-
 UNGATED = 1e6  # constraints of the model are not tested against the data
 
 

@@ -114,7 +114,11 @@ def accelerations(
         pull = ar + vt2 / dist  # tension / m_eff needed to keep |p| = const
         if pull > 0.0:
             tension = pull * m_eff
-            jr = (en * j[0] + ee * j[3] + ed * j[6], en * j[1] + ee * j[4] + ed * j[7], en * j[2] + ee * j[5] + ed * j[8])
+            jr = (
+                en * j[0] + ee * j[3] + ed * j[6],
+                en * j[1] + ee * j[4] + ed * j[7],
+                en * j[2] + ee * j[5] + ed * j[8],
+            )
             dkr = en * dk[0] + ee * dk[1] + ed * dk[2]
             an, ae, ad = an - pull * en, ae - pull * ee, ad - pull * ed
             # project the sensitivities onto the tangent plane: (I - e e^T) J
