@@ -1,0 +1,14 @@
+"""All benchmarks, one after the other: ``make bench``."""
+
+from benchmarks import bench_accuracy, bench_sim, bench_speed
+
+if __name__ == "__main__":
+    import sys
+
+    sys.argv = sys.argv[:1]
+    print("== simulator ==")
+    bench_sim.main()
+    print("\n== firmware speed ==")
+    bench_speed.main()
+    print("\n== estimator accuracy ==")
+    bench_accuracy.main()
