@@ -97,7 +97,6 @@ class WindEkf:
         self._qd_flight = np.array(self._q_flight, z)
         self._qd_ground = np.array(self._q_ground, z)
         self._f_ground = False
-        self._f_taut = False
         self._set_static_jacobian(True)
         self.mode = MODE_GROUND
         self.resets = 0
@@ -182,12 +181,10 @@ class WindEkf:
             F[4, WIND_N], F[4, WIND_E] = j3 * dt, j4 * dt
             F[5, WIND_N], F[5, WIND_E] = j6 * dt, j7 * dt
             F[3, DRAG], F[4, DRAG], F[5, DRAG] = f.dk[0] * dt, f.dk[1] * dt, f.dk[2] * dt
-            if f.taut or self._f_taut:
-                p0, p1, p2, p3, p4, p5, p6, p7, p8 = f.jp
-                F[3, 0], F[3, 1], F[3, 2] = p0 * dt, p1 * dt, p2 * dt
-                F[4, 0], F[4, 1], F[4, 2] = p3 * dt, p4 * dt, p5 * dt
-                F[5, 0], F[5, 1], F[5, 2] = p6 * dt, p7 * dt, p8 * dt
-                self._f_taut = f.taut
+            p0, p1, p2, p3, p4, p5, p6, p7, p8 = f.jp
+            F[3, 0], F[3, 1], F[3, 2] = p0 * dt, p1 * dt, p2 * dt
+            F[4, 0], F[4, 1], F[4, 2] = p3 * dt, p4 * dt, p5 * dt
+            F[5, 0], F[5, 1], F[5, 2] = p6 * dt, p7 * dt, p8 * dt
         # attitude error (NED) driven by the gyro-bias error: d(att)/dt = -R d(bias)
         r0, r1, r2, r3, r4, r5, r6, r7, r8 = r
         F[6, 9], F[6, 10], F[6, 11] = -r0 * dt, -r1 * dt, -r2 * dt
@@ -207,7 +204,6 @@ class WindEkf:
             for i in range(3):
                 F[POS_N + i, VEL_N + i] = self.dt
         self._f_ground = ground
-        self._f_taut = False
         if ground:
             F[3, 3] = F[4, 4] = F[5, 5] = 0.0
 

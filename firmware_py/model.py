@@ -102,7 +102,9 @@ def accelerations(
     else:
         rope = m.rope_kg_m * G0 * min(max(height, 0.0), m.tether_length_m)
     an, ae, ad = dn, de, dd + (rope - lift) * inv_m
-    jp = (0.0,) * 9
+    # free ascent: the airborne rope grows with height (d rope / d p_d = -lambda g)
+    slack_rope = not taut and 0.0 < height < m.tether_length_m
+    jp = (0.0,) * 8 + ((-m.rope_kg_m * G0 * inv_m) if slack_rope else 0.0,)
     tension = 0.0
     jr = (0.0, 0.0, 0.0)
     dkr = 0.0
