@@ -1,0 +1,5 @@
+import sys
+
+from ground_station.cli import main
+
+sys.exit(main())

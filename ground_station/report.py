@@ -1,0 +1,90 @@
+"""``balloon-gs report``: score a WIND_COV log against the simulator's truth and draw the paper's
+Fig. 6 (wind estimate vs truth over time, and their spectra)."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from ground_station.score import Score, lowpass, score
+from ground_station.wind import as_arrays, read_records
+from sim_hil.simulator import read_truth_csv
+
+
+def psd(x: np.ndarray, fs: float, segment_s: float = 200.0) -> tuple[np.ndarray, np.ndarray]:
+    """Welch PSD (Hann, 50 % overlap), one-sided, (m/s)^2/Hz."""
+    n = min(len(x), int(segment_s * fs))
+    step = n // 2
+    win = np.hanning(n)
+    scale = 2.0 / (fs * np.sum(win**2))
+    acc = None
+    k = 0
+    for i in range(0, len(x) - n + 1, step):
+        seg = x[i : i + n] - np.mean(x[i : i + n])
+        p = np.abs(np.fft.rfft(seg * win)) ** 2 * scale
+        acc = p if acc is None else acc + p
+        k += 1
+    return np.fft.rfftfreq(n, 1.0 / fs), acc / max(k, 1)
+
+
+def report(wind_path: str, truth_path: str, plot_path: str | None = None, start_s: float = 120.0) -> Score:
+    est = as_arrays(read_records(wind_path))
+    if len(est["time_s"]) < 10:
+        raise ValueError(f"{wind_path}: fewer than 10 WIND_COV messages")
+    truth = read_truth_csv(truth_path)
+    s = score(est["time_s"], est["wind_n"], est["wind_e"], est["accuracy"],
+              truth["time_s"], truth["wind_n"], truth["wind_e"], start_s=start_s)  # fmt: skip
+    if plot_path:
+        plot(est, truth, s, plot_path, start_s)
+    return s
+
+
+def plot(est: dict, truth: dict, s: Score, path: str, start_s: float) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fs = 10.0
+    grid = np.arange(max(start_s, est["time_s"][0]), min(est["time_s"][-1], truth["time_s"][-1]), 1.0 / fs)
+    sp_est = np.interp(grid, est["time_s"], np.hypot(est["wind_n"], est["wind_e"]))
+    sp_true = np.interp(grid, truth["time_s"], np.hypot(truth["wind_n"], truth["wind_e"]))
+    fig, ax = plt.subplots(3, 1, figsize=(9, 9))
+    t_all = est["time_s"]
+    ax[0].plot(truth["time_s"], np.hypot(truth["wind_n"], truth["wind_e"]), lw=0.6, label="truth", color="0.5")
+    ax[0].plot(t_all, np.hypot(est["wind_n"], est["wind_e"]), lw=0.8, label="estimate (WIND_COV)")
+    ax[0].fill_between(t_all, np.hypot(est["wind_n"], est["wind_e"]) - est["accuracy"],
+                       np.hypot(est["wind_n"], est["wind_e"]) + est["accuracy"], alpha=0.2,
+                       label="± horiz_accuracy")  # fmt: skip
+    ax[0].set_ylabel("wind speed [m/s]")
+    ax[0].set_ylim(0, max(6.0, 1.3 * np.percentile(sp_true, 99)))
+    ax[0].legend(loc="upper right", fontsize=8)
+    ax[1].plot(grid, lowpass(sp_true, fs, 0.05), label="truth < 0.05 Hz", color="0.3")
+    ax[1].plot(grid, lowpass(sp_est, fs, 0.05), label="estimate < 0.05 Hz")
+    ax[1].set_ylabel("low-passed speed [m/s]")
+    ax[1].set_xlabel("time since boot [s]")
+    ax[1].legend(loc="upper right", fontsize=8)
+    f, p_true = psd(sp_true, fs)
+    _, p_est = psd(sp_est, fs)
+    ax[2].loglog(f[1:], p_true[1:], label="truth", color="0.4")
+    ax[2].loglog(f[1:], p_est[1:], label="estimate")
+    ax[2].axvline(0.05, ls=":", color="k", lw=0.8)
+    ax[2].set_xlabel("frequency [Hz]")
+    ax[2].set_ylabel("PSD [(m/s)²/Hz]")
+    ax[2].legend(loc="lower left", fontsize=8)
+    fig.suptitle(f"band RMSE {s.band_rmse_mps:.2f} m/s, speed error {s.speed_error_pct:+.1f} %, "
+                 f"direction error {s.direction_error_deg:+.1f}°, accuracy/error {s.accuracy_ratio:.2f}")  # fmt: skip
+    fig.tight_layout()
+    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def format_score(s: Score) -> str:
+    return (
+        f"band RMSE (<0.05 Hz) {s.band_rmse_mps:.3f} m/s | raw RMSE {s.raw_rmse_mps:.3f} m/s | "
+        f"mean speed {s.est_speed_mps:.2f} vs {s.true_speed_mps:.2f} m/s ({s.speed_error_pct:+.1f} %) | "
+        f"direction error {s.direction_error_deg:+.2f} deg | horiz_accuracy {s.mean_accuracy_mps:.2f} m/s "
+        f"= {s.accuracy_ratio:.2f} x actual | {s.duration_s:.0f} s scored"
+    )

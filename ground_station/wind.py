@@ -1,0 +1,81 @@
+"""WIND_COV as the ground station keeps it: one record per message, from any MAVLink vehicle."""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+CSV_COLUMNS = ("time_usec", "sysid", "compid", "wind_x", "wind_y", "wind_z", "var_horiz", "var_vert",
+               "wind_alt", "horiz_accuracy", "vert_accuracy", "speed_mps", "from_deg")  # fmt: skip
+
+
+def direction_from_deg(wind_n: float, wind_e: float) -> float:
+    """Meteorological direction the wind blows FROM, degrees clockwise from north."""
+    return math.degrees(math.atan2(-wind_e, -wind_n)) % 360.0
+
+
+@dataclass(frozen=True)
+class WindRecord:
+    time_usec: int
+    sysid: int
+    compid: int
+    wind_x: float
+    wind_y: float
+    wind_z: float
+    var_horiz: float
+    var_vert: float
+    wind_alt: float
+    horiz_accuracy: float
+    vert_accuracy: float
+
+    @classmethod
+    def from_msg(cls, m) -> WindRecord:
+        return cls(m.time_usec, m.get_srcSystem(), m.get_srcComponent(), m.wind_x, m.wind_y, m.wind_z,
+                   m.var_horiz, m.var_vert, m.wind_alt, m.horiz_accuracy, m.vert_accuracy)  # fmt: skip
+
+    @property
+    def speed_mps(self) -> float:
+        return math.hypot(self.wind_x, self.wind_y)
+
+    @property
+    def from_deg(self) -> float:
+        return direction_from_deg(self.wind_x, self.wind_y)
+
+    def csv_row(self) -> list:
+        return [self.time_usec, self.sysid, self.compid, *(f"{v:.5g}" for v in (
+            self.wind_x, self.wind_y, self.wind_z, self.var_horiz, self.var_vert, self.wind_alt,
+            self.horiz_accuracy, self.vert_accuracy, self.speed_mps, self.from_deg))]  # fmt: skip
+
+
+def read_records(path: str) -> list[WindRecord]:
+    """WIND_COV records from a ground-station CSV, a .tlog or a raw MAVLink capture."""
+    if path.endswith(".csv"):
+        with open(path, newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        return [WindRecord(int(r["time_usec"]), int(r["sysid"]), int(r["compid"]),
+                           *(float(r[k]) for k in CSV_COLUMNS[3:11])) for r in rows]  # fmt: skip
+    from firmware_py.mavio import LinkStats, raw_messages, tlog_messages
+
+    stats = LinkStats()
+    if path.endswith(".tlog"):
+        msgs = tlog_messages(path, stats)
+    else:
+        fh = open(path, "rb")
+        msgs = raw_messages(fh, stats)
+    return [WindRecord.from_msg(m) for m in msgs if m.get_type() == "WIND_COV"]
+
+
+def as_arrays(records: list[WindRecord]) -> dict[str, np.ndarray]:
+    """Columns in time order (duplicates of a time dropped), time in seconds since boot."""
+    recs = sorted({r.time_usec: r for r in records}.values(), key=lambda r: r.time_usec)
+    return {
+        "time_s": np.array([r.time_usec * 1e-6 for r in recs]),
+        "wind_n": np.array([r.wind_x for r in recs]),
+        "wind_e": np.array([r.wind_y for r in recs]),
+        "accuracy": np.array([r.horiz_accuracy for r in recs]),
+        "variability": np.array([r.var_horiz for r in recs]),
+        "alt": np.array([r.wind_alt for r in recs]),
+    }
