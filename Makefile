@@ -16,7 +16,7 @@ test: $(STAMP)
 	$(BIN)/python -m pytest
 
 demo: $(STAMP)
-	$(BIN)/python -m sim_hil.demo
+	$(BIN)/balloon-sil --scenario paper-reference
 
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.run_all

@@ -30,7 +30,7 @@ class Firmware:
     def __init__(self, design: Design, cfg: FilterConfig | None = None, sink=None, wind_cov_hz: float = 10.0) -> None:
         self.est = Estimator(design, cfg)
         self.out = WindCovOutput(self.est.cfg.imu_rate_hz, design.site.altitude_amsl_m)
-        self.sink = sink
+        self.sinks = [sink] if sink is not None else []
         self.mav = mavlink.MAVLink(None, srcSystem=FW_SYSID, srcComponent=FW_COMPID)
         self.period_us = round(1e6 / wind_cov_hz)
         self.stats = LinkStats()
@@ -105,12 +105,11 @@ class Firmware:
         self.wind_cov_sent += 1
 
     def _send(self, frame: bytes, t_us: int) -> None:
-        if self.sink is None:
-            return
-        if hasattr(self.sink, "send_at"):
-            self.sink.send_at(frame, TLOG_EPOCH_US + t_us)
-        else:
-            self.sink.send(frame)
+        for sink in self.sinks:
+            if hasattr(sink, "send_at"):
+                sink.send_at(frame, TLOG_EPOCH_US + t_us)
+            else:
+                sink.send(frame)
 
     def coast(self, now_s: float) -> None:
         """Sensors silent: keep talking (WIND_COV every call, HEARTBEAT each second), honestly."""

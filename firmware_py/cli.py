@@ -37,8 +37,7 @@ def run_live(fw: Firmware, spec: str, stop) -> None:
     """Until stopped: decode what arrives; keep the 1 Hz heartbeat and the WIND_COV stream going on
     the wall clock when the sensors fall silent (accuracy then reflects the silence)."""
     link = open_link(spec)
-    if fw.sink is None:
-        fw.sink = link
+    fw.sinks.append(link)  # like any vehicle, it also talks back on the link its sensors come from
     dec = Decoder(fw.stats)
     last_rx = time.monotonic()
     last_emit = 0.0

@@ -17,10 +17,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenario", default="paper-reference", help="named scenario (see --list-scenarios)")
     p.add_argument("--duration", type=float, default=600.0, help="simulated seconds")
     p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--out", help="FILE.tlog (as fast as possible) or a UDP endpoint (paced)")
+    p.add_argument("--out", help="FILE.tlog or a raw FILE (as fast as possible), or a UDP endpoint / serial "
+                   "port (paced: --speed, --lockstep)")
     p.add_argument("--truth", help="truth CSV, one row per IMU sample")
     p.add_argument("--config", help="TOML design file (overrides the scenario)")
     p.add_argument("--wind", choices=sorted(WIND_CHOICES), help="override the scenario's wind model")
+    p.add_argument("--speed", type=float, default=1.0,
+                   help="UDP/serial output: N x real time (0: as fast as possible)")
+    p.add_argument("--lockstep", action="store_true",
+                   help="do not run ahead of the firmware's WIND_COV time (lossless fast runs)")
+    p.add_argument("--lockstep-window", type=float, default=0.5, help="seconds the simulator may lead")
     p.add_argument("--list-scenarios", action="store_true")
     return p
 
@@ -44,16 +50,20 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     n = 0
     out = args.out
-    if out and not out.endswith(".tlog"):
+    if out and (out.startswith(("udpin:", "udpout:")) or out.startswith("/dev/") or "://" in out):
         from sim_hil.link import stream_udp  # network edge, only when asked for
 
         n = stream_udp(sim, enc, out, args)
     elif out:
         with open(out, "wb") as fh:
+            tlog = out.endswith(".tlog")
             w = TlogWriter(fh)
             for s in sim.samples():
                 for frame in enc.encode(s):
-                    w.write(s.time_usec, frame)
+                    if tlog:
+                        w.write(s.time_usec, frame)
+                    else:
+                        fh.write(frame)  # raw bytes, as a serial capture holds them
                 n += 1
     else:
         n = sim.run()

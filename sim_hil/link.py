@@ -1,0 +1,97 @@
+"""The simulator on the wire: sensor packets to a UDP endpoint or serial port, paced in real time or
+``--speed N`` times faster, optionally in lockstep with the firmware.
+
+Lockstep handshake: the firmware, like any MAVLink vehicle, sends its WIND_COV (and HEARTBEAT) back
+on the link its sensor packets come from. WIND_COV.time_usec is the newest IMU sample the estimate
+includes, so it says how far the firmware has got. Before sending a sample at simulated time t, the
+simulator waits until the newest WIND_COV time is within ``window`` seconds of t. Nothing is lost on
+loopback however fast the run. If no WIND_COV arrives for ``timeout`` seconds (firmware not running),
+it stops waiting, counts a timeout, and waits again once WIND_COV reappears.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from firmware_py.mavio import Decoder, LinkStats, open_link
+from sim_hil.packets import SensorPacketEncoder
+from sim_hil.simulator import Simulation
+
+
+class Lockstep:
+    def __init__(self, link, window_s: float, timeout_s: float) -> None:
+        self.link = link
+        self.dec = Decoder(LinkStats())
+        self.window_us = int(window_s * 1e6)
+        self.timeout_s = timeout_s
+        self.fw_time_us = -1
+        self.engaged = True
+        self.timeouts = 0
+        self.waits = 0
+
+    def poll(self, wait_s: float) -> None:
+        data = self.link.recv(wait_s)
+        while data:
+            for m in self.dec.feed(data):
+                if m.get_type() == "WIND_COV":
+                    self.fw_time_us = max(self.fw_time_us, m.time_usec)
+                    self.engaged = True
+            data = self.link.recv(0.0)
+
+    def wait_for(self, t_us: int) -> None:
+        if self.fw_time_us < 0:
+            horizon = self.window_us  # the firmware has not spoken yet: let it get going
+        else:
+            horizon = self.fw_time_us + self.window_us
+        if t_us <= horizon:
+            return
+        if not self.engaged:
+            self.poll(0.0)
+            return
+        self.waits += 1
+        deadline = time.monotonic() + self.timeout_s
+        while t_us > self.fw_time_us + self.window_us:
+            if time.monotonic() > deadline:
+                self.timeouts += 1
+                self.engaged = False
+                return
+            self.poll(0.02)
+
+
+def stream(sim: Simulation, enc: SensorPacketEncoder, spec: str, speed: float, lockstep: bool,
+           window_s: float = 0.5, timeout_s: float = 2.0, stop=lambda: False) -> int:  # fmt: skip
+    """Send every sample's frames to ``spec``; returns the number of IMU samples sent."""
+    link = open_link(spec)
+    ls = Lockstep(link, window_s, timeout_s)
+    t0 = time.monotonic()
+    n = 0
+    try:
+        for s in sim.samples():
+            if stop():
+                break
+            if speed > 0:
+                ahead = t0 + s.time_usec * 1e-6 / speed - time.monotonic()
+                if ahead > 0.002:
+                    time.sleep(ahead)
+            if lockstep:
+                ls.wait_for(s.time_usec)
+            elif n % 100 == 0:
+                ls.poll(0.0)  # drain what comes back
+            for frame in enc.encode(s):
+                link.send(frame)
+            n += 1
+    finally:
+        link.close()
+    if lockstep and ls.timeouts:
+        print(f"balloon-sim: lockstep: {ls.timeouts} timeouts waiting for the firmware", file=sys.stderr)
+    return n
+
+
+def stream_udp(sim: Simulation, enc: SensorPacketEncoder, spec: str, args) -> int:
+    import signal
+
+    stopping: list[int] = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stopping.append(1))
+    return stream(sim, enc, spec, args.speed, args.lockstep, args.lockstep_window, 2.0, lambda: bool(stopping))

@@ -1,0 +1,142 @@
+"""``balloon-sil``: software in the loop. Starts ``balloon-sim``, ``balloon-fw`` and ``balloon-gs`` as
+three processes talking MAVLink over UDP on loopback, shows the ground station's live line, stops
+them all cleanly (also on Ctrl-C or when one of them dies), then scores the run and plots it.
+
+    sim --udpout--> fw (udpin) --udpout--> gs (udpin)
+        <--WIND_COV-- (lockstep)
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Children:
+    """The three processes; whatever happens, none outlives us."""
+
+    def __init__(self) -> None:
+        self.procs: dict[str, subprocess.Popen] = {}
+
+    def start(self, name: str, args: list[str], **kw) -> subprocess.Popen:
+        p = subprocess.Popen([sys.executable, "-m", *args], **kw)
+        self.procs[name] = p
+        return p
+
+    def stop(self, name: str, grace_s: float = 5.0) -> None:
+        p = self.procs.get(name)
+        if p is None or p.poll() is not None:
+            return
+        p.send_signal(signal.SIGTERM)
+        try:
+            p.wait(grace_s)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+    def stop_all(self) -> None:
+        for name in reversed(list(self.procs)):
+            self.stop(name)
+
+    def dead(self) -> list[str]:
+        return [n for n, p in self.procs.items() if p.poll() is not None]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="balloon-sil", description="simulator + firmware + ground station")
+    ap.add_argument("--scenario", default="paper-reference")
+    ap.add_argument("--duration", type=float, default=600.0, help="simulated seconds")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--speed", type=float, default=10.0, help="N x real time (lockstep keeps it lossless)")
+    ap.add_argument("--config", help="TOML design file for simulator and firmware")
+    ap.add_argument("--outdir", default="out", help="truth, logs and plot go here")
+    args = ap.parse_args(argv)
+    os.makedirs(args.outdir, exist_ok=True)
+    tag = f"{args.scenario}-seed{args.seed}"
+    truth = os.path.join(args.outdir, f"{tag}-truth.csv")
+    gs_csv = os.path.join(args.outdir, f"{tag}-wind.csv")
+    gs_tlog = os.path.join(args.outdir, f"{tag}-gs.tlog")
+    plot = os.path.join(args.outdir, f"{tag}.png")
+    p_fw, p_gs = free_port(), free_port()
+    cfg = ["--config", args.config] if args.config else []
+    kids = Children()
+    stopping: list[int] = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stopping.append(1))
+    latest = [""]
+    t_start = time.monotonic()
+    try:
+        gs = kids.start("gs", ["ground_station", "listen", f"udpin:127.0.0.1:{p_gs}", "--csv", gs_csv,
+                               "--tlog", gs_tlog], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+        threading.Thread(target=_follow, args=(gs.stdout, latest), daemon=True).start()
+        fw = kids.start("fw", ["firmware_py", "--in", f"udpin:127.0.0.1:{p_fw}", "--out", f"udpout:127.0.0.1:{p_gs}",
+                               *cfg], stderr=subprocess.PIPE, text=True)  # fmt: skip
+        time.sleep(0.5)  # let both bind before the sensors start flowing
+        sim = kids.start("sim", ["sim_hil", "--scenario", args.scenario, "--duration", str(args.duration),
+                                 "--seed", str(args.seed), "--out", f"udpout:127.0.0.1:{p_fw}", "--truth", truth,
+                                 "--speed", str(args.speed), "--lockstep", *cfg],
+                         stderr=subprocess.PIPE, text=True)  # fmt: skip
+        print(f"balloon-sil: {args.scenario}, {args.duration:.0f} s at {args.speed:g}x, seed {args.seed} "
+              f"(sim -> udp:{p_fw} -> fw -> udp:{p_gs} -> gs)")  # fmt: skip
+        tty = sys.stdout.isatty()
+        next_show = 0.0
+        while sim.poll() is None:
+            if stopping:
+                print("\nballoon-sil: interrupted, stopping all", file=sys.stderr)
+                return 130
+            died = [n for n in kids.dead() if n != "sim"]
+            if died:
+                print(f"\nballoon-sil: {', '.join(died)} died; stopping all", file=sys.stderr)
+                return 1
+            now = time.monotonic()
+            if now >= next_show and latest[0]:
+                print(("\r\x1b[K" if tty else "") + latest[0][:150], end="" if tty else "\n", flush=True)
+                next_show = now + (1.0 if tty else 10.0)
+            time.sleep(0.1)
+        if tty:
+            print()
+        if sim.returncode != 0:
+            print(f"balloon-sil: simulator failed:\n{sim.stderr.read()}", file=sys.stderr)
+            return 1
+        time.sleep(1.0)  # the last WIND_COV reach the ground station
+        kids.stop("fw")
+        kids.stop("gs")
+        for name in ("sim", "fw"):
+            err = kids.procs[name].stderr.read().strip()
+            if err:
+                print(err.splitlines()[-1])
+        print(gs.stderr.read().strip())
+    finally:
+        kids.stop_all()
+    wall = time.monotonic() - t_start
+    from ground_station.report import format_score, report
+
+    try:
+        s = report(gs_csv, truth, plot)
+    except ValueError as exc:
+        print(f"balloon-sil: cannot score: {exc}", file=sys.stderr)
+        return 1
+    print(f"score: {format_score(s)}")
+    print(f"plot: {plot}   logs: {gs_csv}, {gs_tlog}   truth: {truth}   wall time {wall:.0f} s")
+    return 0
+
+
+def _follow(stream, latest: list[str]) -> None:
+    for line in stream:
+        latest[0] = line.strip()
+
+
+if __name__ == "__main__":
+    sys.exit(main())
