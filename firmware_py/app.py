@@ -13,7 +13,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from firmware_py.config import Design
 from firmware_py.control import Estimator
-from firmware_py.mavio import LinkStats
+from firmware_py.mavio import LinkStats, pack
 from firmware_py.outputs import WindCovOutput
 from firmware_py.state import FilterConfig
 
@@ -92,16 +92,16 @@ class Firmware:
             self._next_wind_us = t_us - t_us % self.period_us + self.period_us
 
     def heartbeat(self, t_us: int) -> None:
-        frame = self.mav.heartbeat_encode(
+        frame = pack(self.mav, self.mav.heartbeat_encode(
             mavlink.MAV_TYPE_FREE_BALLOON, mavlink.MAV_AUTOPILOT_GENERIC, 0, self.est.ekf.mode,
             mavlink.MAV_STATE_ACTIVE if self.est.initialised else mavlink.MAV_STATE_STANDBY,
-        ).pack(self.mav)  # fmt: skip
+        ))  # fmt: skip
         self._send(frame, t_us)
 
     def wind_cov(self, t_us: int) -> None:
         fields = self.out.fields(self.est)
         self.last_fields = fields
-        self._send(self.mav.wind_cov_encode(*fields).pack(self.mav), t_us)
+        self._send(pack(self.mav, self.mav.wind_cov_encode(*fields)), t_us)
         self.wind_cov_sent += 1
 
     def _send(self, frame: bytes, t_us: int) -> None:

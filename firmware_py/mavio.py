@@ -16,6 +16,15 @@ TLOG_HEADER = 8
 MAGIC_V2, MAGIC_V1 = 0xFD, 0xFE
 
 
+def pack(mav, msg) -> bytes:
+    """Encode ``msg`` as the next frame of ``mav``'s stream. ``MAVLink.pack`` alone does not advance the
+    sequence number (``MAVLink.send`` does), and receivers count lost packets from it."""
+    frame = msg.pack(mav)
+    mav.seq = (mav.seq + 1) % 256
+    mav.total_packets_sent += 1
+    return frame
+
+
 class LinkStats:
     __slots__ = ("bytes", "frames", "bad_frames", "garbage_bytes", "lost", "_last_seq")
 
@@ -167,14 +176,17 @@ class SerialLink:
         path, _, baud = spec.rpartition(":")
         if not path or not baud.isdigit():
             path, baud = spec, "57600"
-        self.port = serial.serial_for_url(path, baudrate=int(baud), timeout=0)
+        self.port = serial.serial_for_url(path, baudrate=int(baud), timeout=0, write_timeout=0.5)
 
     def recv(self, timeout_s: float) -> bytes:
         self.port.timeout = timeout_s
         return self.port.read(4096)
 
     def send(self, data: bytes) -> None:
-        self.port.write(data)
+        try:
+            self.port.write(data)
+        except Exception:  # nobody draining the other end: drop it, as a radio would  # noqa: BLE001
+            pass
 
     def close(self) -> None:
         self.port.close()

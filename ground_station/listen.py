@@ -9,7 +9,7 @@ import time
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from firmware_py.mavio import Decoder, LinkStats, TlogSink, open_link
+from firmware_py.mavio import Decoder, LinkStats, TlogSink, open_link, pack
 from ground_station.wind import CSV_COLUMNS, WindRecord
 
 MODE_NAMES = {0: "ground", 1: "free", 2: "taut"}  # balloon-fw's HEARTBEAT custom_mode
@@ -48,9 +48,9 @@ class GroundStation:
                 self.mode = MODE_NAMES.get(m.custom_mode, str(m.custom_mode))
 
     def heartbeat(self) -> bytes:
-        return self.mav.heartbeat_encode(
+        return pack(self.mav, self.mav.heartbeat_encode(
             mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE
-        ).pack(self.mav)
+        ))  # fmt: skip
 
     def rate(self, now: float) -> float:
         self._window = [t for t in self._window if now - t <= 2.0]

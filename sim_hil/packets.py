@@ -7,6 +7,7 @@ from typing import BinaryIO
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from firmware_py.mavio import pack
 from sim_hil.simulator import SensorSample
 
 SIM_SYSID = 1
@@ -30,11 +31,9 @@ class SensorPacketEncoder:
         mav = self.mav
         out = []
         if s.time_usec >= self._next_heartbeat_us:
-            out.append(
-                mav.heartbeat_encode(
-                    mavlink.MAV_TYPE_FREE_BALLOON, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE
-                ).pack(mav)
-            )
+            out.append(pack(mav, mav.heartbeat_encode(
+                mavlink.MAV_TYPE_FREE_BALLOON, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE
+            )))  # fmt: skip
             self._next_heartbeat_us += 1_000_000
         updated = HIGHRES_ACC_GYRO_MAG
         if s.baro is not None:
@@ -42,17 +41,12 @@ class SensorPacketEncoder:
             updated |= HIGHRES_ABS_PRESSURE | HIGHRES_TEMPERATURE
         hpa, temp_c = self._last_baro
         a, g, m = s.accel, s.gyro, s.mag
-        out.append(
-            mav.highres_imu_encode(
-                s.time_usec, a[0], a[1], a[2], g[0], g[1], g[2], m[0], m[1], m[2], hpa, 0.0, 0.0, temp_c, updated, 0
-            ).pack(mav)
-        )
+        out.append(pack(mav, mav.highres_imu_encode(
+            s.time_usec, a[0], a[1], a[2], g[0], g[1], g[2], m[0], m[1], m[2], hpa, 0.0, 0.0, temp_c, updated, 0
+        )))  # fmt: skip
         if s.baro is not None:
-            out.append(
-                mav.scaled_pressure_encode(
-                    s.time_usec // 1000, hpa, 0.0, int(round(temp_c * 100.0)), 0
-                ).pack(mav)
-            )
+            temp_cdeg = int(round(temp_c * 100.0))
+            out.append(pack(mav, mav.scaled_pressure_encode(s.time_usec // 1000, hpa, 0.0, temp_cdeg, 0)))
         return out
 
 

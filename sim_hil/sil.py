@@ -78,11 +78,11 @@ def main(argv: list[str] | None = None) -> int:
     latest = [""]
     t_start = time.monotonic()
     try:
-        gs = kids.start("gs", ["ground_station", "listen", f"udpin:127.0.0.1:{p_gs}", "--csv", gs_csv,
-                               "--tlog", gs_tlog], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+        gs_args = ["ground_station", "listen", f"udpin:127.0.0.1:{p_gs}", "--csv", gs_csv, "--tlog", gs_tlog]
+        gs = kids.start("gs", gs_args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         threading.Thread(target=_follow, args=(gs.stdout, latest), daemon=True).start()
-        fw = kids.start("fw", ["firmware_py", "--in", f"udpin:127.0.0.1:{p_fw}", "--out", f"udpout:127.0.0.1:{p_gs}",
-                               *cfg], stderr=subprocess.PIPE, text=True)  # fmt: skip
+        fw_args = ["firmware_py", "--in", f"udpin:127.0.0.1:{p_fw}", "--out", f"udpout:127.0.0.1:{p_gs}", *cfg]
+        kids.start("fw", fw_args, stderr=subprocess.PIPE, text=True)
         time.sleep(0.5)  # let both bind before the sensors start flowing
         sim = kids.start("sim", ["sim_hil", "--scenario", args.scenario, "--duration", str(args.duration),
                                  "--seed", str(args.seed), "--out", f"udpout:127.0.0.1:{p_fw}", "--truth", truth,
