@@ -33,6 +33,8 @@ REORDER_WINDOW_US = 1_000_000
 MAG_EVERY = 10  # heading fusion at 10 Hz
 TAUT_EVERY = 5  # taut constraints at 20 Hz
 ALIGN_RESET_COUNT = 40  # 2 s of rejected alignment at 20 Hz
+BARO_MODEL_M = 0.3  # hypsometric conversion error (temperature profile, lag) added to the sensor's noise
+LEARN_DRAG_AFTER_S = 2.0  # after the release, once the ascent is established
 
 
 class Counters:
@@ -87,15 +89,16 @@ class Estimator:
         s = design.sensors
         self.accel_var = s.accel_mps2**2 + self.cfg.accel_model_mps2**2
         self.accel_static_var = s.accel_mps2**2 + self.cfg.accel_static_mps2**2
-        self.baro_var = s.baro_m**2
+        self.baro_var = s.baro_m**2 + BARO_MODEL_M**2
         self.mag_sigma = s.mag_gauss
         self.declination = math.radians(design.site.mag_declination_deg)
         self.dt_us = round(1e6 / self.cfg.imu_rate_hz)
         self.max_gap_steps = max(1, round(self.cfg.max_gap_s * self.cfg.imu_rate_hz))
         self.counters = Counters()
         self.accel_status = [FusionStatus(f"accel_{a}") for a in "xyz"]
-        self.baro_status = FusionStatus("baro")
-        self.heading_status = FusionStatus("heading")
+        rec = self.cfg.recover_after_s
+        self.baro_status = FusionStatus("baro", max(1, int(rec * 20)))  # at the nominal 20 Hz
+        self.heading_status = FusionStatus("heading", max(1, int(rec * 10)))
         self.taut_status = [FusionStatus(n) for n in ("radius", "radial_rate", "align_n", "align_e")]
         self.mode_time = [0.0, 0.0, 0.0]
         self._init_clock()
@@ -281,6 +284,7 @@ class Estimator:
         cfg = self.cfg
         self._dwell += 1
         dwell_ok = self._dwell >= cfg.mode_dwell_s * cfg.imu_rate_hz
+        ekf.learn_drag = ekf.mode == MODE_FREE and self._dwell >= LEARN_DRAG_AFTER_S * cfg.imu_rate_hz
         if ekf.mode == MODE_GROUND:
             lifted = abs(math.sqrt(ax * ax + ay * ay + az * az) - G0) > cfg.release_accel_mps2
             self._release_count = self._release_count + 1 if lifted else 0

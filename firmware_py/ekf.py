@@ -38,10 +38,12 @@ N = N_STATES
 class FusionStatus:
     """Per-fusion bookkeeping, as PX4's estimator_innovations / test ratios."""
 
-    __slots__ = ("name", "innov", "innov_var", "test_ratio", "fused", "rejected", "consecutive_rejects")
+    __slots__ = ("name", "innov", "innov_var", "test_ratio", "fused", "rejected", "consecutive_rejects",
+                 "recover_after")  # fmt: skip
 
-    def __init__(self, name: str) -> None:
+    def __init__(self, name: str, recover_after: int = 0) -> None:
         self.name = name
+        self.recover_after = recover_after  # consecutive rejections before a forced fusion (0: filter default)
         self.innov = 0.0
         self.innov_var = 0.0
         self.test_ratio = 0.0
@@ -99,15 +101,18 @@ class WindEkf:
         self._f_ground = False
         self._set_static_jacobian(True)
         self.mode = MODE_GROUND
+        self.learn_drag = False  # set by the control logic: only in established free ascent
         self.resets = 0
         self.recover_after = int(cfg.recover_after_s * cfg.imu_rate_hz)
 
-    _VIEWS = ("P_diag", "_k_col", "_ph_row")
+    _VIEWS = ("P_diag", "_k_col", "_ph_row", "_P_rows", "_P_cols")
 
     def _make_views(self) -> None:
         self.P_diag = np.einsum("ii->i", self.P)  # writable view of the diagonal
         self._k_col = self._k.reshape(N, 1)  # views for the outer product without np.outer's overhead
         self._ph_row = self._ph.reshape(1, N)
+        self._P_rows = [self.P[i] for i in range(N)]  # row / column views, for inhibition
+        self._P_cols = [self.P[:, i] for i in range(N)]
 
     def __getstate__(self) -> dict:  # copies (snapshots, tests) must rebuild the views on their arrays
         return {k: v for k, v in self.__dict__.items() if k not in self._VIEWS}
@@ -242,7 +247,7 @@ class WindEkf:
         if ratio > 1.0:
             status.rejected += 1
             status.consecutive_rejects += 1
-            if not recover or status.consecutive_rejects < self.recover_after:
+            if not recover or status.consecutive_rejects < (status.recover_after or self.recover_after):
                 return False
             # persistently inconsistent: the model, not the sensor, is off. Fuse with the noise
             # inflated to put the innovation on the gate, so the state walks back without a jump.
@@ -263,6 +268,8 @@ class WindEkf:
     def end_update(self) -> bool:
         """Apply the accumulated correction (attitude error into the quaternion), then fix the
         covariance: symmetrise, clamp the variances. Returns False if the state went non-finite."""
+        if not self.learn_drag:
+            self.inhibit(DRAG)
         np.add(self.x, self.dx, out=self.x)
         x = self.x
         dn, de, dd = x[ATT_N : ATT_D + 1].tolist()
@@ -285,6 +292,17 @@ class WindEkf:
         finite = math.isfinite(float(self._r))
         np.add.reduce(self.P_diag, out=self._r)
         return finite and math.isfinite(float(self._r))
+
+    def inhibit(self, i: int) -> None:
+        """Hold state i where it is (PX4's state inhibition): no correction, no correlations; its
+        variance stays. The drag scale is learnt only in established free ascent (the climb rate
+        against the known lift tells it); on the taut tether the quasi-static balance sees only
+        k |w|^2, and the release transient would mistake the detection lag for drag."""
+        self.dx[i] = 0.0
+        v = float(self.P[i, i])
+        self._P_rows[i].fill(0.0)
+        self._P_cols[i].fill(0.0)
+        self.P[i, i] = v
 
     def fix_covariance(self) -> None:
         np.add(self.P, self.P.T, out=self._t2)
