@@ -10,7 +10,8 @@ import argparse
 import io
 import time
 
-from sim_hil.packets import SensorPacketEncoder, TlogWriter
+from firmware_py.mavio import TlogWriter
+from sim_hil.packets import SensorPacketEncoder
 from sim_hil.scenarios import SCENARIOS
 from sim_hil.simulator import Simulation
 

@@ -19,7 +19,6 @@ from firmware_py.state import FilterConfig
 
 FW_SYSID = 1
 FW_COMPID = mavlink.MAV_COMP_ID_AUTOPILOT1
-TLOG_EPOCH_US = 1_767_225_600_000_000
 ACC_GYRO_BITS = 0x3F
 MAG_BITS = 0x1C0
 PRESSURE_BIT = 0x200
@@ -107,7 +106,7 @@ class Firmware:
     def _send(self, frame: bytes, t_us: int) -> None:
         for sink in self.sinks:
             if hasattr(sink, "send_at"):
-                sink.send_at(frame, TLOG_EPOCH_US + t_us)
+                sink.send_at(frame, t_us)
             else:
                 sink.send(frame)
 

@@ -202,15 +202,31 @@ def open_link(spec: str):
     return SerialLink(spec)
 
 
-class TlogSink:
+TLOG_EPOCH_US = 1_767_225_600_000_000  # 2026-01-01T00:00Z: records of simulated time are stamped from here
+
+
+class TlogWriter:
+    """Telemetry log records: each frame preceded by its 8-byte big-endian microsecond timestamp."""
+
+    def __init__(self, fh: BinaryIO) -> None:
+        self.fh = fh
+
+    def write(self, time_usec: int, frame: bytes) -> None:
+        """A frame at a simulated time (since boot), stamped TLOG_EPOCH_US + time_usec."""
+        self.fh.write(struct.pack(">Q", TLOG_EPOCH_US + time_usec) + frame)
+
+
+class TlogSink(TlogWriter):
+    """A tlog file as a sink: ``send`` stamps wall-clock time, ``send_at`` simulated time."""
+
     def __init__(self, path: str) -> None:
-        self.fh = open(path, "wb")
+        super().__init__(open(path, "wb"))
 
     def send(self, data: bytes) -> None:
         self.fh.write(struct.pack(">Q", int(time.time() * 1e6)) + data)
 
     def send_at(self, data: bytes, t_us: int) -> None:
-        self.fh.write(struct.pack(">Q", t_us) + data)
+        self.write(t_us, data)
 
     def close(self) -> None:
         self.fh.close()

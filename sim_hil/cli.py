@@ -7,7 +7,8 @@ import sys
 import time
 
 from firmware_py.config import ConfigError
-from sim_hil.packets import SensorPacketEncoder, TlogWriter
+from firmware_py.mavio import TlogWriter
+from sim_hil.packets import SensorPacketEncoder
 from sim_hil.scenarios import SCENARIOS, WIND_CHOICES, resolve
 from sim_hil.simulator import Simulation, write_truth_csv
 

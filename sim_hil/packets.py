@@ -1,9 +1,6 @@
-"""MAVLink 2 sensor packets (pymavlink) and the thin file/UDP writers at the program's edge."""
+"""MAVLink 2 sensor packets (pymavlink): HIGHRES_IMU, SCALED_PRESSURE and HEARTBEAT frames."""
 
 from __future__ import annotations
-
-import struct
-from typing import BinaryIO
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -12,7 +9,6 @@ from sim_hil.simulator import SensorSample
 
 SIM_SYSID = 1
 SIM_COMPID = mavlink.MAV_COMP_ID_IMU
-TLOG_EPOCH_US = 1_767_225_600_000_000  # 2026-01-01T00:00:00Z: tlog timestamps = epoch + simulated time
 HIGHRES_ACC_GYRO_MAG = 0x1FF
 HIGHRES_ABS_PRESSURE = 0x200
 HIGHRES_TEMPERATURE = 0x1000
@@ -48,14 +44,3 @@ class SensorPacketEncoder:
             temp_cdeg = int(round(temp_c * 100.0))
             out.append(pack(mav, mav.scaled_pressure_encode(s.time_usec // 1000, hpa, 0.0, temp_cdeg, 0)))
         return out
-
-
-class TlogWriter:
-    """Telemetry log: each frame preceded by its 8-byte big-endian microsecond timestamp."""
-
-    def __init__(self, fh: BinaryIO, epoch_us: int = TLOG_EPOCH_US) -> None:
-        self.fh = fh
-        self.epoch_us = epoch_us
-
-    def write(self, time_usec: int, frame: bytes) -> None:
-        self.fh.write(struct.pack(">Q", self.epoch_us + time_usec) + frame)

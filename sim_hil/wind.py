@@ -180,13 +180,6 @@ class WindSeries:
     ned: np.ndarray  # (n, 3) m/s
     rate: np.ndarray  # (n, 3) m/s^2
 
-    def at(self, t_s: float) -> np.ndarray:
-        """Linearly interpolated NED wind at time t (held at the ends)."""
-        x = np.clip(t_s / self.dt_s, 0.0, len(self.ned) - 1.000001)
-        i = int(x)
-        frac = x - i
-        return self.ned[i] * (1.0 - frac) + self.ned[i + 1] * frac
-
 
 def spatial_average(x: np.ndarray, sample_hz: float, length_m: float, mean_mps: float) -> np.ndarray:
     """The wind a body of size ``length_m`` feels: frozen turbulence (Taylor) averaged along the wind

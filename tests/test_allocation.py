@@ -36,24 +36,15 @@ def test_steady_state_steps_allocate_no_numpy_arrays(float32):
     out = WindCovOutput(100.0, 0.0)
     feed(est, samples[:12000])
     assert est.ekf.mode == MODE_TAUT
-    window = samples[12000:16000]  # 4000 steps: 800 baro, 400 heading, 800 taut fusions
-
-    def steps():
-        for s in window:
-            if s.baro:
-                est.on_baro(s.time_usec, *s.baro)
-            est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
-            out.update(est, s.time_usec)
-            out.fields(est)
-
-    count, _ = numpy_allocations(steps)
+    # 4000 steps: 800 baro, 400 heading, 800 taut fusions
+    count, _ = numpy_allocations(steps_over(est, out, samples[12000:16000]))
     assert est.baro_status.fused > 0 and est.heading_status.fused > 0 and est.taut_status[2].fused > 0
     assert count == 0
     # and not even a temporary that was freed again (counted by an allocator hook)
-    assert count_allocations(steps_again(est, out, samples[16000:20000])) == 0
+    assert count_allocations(steps_over(est, out, samples[16000:20000])) == 0
 
 
-def steps_again(est, out, window):
+def steps_over(est, out, window):
     def steps():
         for s in window:
             if s.baro:
