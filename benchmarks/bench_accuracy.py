@@ -4,7 +4,8 @@ paper's parameter study, Sec. 3.1-3.4), and the frequency response on the multis
     .venv/bin/python -m benchmarks.bench_accuracy [--seeds 5] [--duration 600] [--jobs 2]
 
 Metrics after 120 s: band RMSE (horizontal vector, both low-passed below 0.05 Hz), raw RMSE, mean
-speed error, mean direction error, reported horiz_accuracy / actual raw RMS error.
+speed error, mean direction error, reported horiz_accuracy / actual raw RMS error, and the RMS
+error of the orientation the firmware computes on board (tilt, heading).
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from multiprocessing import Pool
 
 import numpy as np
 
-from benchmarks.common import fly, gain_flight, score_flight
+from benchmarks.common import attitude_errors, fly, gain_flight, score_flight
 
 SCENARIOS = ("paper-reference", "reduced-balloon", "increased-balloon", "better-accel", "better-baro",
              "better-gyro-rate", "better-orientation", "realistic-mems", "rope-drag")  # fmt: skip
@@ -26,7 +27,7 @@ def one(job):
     rows, truth, est = fly(name, duration, seed)
     s = score_flight(rows, truth)
     g = gain_flight(rows, truth, GAIN_HZ) if name == "multisine" else {}
-    return name, seed, s, g, est.counters.taut_resets
+    return name, seed, s, g, est.counters.taut_resets, attitude_errors(rows, truth)
 
 
 def main() -> None:
@@ -41,7 +42,7 @@ def main() -> None:
         results = pool.map(one, jobs)
     print(f"{args.seeds} seeds x {args.duration:.0f} s, metrics after 120 s (mean over seeds, [worst])")
     hdr = f"{'scenario':20s} {'band RMSE m/s':>15s} {'raw RMSE':>9s} {'speed err %':>13s} {'dir err deg':>13s} "
-    print(hdr + f"{'acc/err':>8s} {'resets':>6s}")
+    print(hdr + f"{'acc/err':>8s} {'resets':>6s} {'tilt/yaw err deg':>17s}")
     for name in args.scenarios:
         rs = [r for r in results if r[0] == name]
         band = np.array([r[2].band_rmse_mps for r in rs])
@@ -50,9 +51,11 @@ def main() -> None:
         dr = np.array([r[2].direction_error_deg for r in rs])
         ratio = np.array([r[2].accuracy_ratio for r in rs])
         resets = sum(r[4] for r in rs)
+        tilt = np.mean([r[5][0] for r in rs])
+        yaw = np.mean([r[5][1] for r in rs])
         print(f"{name:20s} {band.mean():6.3f} [{band.max():5.3f}] {raw.mean():9.3f} "
               f"{np.abs(sp).mean():5.2f} [{np.abs(sp).max():5.2f}] {np.abs(dr).mean():5.2f} [{np.abs(dr).max():5.2f}] "
-              f"{ratio.mean():8.2f} {resets:6d}")  # fmt: skip
+              f"{ratio.mean():8.2f} {resets:6d} {tilt:8.2f} {yaw:8.2f}")  # fmt: skip
     ms = [r for r in results if r[0] == "multisine"]
     print("\nfrequency response on the multisine wind, |estimate / truth| of the along-wind component:")
     print(f"{'Hz':>8s} " + " ".join(f"{f:>7.2f}" for f in GAIN_HZ))

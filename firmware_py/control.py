@@ -129,8 +129,6 @@ class Estimator:
         self.rho = air_density(101325.0, 293.15)
         self.height_baro = math.nan
         self._baro_pending = False
-        self._baro_p_pa = math.nan
-        self._baro_t_k = math.nan
 
     def reset(self) -> None:
         """Forget everything (time went backwards: the vehicle rebooted)."""
@@ -164,8 +162,6 @@ class Estimator:
                 return True
             self.p_ref_pa = self._zero_sum / self._zero_n
             self._zeroing = False
-        self._baro_p_pa = p
-        self._baro_t_k = tk
         self.height_baro = hypsometric_height_m(p, self.p_ref_pa, 0.5 * (self.t_ref_k + tk))
         self._baro_pending = True
         return True
@@ -198,7 +194,8 @@ class Estimator:
                 return False
             c.time_resets += 1
             self.reset()
-            self._initialise(t_us, ax, ay, az, mx, my, mz) if mag_ok else None
+            if mag_ok:
+                self._initialise(t_us, ax, ay, az, mx, my, mz)
             return False
         c.imu_samples += 1
         self.t_last_us = t_us

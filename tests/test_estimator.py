@@ -132,3 +132,15 @@ def test_sensor_silence_grows_the_reported_accuracy(flying):
         est.coast(1.0)
     assert est.ekf.wind_accuracy() > 1.5 * before
     check_covariance(est.ekf.P)
+
+
+def test_configured_ground_pressure_replaces_zeroing():
+    from firmware_py.config import SiteConfig
+
+    samples, truth = stream("paper-reference", 300.0, 11)
+    est = Estimator(replace(Design(), site=SiteConfig(ground_pressure_hpa=1013.25)))
+    assert not est._zeroing
+    rows = feed(est, samples, record=True)
+    s = score(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], truth["time_s"], truth["wind_n"], truth["wind_e"])
+    assert s.band_rmse_mps <= 0.3
+    assert est.height_m() == pytest.approx(truth["height_m"][-1], abs=2.0)
