@@ -15,7 +15,7 @@ from sim_hil.simulator import TRUTH_COLUMNS, Simulation
 def fly(name: str, duration_s: float, seed: int, scenario=None):
     sc = scenario or SCENARIOS[name]
     sim = Simulation(sc.design, sc.wind, sc.truth, duration_s, seed)
-    est = Estimator(sc.design)
+    est = Estimator(sc.design, sc.filter)
     rows = np.zeros((sim.n_imu, 7))
     for i, s in enumerate(sim.samples()):
         if s.baro:

@@ -48,10 +48,18 @@ class BalloonConfig:
         return math.pi * self.radius_m**2
 
 
+NYLON_DENSITY_KG_M3 = 1140.0
+
+
 @dataclass(frozen=True)
 class TetherConfig:
     length_m: float = 100.0
     linear_density_kg_m: float = 0.02
+
+    @property
+    def diameter_m(self) -> float:
+        """Of a solid nylon rope with this linear density (0.02 kg/m: 4.7 mm)."""
+        return math.sqrt(4.0 * self.linear_density_kg_m / (math.pi * NYLON_DENSITY_KG_M3))
 
 
 @dataclass(frozen=True)

@@ -84,7 +84,7 @@ class Estimator:
     def __init__(self, design: Design, cfg: FilterConfig | None = None) -> None:
         self.design = design
         self.cfg = cfg or FilterConfig()
-        self.model = BalloonModel.from_design(design)
+        self.model = BalloonModel.from_design(design, self.cfg.rope_normal_cd)
         self.ekf = WindEkf(self.model, self.cfg, design.sensors)
         s = design.sensors
         self.accel_var = s.accel_mps2**2 + self.cfg.accel_model_mps2**2

@@ -166,7 +166,8 @@ def fuse_taut(
     m = ekf.model
     weight = m.rope_kg_m * G0 * m.tether_length_m
     tension = f.tension_n
-    fn, fe, fd = -tension * e[0], -tension * e[1], -tension * e[2] + weight
+    rope = f.rope  # the rope's cross-flow drag share, if modelled
+    fn, fe, fd = -tension * e[0] + rope[0], -tension * e[1] + rope[1], -tension * e[2] + weight + rope[2]
     fmag = math.sqrt(fn * fn + fe * fe + fd * fd)
     n = (fn / fmag, fe / fmag, fd / fmag)
     r = rotation(*ekf.q.tolist())
@@ -177,11 +178,14 @@ def fuse_taut(
         ae = a[0] * e[0] + a[1] * e[1] + a[2] * e[2]
         h.fill(0.0)
         h[ATT_N], h[ATT_E], h[ATT_D] = dz_datt[c]
-        g = f.m_eff_kg * ae  # dn_c/du = -g jr
+        g = f.m_eff_kg * ae
+        jr, jq = f.jr, f.jrope
+        # dn_c/du = a . dF/du, dF/du = -e (m_eff jr)^T + dR/du (u = w - v)
+        dn = [-g * jr[i] + a[0] * jq[i] + a[1] * jq[3 + i] + a[2] * jq[6 + i] for i in range(3)]
         for i in range(3):
-            h[VEL_N + i] = -g * f.jr[i]  # -(dn/dv) with dn/dv = +g jr
+            h[VEL_N + i] = dn[i]  # residual z - n: d/dv = +dn/du
             h[POS_N + i] = tension / dist * (a[i] - ae * e[i])  # -(dn/dp)
-        h[WIND_N] = g * f.jr[0]
-        h[WIND_E] = g * f.jr[1]
+        h[WIND_N] = -dn[0]
+        h[WIND_E] = -dn[1]
         h[DRAG] = g * f.dkr
         ekf.fuse(n[c] - z[c], align_var, status[2 + c], recover=False)

@@ -28,9 +28,10 @@ class BalloonModel:
     half_cd_area_m2: float  # 1/2 Cd pi r^2
     tether_length_m: float  # anchor to the attachment point
     rope_kg_m: float
+    rope_drag_m2: float = 0.0  # the balloon's share of the taut rope's cross-flow drag: 1/4 Cn d L
 
     @classmethod
-    def from_design(cls, d: Design) -> BalloonModel:
+    def from_design(cls, d: Design, rope_normal_cd: float = 0.0) -> BalloonModel:
         b = d.balloon
         return cls(
             radius_m=b.radius_m,
@@ -39,6 +40,7 @@ class BalloonModel:
             half_cd_area_m2=0.5 * b.drag_coefficient * b.frontal_area_m2,
             tether_length_m=d.tether.length_m,
             rope_kg_m=d.tether.linear_density_kg_m,
+            rope_drag_m2=0.25 * rope_normal_cd * d.tether.diameter_m * d.tether.length_m,
         )
 
     @property
@@ -67,6 +69,9 @@ class Forces:
     jr: tuple = (0.0, 0.0, 0.0)
     dkr: float = 0.0
     m_eff_kg: float = 1.0
+    # taut with rope drag: the balloon's share of it (N, NED) and d(it)/du (N per m/s, 3x3 row-major)
+    rope: tuple = (0.0, 0.0, 0.0)
+    jrope: tuple = (0.0,) * 9
 
 
 def accelerations(
@@ -96,12 +101,32 @@ def accelerations(
     dk = (dn / k, de / k, dd / k) if k > 1e-6 else (0.0, 0.0, 0.0)
     lift = (rho_v - m.mass_kg) * G0  # balloon's own net lift, up
     height = -pd - m.radius_m
-    dist = math.sqrt(pn * pn + pe * pe + pd * pd) + 1e-9
     if taut:
         rope = m.rope_kg_m * G0 * m.tether_length_m
     else:
         rope = m.rope_kg_m * G0 * min(max(height, 0.0), m.tether_length_m)
     an, ae, ad = dn, de, dd + (rope - lift) * inv_m
+    dist = math.sqrt(pn * pn + pe * pe + pd * pd) + 1e-9
+    rope_f = (0.0, 0.0, 0.0)
+    jrope = (0.0,) * 9
+    if taut and m.rope_drag_m2 > 0.0:
+        # cross-flow drag on the straight rope, half carried by the balloon (the truth's model with the
+        # rope's own velocity neglected): R = rho (1/4 Cn d L) |u_n| u_n, u_n = (I - e e^T) u
+        en, ee, ed = pn / dist, pe / dist, pd / dist
+        ua = un * en + ue * ee + ud * ed
+        cn, ce, cd = un - ua * en, ue - ua * ee, ud - ua * ed
+        cs = math.sqrt(cn * cn + ce * ce + cd * cd) + 1e-6
+        kr = rho * m.rope_drag_m2
+        rope_f = (kr * cs * cn, kr * cs * ce, kr * cs * cd)
+        an += rope_f[0] * inv_m
+        ae += rope_f[1] * inv_m
+        ad += rope_f[2] * inv_m
+        # dR/du = kr (|c| I + c c^T / |c|)(I - e e^T)
+        cv, ev = (cn, ce, cd), (en, ee, ed)
+        g = [[kr * ((cs if r == q else 0.0) + cv[r] * cv[q] / cs) for q in range(3)] for r in range(3)]
+        jr_ = [g[r][q] - (g[r][0] * en + g[r][1] * ee + g[r][2] * ed) * ev[q] for r in range(3) for q in range(3)]
+        jrope = tuple(jr_)
+        j = [j[i] + jr_[i] * inv_m for i in range(9)]
     # free ascent: the airborne rope grows with height (d rope / d p_d = -lambda g)
     slack_rope = not taut and 0.0 < height < m.tether_length_m
     jp = (0.0,) * 8 + ((-m.rope_kg_m * G0 * inv_m) if slack_rope else 0.0,)
@@ -143,4 +168,5 @@ def accelerations(
     out.tension_n = tension
     out.taut = tension > 0.0
     out.jr, out.dkr, out.m_eff_kg = jr, dkr, m_eff
+    out.rope, out.jrope = rope_f, jrope
     return out

@@ -29,6 +29,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="do not run ahead of the firmware's WIND_COV time (lossless fast runs)")
     p.add_argument("--lockstep-window", type=float, default=0.5, help="seconds the simulator may lead")
     p.add_argument("--list-scenarios", action="store_true")
+    p.add_argument("--print-config", action="store_true",
+                   help="print the scenario (with --config applied) as a design TOML and exit")
     return p
 
 
@@ -43,6 +45,9 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"balloon-sim: {exc}", file=sys.stderr)
         return 2
+    if args.print_config:
+        print(sc.to_toml(), end="")
+        return 0
     if args.duration <= 0:
         print("balloon-sim: --duration must be > 0", file=sys.stderr)
         return 2

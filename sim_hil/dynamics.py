@@ -21,8 +21,6 @@ from dataclasses import dataclass
 from firmware_py.atmosphere import G0, ISA_EXP, LAPSE_K_M, R_AIR
 from firmware_py.config import Design, build_section
 
-NYLON_DENSITY_KG_M3 = 1140.0
-
 
 @dataclass(frozen=True)
 class TruthConfig:
@@ -89,7 +87,6 @@ class BalloonPhysics:
         rho0 = p0 / (R_AIR * t0)
         m_eff = mass + truth.added_mass_coefficient * rho0 * volume
         c = 2.0 * truth.tether_damping_ratio * math.sqrt(k * m_eff)
-        rope_d = math.sqrt(4.0 * t.linear_density_kg_m / (math.pi * NYLON_DENSITY_KG_M3))
         return cls(
             radius_m=r,
             volume_m3=volume,
@@ -101,7 +98,7 @@ class BalloonPhysics:
             rope_kg_m=t.linear_density_kg_m,
             tether_k_n_m=k,
             tether_c_ns_m=c,
-            rope_drag_factor=0.5 * truth.rope_normal_cd * rope_d if truth.rope_drag else 0.0,
+            rope_drag_factor=0.5 * truth.rope_normal_cd * t.diameter_m if truth.rope_drag else 0.0,
             rot_damping_nms=truth.rot_damping_nms,
             ground_pressure_pa=p0,
             ground_temperature_k=t0,

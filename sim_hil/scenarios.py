@@ -3,9 +3,10 @@ a few of our own. "better" = 10x smaller 1-sigma error of that sensor."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 
 from firmware_py.config import ConfigError, Design, SensorsConfig, design_from_dict, load_toml
+from firmware_py.state import FilterConfig
 from sim_hil.dynamics import TruthConfig
 from sim_hil.wind import WindConfig
 
@@ -17,6 +18,18 @@ class Scenario:
     design: Design = field(default_factory=Design)
     wind: WindConfig = field(default_factory=WindConfig)
     truth: TruthConfig = field(default_factory=TruthConfig)
+    filter: FilterConfig = field(default_factory=FilterConfig)  # what the firmware should be told
+
+    def to_toml(self) -> str:
+        """The whole scenario as one design file, for balloon-sim and balloon-fw alike."""
+        sections = {**{n: getattr(self.design, n) for n in ("balloon", "tether", "site", "sensors")},
+                    "wind": self.wind, "truth": self.truth, "filter": self.filter}  # fmt: skip
+        lines = [f"# scenario {self.name}: {self.description}"]
+        for name, obj in sections.items():
+            lines.append(f"\n[{name}]")
+            for k, v in _as_dict(obj).items():
+                lines.append(f"{k} = {_toml_value(v)}")
+        return "\n".join(lines) + "\n"
 
 
 def _with(**sections) -> Design:
@@ -54,8 +67,8 @@ SCENARIOS: dict[str, Scenario] = {
                  wind=WindConfig(kind="multisine")),
         Scenario("steady", "paper reference balloon in a steady 3 m/s wind", wind=WindConfig(kind="steady")),
         Scenario("calm", "no wind: the balloon stands above the anchor", wind=WindConfig(kind="steady", mean_mps=0.0)),
-        Scenario("rope-drag", "paper reference with Hoerner cross-flow drag on the rope",
-                 truth=TruthConfig(rope_drag=True)),
+        Scenario("rope-drag", "paper reference with Hoerner cross-flow drag on the rope (the firmware told so)",
+                 truth=TruthConfig(rope_drag=True), filter=FilterConfig(rope_normal_cd=1.1)),
     )
 }
 
@@ -84,6 +97,7 @@ def resolve(name: str, config_path: str | None = None, wind_choice: str | None =
             design=design_from_dict(merged),
             wind=WindConfig.from_dict({**_as_dict(sc.wind), **data.get("wind", {})}),
             truth=TruthConfig.from_dict({**_as_dict(sc.truth), **data.get("truth", {})}),
+            filter=FilterConfig.from_dict({**_as_dict(sc.filter), **data.get("filter", {})}),
         )
     if wind_choice:
         if wind_choice not in WIND_CHOICES:
@@ -93,6 +107,14 @@ def resolve(name: str, config_path: str | None = None, wind_choice: str | None =
 
 
 def _as_dict(obj) -> dict:
-    from dataclasses import asdict
-
     return {k: v for k, v in asdict(obj).items() if v is not None}
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return f'"{v}"'
+    if isinstance(v, (tuple, list)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    return repr(float(v))

@@ -70,7 +70,20 @@ def main(argv: list[str] | None = None) -> int:
     gs_tlog = os.path.join(args.outdir, f"{tag}-gs.tlog")
     plot = os.path.join(args.outdir, f"{tag}.png")
     p_fw, p_gs = free_port(), free_port()
-    cfg = ["--config", args.config] if args.config else []
+    # one design file for both: the scenario with the user's file applied (the firmware must be told
+    # what the scenario's balloon, tether and sensors are, and how to filter)
+    from firmware_py.config import ConfigError
+    from sim_hil.scenarios import resolve
+
+    try:
+        sc = resolve(args.scenario, args.config)
+    except ConfigError as exc:
+        print(f"balloon-sil: {exc}", file=sys.stderr)
+        return 2
+    design = os.path.join(args.outdir, f"{tag}-design.toml")
+    with open(design, "w") as fh:
+        fh.write(sc.to_toml())
+    cfg = ["--config", design]
     kids = Children()
     stopping: list[int] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -129,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"balloon-sil: cannot score: {exc}", file=sys.stderr)
         return 1
     print(f"score: {format_score(s)}")
-    print(f"plot: {plot}   logs: {gs_csv}, {gs_tlog}   truth: {truth}   wall time {wall:.0f} s")
+    print(f"plot: {plot}   logs: {gs_csv}, {gs_tlog}   truth: {truth}   design: {design}   wall time {wall:.0f} s")
     return 0
 
 

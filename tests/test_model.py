@@ -98,3 +98,24 @@ def test_accel_and_heading_rows_match_finite_differences(tilted):
                 assert (i1 - i0) / 1e-6 == pytest.approx(-h0[ATT_N + k], abs=2e-3 * max(1.0, abs(h0[ATT_N + k])))
     assert ATT_D == ATT_N + 2 and N_STATES == 15
     assert math.isfinite(base[0][0])
+
+
+def test_rope_drag_jacobians():
+    model = BalloonModel.from_design(Design(), rope_normal_cd=1.1)
+    assert model.rope_drag_m2 == pytest.approx(0.25 * 1.1 * Design().tether.diameter_m * 100.0)
+    x = np.array([3.0, 40.0, -92.0, 0.2, 0.3, -0.1, 0.5, 3.0, 1.0])
+
+    def a(x):
+        f = accelerations(model, 1.2, *x, True, Forces())
+        return np.array([f.an, f.ae, f.ad]), f
+
+    _, f = a(x)
+    assert 0.5 < np.linalg.norm(f.rope) < 2.0  # ~1 N: half of the rope's ~2 N at 2.5 m/s cross-flow
+    num = np.zeros((3, 3))
+    for i in range(3):  # wind n, e and drag scale only change u: compare d a / d u through the wind
+        d = np.zeros(9)
+        d[6 + min(i, 1)] = 1e-6
+        if i < 2:
+            num[:, i] = (a(x + d)[0] - a(x - d)[0]) / 2e-6
+    j = np.array(f.j).reshape(3, 3)
+    assert np.allclose(j[:, :2], num[:, :2], atol=1e-6)

@@ -114,3 +114,19 @@ def test_config_file_changes_the_design(tmp_path):
     assert sc.wind.kind == "steady" and sc.wind.mean_mps == 4.0
     assert sc.truth.release_s == 2.0
     assert sc.design.tether.length_m == 100.0
+
+
+@pytest.mark.parametrize("name", ["rope-drag", "realistic-mems", "multisine"])
+def test_scenario_design_file_round_trips_through_both_programs(name, tmp_path):
+    from firmware_py.cli import load_config
+    from sim_hil.scenarios import SCENARIOS, resolve
+
+    out = subprocess.run([sys.executable, "-m", "sim_hil", "--scenario", name, "--print-config"],
+                         capture_output=True, text=True, check=True)  # fmt: skip
+    path = tmp_path / "design.toml"
+    path.write_text(out.stdout)
+    sc = SCENARIOS[name]
+    again = resolve("paper-reference", str(path))
+    assert (again.design, again.wind, again.truth, again.filter) == (sc.design, sc.wind, sc.truth, sc.filter)
+    design, fcfg = load_config(str(path))
+    assert design == sc.design and fcfg == sc.filter
