@@ -67,7 +67,11 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"balloon-fw: {exc}", file=sys.stderr)
         return 2
-    sink = open_sink(args.sink) if args.sink else None
+    try:
+        sink = open_sink(args.sink) if args.sink else None
+    except (ValueError, OSError) as exc:
+        print(f"balloon-fw: {exc}", file=sys.stderr)
+        return 2
     fw = Firmware(design, fcfg, sink)
     stopping = []
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -77,6 +81,9 @@ def main(argv: list[str] | None = None) -> int:
             replay_file(fw, args.source)
         else:
             run_live(fw, args.source, lambda: bool(stopping))
+    except ValueError as exc:
+        print(f"balloon-fw: {exc}", file=sys.stderr)
+        return 2
     finally:
         if sink is not None:
             sink.close()

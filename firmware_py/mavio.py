@@ -3,7 +3,6 @@ messages, and sinks (tlog / UDP). Parsing is pymavlink's; bad frames are counted
 
 from __future__ import annotations
 
-import os
 import socket
 import struct
 import time
@@ -137,7 +136,7 @@ class UdpLink:
         if kind == "udpin":
             self.sock.bind((host, int(port)))
         elif kind == "udpout":
-            self.peer = (host, int(port))
+            self.peer = (socket.gethostbyname(host), int(port))  # resolve once; an unknown host fails here
             self.sock.bind(("127.0.0.1" if host.startswith("127.") else "0.0.0.0", 0))
         else:
             raise ValueError(f"not a UDP endpoint: {spec}")
@@ -192,14 +191,20 @@ class SerialLink:
         self.port.close()
 
 
-def is_live(spec: str) -> bool:
-    return spec.startswith(("udpin:", "udpout:")) or not os.path.isfile(spec)
-
-
 def open_link(spec: str):
+    """A UDP endpoint or a serial port; a clear ValueError for anything else (a missing file, say)."""
     if spec.startswith(("udpin:", "udpout:")):
-        return UdpLink(spec)
-    return SerialLink(spec)
+        try:
+            return UdpLink(spec)
+        except (ValueError, OSError) as exc:
+            raise ValueError(f"cannot open {spec}: {exc}") from exc
+    port = spec.rpartition(":")[0] if spec.rpartition(":")[2].isdigit() else spec
+    if not (port.startswith("/dev/") or "://" in port):
+        raise ValueError(f"{spec}: no such file, and not a UDP endpoint or serial port")
+    try:
+        return SerialLink(spec)
+    except Exception as exc:  # serial.SerialException and OSError  # noqa: BLE001
+        raise ValueError(f"cannot open serial port {spec}: {exc}") from exc
 
 
 TLOG_EPOCH_US = 1_767_225_600_000_000  # 2026-01-01T00:00Z: records of simulated time are stamped from here

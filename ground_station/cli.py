@@ -30,6 +30,9 @@ def main(argv: list[str] | None = None) -> int:
         gs = GroundStation(args.csv, args.tlog)
         try:
             listen(args.endpoint, gs, lambda: bool(stopping), args.duration)
+        except ValueError as exc:
+            print(f"balloon-gs: {exc}", file=sys.stderr)
+            return 2
         finally:
             gs.close()
             print(gs.summary(), file=sys.stderr)

@@ -59,7 +59,11 @@ def main(argv: list[str] | None = None) -> int:
     if out and (out.startswith(("udpin:", "udpout:")) or out.startswith("/dev/") or "://" in out):
         from sim_hil.link import stream_udp  # network edge, only when asked for
 
-        n = stream_udp(sim, enc, out, args)
+        try:
+            n = stream_udp(sim, enc, out, args)
+        except ValueError as exc:
+            print(f"balloon-sim: {exc}", file=sys.stderr)
+            return 2
     elif out:
         with open(out, "wb") as fh:
             tlog = out.endswith(".tlog")

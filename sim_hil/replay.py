@@ -80,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(sig, lambda *_: stopping.append(1))
     try:
         n = replay(args.file, args.out, args.speed, lambda: bool(stopping))
-    except OSError as exc:
+    except (OSError, ValueError) as exc:
         print(f"balloon-replay: {exc}", file=sys.stderr)
         return 2
     print(f"balloon-replay: {n} bytes sent to {args.out}", file=sys.stderr)

@@ -126,3 +126,19 @@ def test_config_file_shared_with_the_simulator(tmp_path):
                    check=True, capture_output=True)  # fmt: skip
     r = run_fw("--in", tlog, "--out", tmp_path / "o.tlog", "--config", cfg)
     assert r.returncode == 0, r.stderr
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["firmware_py", "--in", "no-such-capture.tlog"],
+        ["firmware_py", "--in", "/dev/ttyNOPE0:57600"],
+        ["ground_station", "listen", "/dev/ttyNOPE0:57600", "--duration", "1"],
+        ["sim_hil", "--duration", "1", "--out", "udpout:no.such.host.invalid:1"],
+        ["sim_hil.replay", "no-such.tlog", "--out", "udpout:127.0.0.1:9"],
+    ],
+)
+def test_bad_endpoints_are_clear_errors(argv):
+    r = subprocess.run([sys.executable, "-m", *argv], capture_output=True, text=True, timeout=30)
+    assert r.returncode == 2, r.stderr
+    assert "Traceback" not in r.stderr
