@@ -38,6 +38,7 @@ class TruthConfig:
     isa_density: bool = True  # False: constant ground density (energy-conservation tests)
     drag: bool = True
     spatial_filter: bool = True  # the balloon feels the wind averaged over its diameter (wind.py)
+    froude_krylov: bool = True  # the push of the accelerating air, (1 + Ca) rho V du/dt
     # sensor errors beyond Table 2's white noise (the realistic-mems scenario; NOTES.md figures)
     gyro_bias_dps: float = 0.0  # 1-sigma turn-on bias per axis
     gyro_bias_walk_dps_rt_s: float = 0.0  # bias random walk, deg/s per sqrt(s)
@@ -69,6 +70,7 @@ class BalloonPhysics:
     tether_c_ns_m: float
     rope_drag_factor: float  # 1/2 Cn d (times rho and airborne length at run time)
     rot_damping_nms: float
+    fluid_acceleration: float  # 1 with the Froude-Krylov / added-mass push of gusts, 0 without
     ground_pressure_pa: float
     ground_temperature_k: float
     isa_density: bool
@@ -100,6 +102,7 @@ class BalloonPhysics:
             tether_c_ns_m=c,
             rope_drag_factor=0.5 * truth.rope_normal_cd * t.diameter_m if truth.rope_drag else 0.0,
             rot_damping_nms=truth.rot_damping_nms,
+            fluid_acceleration=1.0 if truth.froude_krylov else 0.0,
             ground_pressure_pa=p0,
             ground_temperature_k=t0,
             isa_density=truth.isa_density,
@@ -176,7 +179,7 @@ def derivative(
         fte += kr * ce
         ftd += kr * cd
     ca_rho_v = ph.added_mass_coefficient * rho_v
-    fk = rho_v + ca_rho_v  # Froude-Krylov + added-mass force of the accelerating air
+    fk = (rho_v + ca_rho_v) * ph.fluid_acceleration  # Froude-Krylov + added-mass force of the accelerating air
     inv_m = 1.0 / (ph.mass_kg + ca_rho_v)
     an_ = (fk * dwn + fan + ftn) * inv_m
     ae_ = (fk * dwe + fae + fte) * inv_m
