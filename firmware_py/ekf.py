@@ -102,6 +102,7 @@ class WindEkf:
         self._set_static_jacobian(True)
         self.mode = MODE_GROUND
         self.learn_drag = False  # set by the control logic: only in established free ascent
+        self._drag_correlated = True
         self.resets = 0
         self.recover_after = int(cfg.recover_after_s * cfg.imu_rate_hz)
 
@@ -185,7 +186,11 @@ class WindEkf:
             F[3, WIND_N], F[3, WIND_E] = j0 * dt, j1 * dt
             F[4, WIND_N], F[4, WIND_E] = j3 * dt, j4 * dt
             F[5, WIND_N], F[5, WIND_E] = j6 * dt, j7 * dt
-            F[3, DRAG], F[4, DRAG], F[5, DRAG] = f.dk[0] * dt, f.dk[1] * dt, f.dk[2] * dt
+            if self.learn_drag:
+                F[3, DRAG], F[4, DRAG], F[5, DRAG] = f.dk[0] * dt, f.dk[1] * dt, f.dk[2] * dt
+                self._drag_correlated = True
+            else:  # held: a known parameter, no correlation to build
+                F[3, DRAG] = F[4, DRAG] = F[5, DRAG] = 0.0
             p0, p1, p2, p3, p4, p5, p6, p7, p8 = f.jp
             F[3, 0], F[3, 1], F[3, 2] = p0 * dt, p1 * dt, p2 * dt
             F[4, 0], F[4, 1], F[4, 2] = p3 * dt, p4 * dt, p5 * dt
@@ -268,8 +273,9 @@ class WindEkf:
     def end_update(self) -> bool:
         """Apply the accumulated correction (attitude error into the quaternion), then fix the
         covariance: symmetrise, clamp the variances. Returns False if the state went non-finite."""
-        if not self.learn_drag:
+        if not self.learn_drag and self._drag_correlated:
             self.inhibit(DRAG)
+            self._drag_correlated = False
         np.add(self.x, self.dx, out=self.x)
         x = self.x
         dn, de, dd = x[ATT_N : ATT_D + 1].tolist()

@@ -63,7 +63,8 @@ def fuse_accel(ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status
                 h[POS_N + c] = cn * jp[c] + ce * jp[3 + c] + cd * jp[6 + c]
                 if c < 2:
                     h[WIND_N + c] = rj
-            h[DRAG] = cn * dk[0] + ce * dk[1] + cd * dk[2]
+            if ekf.learn_drag:
+                h[DRAG] = cn * dk[0] + ce * dk[1] + cd * dk[2]
         ekf.fuse(meas[i] - pred, var, status[i])
 
 
@@ -187,5 +188,6 @@ def fuse_taut(
             h[POS_N + i] = tension / dist * (a[i] - ae * e[i])  # -(dn/dp)
         h[WIND_N] = -dn[0]
         h[WIND_E] = -dn[1]
-        h[DRAG] = g * f.dkr
+        if ekf.learn_drag:
+            h[DRAG] = g * f.dkr
         ekf.fuse(n[c] - z[c], align_var, status[2 + c], recover=False)
