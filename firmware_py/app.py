@@ -39,8 +39,6 @@ class Firmware:
         self._next_hb_us = 0
         self._highres_baro = False
         self._last_temp_c = math.nan
-        self._last_t_us = -1
-        self.last_fields: tuple | None = None
 
     # ----------------------------------------------------------------- input
 
@@ -98,9 +96,7 @@ class Firmware:
         self._send(frame, t_us)
 
     def wind_cov(self, t_us: int) -> None:
-        fields = self.out.fields(self.est)
-        self.last_fields = fields
-        self._send(pack(self.mav, self.mav.wind_cov_encode(*fields)), t_us)
+        self._send(pack(self.mav, self.mav.wind_cov_encode(*self.out.fields(self.est))), t_us)
         self.wind_cov_sent += 1
 
     def _send(self, frame: bytes, t_us: int) -> None:
@@ -123,7 +119,8 @@ class Firmware:
         c = self.est.counters
         return (
             f"balloon-fw: {c.imu_samples} IMU samples, {c.baro_samples} baro samples, "
-            f"{c.rejected} rejected, {self.stats.bad_frames} bad frames, {c.duplicates} duplicates, "
+            f"{c.rejected} rejected, {self.stats.bad_frames} bad frames, {self.other_messages} other messages, "
+            f"{c.duplicates} duplicates, "
             f"{c.reordered} reordered, {c.gaps} gaps, "
             f"{c.time_resets + c.numeric_resets + c.taut_resets} resets, {c.mode_switches} mode switches, "
             f"{self.wind_cov_sent} WIND_COV sent, final mode {self.est.mode_name}"

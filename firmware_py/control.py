@@ -100,7 +100,6 @@ class Estimator:
         self.baro_status = FusionStatus("baro", max(1, int(rec * 20)))  # at the nominal 20 Hz
         self.heading_status = FusionStatus("heading", max(1, int(rec * 10)))
         self.taut_status = [FusionStatus(n) for n in ("radius", "radial_rate", "align_n", "align_e")]
-        self.mode_time = [0.0, 0.0, 0.0]
         self._init_clock()
         self._init_baro()
 
@@ -214,7 +213,6 @@ class Estimator:
             ekf.predict(g[0], g[1], g[2], self.rho)
             self.t_filter_us += self.dt_us
             self.step += 1
-            self.mode_time[ekf.mode] += 1.0 / self.cfg.imu_rate_hz
         self._last_gyro = (gx, gy, gz)
         ekf.begin_update()
         fuse_accel(ekf, ax, ay, az, self.accel_var if ekf.mode == MODE_FREE else self.accel_static_var,
