@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 
-from firmware_py.atmosphere import G0, air_density, hypsometric_height_m
+from firmware_py.atmosphere import G0, LAPSE_K_M, R_AIR, air_density, hypsometric_height_m
 from firmware_py.config import Design
 from firmware_py.ekf import FusionStatus, WindEkf
 from firmware_py.measurements import enter_taut, fuse_accel, fuse_baro, fuse_heading, fuse_taut
@@ -33,6 +33,7 @@ REORDER_WINDOW_US = 1_000_000
 MAG_EVERY = 10  # heading fusion at 10 Hz
 TAUT_EVERY = 5  # taut constraints at 20 Hz
 ALIGN_RESET_COUNT = 40  # 2 s of rejected alignment at 20 Hz
+JOIN_IN_FLIGHT_US = 10_000_000  # a first sample this long after the sender's boot: we restarted in flight
 BARO_MODEL_M = 0.3  # hypsometric conversion error (temperature profile, lag) added to the sensor's noise
 LEARN_DRAG_AFTER_S = 2.0  # after the release, once the ascent is established
 
@@ -125,6 +126,7 @@ class Estimator:
         self.t_ref_k = math.nan
         self._zero_sum = 0.0
         self._zero_n = 0
+        self._join_height = math.nan
         self.rho = air_density(101325.0, 293.15)
         self.height_baro = math.nan
         self._baro_pending = False
@@ -155,12 +157,20 @@ class Estimator:
         if self._zeroing:
             if not self.initialised:
                 return True
-            if t_us - self.t_boot_us < BARO_ZERO_S * 1e6 or self._zero_n == 0:
+            if math.isfinite(self._join_height):
+                # joined in flight: the zero that makes this sample read the height from the tilt
+                t_ground = tk + LAPSE_K_M * self._join_height
+                self.t_ref_k = t_ground
+                self.p_ref_pa = p * math.exp(G0 * self._join_height / (R_AIR * 0.5 * (t_ground + tk)))
+                self._zeroing = False
+                self._join_height = math.nan
+            elif t_us - self.t_boot_us < BARO_ZERO_S * 1e6 or self._zero_n == 0:
                 self._zero_sum += p
                 self._zero_n += 1
                 return True
-            self.p_ref_pa = self._zero_sum / self._zero_n
-            self._zeroing = False
+            else:
+                self.p_ref_pa = self._zero_sum / self._zero_n
+                self._zeroing = False
         self.height_baro = hypsometric_height_m(p, self.p_ref_pa, 0.5 * (self.t_ref_k + tk))
         self._baro_pending = True
         return True
@@ -253,6 +263,27 @@ class Estimator:
         self.t_boot_us = t_us
         self.t_last_us = t_us
         self.t_filter_us = t_us
+        if t_us > JOIN_IN_FLIGHT_US:
+            self._join_in_flight(q)
+
+    def _join_in_flight(self, q) -> None:
+        """The sender booted long before us (a firmware restart in flight): the balloon is up on its
+        tether, not on the ground station. Start taut, with the chord angle from the tilt through the
+        static balance (tan chord = tan tilt * N_b / (N_b - W)) and, unless the config gives the ground
+        pressure, the barometer's zero placed so that its first sample reads that height."""
+        m = self.model
+        ekf = self.ekf
+        zd = q[0] * q[0] - q[1] * q[1] - q[2] * q[2] + q[3] * q[3]  # cos(tilt)
+        tan_tilt = math.sqrt(max(0.0, 1.0 - zd * zd)) / max(zd, 0.1)
+        lift = (self.rho * m.volume_m3 - m.mass_kg) * G0
+        spare = lift - m.rope_kg_m * G0 * m.tether_length_m
+        tan_chord = tan_tilt * lift / spare if spare > 0.1 * lift else tan_tilt
+        height = m.taut_radius_m / math.sqrt(1.0 + tan_chord * tan_chord)
+        ekf.mode = MODE_TAUT
+        self.counters.mode_switches += 1
+        enter_taut(ekf, height, self.rho)
+        if self._zeroing:
+            self._join_height = height - m.radius_m  # above the (unseen) boot position
 
     def _reinitialise_in_flight(self) -> None:
         """State went non-finite: restart the covariance, keep what is known from the barometer."""

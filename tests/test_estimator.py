@@ -144,3 +144,18 @@ def test_configured_ground_pressure_replaces_zeroing():
     s = score(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], truth["time_s"], truth["wind_n"], truth["wind_e"])
     assert s.band_rmse_mps <= 0.3
     assert est.height_m() == pytest.approx(truth["height_m"][-1], abs=2.0)
+
+
+@pytest.mark.parametrize("seed", [11, 12])
+def test_firmware_restarted_in_flight_finds_the_wind(seed):
+    """A firmware that boots while the balloon is up (first sample 150 s after the sender's boot)
+    starts taut from the tilt, not from the ground, and finds the wind."""
+    samples, truth = stream("paper-reference", 300.0, seed)
+    est = Estimator(Design())
+    rows = feed(est, samples[15000:], record=True)
+    assert est.counters.mode_switches == 1 and est.ekf.mode == MODE_TAUT
+    late = slice(6000, None)  # after 60 s
+    err = np.hypot(rows[late, 1] - truth["wind_n"][21000:], rows[late, 2] - truth["wind_e"][21000:])
+    assert np.sqrt(np.mean(err**2)) < 0.6
+    assert est.height_m() == pytest.approx(truth["height_m"][-1], abs=3.0)
+    check_covariance(est.ekf.P)
