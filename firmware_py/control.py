@@ -292,7 +292,6 @@ class Estimator:
         ekf.initialise((1.0, 0.0, 0.0, 0.0), self.ref_pos_d - h)
         ekf.P[0, 0] = ekf.P[1, 1] = 100.0**2
         ekf.mode = MODE_FREE if h > self.cfg.release_height_m else MODE_GROUND
-        ekf.resets += 1
 
     def _height_for_taut(self) -> float:
         """Height of the balloon's centre above the anchor: barometer if it has one, else the state."""

@@ -103,7 +103,6 @@ class WindEkf:
         self.mode = MODE_GROUND
         self.learn_drag = False  # set by the control logic: only in established free ascent
         self._drag_correlated = True
-        self.resets = 0
         self.recover_after = int(cfg.recover_after_s * cfg.imu_rate_hz)
 
     _VIEWS = ("P_diag", "_k_col", "_ph_row", "_P_rows", "_P_cols")

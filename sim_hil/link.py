@@ -28,7 +28,6 @@ class Lockstep:
         self.fw_time_us = -1
         self.engaged = True
         self.timeouts = 0
-        self.waits = 0
 
     def poll(self, wait_s: float) -> None:
         data = self.link.recv(wait_s)
@@ -49,7 +48,6 @@ class Lockstep:
         if not self.engaged:
             self.poll(0.0)
             return
-        self.waits += 1
         deadline = time.monotonic() + self.timeout_s
         while t_us > self.fw_time_us + self.window_us:
             if time.monotonic() > deadline:
