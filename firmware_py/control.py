@@ -8,8 +8,8 @@ import math
 
 from firmware_py.atmosphere import G0, LAPSE_K_M, R_AIR, air_density, hypsometric_height_m
 from firmware_py.config import Design
-from firmware_py.ekf import FusionStatus, WindEkf
-from firmware_py.measurements import enter_taut, fuse_accel, fuse_baro, fuse_heading, fuse_taut
+from firmware_py.ekf import FusionStatus, WindEkf, rotation
+from firmware_py.measurements import enter_taut, fuse_accel, fuse_baro, fuse_heading, fuse_mag_field, fuse_taut
 from firmware_py.model import BalloonModel
 from firmware_py.state import (
     MODE_FREE,
@@ -36,6 +36,8 @@ ALIGN_RESET_COUNT = 40  # 2 s of rejected alignment at 20 Hz
 JOIN_IN_FLIGHT_US = 10_000_000  # a first sample this long after the sender's boot: we restarted in flight
 BARO_MODEL_M = 0.3  # hypsometric conversion error (temperature profile, lag) added to the sensor's noise
 LEARN_DRAG_AFTER_S = 2.0  # after the release, once the ascent is established
+FIELD_LEARN_SAMPLES = 20  # 2 s of magnetometer on the ground at 10 Hz
+MAG_MODEL_GAUSS = 0.004  # field direction model error (~0.5 deg of a 0.5 G field: soft iron, anomalies)
 
 
 class Counters:
@@ -90,6 +92,7 @@ class Estimator:
         s = design.sensors
         self.accel_var = s.accel_mps2**2 + self.cfg.accel_model_mps2**2
         self.accel_static_var = s.accel_mps2**2 + self.cfg.accel_static_mps2**2
+        self.accel_taut_var = s.accel_mps2**2 + self.cfg.accel_taut_mps2**2
         self.baro_var = s.baro_m**2 + BARO_MODEL_M**2
         self.mag_sigma = s.mag_gauss
         self.declination = math.radians(design.site.mag_declination_deg)
@@ -100,6 +103,9 @@ class Estimator:
         rec = self.cfg.recover_after_s
         self.baro_status = FusionStatus("baro", max(1, int(rec * 20)))  # at the nominal 20 Hz
         self.heading_status = FusionStatus("heading", max(1, int(rec * 10)))
+        self.mag_status = [FusionStatus(f"mag_{a}", max(1, int(rec * 10))) for a in "xyz"]
+        # the magnetometer's model error: the field's direction is known to ~0.5 deg after the boot
+        self.mag_var = self.mag_sigma**2 + MAG_MODEL_GAUSS**2
         self.taut_status = [FusionStatus(n) for n in ("radius", "radial_rate", "align_n", "align_e")]
         self._init_clock()
         self._init_baro()
@@ -114,9 +120,24 @@ class Estimator:
         self.step = 0
         self._last_gyro = (0.0, 0.0, 0.0)
         self._release_count = 0
+        self._field_n = 0
+        self._field_sum = [0.0, 0.0, 0.0]
+        self.field_ned = (math.nan, math.nan, math.nan)
         self._dwell = 0
         self._slack = 0
         self._height_above = 0
+
+    def _learn_field(self, mx: float, my: float, mz: float) -> None:
+        """Average the earth field in NED while resting on the ground station (the attitude is known
+        there from gravity and the heading): no assumed strength or inclination."""
+        r = rotation(*self.ekf.q.tolist())
+        n = self._field_n
+        for i in range(3):
+            b = r[3 * i] * mx + r[3 * i + 1] * my + r[3 * i + 2] * mz
+            self._field_sum[i] += b
+        self._field_n = n + 1
+        if self._field_n == FIELD_LEARN_SAMPLES:
+            self.field_ned = tuple(v / FIELD_LEARN_SAMPLES for v in self._field_sum)
 
     def _init_baro(self) -> None:
         gp = self.design.site.ground_pressure_hpa
@@ -225,13 +246,18 @@ class Estimator:
             self.step += 1
         self._last_gyro = (gx, gy, gz)
         ekf.begin_update()
-        fuse_accel(ekf, ax, ay, az, self.accel_var if ekf.mode == MODE_FREE else self.accel_static_var,
-                   self.accel_status)
+        var = (self.accel_static_var, self.accel_var, self.accel_taut_var)[ekf.mode]
+        fuse_accel(ekf, ax, ay, az, var, self.accel_status)
         if self._baro_pending and not math.isnan(self.height_baro):
             fuse_baro(ekf, self.height_baro, self.ref_pos_d, self.baro_var, self.baro_status)
             self._baro_pending = False
         if mag_ok and self.step % MAG_EVERY == 0:
-            fuse_heading(ekf, mx, my, mz, self.declination, self.mag_sigma, self.heading_status)
+            if self._field_n >= FIELD_LEARN_SAMPLES:
+                fuse_mag_field(ekf, mx, my, mz, self.field_ned, self.mag_var, self.mag_status)
+            else:
+                fuse_heading(ekf, mx, my, mz, self.declination, self.mag_sigma, self.heading_status)
+                if ekf.mode == MODE_GROUND:
+                    self._learn_field(mx, my, mz)
         if ekf.mode == MODE_TAUT and self.step % TAUT_EVERY == 0:
             cfg = self.cfg
             fuse_taut(ekf, cfg.radial_m**2, cfg.radial_rate_mps**2, cfg.align_rad**2, self.taut_status)

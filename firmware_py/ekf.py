@@ -20,6 +20,7 @@ from firmware_py.state import (
     DRAG,
     MODE_GROUND,
     MODE_TAUT,
+    MODEL_COLUMNS,
     N_STATES,
     POS_D,
     POS_E,
@@ -29,8 +30,11 @@ from firmware_py.state import (
     VEL_N,
     WIND_E,
     WIND_N,
+    WRATE_E,
+    WRATE_N,
     FilterConfig,
 )
+from firmware_py.tuning import wind_process
 
 N = N_STATES
 
@@ -86,16 +90,19 @@ class WindEkf:
         self._make_views()
         self.var_min = np.full(N, 1e-9, z)
         self.var_max = np.array(
-            [1e4] * 3 + [400.0] * 3 + [0.3] * 3 + [math.radians(5.0) ** 2] * 3 + [100.0] * 2 + [1.0], z
+            [1e4] * 3 + [400.0] * 3 + [0.3] * 3 + [math.radians(5.0) ** 2] * 3 + [100.0] * 2 + [4.0] * 2 + [1.0], z
         )
         self.forces = Forces()
-        # process noise per step (diagonal): white acceleration, gyro noise, random walks
+        # process noise per step (diagonal): white acceleration, gyro noise, the wind's rate, random walks
         g = math.radians(sensors.gyro_dps)
         qv = cfg.accel_process_mps2**2 * dt
+        self.wind_process = wp = wind_process(cfg.expected_wind_mps, cfg.turbulence_intensity, 2.0 * model.radius_m)
+        self.rate_decay = math.exp(-dt / wp.tau_s)
+        qr = wp.q_rate * dt
         self._q_flight = [0.25 * qv * dt * dt] * 3 + [qv] * 3 + [g * g * dt * dt] * 3 + [
             (math.radians(cfg.gyro_bias_walk_dps_rt_s)) ** 2 * dt
-        ] * 3 + [cfg.wind_walk_mps_rt_s**2 * dt] * 2 + [cfg.drag_walk_rt_s**2 * dt]
-        self._q_ground = [1e-8] * 6 + self._q_flight[6:12] + [cfg.wind_walk_mps_rt_s**2 * dt] * 2 + [0.0]
+        ] * 3 + [0.0] * 2 + [qr] * 2 + [cfg.drag_walk_rt_s**2 * dt]
+        self._q_ground = [1e-8] * 6 + self._q_flight[6:16] + [0.0]
         self._qd_flight = np.array(self._q_flight, z)
         self._qd_ground = np.array(self._q_ground, z)
         self._f_ground = False
@@ -133,7 +140,8 @@ class WindEkf:
         self.P.fill(0.0)
         tilt = math.radians(c.init_tilt_deg) ** 2
         init = [0.01] * 3 + [1e-4] * 3 + [tilt, tilt, math.radians(c.init_yaw_deg) ** 2]
-        init += [math.radians(c.init_gyro_bias_dps) ** 2] * 3 + [c.init_wind_mps**2] * 2 + [c.init_drag**2]
+        init += [math.radians(c.init_gyro_bias_dps) ** 2] * 3 + [c.init_wind_mps**2] * 2
+        init += [self.wind_process.sigma_rate_mps2**2] * 2 + [c.init_drag**2]
         for i, v in enumerate(init):
             self.P[i, i] = v
         self.mode = MODE_GROUND
@@ -144,7 +152,7 @@ class WindEkf:
         """One fixed step: attitude from the bias-corrected gyro, translation from the mode's model."""
         dt = self.dt
         x = self.x
-        pn, pe, pd, vn, ve, vd, _, _, _, bx, by, bz, wn, we, k = x.tolist()
+        pn, pe, pd, vn, ve, vd, _, _, _, bx, by, bz, wn, we, rn, re, k = x.tolist()
         q0, q1, q2, q3 = self.q.tolist()
         # attitude: q <- q (x) exp(omega dt / 2), omega = gyro - bias (paper's Omega)
         wx, wy, wz = gx - bx, gy - by, gz - bz
@@ -169,7 +177,9 @@ class WindEkf:
         if ground:
             x[VEL_N] = x[VEL_E] = x[VEL_D] = 0.0
         else:
-            f = accelerations(self.model, rho, pn, pe, pd, vn, ve, vd, wn, we, k, self.mode == MODE_TAUT, self.forces)
+            f = accelerations(
+                self.model, rho, pn, pe, pd, vn, ve, vd, wn, we, rn, re, k, self.mode == MODE_TAUT, self.forces
+            )
             an, ae, ad = f.an, f.ae, f.ad
             x[POS_N] = pn + (vn + 0.5 * an * dt) * dt
             x[POS_E] = pe + (ve + 0.5 * ae * dt) * dt
@@ -177,23 +187,23 @@ class WindEkf:
             x[VEL_N] = vn + an * dt
             x[VEL_E] = ve + ae * dt
             x[VEL_D] = vd + ad * dt
-            # d(vel)/d(vel) = I - J dt, d(vel)/d(wind) = J dt, d(vel)/d(drag), d(vel)/d(pos) (taut)
-            j0, j1, j2, j3, j4, j5, j6, j7, j8 = f.j
-            F[3, 3], F[3, 4], F[3, 5] = 1.0 - j0 * dt, -j1 * dt, -j2 * dt
-            F[4, 3], F[4, 4], F[4, 5] = -j3 * dt, 1.0 - j4 * dt, -j5 * dt
-            F[5, 3], F[5, 4], F[5, 5] = -j6 * dt, -j7 * dt, 1.0 - j8 * dt
-            F[3, WIND_N], F[3, WIND_E] = j0 * dt, j1 * dt
-            F[4, WIND_N], F[4, WIND_E] = j3 * dt, j4 * dt
-            F[5, WIND_N], F[5, WIND_E] = j6 * dt, j7 * dt
+            # d(vel)/d(x) = I + (d a / d x) dt over the model's columns (generated.COLUMNS)
+            ja = f.ja
+            ncol = len(MODEL_COLUMNS) - (0 if self.learn_drag else 1)  # held drag scale: no correlation
+            for row in range(3):
+                fr = F[VEL_N + row]
+                for c in range(ncol):
+                    fr[MODEL_COLUMNS[c]] = ja[11 * row + c] * dt
+                fr[VEL_N + row] += 1.0
             if self.learn_drag:
-                F[3, DRAG], F[4, DRAG], F[5, DRAG] = f.dk[0] * dt, f.dk[1] * dt, f.dk[2] * dt
                 self._drag_correlated = True
-            else:  # held: a known parameter, no correlation to build
+            else:
                 F[3, DRAG] = F[4, DRAG] = F[5, DRAG] = 0.0
-            p0, p1, p2, p3, p4, p5, p6, p7, p8 = f.jp
-            F[3, 0], F[3, 1], F[3, 2] = p0 * dt, p1 * dt, p2 * dt
-            F[4, 0], F[4, 1], F[4, 2] = p3 * dt, p4 * dt, p5 * dt
-            F[5, 0], F[5, 1], F[5, 2] = p6 * dt, p7 * dt, p8 * dt
+        # the wind: integrated Ornstein-Uhlenbeck (tuning.py)
+        x[WIND_N] = wn + rn * dt
+        x[WIND_E] = we + re * dt
+        x[WRATE_N] = rn * self.rate_decay
+        x[WRATE_E] = re * self.rate_decay
         # attitude error (NED) driven by the gyro-bias error: d(att)/dt = -R d(bias)
         r0, r1, r2, r3, r4, r5, r6, r7, r8 = r
         F[6, 9], F[6, 10], F[6, 11] = -r0 * dt, -r1 * dt, -r2 * dt
@@ -215,6 +225,8 @@ class WindEkf:
         self._f_ground = ground
         if ground:
             F[3, 3] = F[4, 4] = F[5, 5] = 0.0
+        F[WIND_N, WRATE_N] = F[WIND_E, WRATE_E] = self.dt
+        F[WRATE_N, WRATE_N] = F[WRATE_E, WRATE_E] = self.rate_decay
 
     def inflate(self, steps: float) -> None:
         """Covariance growth of ``steps`` prediction steps without the state moving (sensor silence)."""

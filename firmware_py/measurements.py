@@ -14,12 +14,14 @@ import math
 
 from firmware_py.atmosphere import G0
 from firmware_py.ekf import FusionStatus, WindEkf, rotation
+from firmware_py.generated import rope_direction
 from firmware_py.state import (
     ATT_D,
     ATT_E,
     ATT_N,
     DRAG,
-    MODE_FREE,
+    MODE_GROUND,
+    MODEL_COLUMNS,
     POS_D,
     POS_E,
     POS_N,
@@ -28,26 +30,28 @@ from firmware_py.state import (
     VEL_N,
     WIND_E,
     WIND_N,
+    WRATE_E,
+    WRATE_N,
 )
 
 UNGATED = 1e6  # constraints of the model are not tested against the data
 
 
 def fuse_accel(ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status: list[FusionStatus]) -> None:
-    """Specific force in FRD against the force model: tilt (through g) and wind (through drag)."""
+    """Specific force in FRD against the force model, f = R^T (a(x) - g): tilt (through g) and the
+    balloon's dynamics (drag of the wind, the air's push, the rope) through a(x). On the ground the
+    balloon is held (a = 0): a gravity reference."""
     r = rotation(*ekf.q.tolist())
     f = ekf.forces
-    # On the ground and on the taut tether the balloon is quasi-static: the accelerometer is a gravity
-    # reference for the tilt, its residual accelerations are noise. The wind reaches the filter there
-    # through the rope-force alignment (fuse_taut). In free ascent the force model is trusted.
-    ground = ekf.mode != MODE_FREE
+    ground = ekf.mode == MODE_GROUND
     if ground:
         yn, ye, yd = 0.0, 0.0, -G0
     else:
         yn, ye, yd = f.an, f.ae, f.ad - G0
     meas = (fx, fy, fz)
     h = ekf.h
-    j, dk, jp = f.j, f.dk, f.jp
+    ja = f.ja
+    ncol = len(MODEL_COLUMNS) - (0 if ekf.learn_drag else 1)
     for i in range(3):
         cn, ce, cd = r[i], r[3 + i], r[6 + i]  # row i of R^T
         pred = cn * yn + ce * ye + cd * yd
@@ -57,14 +61,8 @@ def fuse_accel(ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status
         h[ATT_E] = cd * yn - cn * yd
         h[ATT_D] = cn * ye - ce * yn
         if not ground:
-            for c in range(3):
-                rj = cn * j[c] + ce * j[3 + c] + cd * j[6 + c]
-                h[VEL_N + c] = -rj
-                h[POS_N + c] = cn * jp[c] + ce * jp[3 + c] + cd * jp[6 + c]
-                if c < 2:
-                    h[WIND_N + c] = rj
-            if ekf.learn_drag:
-                h[DRAG] = cn * dk[0] + ce * dk[1] + cd * dk[2]
+            for c in range(ncol):
+                h[MODEL_COLUMNS[c]] = cn * ja[c] + ce * ja[11 + c] + cd * ja[22 + c]
         ekf.fuse(meas[i] - pred, var, status[i])
 
 
@@ -101,6 +99,27 @@ def fuse_heading(
     ekf.fuse(innov, var, status)
 
 
+def fuse_mag_field(
+    ekf: WindEkf, mx: float, my: float, mz: float, field_ned: tuple[float, float, float], var: float,
+    status: list[FusionStatus],
+) -> None:
+    """The whole magnetic field vector (FRD) against the earth field learnt on the ground at boot:
+    m = R^T B. Unlike the heading, it also measures the tilt about the axes across the field (about
+    East for a field in the North-Down plane), independently of the balloon's acceleration: the
+    accelerometer is then free to measure the dynamics. Rows: d(R^T B)/d att = R^T [B x]."""
+    r = rotation(*ekf.q.tolist())
+    bn, be, bd = field_ned
+    meas = (mx, my, mz)
+    h = ekf.h
+    for i in range(3):
+        cn, ce, cd = r[i], r[3 + i], r[6 + i]  # row i of R^T
+        h.fill(0.0)
+        h[ATT_N] = ce * bd - cd * be
+        h[ATT_E] = cd * bn - cn * bd
+        h[ATT_D] = cn * be - ce * bn
+        ekf.fuse(meas[i] - (cn * bn + ce * be + cd * bd), var, status[i])
+
+
 def enter_taut(ekf: WindEkf, height_m: float, rho: float) -> None:
     """Initialise the taut configuration from what the sensors say about it, not from the free-ascent
     dead reckoning (whose horizontal position and wind drift: nothing measures them absolutely):
@@ -132,7 +151,7 @@ def enter_taut(ekf: WindEkf, height_m: float, rho: float) -> None:
     for i in range(3):
         x[VEL_N + i] = 0.0
     P = ekf.P
-    for i in (POS_N, POS_E, POS_D, VEL_N, VEL_E, VEL_D, WIND_N, WIND_E):
+    for i in (POS_N, POS_E, POS_D, VEL_N, VEL_E, VEL_D, WIND_N, WIND_E, WRATE_N, WRATE_E):
         P[i, :] = 0.0
         P[:, i] = 0.0
     for i in (POS_N, POS_E, POS_D):
@@ -140,14 +159,18 @@ def enter_taut(ekf: WindEkf, height_m: float, rho: float) -> None:
     for i in (VEL_N, VEL_E, VEL_D):
         P[i, i] = 0.5**2
     P[WIND_N, WIND_N] = P[WIND_E, WIND_E] = 1.5**2
+    x[WRATE_N] = x[WRATE_E] = 0.0
+    P[WRATE_N, WRATE_N] = P[WRATE_E, WRATE_E] = ekf.wind_process.sigma_rate_mps2**2
 
 
 def fuse_taut(
     ekf: WindEkf, radial_var: float, radial_rate_var: float, align_var: float, status: list[FusionStatus]
 ) -> None:
     """Restricted radial motion (paper Sec. 2.3): |p| = L + r, no radial velocity, and the balloon's
-    down axis along the rope force (tension towards the anchor + the rope's weight, Eq. 5)."""
-    pn, pe, pd, vn, ve, vd = ekf.x[:6].tolist()
+    down axis along the rope force (tension towards the anchor + the rope's weight, Eq. 5, + the rope's
+    cross-flow drag if modelled): the tether pulls at the bottom of the sphere (Eq. 7)."""
+    x = ekf.x
+    pn, pe, pd, vn, ve, vd = x[:6].tolist()
     dist = math.sqrt(pn * pn + pe * pe + pd * pd)
     if dist < 1.0:
         return
@@ -158,36 +181,24 @@ def fuse_taut(
         h[POS_N + i] = e[i]
     ekf.fuse(ekf.model.taut_radius_m - dist, radial_var, status[0], UNGATED)
     h.fill(0.0)
+    vr = vn * e[0] + ve * e[1] + vd * e[2]
+    v = (vn, ve, vd)
     for i in range(3):
         h[VEL_N + i] = e[i]
-    ekf.fuse(-(vn * e[0] + ve * e[1] + vd * e[2]), radial_rate_var, status[1], UNGATED)
+        h[POS_N + i] = (v[i] - vr * e[i]) / dist  # d(v . e)/dp
+    ekf.fuse(-vr, radial_rate_var, status[1], UNGATED)
     f = ekf.forces
     if not f.taut:
         return
-    m = ekf.model
-    weight = m.rope_kg_m * G0 * m.tether_length_m
-    tension = f.tension_n
-    rope = f.rope  # the rope's cross-flow drag share, if modelled
-    fn, fe, fd = -tension * e[0] + rope[0], -tension * e[1] + rope[1], -tension * e[2] + weight + rope[2]
-    fmag = math.sqrt(fn * fn + fe * fe + fd * fd)
-    n = (fn / fmag, fe / fmag, fd / fmag)
+    wn, we, rn, re, k = float(x[WIND_N]), float(x[WIND_E]), float(x[WRATE_N]), float(x[WRATE_E]), float(x[DRAG])
+    n = rope_direction(pn, pe, pd, vn, ve, vd, wn, we, rn, re, k, *f.params)
     r = rotation(*ekf.q.tolist())
     z = (r[2], r[5], r[8])  # body down axis in NED
-    dz_datt = ((0.0, z[2], -z[1]), (-z[2], 0.0, z[0]))
+    dz_datt = ((0.0, z[2], -z[1]), (-z[2], 0.0, z[0]))  # d z / d att = -[z x], rows N and E
+    ncol = len(MODEL_COLUMNS) - (0 if ekf.learn_drag else 1)
     for c in range(2):
-        a = [((1.0 if c == i else 0.0) - n[c] * n[i]) / fmag for i in range(3)]  # row c of (I - n n^T)/|F|
-        ae = a[0] * e[0] + a[1] * e[1] + a[2] * e[2]
         h.fill(0.0)
         h[ATT_N], h[ATT_E], h[ATT_D] = dz_datt[c]
-        g = f.m_eff_kg * ae
-        jr, jq = f.jr, f.jrope
-        # dn_c/du = a . dF/du, dF/du = -e (m_eff jr)^T + dR/du (u = w - v)
-        dn = [-g * jr[i] + a[0] * jq[i] + a[1] * jq[3 + i] + a[2] * jq[6 + i] for i in range(3)]
-        for i in range(3):
-            h[VEL_N + i] = dn[i]  # residual z - n: d/dv = +dn/du
-            h[POS_N + i] = tension / dist * (a[i] - ae * e[i])  # -(dn/dp)
-        h[WIND_N] = -dn[0]
-        h[WIND_E] = -dn[1]
-        if ekf.learn_drag:
-            h[DRAG] = g * f.dkr
+        for j in range(ncol):
+            h[MODEL_COLUMNS[j]] = -n[2 + 11 * c + j]  # residual z - n(x)
         ekf.fuse(n[c] - z[c], align_var, status[2 + c], recover=False)

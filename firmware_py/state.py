@@ -16,11 +16,14 @@ VEL_N, VEL_E, VEL_D = 3, 4, 5  # m/s NED (body velocity U^B of paper Eq. 8 is R^
 ATT_N, ATT_E, ATT_D = 6, 7, 8  # rad, attitude error rotation vector (true = (I + [d x]) estimate)
 GB_X, GB_Y, GB_Z = 9, 10, 11  # rad/s gyro bias, body FRD (angular rate Omega = gyro - bias)
 WIND_N, WIND_E = 12, 13  # m/s air velocity, horizontal (the paper's wind is horizontal)
-DRAG = 14  # drag scale: multiplies 1/2 rho Cd pi r^2 (Cd is uncertain in the drag crisis)
-N_STATES = 15
+WRATE_N, WRATE_E = 14, 15  # m/s^2 rate of change of the wind (its push on the balloon: Froude-Krylov)
+DRAG = 16  # drag scale: multiplies 1/2 rho Cd pi r^2 (Cd is uncertain in the drag crisis)
+N_STATES = 17
+# the states the balloon model's Jacobians are taken over, in the order of generated.COLUMNS
+MODEL_COLUMNS = (POS_N, POS_E, POS_D, VEL_N, VEL_E, VEL_D, WIND_N, WIND_E, WRATE_N, WRATE_E, DRAG)
 STATE_NAMES = (
     "pos_n", "pos_e", "pos_d", "vel_n", "vel_e", "vel_d", "att_n", "att_e", "att_d",
-    "gbias_x", "gbias_y", "gbias_z", "wind_n", "wind_e", "drag_scale",
+    "gbias_x", "gbias_y", "gbias_z", "wind_n", "wind_e", "wrate_n", "wrate_e", "drag_scale",
 )  # fmt: skip
 
 # operating modes
@@ -35,14 +38,17 @@ class FilterConfig:
     imu_rate_hz: float = 100.0
     float32: bool = False
     # process noise
-    accel_process_mps2: float = 0.3  # unmodelled force per unit mass (turbulent gusts, Froude-Krylov)
-    wind_walk_mps_rt_s: float = 0.15  # wind random walk
+    accel_process_mps2: float = 0.3  # unmodelled force per unit mass (rope waves, rocking, eddies)
+    # the wind the filter expects (its process noise is derived from this spectrum: tuning.py)
+    expected_wind_mps: float = 3.0
+    turbulence_intensity: float = 0.1  # sigma_u / U (Cabauw: 8.5 % at 99 m)
     drag_walk_rt_s: float = 0.002  # drag-scale random walk
     gyro_bias_walk_dps_rt_s: float = 0.005
     # measurement model errors added to the sensor noise of [sensors]
     accel_model_mps2: float = 0.15  # specific-force model error in free ascent
+    accel_taut_mps2: float = 0.05  # specific-force model error on the taut tether (rope waves, rocking)
     accel_static_mps2: float = 0.3  # accelerations of the quasi-static balloon (ground, taut)
-    align_rad: float = 0.03  # balloon-to-rope-force alignment error (rotational oscillation)
+    align_rad: float = 0.005  # balloon-to-rope-force alignment error (rotational oscillation)
     radial_m: float = 0.3  # tether length + stretch uncertainty when taut
     radial_rate_mps: float = 0.15
     # rope cross-flow drag coefficient (Hoerner: 1.1 for a round rope); 0 = the paper's model, no rope drag
