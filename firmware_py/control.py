@@ -36,7 +36,7 @@ ALIGN_RESET_COUNT = 40  # 2 s of rejected alignment at 20 Hz
 JOIN_IN_FLIGHT_US = 10_000_000  # a first sample this long after the sender's boot: we restarted in flight
 BARO_MODEL_M = 0.3  # hypsometric conversion error (temperature profile, lag) added to the sensor's noise
 LEARN_DRAG_AFTER_S = 2.0  # after the release, once the ascent is established
-FIELD_LEARN_SAMPLES = 20  # 2 s of magnetometer on the ground at 10 Hz
+FIELD_LEARN_SAMPLES = 20  # at least 2 s of magnetometer on the ground at 10 Hz (all of the ground time is used)
 MAG_MODEL_GAUSS = 0.004  # field direction model error (~0.5 deg of a 0.5 G field: soft iron, anomalies)
 
 
@@ -121,23 +121,29 @@ class Estimator:
         self._last_gyro = (0.0, 0.0, 0.0)
         self._release_count = 0
         self._field_n = 0
-        self._field_sum = [0.0, 0.0, 0.0]
+        self._field_sum = [0.0] * 6
         self.field_ned = (math.nan, math.nan, math.nan)
         self._dwell = 0
         self._slack = 0
         self._height_above = 0
 
-    def _learn_field(self, mx: float, my: float, mz: float) -> None:
-        """Average the earth field in NED while resting on the ground station (the attitude is known
-        there from gravity and the heading): no assumed strength or inclination."""
-        r = rotation(*self.ekf.q.tolist())
+    def _learn_field(self, ax: float, ay: float, az: float, mx: float, my: float, mz: float) -> None:
+        """The earth field in NED from the body-frame averages of the field and of gravity while the
+        balloon rests on the ground station: its down component is the field along gravity, the rest is
+        horizontal and points to the declination. No assumed strength or inclination; no dependence on
+        the filter's own attitude (whose heading is still settling at boot)."""
+        s = self._field_sum
+        for i, v in enumerate((ax, ay, az, mx, my, mz)):
+            s[i] += v
+        self._field_n += 1
+        if self._field_n < FIELD_LEARN_SAMPLES:
+            return
+        fx, fy, fz, bx, by, bz = s
+        fnorm = math.sqrt(fx * fx + fy * fy + fz * fz)
         n = self._field_n
-        for i in range(3):
-            b = r[3 * i] * mx + r[3 * i + 1] * my + r[3 * i + 2] * mz
-            self._field_sum[i] += b
-        self._field_n = n + 1
-        if self._field_n == FIELD_LEARN_SAMPLES:
-            self.field_ned = tuple(v / FIELD_LEARN_SAMPLES for v in self._field_sum)
+        down = -(fx * bx + fy * by + fz * bz) / (fnorm * n)  # at rest the specific force points up
+        horiz = math.sqrt(max(0.0, (bx * bx + by * by + bz * bz) / (n * n) - down * down))
+        self.field_ned = (horiz * math.cos(self.declination), horiz * math.sin(self.declination), down)
 
     def _init_baro(self) -> None:
         gp = self.design.site.ground_pressure_hpa
@@ -252,12 +258,12 @@ class Estimator:
             fuse_baro(ekf, self.height_baro, self.ref_pos_d, self.baro_var, self.baro_status)
             self._baro_pending = False
         if mag_ok and self.step % MAG_EVERY == 0:
-            if self._field_n >= FIELD_LEARN_SAMPLES:
+            if self._field_n >= FIELD_LEARN_SAMPLES and ekf.mode != MODE_GROUND:
                 fuse_mag_field(ekf, mx, my, mz, self.field_ned, self.mag_var, self.mag_status)
             else:
                 fuse_heading(ekf, mx, my, mz, self.declination, self.mag_sigma, self.heading_status)
                 if ekf.mode == MODE_GROUND:
-                    self._learn_field(mx, my, mz)
+                    self._learn_field(ax, ay, az, mx, my, mz)
         if ekf.mode == MODE_TAUT and self.step % TAUT_EVERY == 0:
             cfg = self.cfg
             fuse_taut(ekf, cfg.radial_m**2, cfg.radial_rate_mps**2, cfg.align_rad**2, self.taut_status)
