@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from firmware_py.control import Estimator
-from ground_station.score import Score, gains, score
+from ground_station.score import Score, response, score
 from sim_hil.dynamics import euler_from_quat
 from sim_hil.scenarios import SCENARIOS
 from sim_hil.simulator import TRUTH_COLUMNS, Simulation
@@ -39,5 +39,5 @@ def score_flight(rows, truth) -> Score:
     return score(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], truth["time_s"], truth["wind_n"], truth["wind_e"])
 
 
-def gain_flight(rows, truth, freqs) -> dict[float, float]:
-    return gains(rows[:, 0], rows[:, 1], rows[:, 2], truth["time_s"], truth["wind_n"], truth["wind_e"], freqs)
+def response_flight(rows, truth, freqs) -> dict[float, dict[str, complex | None]]:
+    return response(rows[:, 0], rows[:, 1], rows[:, 2], truth["time_s"], truth["wind_n"], truth["wind_e"], freqs)
