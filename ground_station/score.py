@@ -119,13 +119,15 @@ def response(t_est, est_n, est_e, t_true, true_n, true_e, freqs_hz, start_s: flo
     (projected on the true mean direction over the window) and the cross-wind one (its perpendicular,
     90 deg to the right), by a least-squares fit of cos/sin at all ``freqs_hz`` plus a constant and a
     linear trend, from ``start_s`` on. ``extra_hz``: other frequencies the truth is known to hold (the
-    multisine's lines), fitted alongside so they do not leak into the reported ones, not reported.
+    multisine's lines), fitted alongside so they do not leak into the reported ones, not reported
+    (those with less than one period in the window are left to the constant and the trend).
     ``{f: {"along": H, "cross": H}}``; an axis whose true amplitude at f is below ``MIN_AMPLITUDE_MPS``
     is not driven there and gets None. Gain |H|, phase arg H (negative = lag), complex error |H - 1|:
     ``describe(H)``."""
     freqs = [float(f) for f in freqs_hz]
     extra = [float(f) for f in extra_hz if all(abs(float(f) - g) > 1e-9 for g in freqs)]
     grid, en, ee, _, tn, te = on_grid(t_est, est_n, est_e, np.zeros(len(t_est)), t_true, true_n, true_e, start_s)
+    extra = [f for f in extra if f * (grid[-1] - grid[0]) >= 1.0]  # slower ones: left to the constant + trend
     d = np.array([tn.mean(), te.mean()])
     norm = float(np.linalg.norm(d))
     if norm < 1e-6:
