@@ -81,11 +81,23 @@ def lookup(name: str):
 
 
 def is_multisine(name: str, sc) -> bool:
-    return "multisine" in name or sc.wind.kind == "multisine"
+    return "multisine" in name or "multisine" in sc.wind.kind
 
 
 def fluctuates(sc) -> bool:
     return sc.wind.kind != "steady"
+
+
+def wind_lines_hz(sc) -> tuple[float, ...]:
+    """Every multisine frequency the scenario's wind holds (any ``multisine*_hz`` field, so that along and
+    cross lines of a 2-D multisine are all fitted together)."""
+    if "multisine" not in sc.wind.kind:
+        return ()
+    lines: set[float] = set()
+    for k, v in vars(sc.wind).items():
+        if "multisine" in k and k.endswith("hz") and isinstance(v, (tuple, list)):
+            lines.update(float(f) for f in v)
+    return tuple(sorted(lines))
 
 
 def skill_target(name: str) -> float:
@@ -102,8 +114,7 @@ def one(job) -> dict:
         rows, truth, est = fly(name, duration, seed, sc)
         out["score"] = asdict(score_flight(rows, truth, START_S))
         if is_multisine(name, sc):
-            extra = sc.wind.multisine_hz if sc.wind.kind == "multisine" else ()
-            out["response"] = response_flight(rows, truth, FREQS_HZ, START_S, extra_hz=extra)
+            out["response"] = response_flight(rows, truth, FREQS_HZ, START_S, extra_hz=wind_lines_hz(sc))
         out["taut_resets"] = int(est.counters.taut_resets)
         out["tilt_err_deg"], out["yaw_err_deg"] = attitude_errors(rows, truth, START_S)
     except Exception as e:  # one broken scenario must not lose the others
