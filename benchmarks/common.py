@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from firmware_py.control import Estimator
-from ground_station.score import Score, gains, score
+from ground_station.score import Score, response, score
 from sim_hil.dynamics import euler_from_quat
 from sim_hil.scenarios import SCENARIOS
 from sim_hil.simulator import TRUTH_COLUMNS, Simulation
@@ -35,9 +35,12 @@ def attitude_errors(rows, truth, start_s: float = 120.0) -> tuple[float, float]:
     return float(np.sqrt(np.mean(d[:, 0] ** 2 + d[:, 1] ** 2))), float(np.sqrt(np.mean(d[:, 2] ** 2)))
 
 
-def score_flight(rows, truth) -> Score:
-    return score(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], truth["time_s"], truth["wind_n"], truth["wind_e"])
+def score_flight(rows, truth, start_s: float = 120.0) -> Score:
+    return score(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], truth["time_s"], truth["wind_n"], truth["wind_e"],
+                 start_s=start_s)  # fmt: skip
 
 
-def gain_flight(rows, truth, freqs) -> dict[float, float]:
-    return gains(rows[:, 0], rows[:, 1], rows[:, 2], truth["time_s"], truth["wind_n"], truth["wind_e"], freqs)
+def response_flight(rows, truth, freqs, start_s: float = 120.0, extra_hz=()) -> dict[float, dict[str, complex | None]]:
+    """Along/cross transfer function of the flight's estimate (``ground_station.score.response``)."""
+    return response(rows[:, 0], rows[:, 1], rows[:, 2], truth["time_s"], truth["wind_n"], truth["wind_e"], freqs,
+                    start_s=start_s, extra_hz=extra_hz)  # fmt: skip

@@ -74,7 +74,7 @@ def plot(est: dict, truth: dict, s: Score, path: str, start_s: float) -> None:
     ax[2].set_ylabel("PSD [(m/s)²/Hz]")
     ax[2].legend(loc="lower left", fontsize=8)
     fig.suptitle(f"band RMSE {s.band_rmse_mps:.2f} m/s, speed error {s.speed_error_pct:+.1f} %, "
-                 f"direction error {s.direction_error_deg:+.1f}°, accuracy/error {s.accuracy_ratio:.2f}")  # fmt: skip
+                 f"direction error {s.direction_error_deg:+.1f}°, error/accuracy {s.error_ratio:.2f}")  # fmt: skip
     fig.tight_layout()
     os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
     fig.savefig(path, dpi=90)
@@ -83,8 +83,9 @@ def plot(est: dict, truth: dict, s: Score, path: str, start_s: float) -> None:
 
 def format_score(s: Score) -> str:
     return (
-        f"band RMSE (<0.05 Hz) {s.band_rmse_mps:.3f} m/s | raw RMSE {s.raw_rmse_mps:.3f} m/s | "
+        f"band RMSE (<0.05 Hz) {s.band_rmse_mps:.3f} m/s, skill {s.band_skill:.2f} | "
+        f"raw RMSE {s.raw_rmse_mps:.3f} m/s | "
         f"mean speed {s.est_speed_mps:.2f} vs {s.true_speed_mps:.2f} m/s ({s.speed_error_pct:+.1f} %) | "
         f"direction error {s.direction_error_deg:+.2f} deg | horiz_accuracy {s.mean_accuracy_mps:.2f} m/s "
-        f"= {s.accuracy_ratio:.2f} x actual | {s.duration_s:.0f} s scored"
+        f"(actual error / accuracy {s.error_ratio:.2f}) | {s.duration_s:.0f} s scored"
     )

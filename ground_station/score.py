@@ -1,10 +1,13 @@
-"""Scores of a wind estimate against the simulator's truth (the firmware issue's metrics).
+"""Scores of a wind estimate against the simulator's truth, judged the way its users would judge it.
 
 - band RMSE: horizontal-vector RMS error after both series are low-passed below ``band_hz``
   (zero-phase FFT filter on a common 10 Hz grid), from ``start_s`` on;
+- band skill: 1 - band RMSE / band RMSE of a constant equal to the true mean over the same window
+  (1 = perfect, 0 = no better than knowing the mean; NaN when the truth does not fluctuate in the band);
 - mean speed error (% of the true mean speed) and mean direction error (deg), of the mean vectors;
-- accuracy consistency: mean reported horiz_accuracy / actual RMS error of the raw estimate;
-- gain |estimate / truth| at given frequencies (multisine wind).
+- error ratio: actual raw RMS error / RMS of the reported horiz_accuracy (honest = 1, > 1 = overconfident);
+- ``response``: complex transfer function H = estimate / truth per frequency, along the true mean wind
+  and across it, by a least-squares sinusoid fit (multisine wind): gain |H|, phase arg H, error |H - 1|.
 """
 
 from __future__ import annotations
@@ -23,8 +26,9 @@ class Score:
     raw_rmse_mps: float
     speed_error_pct: float
     direction_error_deg: float
-    mean_accuracy_mps: float
-    accuracy_ratio: float  # reported / actual
+    mean_accuracy_mps: float  # RMS of the reported horiz_accuracy
+    error_ratio: float  # actual raw RMS error / RMS reported accuracy: honest = 1, > 1 = overconfident
+    band_skill: float  # 1 - band RMSE / band RMSE of the constant true mean; NaN if the truth is steady in the band
     true_speed_mps: float
     est_speed_mps: float
     duration_s: float
@@ -47,7 +51,16 @@ def lowpass(x: np.ndarray, fs: float, cutoff_hz: float) -> np.ndarray:
     return np.fft.irfft(np.fft.rfft(x - trend) * gain, n=n) + trend
 
 
+MIN_BAND_STD_MPS = 0.02  # below this the truth does not fluctuate in the band: skill is meaningless
+
+
 def on_grid(t_est, est_n, est_e, acc, t_true, true_n, true_e, start_s):
+    """Both series on a common 10 Hz grid from ``start_s`` on (estimate samples that are not finite dropped)."""
+    t_est, est_n, est_e, acc = (np.asarray(x, dtype=float) for x in (t_est, est_n, est_e, acc))
+    ok = np.isfinite(t_est) & np.isfinite(est_n) & np.isfinite(est_e)
+    t_est, est_n, est_e, acc = t_est[ok], est_n[ok], est_e[ok], acc[ok]
+    if len(t_est) < 2:
+        raise ValueError("fewer than 2 finite estimate samples to score")
     t0 = max(start_s, t_est[0], t_true[0])
     t1 = min(t_est[-1], t_true[-1])
     if t1 - t0 < 10.0:
@@ -63,6 +76,8 @@ def score(t_est, est_n, est_e, acc, t_true, true_n, true_e, start_s: float = 120
     fen, fee = lowpass(en, GRID_HZ, band_hz), lowpass(ee, GRID_HZ, band_hz)
     ftn, fte = lowpass(tn, GRID_HZ, band_hz), lowpass(te, GRID_HZ, band_hz)
     band = np.sqrt(np.mean((fen - ftn) ** 2 + (fee - fte) ** 2))
+    band_const = np.sqrt(np.mean((ftn - tn.mean()) ** 2 + (fte - te.mean()) ** 2))
+    skill = 1.0 - band / band_const if band_const >= MIN_BAND_STD_MPS else math.nan
     ms_true = math.hypot(tn.mean(), te.mean())
     ms_est = math.hypot(en.mean(), ee.mean())
     d_true = math.degrees(math.atan2(te.mean(), tn.mean()))
@@ -75,28 +90,63 @@ def score(t_est, est_n, est_e, acc, t_true, true_n, true_e, start_s: float = 120
         speed_error_pct=100.0 * (ms_est - ms_true) / max(ms_true, 1e-6),
         direction_error_deg=ddir,
         mean_accuracy_mps=mean_acc,
-        accuracy_ratio=mean_acc / max(float(raw), 1e-9),
+        error_ratio=float(raw) / mean_acc if mean_acc > 0.0 else math.inf,
+        band_skill=float(skill),
         true_speed_mps=ms_true,
         est_speed_mps=ms_est,
         duration_s=float(grid[-1] - grid[0]),
     )
 
 
-def gains(t_est, est_n, est_e, t_true, true_n, true_e, freqs_hz, start_s: float = 120.0) -> dict[float, float]:
-    """|estimate / truth| of the along-wind component at each frequency (single-bin DFT over a whole
-    number of periods of the lowest frequency that fits)."""
-    grid, en, ee, _, tn, te = on_grid(t_est, est_n, est_e, est_n * 0, t_true, true_n, true_e, start_s)
-    mean_dir = np.array([tn.mean(), te.mean()])
-    mean_dir /= np.linalg.norm(mean_dir) + 1e-12
-    e_u = en * mean_dir[0] + ee * mean_dir[1]
-    t_u = tn * mean_dir[0] + te * mean_dir[1]
-    out = {}
+MIN_AMPLITUDE_MPS = 0.02  # an axis whose true amplitude at a frequency is below this is not driven there
+
+
+def sinusoid_fit(t: np.ndarray, ys: np.ndarray, freqs_hz) -> np.ndarray:
+    """Complex amplitudes (a - i b for a cos + b sin, so a delay reads as a negative phase) of every
+    column of ``ys`` at each frequency, one least-squares fit of all the frequencies' cos/sin together
+    with a constant and a linear trend. Returns shape (len(freqs_hz), ys.shape[1])."""
+    tt = t - t[0]
+    cols = [np.ones_like(tt), tt / max(tt[-1], 1e-9)]
     for f in freqs_hz:
-        n_per = max(1, int((grid[-1] - grid[0]) * f))
-        m = int(round(n_per / f * GRID_HZ))
-        tt = grid[:m] - grid[0]
-        ph = np.exp(-2j * math.pi * f * tt)
-        ge = np.sum((e_u[:m] - e_u[:m].mean()) * ph)
-        gt = np.sum((t_u[:m] - t_u[:m].mean()) * ph)
-        out[f] = float(abs(ge) / max(abs(gt), 1e-12))
+        cols += [np.cos(2.0 * math.pi * f * tt), np.sin(2.0 * math.pi * f * tt)]
+    c = np.linalg.lstsq(np.column_stack(cols), ys, rcond=None)[0]
+    return c[2::2] - 1j * c[3::2]
+
+
+def response(t_est, est_n, est_e, t_true, true_n, true_e, freqs_hz, start_s: float = 120.0,
+             extra_hz=()) -> dict[float, dict[str, complex | None]]:  # fmt: skip
+    """Transfer function H = estimate / truth at each frequency, for the along-wind component
+    (projected on the true mean direction over the window) and the cross-wind one (its perpendicular,
+    90 deg to the right), by a least-squares fit of cos/sin at all ``freqs_hz`` plus a constant and a
+    linear trend, from ``start_s`` on. ``extra_hz``: other frequencies the truth is known to hold (the
+    multisine's lines), fitted alongside so they do not leak into the reported ones, not reported
+    (those with less than one period in the window are left to the constant and the trend).
+    ``{f: {"along": H, "cross": H}}``; an axis whose true amplitude at f is below ``MIN_AMPLITUDE_MPS``
+    is not driven there and gets None. Gain |H|, phase arg H (negative = lag), complex error |H - 1|:
+    ``describe(H)``."""
+    freqs = [float(f) for f in freqs_hz]
+    extra = [float(f) for f in extra_hz if all(abs(float(f) - g) > 1e-9 for g in freqs)]
+    grid, en, ee, _, tn, te = on_grid(t_est, est_n, est_e, np.zeros(len(t_est)), t_true, true_n, true_e, start_s)
+    extra = [f for f in extra if f * (grid[-1] - grid[0]) >= 1.0]  # slower ones: left to the constant + trend
+    d = np.array([tn.mean(), te.mean()])
+    norm = float(np.linalg.norm(d))
+    if norm < 1e-6:
+        raise ValueError("no mean wind to define the along-wind direction")
+    d /= norm
+    axes = {"along": d, "cross": np.array([-d[1], d[0]])}
+    ys = np.column_stack([v[0] * n + v[1] * e for v in axes.values() for n, e in ((en, ee), (tn, te))])
+    z = sinusoid_fit(grid, ys, freqs + extra)
+    out: dict[float, dict[str, complex | None]] = {}
+    for k, f in enumerate(freqs):
+        out[f] = {}
+        for j, ax in enumerate(axes):
+            ze, zt = z[k, 2 * j], z[k, 2 * j + 1]
+            out[f][ax] = complex(ze / zt) if abs(zt) >= MIN_AMPLITUDE_MPS else None
     return out
+
+
+def describe(h: complex | None) -> tuple[float, float, float]:
+    """(gain |H|, phase deg, |H - 1|) of a transfer function value; NaNs for None."""
+    if h is None:
+        return math.nan, math.nan, math.nan
+    return abs(h), math.degrees(math.atan2(h.imag, h.real)), abs(h - 1.0)

@@ -29,7 +29,7 @@ def test_paper_reference_accuracy(seed):
     assert s.band_rmse_mps <= 0.3
     assert abs(s.speed_error_pct) <= 5.0
     assert abs(s.direction_error_deg) <= 5.0
-    assert 0.5 <= s.accuracy_ratio <= 2.0
+    assert 0.5 <= s.error_ratio <= 2.0
     assert est.ekf.mode == MODE_TAUT
     assert est.counters.mode_switches >= 2  # ground -> free -> taut
     check_covariance(est.ekf.P)

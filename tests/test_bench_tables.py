@@ -1,0 +1,68 @@
+"""benchmarks.bench_accuracy's tables from made-up flight results: targets marked, steady skill '-',
+cross-wind rows only where driven, missing scenarios skipped, JSON written."""
+
+import json
+
+from benchmarks import bench_accuracy as ba
+
+
+def flight(name, seed, skill=0.8, speed=1.0, direction=0.5, ratio=1.0, response=None):
+    r = {"scenario": name, "seed": seed, "duration_s": 600.0, "taut_resets": 0, "tilt_err_deg": 0.5,
+         "yaw_err_deg": 0.3, "elapsed_s": 1.0,
+         "score": {"band_skill": skill, "band_rmse_mps": 0.1, "speed_error_pct": speed,
+                   "direction_error_deg": direction, "error_ratio": ratio}}  # fmt: skip
+    if response is not None:
+        r["response"] = response
+    return r
+
+
+def row(lines, name, axis=""):
+    return next(ln for ln in lines if ln.startswith(f"{name:28s} {axis}"))
+
+
+def test_summary_marks_the_worst_seed_against_each_target():
+    res = [flight("paper-reference", 1), flight("paper-reference", 2, skill=0.6, speed=-3.5, ratio=1.5),
+           flight("better-baro", 1), flight("steady", 1, skill=float("nan"), direction=2.5)]  # fmt: skip
+    lines = ba.summary_table(["paper-reference", "better-baro", "steady"], res)
+    ref = row(lines, "paper-reference")
+    assert "0.70 [ 0.60]!" in ref and "2.25 [ 3.50]!" in ref and "1.25 [ 1.50]!" in ref
+    assert "!" not in row(lines, "better-baro")
+    steady = row(lines, "steady")
+    assert steady.split()[1] == "-" and "2.50 [ 2.50]!" in steady
+
+
+def test_response_table_marks_h_error_and_leaves_undriven_cross_out():
+    h = {0.01: {"along": 1.0 + 0.1j, "cross": None}, 0.02: {"along": 0.9 - 0.2j, "cross": None},
+         0.05: {"along": 0.5 - 0.5j, "cross": None}, 0.1: {"along": 0.2 - 0.9j, "cross": None}}  # fmt: skip
+    lines = ba.response_table(["multisine"], [flight("multisine", 1, response=h)])
+    along = row(lines, "multisine", "along")
+    cells = along.split("]")
+    marks = [c[0] for c in cells[1:]]  # what follows each cell's [worst]
+    assert cells[0].endswith("0.10 [0.10") and cells[2].endswith("0.71 [0.71")
+    assert marks == [" ", " ", "!", " "]  # 0.05 Hz misses |H-1| <= 0.3; 0.1 Hz has no target
+    assert "(not driven)" in row(lines, "multisine", "cross")
+
+
+def test_unknown_scenarios_are_skipped_and_json_written(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(ba, "one", lambda job: flight(job[0], job[1]))
+
+    class NoPool:
+        def __init__(self, n):
+            pass
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *a):
+            return False
+
+        def imap_unordered(self, fn, jobs):
+            return map(fn, jobs)
+
+    monkeypatch.setattr(ba, "Pool", NoPool)
+    out = tmp_path / "r.json"
+    ba.main(["--seeds", "2", "--scenarios", "paper-reference", "no-such-scenario", "--json", str(out)])
+    cap = capsys.readouterr()
+    assert "skipping 'no-such-scenario'" in cap.out and "[2/2] paper-reference" in cap.err
+    doc = json.loads(out.read_text())
+    assert doc["skipped"] == ["no-such-scenario"] and [r["seed"] for r in doc["results"]] == [1, 2]
