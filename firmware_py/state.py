@@ -46,9 +46,9 @@ class FilterConfig:
     gyro_bias_walk_dps_rt_s: float = 0.005
     # measurement model errors added to the sensor noise of [sensors]
     accel_model_mps2: float = 0.15  # specific-force model error in free ascent
-    accel_taut_mps2: float = 0.05  # specific-force model error on the taut tether (rope waves, rocking)
+    accel_taut_mps2: float = 0.1  # specific-force model error on the taut tether (rope waves, rocking)
     accel_static_mps2: float = 0.3  # accelerations of the quasi-static balloon (ground, taut)
-    align_rad: float = 0.005  # balloon-to-rope-force alignment error (rotational oscillation)
+    align_rad: float = 0.01  # balloon-to-rope-force alignment error (rotational oscillation)
     radial_m: float = 0.3  # tether length + stretch uncertainty when taut
     radial_rate_mps: float = 0.15
     # rope cross-flow drag coefficient (Hoerner: 1.1 for a round rope); 0 = the paper's model, no rope drag
