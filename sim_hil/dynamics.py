@@ -11,6 +11,13 @@ Translational (Morison form, NOTES.md), paper Eq. (6):
 Rotational, paper Eq. (7): I dw/dt = r_att x (F_tether + F_rope) - c_rot w, with the tether and the
 rope weight acting at the bottom attachment point r_att = (0, 0, r) in FRD. The sphere is isotropic
 (I scalar), so the gyroscopic term w x I w vanishes.
+
+Options that the firmware's model does not have (docs/model.md, "Truth options"):
+
+- ``drag_model = "reynolds"``: Cd(Re) through the drag crisis (``sphere_drag_coefficient``).
+- ``avionics_offset_m > 0``: the avionics (a point mass, the IMU and the barometer with it) hang
+  below the centre, so the centre of mass does too; Newton-Euler about the centre
+  (``_offset_accelerations``) and the IMU's lever-arm terms (``lever_arm_accel_b``).
 """
 
 from __future__ import annotations
@@ -19,7 +26,11 @@ import math
 from dataclasses import dataclass
 
 from firmware_py.atmosphere import G0, ISA_EXP, LAPSE_K_M, R_AIR
-from firmware_py.config import Design, build_section
+from firmware_py.config import ConfigError, Design, build_section
+
+SUTHERLAND_MU0_PAS = 1.716e-5  # dynamic viscosity of air at 273.15 K (White, Viscous Fluid Flow)
+SUTHERLAND_T0_K = 273.15
+SUTHERLAND_S_K = 110.4
 
 
 @dataclass(frozen=True)
@@ -44,13 +55,43 @@ class TruthConfig:
     gyro_bias_walk_dps_rt_s: float = 0.0  # bias random walk, deg/s per sqrt(s)
     accel_bias_mps2: float = 0.0  # 1-sigma turn-on bias per axis
     baro_offset_m: float = 0.0  # 1-sigma constant barometer offset
-    mag_bias_gauss: float = 0.0  # 1-sigma hard-iron offset per axis
+    mag_bias_gauss: float = 0.0  # 1-sigma hard-iron offset per axis (drawn from the seed)
+    mag_hard_iron_gauss: tuple[float, float, float] = (0.0, 0.0, 0.0)  # fixed hard-iron offset, body FRD
     quantize: bool = False  # 16-bit LSBs: +-8 g, +-2000 deg/s, +-8 gauss; 0.01 hPa; 0.01 C
     mag_field_h_gauss: float = 0.20  # horizontal earth field
     mag_field_z_gauss: float = 0.45  # vertical earth field (down)
+    # sphere drag: "constant" = the design's drag_coefficient; "reynolds" = Cd(Re) through the drag
+    # crisis (sphere_drag_coefficient), the design's Cd is then the firmware's belief only
+    drag_model: str = "constant"
+    drag_crisis_reynolds: float = 4.1e5  # centre of the crisis: Cd(3 m/s, r = 1 m, 100 m) = 0.30
+    drag_crisis_exponent: float = 4.0  # steepness; <= ~5 keeps the drag force rising with speed
+    # avionics as a point mass (part of skin_and_avionics_kg) this far below the centre, along body +z;
+    # 0 = the avionics counted in the shell, centre of mass at the centre (the paper's model)
+    avionics_offset_m: float = 0.0
+    avionics_kg: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.drag_model not in ("constant", "reynolds"):
+            raise ConfigError(f"truth.drag_model must be constant or reynolds, got {self.drag_model!r}")
+        if not (self.drag_crisis_reynolds > 0.0 and self.drag_crisis_exponent > 0.0):
+            raise ConfigError("truth.drag_crisis_reynolds and truth.drag_crisis_exponent must be > 0")
+        if self.avionics_offset_m < 0.0 or self.avionics_kg < 0.0:
+            raise ConfigError("truth.avionics_offset_m and truth.avionics_kg must be >= 0")
+        hi = self.mag_hard_iron_gauss
+        if (
+            not isinstance(hi, tuple)
+            or len(hi) != 3
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in hi)
+        ):
+            raise ConfigError(f"truth.mag_hard_iron_gauss must be three finite numbers, got {hi!r}")
 
     @classmethod
     def from_dict(cls, values: dict) -> TruthConfig:
+        hi = values.get("mag_hard_iron_gauss")
+        if isinstance(hi, (list, tuple)):
+            if not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in hi):
+                raise ConfigError(f"[truth] mag_hard_iron_gauss must be numbers, got {hi!r}")
+            values = dict(values, mag_hard_iron_gauss=tuple(float(x) for x in hi))
         return build_section(cls, "truth", values)
 
 
@@ -61,7 +102,7 @@ class BalloonPhysics:
     radius_m: float
     volume_m3: float
     mass_kg: float
-    inertia_kgm2: float
+    inertia_kgm2: float  # about the centre, body x and y (and z when the avionics sit at the centre)
     drag_factor: float  # 1/2 Cd pi r^2 (times rho at run time)
     added_mass_coefficient: float
     tether_length_m: float
@@ -74,6 +115,17 @@ class BalloonPhysics:
     ground_pressure_pa: float
     ground_temperature_k: float
     isa_density: bool
+    # drag_model = "reynolds": Cd(Re) instead of the constant in drag_factor (0 drag_factor then)
+    reynolds_drag: bool = False
+    frontal_area_m2: float = 0.0
+    air_viscosity_pas: float = 0.0  # Sutherland at the ground temperature
+    drag_crisis_reynolds: float = 4.1e5
+    drag_crisis_exponent: float = 4.0
+    # avionics below the centre: static moment s = m_a d [kg m] (m times the centre-of-mass offset),
+    # IMU lever arm d [m], yaw inertia (the x/y one is inertia_kgm2)
+    static_moment_kgm: float = 0.0
+    imu_offset_m: float = 0.0
+    inertia_z_kgm2: float = 0.0
 
     @classmethod
     def from_design(cls, design: Design, truth: TruthConfig) -> BalloonPhysics:
@@ -81,20 +133,26 @@ class BalloonPhysics:
         r = b.radius_m
         volume = b.volume_m3
         mass = b.mass_kg
-        # thin shell (skin + avionics) + uniform gas sphere
-        inertia = (2.0 / 3.0) * b.skin_and_avionics_kg * r * r + 0.4 * b.gas_mass_kg * r * r
+        d = truth.avionics_offset_m
+        if d > 0.0:
+            if d >= r:
+                raise ConfigError(f"truth.avionics_offset_m = {d} must be inside the sphere (< radius {r})")
+            if truth.avionics_kg > b.skin_and_avionics_kg:
+                raise ConfigError("truth.avionics_kg must not exceed balloon.skin_and_avionics_kg")
+        inertia, inertia_z = offset_inertia_kgm2(b.skin_and_avionics_kg, b.gas_mass_kg, r, truth.avionics_kg, d)
         k = truth.tether_ea_n / t.length_m
         p0 = (design.site.ground_pressure_hpa or 1013.25) * 100.0
         t0 = design.site.ground_temperature_c + 273.15
         rho0 = p0 / (R_AIR * t0)
         m_eff = mass + truth.added_mass_coefficient * rho0 * volume
         c = 2.0 * truth.tether_damping_ratio * math.sqrt(k * m_eff)
+        reynolds = truth.drag and truth.drag_model == "reynolds"
         return cls(
             radius_m=r,
             volume_m3=volume,
             mass_kg=mass,
             inertia_kgm2=inertia,
-            drag_factor=0.5 * b.drag_coefficient * math.pi * r * r if truth.drag else 0.0,
+            drag_factor=0.5 * b.drag_coefficient * math.pi * r * r if truth.drag and not reynolds else 0.0,
             added_mass_coefficient=truth.added_mass_coefficient,
             tether_length_m=t.length_m,
             rope_kg_m=t.linear_density_kg_m,
@@ -106,7 +164,95 @@ class BalloonPhysics:
             ground_pressure_pa=p0,
             ground_temperature_k=t0,
             isa_density=truth.isa_density,
+            reynolds_drag=reynolds,
+            frontal_area_m2=math.pi * r * r,
+            air_viscosity_pas=sutherland_viscosity_pas(t0),
+            drag_crisis_reynolds=truth.drag_crisis_reynolds,
+            drag_crisis_exponent=truth.drag_crisis_exponent,
+            static_moment_kgm=truth.avionics_kg * d if d > 0.0 else 0.0,
+            imu_offset_m=d,
+            inertia_z_kgm2=inertia_z,
         )
+
+
+def offset_inertia_kgm2(
+    skin_and_avionics_kg: float, gas_kg: float, radius_m: float, avionics_kg: float, offset_m: float
+) -> tuple[float, float]:
+    """Inertia about the sphere's centre, (transverse x/y, axial z), kg m^2.
+
+    offset 0 (the paper's model): thin shell of skin + avionics and a uniform gas sphere, isotropic,
+    I = (2/3) m_sa r^2 + (2/5) m_gas r^2. offset d > 0: the avionics are a point mass m_a at
+    (0, 0, d): shell of the rest, I_z = (2/3)(m_sa - m_a) r^2 + (2/5) m_gas r^2, and by the parallel
+    axis theorem I_x = I_y = I_z + m_a d^2. (The step at d -> 0+ is the legacy model's (2/3) m_a r^2
+    for avionics smeared over the skin; it keeps offset 0 bit-identical with earlier runs.)"""
+    r2 = radius_m * radius_m
+    if offset_m <= 0.0:
+        iso = (2.0 / 3.0) * skin_and_avionics_kg * r2 + 0.4 * gas_kg * r2
+        return iso, iso
+    axial = (2.0 / 3.0) * (skin_and_avionics_kg - avionics_kg) * r2 + 0.4 * gas_kg * r2
+    return axial + avionics_kg * offset_m * offset_m, axial
+
+
+def sutherland_viscosity_pas(temperature_k: float) -> float:
+    """Dynamic viscosity of air, Sutherland's law mu = mu0 (T/T0)^1.5 (T0 + S)/(T + S): 1.81e-5 Pa s at
+    20 C. The kinematic viscosity nu = mu / rho is 1.50e-5 m^2/s at the ground, 1.52e-5 at 100 m."""
+    return SUTHERLAND_MU0_PAS * (temperature_k / SUTHERLAND_T0_K) ** 1.5 * (
+        (SUTHERLAND_T0_K + SUTHERLAND_S_K) / (temperature_k + SUTHERLAND_S_K)
+    )
+
+
+def sphere_drag_coefficient(re: float, crisis_re: float = 4.1e5, crisis_exponent: float = 4.0) -> float:
+    """Cd of a sphere against the Reynolds number Re = |u| 2r / nu, through the drag crisis.
+
+    Morrison's correlation (F. A. Morrison, An Introduction to Fluid Mechanics, CUP 2013: 24/Re
+    creeping flow, the 2.6 term for the recirculating range, the crisis term, the slow supercritical
+    recovery toward 0.25) with the crisis position Re_c and steepness n as parameters:
+
+        Cd = 24/Re + 2.6 (Re/5) / (1 + (Re/5)^1.52) + 0.411 x^-(n - 0.06) / (1 + x^-n)
+             + 0.25 (Re/1e6) / (1 + Re/1e6),          x = Re / Re_c
+
+    Morrison fits a smooth sphere in a quiet tunnel: Re_c = 2.63e5, n = 8 (his 7.94 and 8.00). Where
+    the crisis falls depends on surface roughness and free-stream turbulence, so it is a parameter:
+    Re_c = 4.1e5 puts the reference balloon at 3 m/s (Re ~ 4e5, NOTES.md) in mid-crisis with
+    Cd = 0.30, the firmware's constant. n = 4 smears the crisis as atmospheric turbulence does: the
+    drag force (Cd Re^2) then still rises with speed (d ln Cd / d ln Re >= -1.4 > -2); a tunnel-sharp
+    n = 8 makes it fall just above Re_c, a negative aerodynamic damping we do not claim for a balloon
+    in turbulent air. Values for r = 1 m at 100 m: 0.38-0.42 from 0.1 to 2 m/s, 0.36 at 2.5, 0.30
+    at 3, 0.20 at 4, 0.16 at 5, minimum 0.14 near 7 m/s, 0.16 at 12, 0.20 at 30, -> 0.25."""
+    x = re / 5.0
+    y = re / crisis_re
+    return (
+        24.0 / re
+        + 2.6 * x / (1.0 + x**1.52)
+        + 0.411 * y ** (0.06 - crisis_exponent) / (1.0 + y ** (-crisis_exponent))
+        + 0.25 * (re / 1.0e6) / (1.0 + re / 1.0e6)
+    )
+
+
+def drag_per_speed(ph: BalloonPhysics, rho: float, speed: float) -> float:
+    """k in F_drag = k (u - v) [N s/m]: 1/2 rho Cd pi r^2 |u - v|, Cd constant or Cd(Re) with
+    Re = |u - v| 2 r rho / mu (continuous at |u - v| = 0: Stokes' 24/Re makes k finite there)."""
+    if not ph.reynolds_drag:
+        return rho * ph.drag_factor * speed
+    if speed <= 0.0:
+        return 0.0
+    re = speed * 2.0 * ph.radius_m * rho / ph.air_viscosity_pas
+    cd = sphere_drag_coefficient(re, ph.drag_crisis_reynolds, ph.drag_crisis_exponent)
+    return 0.5 * rho * cd * ph.frontal_area_m2 * speed
+
+
+def lever_arm_accel_b(
+    p: float, q: float, r: float, dp: float, dq: float, dr: float, x: float, y: float, z: float
+) -> tuple[float, float, float]:
+    """Acceleration of a body point at (x, y, z) FRD relative to the centre's, in body axes:
+    dw/dt x rho + w x (w x rho). Zero for rho = 0; the IMU adds it to the centre's specific force."""
+    wr = p * x + q * y + r * z
+    w2 = p * p + q * q + r * r
+    return (
+        dq * z - dr * y + p * wr - x * w2,
+        dr * x - dp * z + q * wr - y * w2,
+        dp * y - dq * x + r * wr - z * w2,
+    )
 
 
 def density_at(ph: BalloonPhysics, height_m: float) -> float:
@@ -164,7 +310,7 @@ def derivative(
     # aerodynamic drag on the sphere's frontal area (paper Eq. 3 corrected)
     un, ue, ud = wn - vn, we - ve, wd - vd
     speed = math.sqrt(un * un + ue * ue + ud * ud)
-    kd = rho * ph.drag_factor * speed
+    kd = drag_per_speed(ph, rho, speed) if ph.reynolds_drag else rho * ph.drag_factor * speed
     fan, fae, fad = kd * un, kd * ue, kd * ud
     if ph.rope_drag_factor > 0.0 and dist > 0.0:
         # cross-flow drag on a straight rope, half of it carried by the balloon; the rope's mean
@@ -180,6 +326,12 @@ def derivative(
         ftd += kr * cd
     ca_rho_v = ph.added_mass_coefficient * rho_v
     fk = (rho_v + ca_rho_v) * ph.fluid_acceleration  # Froude-Krylov + added-mass force of the accelerating air
+    if ph.static_moment_kgm != 0.0:
+        acc = _offset_accelerations(
+            ph, fk * dwn + fan + ftn, fk * dwe + fae + fte, fk * dwd + fad + ftd + (ph.mass_kg - rho_v) * G0,
+            ftn, fte, ftd, ph.mass_kg + ca_rho_v, q0, q1, q2, q3, p, q, r,
+        )  # fmt: skip
+        return [vn, ve, vd, *acc], tension
     inv_m = 1.0 / (ph.mass_kg + ca_rho_v)
     an_ = (fk * dwn + fan + ftn) * inv_m
     ae_ = (fk * dwe + fae + fte) * inv_m
@@ -197,6 +349,77 @@ def derivative(
     dq2 = 0.5 * (q0 * q - q1 * r + q3 * p)
     dq3 = 0.5 * (q0 * r + q1 * q - q2 * p)
     return [vn, ve, vd, an_, ae_, ad_, dq0, dq1, dq2, dq3, dp, dq, dr], tension
+
+
+def _offset_accelerations(
+    ph: BalloonPhysics, fn: float, fe: float, fd: float, ftn: float, fte: float, ftd: float, m_eff: float,
+    q0: float, q1: float, q2: float, q3: float, p: float, q: float, r: float,
+) -> list[float]:  # fmt: skip
+    """Derivatives (a_NED, dq/dt, dw/dt) when the centre of mass is s/m below the centre.
+
+    Newton-Euler about the sphere's centre C (the state's reference point, where buoyancy, drag, the
+    fluid-acceleration force and the added mass act), with the rigid mass m's static moment
+    s = m r_G = m_a d e_z (body) and M = m + Ca rho V (the added mass of a sphere moves with the centre
+    and has no rotational part):
+
+        M a_C + s R (dw/dt x e_z + w x (w x e_z)) = F
+        I_C dw/dt + w x I_C w + s e_z x (R^T a_C) = r_att x F_rope + s e_z x R^T (0, 0, g) - c_rot w
+
+    F is the total force of the centre-of-mass-free model (weight, buoyancy, drag, fluid acceleration,
+    tether, rope); only the weight's moment arm is new: it acts at the centre of mass and rights the
+    balloon. In body axes (A = R^T a_C, b = R^T F) two 2x2 systems and two scalar ones,
+
+        M Ax + s dq = bx - s p r          I_x dq + s Ax = My - p r (I_x - I_z)
+        M Ay - s dp = by - s q r          I_x dp - s Ay = Mx - q r (I_z - I_x)
+        M Az = bz + s (p^2 + q^2)         I_z dr = -c_rot r
+
+    with determinant M I_x - s^2 > 0. The total energy 1/2 M |v|^2 + s v.R(w x e_z) + 1/2 w.I_C w
+    - (m - rho V) g p_d - s g (e_z . down) + rope and spring terms is conserved without drag and
+    damping (tests/test_scenarios.py)."""
+    rad = ph.radius_m
+    sm = ph.static_moment_kgm
+    ix, iz = ph.inertia_kgm2, ph.inertia_z_kgm2
+    c = ph.rot_damping_nms
+    r00 = q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3
+    r01 = 2.0 * (q1 * q2 - q0 * q3)
+    r02 = 2.0 * (q1 * q3 + q0 * q2)
+    r10 = 2.0 * (q1 * q2 + q0 * q3)
+    r11 = q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3
+    r12 = 2.0 * (q2 * q3 - q0 * q1)
+    r20 = 2.0 * (q1 * q3 - q0 * q2)
+    r21 = 2.0 * (q2 * q3 + q0 * q1)
+    r22 = q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3
+    # total force and the rope force in body axes
+    bx = r00 * fn + r10 * fe + r20 * fd
+    by = r01 * fn + r11 * fe + r21 * fd
+    bz = r02 * fn + r12 * fe + r22 * fd
+    fbx = r00 * ftn + r10 * fte + r20 * ftd
+    fby = r01 * ftn + r11 * fte + r21 * ftd
+    # moments about the centre: rope at (0, 0, rad), weight m g at the centre of mass, air damping
+    sg = sm * G0
+    mx = -rad * fby - sg * r21 - c * p - q * r * (iz - ix)
+    my = rad * fbx + sg * r20 - c * q - p * r * (ix - iz)
+    bx -= sm * p * r
+    by -= sm * q * r
+    det = m_eff * ix - sm * sm
+    ax = (ix * bx - sm * my) / det
+    dq = (m_eff * my - sm * bx) / det
+    ay = (ix * by + sm * mx) / det
+    dp = (m_eff * mx + sm * by) / det
+    az = (bz + sm * (p * p + q * q)) / m_eff
+    dr = -c * r / iz
+    return [
+        r00 * ax + r01 * ay + r02 * az,
+        r10 * ax + r11 * ay + r12 * az,
+        r20 * ax + r21 * ay + r22 * az,
+        0.5 * (-q1 * p - q2 * q - q3 * r),
+        0.5 * (q0 * p + q2 * r - q3 * q),
+        0.5 * (q0 * q - q1 * r + q3 * p),
+        0.5 * (q0 * r + q1 * q - q2 * p),
+        dp,
+        dq,
+        dr,
+    ]
 
 
 def rk4_step(
@@ -252,6 +475,7 @@ def net_lift_n(ph: BalloonPhysics, height_m: float, rope_airborne_m: float) -> f
 
 
 def steady_blowdown_deg(ph: BalloonPhysics, wind_mps: float, height_m: float) -> float:
-    """Analytic equilibrium tether angle from vertical, tan(theta) = drag / net lift (taut)."""
-    drag = density_at(ph, height_m) * ph.drag_factor * wind_mps * wind_mps
+    """Analytic equilibrium tether angle from vertical, tan(theta) = drag / net lift (taut), with the
+    truth's drag law (Cd constant, or Cd(Re) at this wind speed)."""
+    drag = drag_per_speed(ph, density_at(ph, height_m), wind_mps) * wind_mps
     return math.degrees(math.atan2(drag, net_lift_n(ph, height_m, ph.tether_length_m)))

@@ -1,6 +1,8 @@
-"""Sensor models at the centre of mass: accelerometer (specific force, FRD), gyroscope, magnetometer,
+"""Sensor models at the avionics: accelerometer (specific force, FRD), gyroscope, magnetometer,
 barometer and thermometer. Table 2's figures as 1-sigma white noise by default; turn-on biases, bias
-random walk and quantisation as options (``TruthConfig``).
+random walk, a fixed hard-iron offset and quantisation as options (``TruthConfig``). The avionics sit
+at the sphere's centre unless ``TruthConfig.avionics_offset_m`` hangs them below it; the caller
+passes the accelerometer's lever-arm term then (``dynamics.lever_arm_accel_b``).
 
 Noise is drawn in blocks (one numpy call per block of samples), then consumed as plain floats.
 """
@@ -47,6 +49,8 @@ class SensorSuite:
         self.gyro_bias = [float(x) for x in r.normal(0.0, math.radians(truth.gyro_bias_dps), 3)]
         self.accel_bias = [float(x) for x in r.normal(0.0, truth.accel_bias_mps2, 3)]
         self.mag_bias = [float(x) for x in r.normal(0.0, truth.mag_bias_gauss, 3)]
+        if any(truth.mag_hard_iron_gauss):  # fixed hard iron (body frame) on top of the seeded draw
+            self.mag_bias = [b + h for b, h in zip(self.mag_bias, truth.mag_hard_iron_gauss)]
         self.baro_offset_m = float(r.normal(0.0, truth.baro_offset_m)) if truth.baro_offset_m else 0.0
         self._walk = math.radians(truth.gyro_bias_walk_dps_rt_s) * math.sqrt(1.0 / imu_hz)
         self._noise: list[list[float]] = []
@@ -61,9 +65,15 @@ class SensorSuite:
         return row
 
     def imu(
-        self, f_ned: tuple[float, float, float], omega_b: tuple[float, float, float], q: list[float]
+        self,
+        f_ned: tuple[float, float, float],
+        omega_b: tuple[float, float, float],
+        q: list[float],
+        lever_b: tuple[float, float, float] | None = None,
     ) -> tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]:
-        """Accelerometer (specific force f = a - g, FRD, m/s^2), gyro (rad/s), magnetometer (gauss)."""
+        """Accelerometer (specific force f = a - g, FRD, m/s^2), gyro (rad/s), magnetometer (gauss).
+        ``f_ned`` is the centre's specific force; ``lever_b`` the sensor's acceleration relative to the
+        centre in body axes (dw/dt x rho + w x (w x rho)), when it is not at the centre."""
         n = self._draw()
         q0, q1, q2, q3 = q
         # R^T (NED -> body) rows
@@ -91,6 +101,8 @@ class SensorSuite:
             r10 * bn + r11 * be + r12 * bd + mb[1] + sm * n[7],
             r20 * bn + r21 * be + r22 * bd + mb[2] + sm * n[8],
         )
+        if lever_b is not None:
+            acc = (acc[0] + lever_b[0], acc[1] + lever_b[1], acc[2] + lever_b[2])
         if self._walk:
             w = self._walk
             self.gyro_bias = [gb[0] + w * n[9], gb[1] + w * n[10], gb[2] + w * n[11]]

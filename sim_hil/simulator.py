@@ -19,6 +19,7 @@ from sim_hil.dynamics import (
     TruthConfig,
     derivative,
     euler_from_quat,
+    lever_arm_accel_b,
     resting_state,
     rk4_step,
 )
@@ -87,6 +88,7 @@ class Simulation:
         truth = self.truth
         zero = [0.0] * 13
         baro_every = self.baro_every
+        d = ph.imu_offset_m  # avionics (IMU, barometer) this far below the centre along body z
         for c0 in range(0, n_steps, CHUNK_STEPS):
             n = min(CHUNK_STEPS, n_steps - c0)
             wind = self._wind_chunk(c0, n)
@@ -100,9 +102,17 @@ class Simulation:
                     k1, tension = derivative(s, *w0, ph)
                 if step % spi == 0:
                     i = step // spi
-                    acc, gyro, mag = self.sensors.imu((k1[3], k1[4], k1[5] - G0), (s[10], s[11], s[12]), s[6:10])
+                    f_ned = (k1[3], k1[4], k1[5] - G0)
                     height = -s[2]
-                    baro = self.sensors.baro(height) if i % baro_every == 0 else None
+                    if d:
+                        lever = lever_arm_accel_b(s[10], s[11], s[12], k1[10], k1[11], k1[12], 0.0, 0.0, d)
+                        acc, gyro, mag = self.sensors.imu(f_ned, (s[10], s[11], s[12]), s[6:10], lever)
+                        q0, q1, q2, q3 = s[6:10]
+                        sensor_height = height - d * (q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3)
+                    else:
+                        acc, gyro, mag = self.sensors.imu(f_ned, (s[10], s[11], s[12]), s[6:10])
+                        sensor_height = height
+                    baro = self.sensors.baro(sensor_height) if i % baro_every == 0 else None
                     roll, pitch, yaw = euler_from_quat(*s[6:10])
                     truth[i] = (
                         step * h, w0[0], w0[1], w0[2], s[0], s[1], s[2], s[3], s[4], s[5],

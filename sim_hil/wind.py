@@ -1,5 +1,6 @@
 """Wind generation: Van der Hoven low-frequency band (paper Eqs. 1-2), IEC 61400-1 Kaimal turbulence
-above the spectral gap, a multisine for frequency-response tests, and a steady wind.
+above the spectral gap, a multisine for frequency-response tests (along the mean wind, or along and
+across it), and a steady wind.
 
 All generators are vectorised: a whole flight is synthesised up front (inverse FFT for the
 unit-consistent spectra, a matrix of cosines for the paper's 47 discrete lines), so the cost per
@@ -37,6 +38,7 @@ class WindConfig:
     vertical: bool = False  # also a Kaimal w component
     multisine_hz: tuple[float, ...] = (0.003, 0.01, 0.02, 0.05, 0.1, 0.2)
     multisine_amplitude_mps: float = 0.3
+    multisine_axes: str = "along"  # along: u only; both: also the cross-wind v, same lines, own phases
     sample_hz: float = 20.0
 
     def __post_init__(self) -> None:
@@ -46,6 +48,8 @@ class WindConfig:
             raise ConfigError(f"wind.vdh_amplitude must be consistent or paper, got {self.vdh_amplitude!r}")
         if self.turbulence not in ("kaimal", "none"):
             raise ConfigError(f"wind.turbulence must be kaimal or none, got {self.turbulence!r}")
+        if self.multisine_axes not in ("along", "both"):
+            raise ConfigError(f"wind.multisine_axes must be along or both, got {self.multisine_axes!r}")
         if self.iec_class not in ("", "A", "B", "C"):
             raise ConfigError(f"wind.iec_class must be A, B or C, got {self.iec_class!r}")
         if self.mean_mps < 0 or self.sample_hz <= 0 or self.gap_cph <= 0:
@@ -191,9 +195,19 @@ def spatial_average(x: np.ndarray, sample_hz: float, length_m: float, mean_mps: 
     return np.fft.irfft(np.fft.rfft(x) * np.sinc(f * length_m / mean_mps), n=len(x))
 
 
-def generate_wind(cfg: WindConfig, duration_s: float, seed: int, averaging_length_m: float = 0.0) -> WindSeries:
-    """The wind for one flight: along-wind u, cross-wind v, vertical w, rotated into NED, optionally
-    as felt by a body of the given size (``spatial_average``)."""
+def multisine(freqs_hz: tuple[float, ...], amplitude_mps: float, phases: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """sum_k A cos(2 pi f_k t + phi_k): equal-amplitude lines at the given frequencies."""
+    x = np.zeros(t.shape)
+    for fk, ph in zip(freqs_hz, phases, strict=True):
+        x += amplitude_mps * np.cos(2.0 * math.pi * fk * t + ph)
+    return x
+
+
+def wind_components(
+    cfg: WindConfig, duration_s: float, seed: int, averaging_length_m: float = 0.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The fluctuations of one flight in wind axes: along-wind u, cross-wind v (90 deg to the right
+    of the direction the wind blows to), down w, before the mean is added and the axes rotated."""
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x57494E44]))
     m, df = fft_grid(duration_s, cfg.sample_hz)
     t = np.arange(m) / cfg.sample_hz
@@ -215,11 +229,19 @@ def generate_wind(cfg: WindConfig, duration_s: float, seed: int, averaging_lengt
             if cfg.vertical:
                 w += synthesize(band_variances(lambda x: above_gap_psd(cfg, "w", x), m, df), m, rng)
     elif cfg.kind == "multisine":
-        phases = rng.uniform(0.0, 2.0 * math.pi, size=len(cfg.multisine_hz))
-        for fk, ph in zip(cfg.multisine_hz, phases, strict=True):
-            u += cfg.multisine_amplitude_mps * np.cos(2.0 * math.pi * fk * t + ph)
+        n_lines = len(cfg.multisine_hz)
+        u += multisine(cfg.multisine_hz, cfg.multisine_amplitude_mps, rng.uniform(0.0, 2.0 * math.pi, n_lines), t)
+        if cfg.multisine_axes == "both":  # drawn after u's phases: the along-wind series is unchanged
+            v += multisine(cfg.multisine_hz, cfg.multisine_amplitude_mps, rng.uniform(0.0, 2.0 * math.pi, n_lines), t)
     if averaging_length_m > 0.0 and cfg.kind == "vdh":
         u, v, w = (spatial_average(c, cfg.sample_hz, averaging_length_m, cfg.mean_mps) for c in (u, v, w))
+    return u, v, w
+
+
+def generate_wind(cfg: WindConfig, duration_s: float, seed: int, averaging_length_m: float = 0.0) -> WindSeries:
+    """The wind for one flight: along-wind u, cross-wind v, vertical w (``wind_components``), rotated
+    into NED, optionally as felt by a body of the given size (``spatial_average``)."""
+    u, v, w = wind_components(cfg, duration_s, seed, averaging_length_m)
     to_rad = math.radians(cfg.from_deg + 180.0)
     c, s = math.cos(to_rad), math.sin(to_rad)
     speed = cfg.mean_mps + u

@@ -14,6 +14,7 @@ from sim_hil.wind import (
     load_van_der_hoven,
     longitudinal_psd,
     paper_line_amplitudes,
+    wind_components,
 )
 
 SEEDS = range(6)
@@ -125,10 +126,73 @@ def test_multisine_has_its_lines_at_equal_amplitude():
     assert np.mean(x) == pytest.approx(3.0, abs=0.02)
 
 
+def fit_lines(x, t, freqs):
+    """Least-squares amplitudes of cos/sin pairs at the given frequencies (plus a mean)."""
+    cols = [np.ones_like(t)]
+    for fk in freqs:
+        cols += [np.cos(2 * math.pi * fk * t), np.sin(2 * math.pi * fk * t)]
+    coef, *_ = np.linalg.lstsq(np.column_stack(cols), x, rcond=None)
+    return coef[0], np.hypot(coef[1::2], coef[2::2]), np.arctan2(-coef[2::2], coef[1::2])
+
+
+@pytest.mark.parametrize("from_deg", [45.0, 170.0])
+def test_two_axis_multisine_puts_each_line_on_along_and_cross_components(from_deg):
+    cfg = WindConfig(kind="multisine", multisine_axes="both", from_deg=from_deg, multisine_amplitude_mps=0.4)
+    s = generate_wind(cfg, 1500.0, 4)
+    t = np.arange(len(s.ned)) / cfg.sample_hz
+    to = math.radians(from_deg + 180.0)
+    along = s.ned[:, 0] * math.cos(to) + s.ned[:, 1] * math.sin(to)
+    cross = -s.ned[:, 0] * math.sin(to) + s.ned[:, 1] * math.cos(to)
+    mean_u, amp_u, ph_u = fit_lines(along, t, cfg.multisine_hz)
+    mean_v, amp_v, ph_v = fit_lines(cross, t, cfg.multisine_hz)
+    assert mean_u == pytest.approx(3.0, abs=1e-6) and mean_v == pytest.approx(0.0, abs=1e-6)
+    np.testing.assert_allclose(amp_u, 0.4, rtol=1e-6)
+    np.testing.assert_allclose(amp_v, 0.4, rtol=1e-6)
+    # independent phases: the cross component is not a copy of the along one
+    assert np.max(np.abs(np.angle(np.exp(1j * (ph_u - ph_v))))) > 0.5
+    # in NED each line's power is shared between north and east, and sums to both axes' (2 A^2 / 2)
+    _, amp_n, _ = fit_lines(s.ned[:, 0], t, cfg.multisine_hz)
+    _, amp_e, _ = fit_lines(s.ned[:, 1], t, cfg.multisine_hz)
+    np.testing.assert_allclose(amp_n**2 + amp_e**2, 2 * 0.4**2, rtol=1e-6)
+    assert np.all(amp_n > 0.0) and np.all(amp_e > 0.0) and np.max(amp_n) > 0.2 and np.max(amp_e) > 0.2
+    assert np.all(s.ned[:, 2] == 0.0)
+
+
+def test_along_only_multisine_series_is_unchanged_by_the_two_axis_option():
+    cfg = WindConfig(kind="multisine")
+    u1, v1, _ = wind_components(cfg, 300.0, 5)
+    u2, v2, _ = wind_components(WindConfig(kind="multisine", multisine_axes="both"), 300.0, 5)
+    assert np.array_equal(u1, u2)
+    assert np.all(v1 == 0.0) and np.std(v2) > 0.3
+    # and it is the series the along-only generator has always made: phases are the first draws
+    rng = np.random.default_rng(np.random.SeedSequence([5, 0x57494E44]))
+    phases = rng.uniform(0.0, 2.0 * math.pi, size=len(cfg.multisine_hz))
+    t = np.arange(len(u1)) / cfg.sample_hz
+    expected = np.zeros_like(t)
+    for fk, ph in zip(cfg.multisine_hz, phases, strict=True):
+        expected += cfg.multisine_amplitude_mps * np.cos(2.0 * math.pi * fk * t + ph)
+    assert np.array_equal(u1, expected)
+    to = math.radians(cfg.from_deg + 180.0)
+    ned = generate_wind(cfg, 300.0, 5).ned
+    assert np.array_equal(ned[:, 1], (3.0 + expected) * math.sin(to) + 0.0 * math.cos(to))
+
+
+def test_iec_class_b_sets_kaimal_sigma():
+    cfg = WindConfig(mean_mps=6.0, iec_class="B", gap_cph=0.5)
+    assert cfg.sigma_u_mps == pytest.approx(0.14 * (0.75 * 6.0 + 5.6))
+    u, v, _ = wind_components(cfg, 3600.0, 2)
+    m, df = fft_grid(3600.0, cfg.sample_hz)
+    f = np.linspace(df / 2, cfg.sample_hz / 2, 2_000_001)
+    assert np.var(v) == pytest.approx(np.trapezoid(component_kaimal_psd(cfg, "v", f), f), rel=0.05)
+
+
 def test_bad_wind_config_is_rejected():
     from firmware_py.config import ConfigError
 
     with pytest.raises(ConfigError):
         WindConfig(kind="hurricane")
+    with pytest.raises(ConfigError):
+        WindConfig(kind="multisine", multisine_axes="cross")
+    assert WindConfig.from_dict({"multisine_axes": "both"}).multisine_axes == "both"
     with pytest.raises(ConfigError):
         WindConfig.from_dict({"mean_mps": 3.0, "colour": "blue"})
