@@ -8,7 +8,7 @@ import math
 
 from firmware_py.atmosphere import G0, LAPSE_K_M, R_AIR, air_density, hypsometric_height_m
 from firmware_py.config import Design
-from firmware_py.ekf import FusionStatus, WindEkf, rotation
+from firmware_py.ekf import FusionStatus, WindEkf
 from firmware_py.measurements import enter_taut, fuse_accel, fuse_baro, fuse_heading, fuse_mag_field, fuse_taut
 from firmware_py.model import BalloonModel
 from firmware_py.state import (
@@ -36,6 +36,8 @@ ALIGN_RESET_COUNT = 40  # 2 s of rejected alignment at 20 Hz
 JOIN_IN_FLIGHT_US = 10_000_000  # a first sample this long after the sender's boot: we restarted in flight
 BARO_MODEL_M = 0.3  # hypsometric conversion error (temperature profile, lag) added to the sensor's noise
 LEARN_DRAG_AFTER_S = 2.0  # after the release, once the ascent is established
+MEAN_WIND_S = 60.0  # averaging time of the mean wind that scales the wind's process noise
+WIND_NOISE_EVERY = 100  # steps between updates of that noise
 FIELD_LEARN_SAMPLES = 20  # at least 2 s of magnetometer on the ground at 10 Hz (all of the ground time is used)
 MAG_MODEL_GAUSS = 0.004  # field direction model error (~0.5 deg of a 0.5 G field: soft iron, anomalies)
 
@@ -124,6 +126,8 @@ class Estimator:
         self._field_sum = [0.0] * 6
         self.field_ned = (math.nan, math.nan, math.nan)
         self._dwell = 0
+        self._mean_speed = self.cfg.expected_wind_mps  # the filter's own mean wind (60 s), for its noise
+        self._speed_alpha = 1.0 / (MEAN_WIND_S * self.cfg.imu_rate_hz)
         self._slack = 0
         self._height_above = 0
 
@@ -278,6 +282,11 @@ class Estimator:
             self._reinitialise_in_flight()
             return True
         self._update_mode(ax, ay, az)
+        if ekf.mode == MODE_TAUT:
+            wn, we = self.wind()
+            self._mean_speed += self._speed_alpha * (math.sqrt(wn * wn + we * we) - self._mean_speed)
+            if self.step % WIND_NOISE_EVERY == 0:
+                ekf.adapt_wind_noise(self._mean_speed)
         return True
 
     def coast(self, seconds: float) -> None:

@@ -104,6 +104,8 @@ class WindEkf:
         ] * 3 + [0.0] * 2 + [qr] * 2 + [cfg.drag_walk_rt_s**2 * dt]
         self._q_ground = [1e-8] * 6 + self._q_flight[6:16] + [0.0]
         self._qd_flight = np.array(self._q_flight, z)
+        self._q_rate0 = qr  # at the expected mean wind; scaled with the wind the filter sees (adapt_wind_noise)
+        self._u0 = max(cfg.expected_wind_mps, 0.5)
         self._qd_ground = np.array(self._q_ground, z)
         self._f_ground = False
         self._set_static_jacobian(True)
@@ -227,6 +229,19 @@ class WindEkf:
             F[3, 3] = F[4, 4] = F[5, 5] = 0.0
         F[WIND_N, WRATE_N] = F[WIND_E, WRATE_E] = self.dt
         F[WRATE_N, WRATE_N] = F[WRATE_E, WRATE_E] = self.rate_decay
+
+    def adapt_wind_noise(self, mean_speed_mps: float) -> None:
+        """Kaimal turbulence at the mean wind U: in the inertial range the spectrum the filter matches
+        (tuning.py) scales as sigma_u^2 (L/U)^(-2/3) / U ~ TI^2 U^(8/3), and the rate's time constant
+        D/U as 1/U, so q_rate ~ U^(14/3). Called about once a second with the filter's own mean wind."""
+        u = min(max(mean_speed_mps, 0.5), 20.0)
+        ratio = u / self._u0
+        q = self._q_rate0 * ratio ** (14.0 / 3.0)
+        self._q_flight[WRATE_N] = self._q_flight[WRATE_E] = q
+        self._qd_flight[WRATE_N] = self._qd_flight[WRATE_E] = q
+        self._qd_ground[WRATE_N] = self._qd_ground[WRATE_E] = q
+        self.rate_decay = math.exp(-self.dt * ratio / self.wind_process.tau_s)
+        self.F[WRATE_N, WRATE_N] = self.F[WRATE_E, WRATE_E] = self.rate_decay
 
     def inflate(self, steps: float) -> None:
         """Covariance growth of ``steps`` prediction steps without the state moving (sensor silence)."""

@@ -34,7 +34,9 @@ from firmware_py.state import (
     WRATE_N,
 )
 
-UNGATED = 1e6  # constraints of the model are not tested against the data
+UNGATED = 1e6
+TAUT_AZIMUTH_MIN_M = 3.0  # horizontal offset of the ascent that fixes the azimuth at the taut switch
+TAUT_LEAN_MIN = math.sin(math.radians(3.0))  # a lean this large gives the azimuth to a few degrees
 
 
 def fuse_accel(ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status: list[FusionStatus]) -> None:
@@ -121,46 +123,62 @@ def fuse_mag_field(
 
 
 def enter_taut(ekf: WindEkf, height_m: float, rho: float) -> None:
-    """Initialise the taut configuration from what the sensors say about it, not from the free-ascent
-    dead reckoning (whose horizontal position and wind drift: nothing measures them absolutely):
+    """Put the state on the taut configuration's sphere |p| = L + r without throwing away what the
+    free ascent learnt (its wind comes from the accelerometer through the force model, its horizontal
+    position is the integral of that):
     - the chord's polar angle from the barometric height, cos(theta) = h / (L + r);
-    - its azimuth from the balloon's tilt: the body's down axis leans towards the anchor;
-    - the wind from the static balance, drag = (N_b - W) tan(theta) along the lean;
-    - velocity zero; position, velocity and wind covariances reset to match."""
+    - its azimuth from the balloon's lean when it leans more than 3 deg (the tilt is good to a few
+      tenths of a degree: the azimuth to a few degrees), and then the wind from the static balance
+      drag = (N_b - W) tan(theta) along it; in a lighter wind the lean is tilt noise: the azimuth
+      comes from the ascent's horizontal position, or its wind, and the ascent's wind is kept;
+    - the velocity's radial part removed;
+      position and velocity covariances reset (decorrelated) to what this placement knows."""
     m = ekf.model
     x = ekf.x
     ell = m.taut_radius_m
-    cos_t = min(max(height_m / ell, 0.2), 1.0)
+    cos_t = min(max(height_m / ell, 0.05), 1.0)
     sin_t = math.sqrt(1.0 - cos_t * cos_t)
+    pn, pe = float(x[POS_N]), float(x[POS_E])
+    wn, we = float(x[WIND_N]), float(x[WIND_E])
+    horiz = math.hypot(pn, pe)
     r = rotation(*ekf.q.tolist())
-    zn, ze = r[2], r[5]  # horizontal part of the body's down axis
+    zn, ze = r[2], r[5]  # horizontal part of the body's down axis: it leans towards the anchor
     lean = math.hypot(zn, ze)
-    if lean > 1e-3:
-        an, ae = -zn / lean, -ze / lean  # the balloon lies away from where its bottom points
+    from_lean = lean > TAUT_LEAN_MIN
+    if from_lean:
+        an, ae = -zn / lean, -ze / lean
+    elif horiz > TAUT_AZIMUTH_MIN_M:
+        an, ae = pn / horiz, pe / horiz
     else:
-        an = ae = 0.0
-    x[POS_N] = ell * sin_t * an
-    x[POS_E] = ell * sin_t * ae
-    x[POS_D] = -ell * cos_t
-    lift = (rho * m.volume_m3 - m.mass_kg - m.rope_kg_m * m.tether_length_m) * G0
-    drag = max(lift, 0.0) * sin_t / cos_t
-    k = max(float(x[DRAG]), 0.2)
-    speed = math.sqrt(drag / (k * rho * m.half_cd_area_m2)) if drag > 0.0 else 0.0
-    x[WIND_N] = speed * an
-    x[WIND_E] = speed * ae
+        wind = math.hypot(wn, we)
+        an, ae = (wn / wind, we / wind) if wind > 1e-3 else (0.0, 0.0)
+    if from_lean:
+        # the wind from the static balance along the lean: drag = (N_b - W) tan(theta)
+        lift = (rho * m.volume_m3 - m.mass_kg - m.rope_kg_m * m.tether_length_m) * G0
+        drag = max(lift, 0.0) * sin_t / cos_t
+        k = max(float(x[DRAG]), 0.2)
+        speed = math.sqrt(drag / (k * rho * m.half_cd_area_m2)) if drag > 0.0 else 0.0
+        x[WIND_N], x[WIND_E] = speed * an, speed * ae
+        for i in (WIND_N, WIND_E, WRATE_N, WRATE_E):
+            ekf.P[i, :] = 0.0
+            ekf.P[:, i] = 0.0
+        ekf.P[WIND_N, WIND_N] = ekf.P[WIND_E, WIND_E] = 1.0
+        x[WRATE_N] = x[WRATE_E] = 0.0
+        ekf.P[WRATE_N, WRATE_N] = ekf.P[WRATE_E, WRATE_E] = ekf.wind_process.sigma_rate_mps2**2
+    e = (sin_t * an, sin_t * ae, -cos_t)
     for i in range(3):
-        x[VEL_N + i] = 0.0
+        x[POS_N + i] = ell * e[i]
+    vr = float(x[VEL_N]) * e[0] + float(x[VEL_E]) * e[1] + float(x[VEL_D]) * e[2]
+    for i in range(3):
+        x[VEL_N + i] = float(x[VEL_N + i]) - vr * e[i]
     P = ekf.P
-    for i in (POS_N, POS_E, POS_D, VEL_N, VEL_E, VEL_D, WIND_N, WIND_E, WRATE_N, WRATE_E):
+    for i in (POS_N, POS_E, POS_D, VEL_N, VEL_E, VEL_D):
         P[i, :] = 0.0
         P[:, i] = 0.0
     for i in (POS_N, POS_E, POS_D):
-        P[i, i] = 4.0**2
+        P[i, i] = 2.0**2
     for i in (VEL_N, VEL_E, VEL_D):
         P[i, i] = 0.5**2
-    P[WIND_N, WIND_N] = P[WIND_E, WIND_E] = 1.5**2
-    x[WRATE_N] = x[WRATE_E] = 0.0
-    P[WRATE_N, WRATE_N] = P[WRATE_E, WRATE_E] = ekf.wind_process.sigma_rate_mps2**2
 
 
 def fuse_taut(
