@@ -9,7 +9,15 @@ import math
 from firmware_py.atmosphere import G0, LAPSE_K_M, R_AIR, air_density, hypsometric_height_m
 from firmware_py.config import Design
 from firmware_py.ekf import FusionStatus, WindEkf
-from firmware_py.measurements import enter_taut, fuse_accel, fuse_baro, fuse_heading, fuse_mag_field, fuse_taut
+from firmware_py.measurements import (
+    enter_taut,
+    fuse_accel,
+    fuse_baro,
+    fuse_heading,
+    fuse_mag_field,
+    fuse_taut,
+    reset_height,
+)
 from firmware_py.model import BalloonModel
 from firmware_py.state import (
     MODE_FREE,
@@ -34,18 +42,22 @@ MAG_EVERY = 1  # magnetometer fusion at every IMU sample
 TAUT_EVERY = 5  # taut constraints at 20 Hz
 ALIGN_RESET_COUNT = 40  # 2 s of rejected alignment at 20 Hz
 JOIN_IN_FLIGHT_US = 10_000_000  # a first sample this long after the sender's boot: we restarted in flight
+BARO_RESET_COUNT = 40  # 2 s of rejected barometer at 20 Hz: reset the height to it
+FALSE_RELEASE_S = 3.0  # free ascent that stays below the release height this long was a bump
 BARO_MODEL_M = 0.3  # hypsometric conversion error (temperature profile, lag) added to the sensor's noise
 LEARN_DRAG_AFTER_S = 2.0  # after the release, once the ascent is established
+FIELD_FLIGHT_SAMPLES = 6000  # 60 s of magnetometer averaged in flight when there was no rest on the ground
 MEAN_WIND_S = 60.0  # averaging time of the mean wind that scales the wind's process noise
 WIND_NOISE_EVERY = 100  # steps between updates of that noise
-FIELD_LEARN_SAMPLES = 20  # at least 2 s of magnetometer on the ground at 10 Hz (all of the ground time is used)
+FIELD_LEARN_SAMPLES = 100  # at least 1 s of magnetometer on the ground (all of the ground time is used)
 MAG_MODEL_GAUSS = 0.004  # field direction model error (~0.5 deg of a 0.5 G field: soft iron, anomalies)
 
 
 class Counters:
     __slots__ = (
         "imu_samples", "baro_samples", "rejected", "duplicates", "reordered", "jitter", "gaps",
-        "long_gaps", "time_resets", "numeric_resets", "taut_resets", "mode_switches",
+        "long_gaps", "time_resets", "numeric_resets", "taut_resets", "mode_switches", "baro_resets",
+        "false_releases",
     )  # fmt: skip
 
     def __init__(self) -> None:
@@ -124,6 +136,7 @@ class Estimator:
         self._release_count = 0
         self._field_n = 0
         self._field_sum = [0.0] * 6
+        self._joined = False
         self.field_ned = (math.nan, math.nan, math.nan)
         self._dwell = 0
         self._mean_speed = self.cfg.expected_wind_mps  # the filter's own mean wind (60 s), for its noise
@@ -246,6 +259,8 @@ class Estimator:
             c.gaps += 1
             if steps > self.max_gap_steps:
                 c.long_gaps += 1
+                # predict the last max_gap_s; the covariance grows by the process noise of the rest
+                self.ekf.inflate(steps - self.max_gap_steps)
                 self.t_filter_us = t_us - self.max_gap_steps * self.dt_us
                 steps = self.max_gap_steps
         ekf = self.ekf
@@ -261,13 +276,20 @@ class Estimator:
         if self._baro_pending and not math.isnan(self.height_baro):
             fuse_baro(ekf, self.height_baro, self.ref_pos_d, self.baro_var, self.baro_status)
             self._baro_pending = False
+            if self.baro_status.consecutive_rejects >= BARO_RESET_COUNT:
+                # the barometer has disagreed for 2 s: the height model is off, the sensor wins
+                c.baro_resets += 1
+                self.baro_status.consecutive_rejects = 0
+                reset_height(ekf, self.ref_pos_d - self.height_baro, self.baro_var)
         if mag_ok and self.step % MAG_EVERY == 0:
+            if ekf.mode == MODE_GROUND or (self._joined and self._field_n < FIELD_FLIGHT_SAMPLES):
+                # the field from rotation-invariant averages (|m| and m . f): at rest on the ground,
+                # or, after a restart in flight, on the quasi-static balloon (its mean acceleration is 0)
+                self._learn_field(ax, ay, az, mx, my, mz)
             if self._field_n >= FIELD_LEARN_SAMPLES and ekf.mode != MODE_GROUND:
                 fuse_mag_field(ekf, mx, my, mz, self.field_ned, self.mag_var, self.mag_status)
             else:
                 fuse_heading(ekf, mx, my, mz, self.declination, self.mag_sigma, self.heading_status)
-                if ekf.mode == MODE_GROUND:
-                    self._learn_field(ax, ay, az, mx, my, mz)
         if ekf.mode == MODE_TAUT and self.step % TAUT_EVERY == 0:
             cfg = self.cfg
             fuse_taut(ekf, cfg.radial_m**2, cfg.radial_rate_mps**2, cfg.align_rad**2, self.taut_status)
@@ -279,7 +301,7 @@ class Estimator:
                 enter_taut(ekf, self._height_for_taut(), self.rho)
         if not ekf.end_update():
             c.numeric_resets += 1
-            self._reinitialise_in_flight()
+            self._reinitialise_in_flight(ax, ay, az, mx, my, mz, mag_ok)
             return True
         self._update_mode(ax, ay, az)
         if ekf.mode == MODE_TAUT:
@@ -321,16 +343,26 @@ class Estimator:
         tan_chord = tan_tilt * lift / spare if spare > 0.1 * lift else tan_tilt
         height = m.taut_radius_m / math.sqrt(1.0 + tan_chord * tan_chord)
         ekf.mode = MODE_TAUT
+        self._joined = True
         self.counters.mode_switches += 1
         enter_taut(ekf, height, self.rho)
         if self._zeroing:
             self._join_height = height - m.radius_m  # above the (unseen) boot position
 
-    def _reinitialise_in_flight(self) -> None:
-        """State went non-finite: restart the covariance, keep what is known from the barometer."""
+    def _reinitialise_in_flight(
+        self, ax: float, ay: float, az: float, mx: float, my: float, mz: float, mag_ok: bool
+    ) -> None:
+        """State went non-finite: restart the covariance, keep what is known from the barometer, and
+        take the attitude afresh from this sample's accelerometer (tilt) and magnetometer (heading)."""
         ekf = self.ekf
         h = self.height_baro if math.isfinite(self.height_baro) else 0.0
-        ekf.initialise((1.0, 0.0, 0.0, 0.0), self.ref_pos_d - h)
+        if mag_ok:
+            q = quat_from_accel_mag(ax, ay, az, mx, my, mz, self.declination)
+        else:  # keep the heading we had if it is still a rotation, else level
+            q0, q1, q2, q3 = self.ekf.q.tolist()
+            n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+            q = (q0 / n, q1 / n, q2 / n, q3 / n) if math.isfinite(n) and n > 0.5 else (1.0, 0.0, 0.0, 0.0)
+        ekf.initialise(q, self.ref_pos_d - h)
         ekf.P[0, 0] = ekf.P[1, 1] = 100.0**2
         ekf.mode = MODE_FREE if h > self.cfg.release_height_m else MODE_GROUND
 
@@ -364,6 +396,13 @@ class Estimator:
         dist = math.sqrt(pn * pn + pe * pe + pd * pd)
         length = self.model.taut_radius_m
         if ekf.mode == MODE_FREE:
+            low = math.isfinite(self.height_baro) and self.height_baro < cfg.release_height_m
+            if low and self._dwell >= FALSE_RELEASE_S * cfg.imu_rate_hz:
+                # still at the ground station 3 s after the "release": a bump, not a release
+                self.counters.false_releases += 1
+                self._switch(MODE_GROUND)
+                reset_height(ekf, self.ref_pos_d - self.height_baro, self.baro_var)
+                return
             stalled = -pd > 0.5 * length and -float(x[VEL_D]) < 0.3
             if dwell_ok and (dist >= length - cfg.taut_margin_m or stalled):
                 self._switch(MODE_TAUT)

@@ -106,6 +106,7 @@ class WindEkf:
         self._qd_flight = np.array(self._q_flight, z)
         self._q_rate0 = qr  # at the expected mean wind; scaled with the wind the filter sees (adapt_wind_noise)
         self._u0 = max(cfg.expected_wind_mps, 0.5)
+        self._q_walk_step = wp.q_walk * dt  # the wind's growth per step when nothing constrains its rate
         self._qd_ground = np.array(self._q_ground, z)
         self._f_ground = False
         self._set_static_jacobian(True)
@@ -241,6 +242,7 @@ class WindEkf:
         self._qd_flight[WRATE_N] = self._qd_flight[WRATE_E] = q
         self._qd_ground[WRATE_N] = self._qd_ground[WRATE_E] = q
         self.rate_decay = math.exp(-self.dt * ratio / self.wind_process.tau_s)
+        self._q_walk_step = q * (self.wind_process.tau_s / ratio) ** 2  # q is per step already
         self.F[WRATE_N, WRATE_N] = self.F[WRATE_E, WRATE_E] = self.rate_decay
 
     def inflate(self, steps: float) -> None:
@@ -248,6 +250,8 @@ class WindEkf:
         q = self._q_ground if self.mode == MODE_GROUND else self._q_flight
         for i in range(N):
             self.Qd[i] = q[i] * steps
+        # over a gap much longer than the rate's time constant the wind walks: q_walk per second
+        self.Qd[WIND_N] = self.Qd[WIND_E] = self._q_walk_step * steps
         np.add(self.P_diag, self.Qd, out=self.P_diag)
         self.fix_covariance()
 

@@ -76,6 +76,19 @@ def fuse_baro(ekf: WindEkf, height_m: float, ref_pos_d: float, var: float, statu
     ekf.fuse(height_m - pred, var, status)
 
 
+def reset_height(ekf: WindEkf, pos_d: float, var: float) -> None:
+    """Put the height where the barometer says (PX4's height reset): the model that contradicted it
+    persistently (a bump taken for a release, a climb that did not happen) gives way to the sensor."""
+    ekf.x[POS_D] = pos_d
+    ekf.x[VEL_D] = 0.0
+    P = ekf.P
+    for i in (POS_D, VEL_D):
+        P[i, :] = 0.0
+        P[:, i] = 0.0
+    P[POS_D, POS_D] = var
+    P[VEL_D, VEL_D] = 1.0
+
+
 def fuse_heading(
     ekf: WindEkf, mx: float, my: float, mz: float, declination_rad: float, sigma_gauss: float, status: FusionStatus
 ) -> None:

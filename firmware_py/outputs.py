@@ -58,7 +58,13 @@ class WindCovOutput:
         return math.sqrt(var)
 
     def fields(self, est: Estimator) -> tuple:
-        """(time_usec, wind_x, wind_y, wind_z, var_horiz, var_vert, wind_alt, horiz_accuracy, vert_accuracy)"""
+        """(time_usec, wind_x, wind_y, wind_z, var_horiz, var_vert, wind_alt, horiz_accuracy, vert_accuracy)
+
+        Before the first sensor sample nothing is known: wind, altitude and accuracy are NaN (MAVLink's
+        "unknown"), never a zero wind with accuracy 0 (which would claim a perfectly known calm)."""
+        if not est.initialised:
+            nan = math.nan
+            return (max(est.t_last_us, 0), nan, nan, nan, nan, nan, nan, nan, 0.0)
         wn, we = est.wind()
         return (
             max(est.t_last_us, 0),

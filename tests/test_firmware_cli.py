@@ -120,7 +120,7 @@ def test_bad_config_is_a_clear_error(tmp_path, flight):
 def test_config_file_shared_with_the_simulator(tmp_path):
     cfg = tmp_path / "design.toml"
     cfg.write_text("[balloon]\nradius_m = 1.15\n[wind]\nkind = 'steady'\n[truth]\nrelease_s = 3.0\n"
-                   "[filter]\nwind_walk_mps_rt_s = 0.1\n")  # fmt: skip
+                   "[filter]\nturbulence_intensity = 0.12\n")  # fmt: skip
     tlog = tmp_path / "s.tlog"
     subprocess.run([sys.executable, "-m", "sim_hil", "--config", str(cfg), "--duration", "60", "--out", str(tlog)],
                    check=True, capture_output=True)  # fmt: skip

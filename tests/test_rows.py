@@ -1,0 +1,80 @@
+"""Every measurement row the filter fuses against finite differences of its own innovation, in the
+taut configuration (where the wind is measured): accelerometer, magnetic field, barometer, radius,
+radial rate and the two rope-alignment rows, over every state including the attitude error."""
+
+import copy
+
+import numpy as np
+import pytest
+
+from firmware_py.config import Design
+from firmware_py.control import Estimator
+from firmware_py.ekf import FusionStatus
+from firmware_py.measurements import fuse_accel, fuse_baro, fuse_mag_field, fuse_taut
+from firmware_py.model import accelerations
+from firmware_py.state import ATT_N, DRAG, MODE_TAUT, N_STATES, STATE_NAMES
+from tests.test_model import rotate_ned
+
+
+@pytest.fixture
+def taut_ekf():
+    est = Estimator(Design())
+    est.on_imu(0, 1.5, -2.0, -9.5, 0.01, -0.02, 0.03, 0.15, 0.1, 0.45)
+    ekf = est.ekf
+    ekf.mode = MODE_TAUT
+    ekf.learn_drag = True  # every column, the drag scale's included
+    ekf.x[:] = [3.0, 40.0, -92.3, 0.2, 0.3, -0.1, 0, 0, 0, 0, 0, 0, 0.5, 3.0, 0.05, -0.03, 1.0]
+    return ekf
+
+
+def _refresh(e):
+    x = e.x.tolist()
+    accelerations(e.model, 1.2, *x[0:6], *x[12:17], True, e.forces)
+
+
+def _innovations(ekf, fn):
+    e = copy.deepcopy(ekf)
+    _refresh(e)
+    out = []
+
+    def spy(innov, r, status, gate_sigma=None, recover=True):
+        out.append((innov, e.h.copy()))
+        return True
+
+    e.fuse = spy
+    e.begin_update()
+    fn(e)
+    return out
+
+
+ST = [FusionStatus(str(i)) for i in range(4)]
+FUSIONS = {
+    "accel": lambda e: fuse_accel(e, 0.3, -0.2, -9.7, 0.01, ST[:3]),
+    "mag": lambda e: fuse_mag_field(e, 0.12, 0.14, 0.43, (0.2, 0.01, 0.45), 1e-4, ST[:3]),
+    "baro": lambda e: fuse_baro(e, 91.0, -1.0, 1.0, ST[0]),
+    "taut": lambda e: fuse_taut(e, 0.1, 0.1, 0.1, ST),
+}
+
+
+@pytest.mark.parametrize("name", list(FUSIONS))
+def test_rows_match_finite_differences(taut_ekf, name):
+    fn = FUSIONS[name]
+    base = _innovations(taut_ekf, fn)
+    assert base and all(np.isfinite(i) for i, _ in base)
+    eps = 1e-6
+    for j in range(N_STATES):
+        if ATT_N <= j < ATT_N + 3:
+            d = np.zeros(3)
+            d[j - ATT_N] = eps
+            p, m = copy.deepcopy(taut_ekf), copy.deepcopy(taut_ekf)
+            for e, s in ((p, 1.0), (m, -1.0)):
+                q = rotate_ned(e.q, s * d)
+                e.q[:] = q / np.linalg.norm(q)
+        else:
+            p, m = copy.deepcopy(taut_ekf), copy.deepcopy(taut_ekf)
+            p.x[j] += eps
+            m.x[j] -= eps
+        for (_, h0), (ip, _), (im, _) in zip(base, _innovations(p, fn), _innovations(m, fn), strict=True):
+            num = -(ip - im) / (2 * eps)  # innovation = z - h(x)
+            assert h0[j] == pytest.approx(num, rel=1e-4, abs=1e-6), (name, STATE_NAMES[j])
+    assert DRAG == N_STATES - 1
