@@ -41,7 +41,7 @@ class FilterConfig:
     accel_process_mps2: float = 0.3  # unmodelled force per unit mass (rope waves, rocking, eddies)
     # the wind the filter expects (its process noise is derived from this spectrum: tuning.py)
     expected_wind_mps: float = 3.0
-    turbulence_intensity: float = 0.1  # sigma_u / U (Cabauw: 8.5 % at 99 m)
+    turbulence_intensity: float = 0.2  # sigma_u / U the filter expects (docs/estimator.md: chosen by NEES)
     drag_walk_rt_s: float = 0.002  # drag-scale random walk
     gyro_bias_walk_dps_rt_s: float = 0.005
     # measurement model errors added to the sensor noise of [sensors]
