@@ -121,7 +121,8 @@ class Firmware:
             f"balloon-fw: {c.imu_samples} IMU samples, {c.baro_samples} baro samples, "
             f"{c.rejected} rejected, {self.stats.bad_frames} bad frames, {self.other_messages} other messages, "
             f"{c.duplicates} duplicates, "
-            f"{c.reordered} reordered, {c.gaps} gaps, "
-            f"{c.time_resets + c.numeric_resets + c.taut_resets} resets, {c.mode_switches} mode switches, "
+            f"{c.reordered} reordered, {c.gaps} gaps, {c.long_gaps} long gaps, "
+            f"resets: {c.time_resets} reboot, {c.numeric_resets} numeric, {c.taut_resets} taut, "
+            f"{c.baro_resets} baro, {c.false_releases} false release, {c.mode_switches} mode switches, "
             f"{self.wind_cov_sent} WIND_COV sent, final mode {self.est.mode_name}"
         )

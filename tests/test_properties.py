@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from firmware_py.config import Design
 from firmware_py.control import Estimator
-from firmware_py.state import MODE_FREE, MODE_TAUT, N_STATES
+from firmware_py.state import MODE_FREE, MODE_TAUT, WIND_E, WIND_N
 from tests.flights import feed, stream
 
 SETTINGS = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -104,8 +104,8 @@ def test_converges_on_simulated_data_from_any_initial_wind_error(dn, de):
     est = Estimator(Design())
     feed(est, samples[:800])  # released at 5 s: in free ascent now
     assert est.ekf.mode == MODE_FREE
-    est.ekf.x[N_STATES - 3] += dn
-    est.ekf.x[N_STATES - 2] += de
+    est.ekf.x[WIND_N] += dn
+    est.ekf.x[WIND_E] += de
     rows = feed(est, samples[800:12000], record=True)
     late = slice(12000 - 800 - 3000, None)
     err = np.hypot(rows[late, 1] - truth["wind_n"][9000:12000], rows[late, 2] - truth["wind_e"][9000:12000])
