@@ -14,7 +14,7 @@ import math
 
 from firmware_py.atmosphere import G0
 from firmware_py.ekf import FusionStatus, WindEkf, rotation
-from firmware_py.generated import rope_direction
+from firmware_py.generated import rope_direction, rope_direction_plain
 from firmware_py.state import (
     ATT_D,
     ATT_E,
@@ -42,7 +42,7 @@ TAUT_LEAN_MIN = math.sin(math.radians(3.0))  # a lean this large gives the azimu
 def fuse_accel(ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status: list[FusionStatus]) -> None:
     """Specific force in FRD against the force model, f = R^T (a(x) - g): tilt (through g) and the
     balloon's dynamics (drag of the wind, the air's push, the rope) through a(x). On the ground the
-    balloon is held (a = 0): a gravity reference."""
+    balloon is held (a = 0): a gravity reference. The three axes are fused as one vector."""
     r = rotation(*ekf.q.tolist())
     f = ekf.forces
     ground = ekf.mode == MODE_GROUND
@@ -50,14 +50,15 @@ def fuse_accel(ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status
         yn, ye, yd = 0.0, 0.0, -G0
     else:
         yn, ye, yd = f.an, f.ae, f.ad - G0
-    meas = (fx, fy, fz)
-    h = ekf.h
+    H = ekf.H3
+    H.fill(0.0)
     ja = f.ja
     ncol = len(MODEL_COLUMNS) - (0 if ekf.learn_drag else 1)
+    pred = [0.0, 0.0, 0.0]
     for i in range(3):
         cn, ce, cd = r[i], r[3 + i], r[6 + i]  # row i of R^T
-        pred = cn * yn + ce * ye + cd * yd
-        h.fill(0.0)
+        pred[i] = cn * yn + ce * ye + cd * yd
+        h = ekf.H3_rows[i]
         # d/d att: R^T [y x]
         h[ATT_N] = ce * yd - cd * ye
         h[ATT_E] = cd * yn - cn * yd
@@ -65,7 +66,7 @@ def fuse_accel(ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status
         if not ground:
             for c in range(ncol):
                 h[MODEL_COLUMNS[c]] = cn * ja[c] + ce * ja[11 + c] + cd * ja[22 + c]
-        ekf.fuse(meas[i] - pred, var, status[i])
+    ekf.fuse3(fx - pred[0], fy - pred[1], fz - pred[2], var, status)
 
 
 def fuse_baro(ekf: WindEkf, height_m: float, ref_pos_d: float, var: float, status: FusionStatus) -> None:
@@ -124,15 +125,17 @@ def fuse_mag_field(
     accelerometer is then free to measure the dynamics. Rows: d(R^T B)/d att = R^T [B x]."""
     r = rotation(*ekf.q.tolist())
     bn, be, bd = field_ned
-    meas = (mx, my, mz)
-    h = ekf.h
+    H = ekf.H3
+    H.fill(0.0)
+    pred = [0.0, 0.0, 0.0]
     for i in range(3):
         cn, ce, cd = r[i], r[3 + i], r[6 + i]  # row i of R^T
-        h.fill(0.0)
+        h = ekf.H3_rows[i]
         h[ATT_N] = ce * bd - cd * be
         h[ATT_E] = cd * bn - cn * bd
         h[ATT_D] = cn * be - ce * bn
-        ekf.fuse(meas[i] - (cn * bn + ce * be + cd * bd), var, status[i])
+        pred[i] = cn * bn + ce * be + cd * bd
+    ekf.fuse3(mx - pred[0], my - pred[1], mz - pred[2], var, status)
 
 
 def enter_taut(ekf: WindEkf, height_m: float, rho: float) -> None:
@@ -222,7 +225,8 @@ def fuse_taut(
     if not f.taut:
         return
     wn, we, rn, re, k = float(x[WIND_N]), float(x[WIND_E]), float(x[WRATE_N]), float(x[WRATE_E]), float(x[DRAG])
-    n = rope_direction(pn, pe, pd, vn, ve, vd, wn, we, rn, re, k, *f.params)
+    fn = rope_direction if ekf.model.rope_drag_m2 > 0.0 else rope_direction_plain
+    n = fn(pn, pe, pd, vn, ve, vd, wn, we, rn, re, k, *f.params)
     r = rotation(*ekf.q.tolist())
     z = (r[2], r[5], r[8])  # body down axis in NED
     dz_datt = ((0.0, z[2], -z[1]), (-z[2], 0.0, z[0]))  # d z / d att = -[z x], rows N and E

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 from firmware_py.atmosphere import G0
 from firmware_py.config import Design
-from firmware_py.generated import free_model, taut_model
+from firmware_py.generated import free_model, taut_model, taut_model_plain
 
 ADDED_MASS_COEFFICIENT = 0.5
 
@@ -113,7 +113,8 @@ def accelerations(
     out.params = par
     out.m_eff_kg = par[0]
     if taut:
-        r = taut_model(pn, pe, pd, vn, ve, vd, wn, we, rn, re, k, *par)
+        fn = taut_model if m.rope_drag_m2 > 0.0 else taut_model_plain
+        r = fn(pn, pe, pd, vn, ve, vd, wn, we, rn, re, k, *par)
         if r[3] > 0.0:
             out.an, out.ae, out.ad = r[0], r[1], r[2]
             out.tension_n = r[3] * par[0]
