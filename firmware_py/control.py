@@ -18,7 +18,7 @@ from firmware_py.measurements import (
     fuse_taut,
     reset_height,
 )
-from firmware_py.model import BalloonModel
+from firmware_py.model import BalloonModel, Forces, accelerations
 from firmware_py.state import (
     MODE_FREE,
     MODE_GROUND,
@@ -113,6 +113,7 @@ class Estimator:
         self.dt_us = round(1e6 / self.cfg.imu_rate_hz)
         self.max_gap_steps = max(1, round(self.cfg.max_gap_s * self.cfg.imu_rate_hz))
         self.counters = Counters()
+        self._probe = Forces()  # scratch for the taut-entry check
         self.accel_status = [FusionStatus(f"accel_{a}") for a in "xyz"]
         rec = self.cfg.recover_after_s
         self.baro_status = FusionStatus("baro", max(1, int(rec * 20)))  # at the nominal 20 Hz
@@ -372,6 +373,13 @@ class Estimator:
             return self.height_baro - self.ref_pos_d
         return -float(self.ekf.x[POS_D])
 
+    def _rope_would_pull(self) -> bool:
+        """The tether can only be taut if the balloon pulls on it: the taut model's tension at the
+        current state (with lift lost, e.g., the rope stays slack however far out the balloon is)."""
+        x = self.ekf.x.tolist()
+        f = accelerations(self.model, self.rho, *x[0:6], *x[12:17], True, self._probe)
+        return f.taut
+
     def _switch(self, mode: int) -> None:
         self.ekf.mode = mode
         self.counters.mode_switches += 1
@@ -404,7 +412,7 @@ class Estimator:
                 reset_height(ekf, self.ref_pos_d - self.height_baro, self.baro_var)
                 return
             stalled = -pd > 0.5 * length and -float(x[VEL_D]) < 0.3
-            if dwell_ok and (dist >= length - cfg.taut_margin_m or stalled):
+            if dwell_ok and (dist >= length - cfg.taut_margin_m or stalled) and self._rope_would_pull():
                 self._switch(MODE_TAUT)
                 enter_taut(ekf, self._height_for_taut(), self.rho)
         else:

@@ -4,33 +4,34 @@ import copy
 import math
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from firmware_py.config import Design
 from firmware_py.control import Estimator
-from firmware_py.state import MODE_FREE, MODE_TAUT, WIND_E, WIND_N
+from firmware_py.state import MODE_FREE, MODE_TAUT, WIND_E, WIND_N, FilterConfig
 from tests.flights import feed, stream
 
 SETTINGS = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 
 
-def fresh_in_flight() -> Estimator:
-    est = _flying_template()
+def fresh_in_flight(float32: bool = False) -> Estimator:
+    est = _flying_template(float32)
     return copy.deepcopy(est)
 
 
-_TEMPLATE: list[Estimator] = []
+_TEMPLATE: dict[bool, Estimator] = {}
 
 
-def _flying_template() -> Estimator:
-    if not _TEMPLATE:
+def _flying_template(float32: bool) -> Estimator:
+    if float32 not in _TEMPLATE:
         samples, _ = stream("paper-reference", 300.0, 11)
-        est = Estimator(Design())
+        est = Estimator(Design(), FilterConfig(float32=float32))
         feed(est, samples[:6000])
         assert est.ekf.mode == MODE_TAUT
-        _TEMPLATE.append(est)
-    return _TEMPLATE[0]
+        _TEMPLATE[float32] = est
+    return _TEMPLATE[float32]
 
 
 def assert_healthy(est: Estimator) -> None:
@@ -54,9 +55,9 @@ sample = st.tuples(
 
 
 @SETTINGS
-@given(st.lists(sample, min_size=1, max_size=120), st.sampled_from(["ground", "flight"]))
-def test_arbitrary_bounded_sequences_keep_the_filter_healthy(seq, where):
-    est = Estimator(Design()) if where == "ground" else fresh_in_flight()
+@given(st.lists(sample, min_size=1, max_size=120), st.sampled_from(["ground", "flight"]), st.booleans())
+def test_arbitrary_bounded_sequences_keep_the_filter_healthy(seq, where, float32):
+    est = Estimator(Design(), FilterConfig(float32=float32)) if where == "ground" else fresh_in_flight(float32)
     t = max(est.t_last_us, 0)
     if where == "ground":
         est.on_imu(t, 0.0, 0.0, -9.81, 0.0, 0.0, 0.0, 0.2, 0.0, 0.45)
@@ -111,3 +112,66 @@ def test_converges_on_simulated_data_from_any_initial_wind_error(dn, de):
     err = np.hypot(rows[late, 1] - truth["wind_n"][9000:12000], rows[late, 2] - truth["wind_e"][9000:12000])
     assert np.sqrt(np.mean(err**2)) < 0.6
     assert_healthy(est)
+
+
+def small(scale):
+    return st.floats(-scale, scale, allow_nan=False)
+
+
+# near the physical envelope of the taut balloon: the samples pass the gates and are fused
+near = st.tuples(
+    st.integers(min_value=1, max_value=3),
+    st.tuples(small(0.3), small(0.3), small(0.3)),  # specific force about a measured one, m/s^2
+    st.tuples(small(0.05), small(0.05), small(0.05)),  # rates, rad/s
+    st.tuples(small(0.004), small(0.004), small(0.004)),  # field about a measured one, gauss
+    st.one_of(st.none(), st.tuples(small(0.5), small(1.0))),  # baro about its last sample: hPa, C
+)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(near, min_size=20, max_size=150), st.booleans())
+def test_sequences_near_the_envelope_are_fused_and_keep_the_filter_healthy(seq, float32):
+    est = fresh_in_flight(float32)
+    samples, _ = stream("paper-reference", 300.0, 11)
+    s0 = samples[6000]
+    t = est.t_last_us
+    fused = sum(s.fused for s in est.accel_status)
+    for dt, da, dg, dm, db in seq:
+        t += dt * 10_000
+        if db:
+            est.on_baro(t, 1002.7 + db[0], 19.4 + db[1])
+        acc = [a + d for a, d in zip(s0.accel, da)]
+        mag = [m + d for m, d in zip(s0.mag, dm)]
+        est.on_imu(t, *acc, *dg, *mag)
+        assert_healthy(est)
+    assert sum(s.fused for s in est.accel_status) - fused >= len(seq)  # fused (3 axes a sample), not gated away
+
+
+@pytest.mark.parametrize("float32", [False, True])
+def test_numeric_reset_recovers_with_the_attitude_from_the_sensors(float32):
+    est = fresh_in_flight(float32)
+    samples, _ = stream("paper-reference", 300.0, 11)
+    est.ekf.P[3, 3] = math.nan  # a numeric fault
+    feed(est, samples[6000:6001])
+    assert est.counters.numeric_resets == 1
+    assert_healthy(est)
+    # the attitude comes from this sample's gravity and field, not identity: level to within the
+    # balloon's ~10 deg lean, heading from the magnetometer
+    q = est.ekf.q.astype(float)
+    assert abs(q[0]) < 0.9999
+    feed(est, samples[6001:7000])
+    assert_healthy(est)
+
+
+@pytest.mark.parametrize("float32", [False, True])
+def test_losing_lift_switches_taut_to_free_and_stays_healthy(float32):
+    """Thin air (300 hPa: the balloon no longer lifts itself) -> no tension -> free after 1 s."""
+    est = fresh_in_flight(float32)
+    samples, _ = stream("paper-reference", 300.0, 11)
+    switches = est.counters.mode_switches
+    for s in samples[6000:6400]:
+        if s.baro:
+            est.on_baro(s.time_usec, 300.0, s.baro[1])
+        est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
+        assert_healthy(est)
+    assert est.ekf.mode == MODE_FREE and est.counters.mode_switches == switches + 1  # and no flapping back

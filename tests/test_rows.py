@@ -41,7 +41,12 @@ def _innovations(ekf, fn):
         out.append((innov, e.h.copy()))
         return True
 
+    def spy3(i0, i1, i2, r, status):
+        out.extend((i, e.H3[k].copy()) for k, i in enumerate((i0, i1, i2)))
+        return True
+
     e.fuse = spy
+    e.fuse3 = spy3
     e.begin_update()
     fn(e)
     return out
