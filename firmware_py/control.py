@@ -47,6 +47,7 @@ FALSE_RELEASE_S = 3.0  # free ascent that stays below the release height this lo
 BARO_MODEL_M = 0.3  # hypsometric conversion error (temperature profile, lag) added to the sensor's noise
 LEARN_DRAG_AFTER_S = 2.0  # after the release, once the ascent is established
 FIELD_FLIGHT_SAMPLES = 6000  # 60 s of magnetometer averaged in flight when there was no rest on the ground
+ACCEL_INNOV_S = 2.0  # averaging time of the accelerometer's innovations that set its noise floor
 MEAN_WIND_S = 60.0  # averaging time of the mean wind that scales the wind's process noise
 WIND_NOISE_EVERY = 100  # steps between updates of that noise
 FIELD_LEARN_SAMPLES = 100  # at least 1 s of magnetometer on the ground (all of the ground time is used)
@@ -140,6 +141,8 @@ class Estimator:
         self._joined = False
         self.field_ned = (math.nan, math.nan, math.nan)
         self._dwell = 0
+        self._accel_innov2 = 0.0
+        self._innov_alpha = 1.0 / (ACCEL_INNOV_S * self.cfg.imu_rate_hz)
         self._mean_speed = self.cfg.expected_wind_mps  # the filter's own mean wind (60 s), for its noise
         self._speed_alpha = 1.0 / (MEAN_WIND_S * self.cfg.imu_rate_hz)
         self._slack = 0
@@ -273,7 +276,15 @@ class Estimator:
         self._last_gyro = (gx, gy, gz)
         ekf.begin_update()
         var = (self.accel_static_var, self.accel_var, self.accel_taut_var)[ekf.mode]
+        # the force model's own error grows when the state is far from the truth (after a placement)
+        # or the physics departs from the model (a drag crisis, a gust the rate state cannot follow):
+        # the accelerometer's noise follows its recent innovations, so that a model that is off
+        # does not drag the attitude with it (the magnetometer and the gyro keep it)
+        var = max(var, self._accel_innov2)
         fuse_accel(ekf, ax, ay, az, var, self.accel_status)
+        st = self.accel_status
+        i2 = (st[0].innov**2 + st[1].innov**2 + st[2].innov**2) / 3.0
+        self._accel_innov2 += self._innov_alpha * (i2 - self._accel_innov2)
         if self._baro_pending and not math.isnan(self.height_baro):
             fuse_baro(ekf, self.height_baro, self.ref_pos_d, self.baro_var, self.baro_status)
             self._baro_pending = False
@@ -299,7 +310,7 @@ class Estimator:
                 # the tilt contradicts the taut state for 2 s: start the taut state again from the tilt
                 self.counters.taut_resets += 1
                 align_n.consecutive_rejects = align_e.consecutive_rejects = 0
-                enter_taut(ekf, self._height_for_taut(), self.rho)
+                enter_taut(ekf, self._height_for_taut(), self.rho, from_tilt=True)
         if not ekf.end_update():
             c.numeric_resets += 1
             self._reinitialise_in_flight(ax, ay, az, mx, my, mz, mag_ok)
@@ -346,7 +357,7 @@ class Estimator:
         ekf.mode = MODE_TAUT
         self._joined = True
         self.counters.mode_switches += 1
-        enter_taut(ekf, height, self.rho)
+        enter_taut(ekf, height, self.rho, from_tilt=True)
         if self._zeroing:
             self._join_height = height - m.radius_m  # above the (unseen) boot position
 

@@ -37,6 +37,10 @@ from firmware_py.state import (
 UNGATED = 1e6
 TAUT_AZIMUTH_MIN_M = 3.0  # horizontal offset of the ascent that fixes the azimuth at the taut switch
 TAUT_LEAN_MIN = math.sin(math.radians(3.0))  # a lean this large gives the azimuth to a few degrees
+N_MODEL_DYN = 3
+TAUT_POS_SIGMA_M = 5.0  # after a placement: wide enough for the alignment row to move it where the tilt says
+TAUT_VEL_SIGMA_MPS = 1.0  # the balloon still swings after the snap
+TAUT_WIND_SIGMA_MPS = 1.5
 
 
 def fuse_accel(ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status: list[FusionStatus]) -> None:
@@ -138,17 +142,18 @@ def fuse_mag_field(
     ekf.fuse3(mx - pred[0], my - pred[1], mz - pred[2], var, status)
 
 
-def enter_taut(ekf: WindEkf, height_m: float, rho: float) -> None:
-    """Put the state on the taut configuration's sphere |p| = L + r without throwing away what the
-    free ascent learnt (its wind comes from the accelerometer through the force model, its horizontal
-    position is the integral of that):
+def enter_taut(ekf: WindEkf, height_m: float, rho: float, from_tilt: bool = False) -> None:
+    """Put the state on the taut configuration's sphere |p| = L + r.
     - the chord's polar angle from the barometric height, cos(theta) = h / (L + r);
-    - its azimuth from the balloon's lean when it leans more than 3 deg (the tilt is good to a few
-      tenths of a degree: the azimuth to a few degrees), and then the wind from the static balance
-      drag = (N_b - W) tan(theta) along it; in a lighter wind the lean is tilt noise: the azimuth
-      comes from the ascent's horizontal position, or its wind, and the ascent's wind is kept;
-    - the velocity's radial part removed;
-      position and velocity covariances reset (decorrelated) to what this placement knows."""
+    - its azimuth: at the end of the free ascent (``from_tilt`` False) from the ascent's horizontal
+      position (the balloon drifted downwind): at the moment the rope snaps taut the balloon swings
+      and its lean can point anywhere (the reduced balloon's pointed backwards); on the settled tether
+      (``from_tilt``: a restart in flight, or 2 s of alignment rejected) from the balloon's lean if it
+      leans more than 3 deg (its tilt is good to a few tenths of a degree; in a lighter wind the lean
+      is tilt noise and the state's azimuth is kept);
+    - the wind from the static balance drag = (N_b - W) tan(theta) along it, velocity zero;
+    - position, velocity and wind covariances reset (decorrelated), wide enough for the alignment
+      row and the accelerometer to move them where the tilt and the dynamics say."""
     m = ekf.model
     x = ekf.x
     ell = m.taut_radius_m
@@ -160,41 +165,38 @@ def enter_taut(ekf: WindEkf, height_m: float, rho: float) -> None:
     r = rotation(*ekf.q.tolist())
     zn, ze = r[2], r[5]  # horizontal part of the body's down axis: it leans towards the anchor
     lean = math.hypot(zn, ze)
-    from_lean = lean > TAUT_LEAN_MIN
-    if from_lean:
+    wind = math.hypot(wn, we)
+    if from_tilt and lean > TAUT_LEAN_MIN:
         an, ae = -zn / lean, -ze / lean
     elif horiz > TAUT_AZIMUTH_MIN_M:
         an, ae = pn / horiz, pe / horiz
+    elif wind > 1e-3:
+        an, ae = wn / wind, we / wind
     else:
-        wind = math.hypot(wn, we)
-        an, ae = (wn / wind, we / wind) if wind > 1e-3 else (0.0, 0.0)
-    if from_lean:
-        # the wind from the static balance along the lean: drag = (N_b - W) tan(theta)
-        lift = (rho * m.volume_m3 - m.mass_kg - m.rope_kg_m * m.tether_length_m) * G0
-        drag = max(lift, 0.0) * sin_t / cos_t
-        k = max(float(x[DRAG]), 0.2)
-        speed = math.sqrt(drag / (k * rho * m.half_cd_area_m2)) if drag > 0.0 else 0.0
-        x[WIND_N], x[WIND_E] = speed * an, speed * ae
-        for i in (WIND_N, WIND_E, WRATE_N, WRATE_E):
-            ekf.P[i, :] = 0.0
-            ekf.P[:, i] = 0.0
-        ekf.P[WIND_N, WIND_N] = ekf.P[WIND_E, WIND_E] = 1.0
-        x[WRATE_N] = x[WRATE_E] = 0.0
-        ekf.P[WRATE_N, WRATE_N] = ekf.P[WRATE_E, WRATE_E] = ekf.wind_process.sigma_rate_mps2**2
+        an = ae = 0.0
+    # the wind's speed from the static balance along that azimuth, drag = (N_b - W) tan(theta): the
+    # ascent's horizontal speed is observed only weakly (through the release and |u| in the climb)
+    lift = (rho * m.volume_m3 - m.mass_kg - m.rope_kg_m * m.tether_length_m) * G0
+    drag = max(lift, 0.0) * sin_t / cos_t
+    k = max(float(x[DRAG]), 0.2)
+    speed = math.sqrt(drag / (k * rho * m.half_cd_area_m2)) if drag > 0.0 else 0.0
+    x[WIND_N], x[WIND_E] = speed * an, speed * ae
+    x[WRATE_N] = x[WRATE_E] = 0.0
+    for i in range(N_MODEL_DYN):
+        x[VEL_N + i] = 0.0
     e = (sin_t * an, sin_t * ae, -cos_t)
     for i in range(3):
         x[POS_N + i] = ell * e[i]
-    vr = float(x[VEL_N]) * e[0] + float(x[VEL_E]) * e[1] + float(x[VEL_D]) * e[2]
-    for i in range(3):
-        x[VEL_N + i] = float(x[VEL_N + i]) - vr * e[i]
     P = ekf.P
-    for i in (POS_N, POS_E, POS_D, VEL_N, VEL_E, VEL_D):
+    for i in (POS_N, POS_E, POS_D, VEL_N, VEL_E, VEL_D, WIND_N, WIND_E, WRATE_N, WRATE_E):
         P[i, :] = 0.0
         P[:, i] = 0.0
     for i in (POS_N, POS_E, POS_D):
-        P[i, i] = 2.0**2
+        P[i, i] = TAUT_POS_SIGMA_M**2
     for i in (VEL_N, VEL_E, VEL_D):
-        P[i, i] = 0.5**2
+        P[i, i] = TAUT_VEL_SIGMA_MPS**2
+    P[WIND_N, WIND_N] = P[WIND_E, WIND_E] = TAUT_WIND_SIGMA_MPS**2
+    P[WRATE_N, WRATE_N] = P[WRATE_E, WRATE_E] = ekf.wind_process.sigma_rate_mps2**2
 
 
 def fuse_taut(
