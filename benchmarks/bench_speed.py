@@ -49,9 +49,9 @@ def step_times(samples, warm: int) -> list[float]:
 
 
 def filterpy_step_times(samples, warm: int) -> list[float]:
-    """FilterPy's EKF with our sizes: 15 states; per sample a 3-row update, plus a 1-row baro update at
-    20 Hz, a 1-row heading at 10 Hz and a 4-row taut update at 20 Hz. Linear stand-in models (the
-    cost is the filter's algebra, which is what is compared)."""
+    """FilterPy's EKF with our sizes: 17 states; per sample two 3-row updates (accelerometer and
+    magnetic field), plus a 1-row baro update at 20 Hz and a 4-row taut update at 20 Hz. Linear
+    stand-in models (the cost is the filter's algebra, which is what is compared)."""
     from filterpy.kalman import ExtendedKalmanFilter
 
     n = N_STATES
@@ -72,10 +72,9 @@ def filterpy_step_times(samples, warm: int) -> list[float]:
         t0 = clock()
         ekf.predict()
         ekf.update(np.array(s.accel).reshape(3, 1), lambda x: h3, lambda x: h3 @ x, R=r3)
+        ekf.update(np.array(s.mag).reshape(3, 1), lambda x: h3, lambda x: h3 @ x, R=r3)
         if s.baro:
             ekf.update(np.array([[s.baro[0]]]), lambda x: h1, lambda x: h1 @ x, R=r1)
-        if i % 10 == 0:
-            ekf.update(np.zeros((1, 1)), lambda x: h1, lambda x: h1 @ x, R=r1)
         if i % 5 == 2:
             ekf.update(np.zeros((4, 1)), lambda x: h4, lambda x: h4 @ x, R=r4)
         dt = clock() - t0

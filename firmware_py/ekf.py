@@ -87,6 +87,10 @@ class WindEkf:
         self.dx = np.zeros(N, z)
         # three-row (vector) fusion of one sensor's axes: accelerometer, magnetometer
         self.H3 = np.zeros((3, N), z)
+        self.ja = np.zeros((3, len(MODEL_COLUMNS)), z)  # d a / d x of this step (generated.COLUMNS)
+        self.rt = np.zeros((3, 3), z)  # R^T of this step's attitude, for the accelerometer rows
+        self.hja = np.zeros((3, len(MODEL_COLUMNS)), z)
+        self._dt0 = np.full((), dt, z)
         self._pht = np.zeros((N, 3), z)
         self._k3 = np.zeros((N, 3), z)
         self._s3 = np.zeros((3, 3), z)
@@ -122,7 +126,8 @@ class WindEkf:
         self._drag_correlated = True
         self.recover_after = int(cfg.recover_after_s * cfg.imu_rate_hz)
 
-    _VIEWS = ("P_diag", "_k_col", "_ph_row", "_P_rows", "_P_cols", "_H3T", "_phtT", "H3_rows", "_F_vel_rows")
+    _VIEWS = ("P_diag", "_k_col", "_ph_row", "_P_rows", "_P_cols", "_H3T", "_phtT", "H3_rows", "_F_vel_rows",
+              "ja_flat", "_ja_pv", "_ja_wk", "_F_pv", "_F_wk", "H3_pv", "H3_wk", "hja_pv", "hja_wk")
 
     def _make_views(self) -> None:
         self.P_diag = np.einsum("ii->i", self.P)  # writable view of the diagonal
@@ -131,6 +136,13 @@ class WindEkf:
         self._P_rows = [self.P[i] for i in range(N)]  # row / column views, for inhibition
         self._P_cols = [self.P[:, i] for i in range(N)]
         self._H3T = self.H3.T
+        # the model's columns: position+velocity (states 0-5, ja 0-5), wind..drag (states 12-16, ja 6-10)
+        assert MODEL_COLUMNS == (*range(0, 6), *range(12, 17))
+        self.ja_flat = self.ja.reshape(-1)
+        self._ja_pv, self._ja_wk = self.ja[:, 0:6], self.ja[:, 6:11]
+        self._F_pv, self._F_wk = self.F[3:6, 0:6], self.F[3:6, 12:17]
+        self.H3_pv, self.H3_wk = self.H3[:, 0:6], self.H3[:, 12:17]
+        self.hja_pv, self.hja_wk = self.hja[:, 0:6], self.hja[:, 6:11]
         self.H3_rows = [self.H3[i] for i in range(3)]
         self._F_vel_rows = [self.F[VEL_N + i] for i in range(3)]
         self._phtT = self._pht.T
@@ -202,13 +214,13 @@ class WindEkf:
             x[VEL_E] = ve + ae * dt
             x[VEL_D] = vd + ad * dt
             # d(vel)/d(x) = I + (d a / d x) dt over the model's columns (generated.COLUMNS)
-            ja = f.ja
-            ncol = len(MODEL_COLUMNS) - (0 if self.learn_drag else 1)  # held drag scale: no correlation
-            for row in range(3):
-                fr = self._F_vel_rows[row]
-                for c in range(ncol):
-                    fr[MODEL_COLUMNS[c]] = ja[11 * row + c] * dt
-                fr[VEL_N + row] += 1.0
+            # d(vel)/d(x) = I + (d a / d x) dt: the model's columns are two contiguous blocks of F
+            self.load_model_jacobian()
+            np.multiply(self._ja_pv, self._dt0, out=self._F_pv)
+            np.multiply(self._ja_wk, self._dt0, out=self._F_wk)
+            F[VEL_N, VEL_N] += 1.0
+            F[VEL_E, VEL_E] += 1.0
+            F[VEL_D, VEL_D] += 1.0
             if self.learn_drag:
                 self._drag_correlated = True
             else:
@@ -226,6 +238,12 @@ class WindEkf:
         np.matmul(F, self.P, out=self._t1)
         np.matmul(self._t1, F.T, out=self.P)
         np.add(self.P_diag, self._qd_ground if ground else self._qd_flight, out=self.P_diag)
+
+    def load_model_jacobian(self) -> None:
+        """Copy d a / d x of ``self.forces`` into the array the prediction and the accelerometer rows use."""
+        flat = self.ja_flat
+        for i, v in enumerate(self.forces.ja):
+            flat[i] = v
 
     def _set_static_jacobian(self, ground: bool) -> None:
         """The parts of F that change only with the mode: on the ground the balloon is held still."""

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from firmware_py.atmosphere import G0
 from firmware_py.ekf import FusionStatus, WindEkf, rotation
 from firmware_py.generated import rope_direction, rope_direction_plain
@@ -56,9 +58,8 @@ def fuse_accel(ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status
         yn, ye, yd = f.an, f.ae, f.ad - G0
     H = ekf.H3
     H.fill(0.0)
-    ja = f.ja
-    ncol = len(MODEL_COLUMNS) - (0 if ekf.learn_drag else 1)
     pred = [0.0, 0.0, 0.0]
+    rt = ekf.rt
     for i in range(3):
         cn, ce, cd = r[i], r[3 + i], r[6 + i]  # row i of R^T
         pred[i] = cn * yn + ce * ye + cd * yd
@@ -67,9 +68,14 @@ def fuse_accel(ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status
         h[ATT_N] = ce * yd - cd * ye
         h[ATT_E] = cd * yn - cn * yd
         h[ATT_D] = cn * ye - ce * yn
-        if not ground:
-            for c in range(ncol):
-                h[MODEL_COLUMNS[c]] = cn * ja[c] + ce * ja[11 + c] + cd * ja[22 + c]
+        rt[i, 0], rt[i, 1], rt[i, 2] = cn, ce, cd
+    if not ground:
+        # d/d (model states): R^T (d a / d x), the two column blocks of the model (ekf.ja, set by predict)
+        np.matmul(rt, ekf.ja, out=ekf.hja)
+        np.copyto(ekf.H3_pv, ekf.hja_pv)
+        np.copyto(ekf.H3_wk, ekf.hja_wk)
+        if not ekf.learn_drag:
+            H[0, DRAG] = H[1, DRAG] = H[2, DRAG] = 0.0
     ekf.fuse3(fx - pred[0], fy - pred[1], fz - pred[2], var, status)
 
 

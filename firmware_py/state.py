@@ -38,7 +38,7 @@ class FilterConfig:
     imu_rate_hz: float = 100.0
     float32: bool = False
     # process noise
-    accel_process_mps2: float = 0.3  # unmodelled force per unit mass (rope waves, rocking, eddies)
+    accel_process_mps2: float = 0.05  # unmodelled force per unit mass between two samples (docs/estimator.md)
     # the wind the filter expects (its process noise is derived from this spectrum: tuning.py)
     expected_wind_mps: float = 3.0
     turbulence_intensity: float = 0.2  # sigma_u / U the filter expects (docs/estimator.md: chosen by NEES)

@@ -30,6 +30,7 @@ def taut_ekf():
 def _refresh(e):
     x = e.x.tolist()
     accelerations(e.model, 1.2, *x[0:6], *x[12:17], True, e.forces)
+    e.load_model_jacobian()
 
 
 def _innovations(ekf, fn):
