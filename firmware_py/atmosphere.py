@@ -26,7 +26,7 @@ def isa_pressure_pa(height_m: float, ground_pressure_pa: float, ground_temperatu
 
 
 def air_density(pressure_pa: float, temperature_k: float) -> float:
-    """Ideal-gas dry-air density rho = p / (R T), kg/m^3 (NOTES.md: 1.204 at 1013.25 hPa, 20 C)."""
+    """Ideal-gas dry-air density rho = p / (R T), kg/m^3 (docs/model.md: 1.204 at 1013.25 hPa, 20 C)."""
     return pressure_pa / (R_AIR * temperature_k)
 
 

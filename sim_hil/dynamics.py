@@ -1,11 +1,11 @@
-"""6-DOF tethered spherical balloon (truth model), paper Sec. 2.2 with NOTES.md's corrections.
+"""6-DOF tethered spherical balloon (truth model), paper Sec. 2.2 with the corrections in docs/model.md.
 
 State (13 plain floats): position NED of the sphere's centre relative to the anchor [m], velocity NED
 [m/s], attitude quaternion body(FRD)->NED (w, x, y, z), angular rate in body axes [rad/s]. The
 derivative is a pure function of plain floats (no numpy): at one state per call numpy's per-call
 overhead would dominate, and a C port maps one line to one line.
 
-Translational (Morison form, NOTES.md), paper Eq. (6):
+Translational (Morison form, docs/model.md), paper Eq. (6):
     (m + Ca rho V) a = (1 + Ca) rho V du/dt + 1/2 rho Cd pi r^2 |u - v| (u - v)
                        + F_tether + (rho V - m) g_up + F_rope
 Rotational, paper Eq. (7): I dw/dt = r_att x (F_tether + F_rope) - c_rot w, with the tether and the
@@ -38,7 +38,7 @@ class TruthConfig:
     """Truth-model options beyond the shared design (the [truth] section)."""
 
     added_mass_coefficient: float = 0.5  # Ca of a sphere
-    tether_ea_n: float = 20000.0  # axial stiffness EA of the rope (NOTES.md: 5-30 kN)
+    tether_ea_n: float = 20000.0  # axial stiffness EA of the rope (docs/model.md: 5-30 kN)
     tether_damping_ratio: float = 0.2  # of the axial rope mode
     rope_drag: bool = False  # Hoerner cross-flow drag on the rope (paper neglects it)
     rope_normal_cd: float = 1.1
@@ -50,7 +50,7 @@ class TruthConfig:
     drag: bool = True
     spatial_filter: bool = True  # the balloon feels the wind averaged over its diameter (wind.py)
     froude_krylov: bool = True  # the push of the accelerating air, (1 + Ca) rho V du/dt
-    # sensor errors beyond Table 2's white noise (the realistic-mems scenario; NOTES.md figures)
+    # sensor errors beyond Table 2's white noise (the realistic-mems scenario; docs/model.md figures)
     gyro_bias_dps: float = 0.0  # 1-sigma turn-on bias per axis
     gyro_bias_walk_dps_rt_s: float = 0.0  # bias random walk, deg/s per sqrt(s)
     accel_bias_mps2: float = 0.0  # 1-sigma turn-on bias per axis
@@ -213,7 +213,7 @@ def sphere_drag_coefficient(re: float, crisis_re: float = 4.1e5, crisis_exponent
 
     Morrison fits a smooth sphere in a quiet tunnel: Re_c = 2.63e5, n = 8 (his 7.94 and 8.00). Where
     the crisis falls depends on surface roughness and free-stream turbulence, so it is a parameter:
-    Re_c = 4.1e5 puts the reference balloon at 3 m/s (Re ~ 4e5, NOTES.md) in mid-crisis with
+    Re_c = 4.1e5 puts the reference balloon at 3 m/s (Re ~ 4e5, docs/model.md) in mid-crisis with
     Cd = 0.30, the firmware's constant. n = 4 smears the crisis as atmospheric turbulence does: the
     drag force (Cd Re^2) then still rises with speed (d ln Cd / d ln Re >= -1.4 > -2); a tunnel-sharp
     n = 8 makes it fall just above Re_c, a negative aerodynamic damping we do not claim for a balloon
