@@ -320,7 +320,8 @@ class Estimator:
             wn, we = self.wind()
             self._mean_speed += self._speed_alpha * (math.sqrt(wn * wn + we * we) - self._mean_speed)
             if self.step % WIND_NOISE_EVERY == 0:
-                ekf.adapt_wind_noise(self._mean_speed)
+                misfit = max(1.0, self._accel_innov2 / self.accel_taut_var)
+                ekf.adapt_wind_noise(self._mean_speed, misfit)
         return True
 
     def coast(self, seconds: float) -> None:
