@@ -26,10 +26,12 @@ def test_paper_reference_accuracy(seed):
     est = Estimator(Design())
     rows = feed(est, samples, record=True)
     s = score(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], truth["time_s"], truth["wind_n"], truth["wind_e"])
-    assert s.band_rmse_mps <= 0.3
-    assert abs(s.speed_error_pct) <= 5.0
-    assert abs(s.direction_error_deg) <= 5.0
-    assert 0.5 <= s.error_ratio <= 2.0
+    # judged against the constant true mean (skill 0; the previous filter scored ~0.5 here), not an
+    # RMSE bound that the constant also meets
+    assert s.band_skill >= 0.6
+    assert abs(s.speed_error_pct) <= 3.0
+    assert abs(s.direction_error_deg) <= 2.0
+    assert 0.7 <= s.error_ratio <= 1.5
     assert est.ekf.mode == MODE_TAUT
     assert est.counters.mode_switches >= 2  # ground -> free -> taut
     check_covariance(est.ekf.P)
@@ -42,7 +44,7 @@ def test_float32_mode_is_stable_on_the_same_data():
     rows = feed(est, samples, record=True)
     assert np.all(np.isfinite(rows))
     s = score(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], truth["time_s"], truth["wind_n"], truth["wind_e"])
-    assert s.band_rmse_mps <= 0.35
+    assert s.band_skill >= 0.6
     assert est.counters.numeric_resets == 0
     check_covariance(est.ekf.P.astype(np.float64))
 
@@ -142,7 +144,7 @@ def test_configured_ground_pressure_replaces_zeroing():
     assert not est._zeroing
     rows = feed(est, samples, record=True)
     s = score(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], truth["time_s"], truth["wind_n"], truth["wind_e"])
-    assert s.band_rmse_mps <= 0.3
+    assert s.band_skill >= 0.6
     assert est.height_m() == pytest.approx(truth["height_m"][-1], abs=2.0)
 
 

@@ -57,8 +57,8 @@ def test_sil_run_scores_and_leaves_no_process(tmp_path):
     r = subprocess.run([PY, "-m", "sim_hil.sil", "--duration", "200", "--speed", "25", "--seed", "3",
                         "--outdir", str(tmp_path)], capture_output=True, text=True, timeout=120)  # fmt: skip
     assert r.returncode == 0, r.stdout + r.stderr
-    m = re.search(r"band RMSE \(<0.05 Hz\) ([\d.]+) m/s", r.stdout)
-    assert m and float(m.group(1)) < 0.4
+    m = re.search(r"band RMSE \(<0.05 Hz\) ([\d.]+) m/s, skill (-?[\d.]+)", r.stdout)
+    assert m and float(m.group(1)) < 0.2 and float(m.group(2)) > 0.15  # 80 s scored: the pipeline, not the accuracy
     assert "0 lost" in r.stdout  # lockstep on loopback: lossless at 25x
     assert (tmp_path / "paper-reference-seed3.png").stat().st_size > 10_000
     assert not procs_with(str(tmp_path))
@@ -122,7 +122,8 @@ def test_lossy_reordering_link_still_converges_and_losses_are_counted(tmp_path):
     reordered = int(re.search(r"(\d+) reordered", fw_summary).group(1))
     assert gaps > 100 and reordered > 10
     s = report(str(csv), str(truth))
-    assert s.band_rmse_mps < 0.4 and abs(s.speed_error_pct) < 10
+    # 10 % of the sensor packets lost, 5 % reordered: still better than the constant true mean by far
+    assert s.band_skill >= 0.5 and abs(s.speed_error_pct) < 5
 
 
 def wind_cov_listener(port: int, records: list, stop: threading.Event):
