@@ -48,6 +48,7 @@ BARO_MODEL_M = 0.3  # hypsometric conversion error (temperature profile, lag) ad
 LEARN_DRAG_AFTER_S = 2.0  # after the release, once the ascent is established
 FIELD_FLIGHT_SAMPLES = 6000  # 60 s of magnetometer averaged in flight when there was no rest on the ground
 ACCEL_INNOV_S = 2.0  # averaging time of the accelerometer's innovations that set its noise floor
+TAUT_PULL_S = 1.0  # after a slack spell the rope must pull this long before the filter is taut again
 MEAN_WIND_S = 60.0  # averaging time of the mean wind that scales the wind's process noise
 WIND_NOISE_EVERY = 100  # steps between updates of that noise
 FIELD_LEARN_SAMPLES = 100  # at least 1 s of magnetometer on the ground (all of the ground time is used)
@@ -146,6 +147,8 @@ class Estimator:
         self._mean_speed = self.cfg.expected_wind_mps  # the filter's own mean wind (60 s), for its noise
         self._speed_alpha = 1.0 / (MEAN_WIND_S * self.cfg.imu_rate_hz)
         self._slack = 0
+        self._pulling = 0
+        self._was_slack = False
         self._height_above = 0
 
     def _learn_field(self, ax: float, ay: float, az: float, mx: float, my: float, mz: float) -> None:
@@ -424,13 +427,18 @@ class Estimator:
                 reset_height(ekf, self.ref_pos_d - self.height_baro, self.baro_var)
                 return
             stalled = -pd > 0.5 * length and -float(x[VEL_D]) < 0.3
-            if dwell_ok and (dist >= length - cfg.taut_margin_m or stalled) and self._rope_would_pull():
+            near = dist >= length - cfg.taut_margin_m or stalled
+            self._pulling = self._pulling + 1 if near and self._rope_would_pull() else 0
+            # back to taut after the rope went slack: only once it has pulled for a while (no flapping)
+            need = TAUT_PULL_S * cfg.imu_rate_hz if self._was_slack else 1
+            if dwell_ok and self._pulling >= need:
                 self._switch(MODE_TAUT)
                 enter_taut(ekf, self._height_for_taut(), self.rho)
         else:
             self._slack = 0 if ekf.forces.taut else self._slack + 1
             if dwell_ok and self._slack >= cfg.mode_dwell_s * cfg.imu_rate_hz:
                 self._switch(MODE_FREE)
+                self._was_slack = True
 
     # ------------------------------------------------------------------ outputs
 
