@@ -20,6 +20,30 @@ def check_covariance(P):
     assert np.linalg.eigvalsh(0.5 * (P + P.T)).min() > 0.0
 
 
+def band_lag_s(rows, truth, start_s: float = 120.0, max_lag_s: float = 10.0) -> float:
+    """Delay of the estimate behind the truth, s: the peak of the cross-correlation of both series
+    low-passed below 0.05 Hz (horizontal vector), on a 10 Hz grid after ``start_s``."""
+    from ground_station.score import GRID_HZ, lowpass
+
+    grid = np.arange(start_s, min(rows[-1, 0], truth["time_s"][-1]), 1.0 / GRID_HZ)
+    e = [lowpass(np.interp(grid, rows[:, 0], rows[:, k]), GRID_HZ, 0.05) for k in (1, 2)]
+    t = [lowpass(np.interp(grid, truth["time_s"], truth[c]), GRID_HZ, 0.05) for c in ("wind_n", "wind_e")]
+    e = [x - x.mean() for x in e]
+    t = [x - x.mean() for x in t]
+    lags = np.arange(-int(max_lag_s * GRID_HZ), int(max_lag_s * GRID_HZ) + 1)
+    n = len(grid)
+    corr = [sum(np.dot(ek[max(0, k):n + min(0, k)], tk[max(0, -k):n - max(0, k)]) for ek, tk in zip(e, t))
+            for k in lags]  # fmt: skip
+    return float(lags[int(np.argmax(corr))] / GRID_HZ)
+
+
+def test_band_lag_measures_a_delay():
+    _, truth = stream("paper-reference", 300.0, 11)
+    t = truth["time_s"]
+    rows = np.column_stack([t, np.interp(t - 4.0, t, truth["wind_n"]), np.interp(t - 4.0, t, truth["wind_e"])])
+    assert band_lag_s(rows, truth) == pytest.approx(4.0, abs=0.3)
+
+
 @pytest.mark.parametrize("seed", [11, 12])
 def test_paper_reference_accuracy(seed):
     samples, truth = stream("paper-reference", 300.0, seed)
@@ -32,6 +56,8 @@ def test_paper_reference_accuracy(seed):
     assert abs(s.speed_error_pct) <= 3.0
     assert abs(s.direction_error_deg) <= 2.0
     assert 0.7 <= s.error_ratio <= 1.5
+    # a copy of the truth delayed by 4 s scores skill 0.65-0.69 here: the delay itself is bounded
+    assert abs(band_lag_s(rows, truth)) <= 1.0
     assert est.ekf.mode == MODE_TAUT
     assert est.counters.mode_switches >= 2  # ground -> free -> taut
     check_covariance(est.ekf.P)
