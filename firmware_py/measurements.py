@@ -39,10 +39,9 @@ from firmware_py.state import (
 UNGATED = 1e6
 TAUT_AZIMUTH_MIN_M = 3.0  # horizontal offset of the ascent that fixes the azimuth at the taut switch
 TAUT_LEAN_MIN = math.sin(math.radians(3.0))  # a lean this large gives the azimuth to a few degrees
-N_MODEL_DYN = 3
 TAUT_POS_SIGMA_M = 5.0  # after a placement: wide enough for the alignment row to move it where the tilt says
 TAUT_VEL_SIGMA_MPS = 1.0  # the balloon still swings after the snap
-TAUT_WIND_SIGMA_MPS = 1.5
+TAUT_WIND_SIGMA_MPS = 1.5  # the static balance's wind at the snap (the balloon is not yet in balance)
 
 
 def fuse_accel(ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status: list[FusionStatus]) -> None:
@@ -188,8 +187,7 @@ def enter_taut(ekf: WindEkf, height_m: float, rho: float, from_tilt: bool = Fals
     speed = math.sqrt(drag / (k * rho * m.half_cd_area_m2)) if drag > 0.0 else 0.0
     x[WIND_N], x[WIND_E] = speed * an, speed * ae
     x[WRATE_N] = x[WRATE_E] = 0.0
-    for i in range(N_MODEL_DYN):
-        x[VEL_N + i] = 0.0
+    x[VEL_N] = x[VEL_E] = x[VEL_D] = 0.0
     e = (sin_t * an, sin_t * ae, -cos_t)
     for i in range(3):
         x[POS_N + i] = ell * e[i]
