@@ -1,0 +1,38 @@
+"""What post-flight reprocessing produces, before it is written anywhere (NetCDF, CSV, plots).
+
+All arrays share one time axis (the estimator's output grid, normally 10 Hz). NaN where a value is
+unknown (before the filter started, no barometer in the log, ...)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+# bits of ``flags`` (CF flag_masks)
+FLAG_SMOOTHED = 1  # the smoothed value differs from the causal one (the segment had later data)
+FLAG_SEGMENT_START = 2  # first sample after a filter reset / re-placement (a smoother segment starts)
+FLAG_NO_BARO = 4  # the log has no barometer: height and air data are unknown
+FLAG_WIND_UNKNOWN = 8  # horizontal accuracy worse than the wind itself could be (not a balloon, on the ground)
+
+
+@dataclass
+class WindProduct:
+    time_s: np.ndarray  # seconds since the sensor clock's zero (boot)
+    wind_n: np.ndarray  # smoothed (zero-lag) air velocity, m/s North
+    wind_e: np.ndarray  # m/s East
+    sigma_n: np.ndarray  # 1-sigma of wind_n from the smoothed covariance, m/s
+    sigma_e: np.ndarray
+    causal_n: np.ndarray  # the real-time filter's estimate (what WIND_COV carried)
+    causal_e: np.ndarray
+    causal_sigma_n: np.ndarray
+    causal_sigma_e: np.ndarray
+    height_m: np.ndarray  # above the tether anchor (NaN without a barometer)
+    pos_n: np.ndarray  # balloon position relative to the anchor, m
+    pos_e: np.ndarray
+    air_pressure_pa: np.ndarray  # NaN without a barometer
+    air_temperature_k: np.ndarray
+    mode: np.ndarray  # int8: 0 ground, 1 free ascent, 2 taut (firmware_py.state MODE_*)
+    flags: np.ndarray  # int8 bit field, FLAG_* above
+    utc_start_s: float | None = None  # UNIX time of time_s == 0 when the log knows it (GPS time), else None
+    attrs: dict[str, str] = field(default_factory=dict)  # design TOML, software version, source name, sha256
