@@ -125,6 +125,7 @@ class WindEkf:
         self.learn_drag = False  # set by the control logic: only in established free ascent
         self._drag_correlated = True
         self.recover_after = int(cfg.recover_after_s * cfg.imu_rate_hz)
+        self.recorder = None  # post-flight only: firmware_py.smoother.SmootherRecorder sees every event
 
     _VIEWS = ("P_diag", "_k_col", "_ph_row", "_P_rows", "_P_cols", "_H3T", "_phtT", "H3_rows", "_F_vel_rows",
               "ja_flat", "_ja_pv", "_ja_wk", "_F_pv", "_F_wk", "H3_pv", "H3_wk", "hja_pv", "hja_wk")
@@ -238,6 +239,8 @@ class WindEkf:
         np.matmul(F, self.P, out=self._t1)
         np.matmul(self._t1, F.T, out=self.P)
         np.add(self.P_diag, self._qd_ground if ground else self._qd_flight, out=self.P_diag)
+        if self.recorder is not None:
+            self.recorder.predict(F)
 
     def load_model_jacobian(self) -> None:
         """Copy d a / d x of ``self.forces`` into the array the prediction and the accelerometer rows use."""
@@ -322,6 +325,8 @@ class WindEkf:
             status.fused -= 1
         self._s[()] = 1.0 / s
         np.multiply(self._ph, self._s, out=self._k)
+        if self.recorder is not None:
+            self.recorder.update(self.h, 1.0 / s, innov, self._k)
         self._s[()] = innov
         np.multiply(self._k, self._s, out=self._v)
         np.add(self.dx, self._v, out=self.dx)
@@ -389,6 +394,8 @@ class WindEkf:
         si[2, 2] = (s00 * s11 - s01 * s01) * inv
         np.matmul(self._pht, si, out=self._k3)
         self._i3[0], self._i3[1], self._i3[2] = i0, i1, i2
+        if self.recorder is not None:
+            self.recorder.update3(self.H3, si, self._i3, self._k3)
         np.matmul(self._k3, self._i3, out=self._v)
         np.add(self.dx, self._v, out=self.dx)
         np.matmul(self._k3, self._phtT, out=self._t1)
@@ -433,6 +440,8 @@ class WindEkf:
         against the known lift tells it); on the taut tether the quasi-static balance sees only
         k |w|^2, and the release transient would mistake the detection lag for drag."""
         self.dx[i] = 0.0
+        if self.recorder is not None:
+            self.recorder.broken()  # not a fusion: the smoother's chain is cut here
         v = float(self.P[i, i])
         self._P_rows[i].fill(0.0)
         self._P_cols[i].fill(0.0)

@@ -1,0 +1,120 @@
+"""Post-flight reprocessing: the firmware's estimator over a whole flight, then the backward pass of
+the fixed-interval smoother (firmware_py/smoother.py), into a ``WindProduct``.
+
+The samples come through the same interface the live firmware uses (firmware_py/samples.py), so the
+forward pass is exactly what the balloon computed in flight, given the same design file."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Iterable
+
+import numpy as np
+
+from firmware_py.config import Design
+from firmware_py.control import Estimator
+from firmware_py.samples import BaroSample, Sample, feed
+from firmware_py.smoother import SmootherRecorder
+from firmware_py.state import MODE_GROUND, N_STATES, POS_D, POS_E, POS_N, WIND_E, WIND_N, FilterConfig
+from ground_station.product import (
+    FLAG_NO_BARO,
+    FLAG_SEGMENT_START,
+    FLAG_SMOOTHED,
+    FLAG_WIND_UNKNOWN,
+    WindProduct,
+)
+
+GRID_HZ = 10.0  # the product's rate: WIND_COV's default
+UNKNOWN_SIGMA_MPS = 1.0  # a horizontal 1-sigma above max(this, half the speed): the wind is not known
+
+
+def _signature(est: Estimator) -> tuple:
+    """Everything that changes when the control logic re-places the state instead of fusing."""
+    c = est.counters
+    return (est.initialised, est.ekf.mode, c.time_resets, c.numeric_resets, c.taut_resets, c.baro_resets,
+            c.false_releases)  # fmt: skip
+
+
+def reprocess(
+    samples: Iterable[Sample],
+    design: Design,
+    cfg: FilterConfig | None = None,
+    grid_hz: float = GRID_HZ,
+    progress: Callable[[str, int, int], None] | None = None,
+    total_samples: int = 0,
+) -> WindProduct:
+    """Forward filter + backward smoother over ``samples`` (time order, as logged).
+
+    ``progress(phase, done, total)`` is called now and then ("filter" over samples, "smoother" over
+    grid points)."""
+    cfg = dataclasses.replace(cfg or FilterConfig(), float32=False)  # the smoother needs float64
+    est = Estimator(design, cfg)
+    every = max(1, round(cfg.imu_rate_hz / grid_hz))
+    rec = SmootherRecorder(N_STATES)
+    est.ekf.recorder = rec
+    ekf = est.ekf
+    sig = _signature(est)
+    last_grid = 0
+    baro_seen = False
+    press = temp = math.nan
+    modes: list[int] = []
+    air: list[tuple[float, float]] = []
+    for i, s in enumerate(samples):
+        if type(s) is BaroSample:
+            baro_seen = True
+            press, temp = s.pressure_hpa, s.temperature_c
+            feed(est, s)
+            continue
+        advanced = feed(est, s)
+        now = _signature(est)
+        if now != sig:
+            rec.broken()
+            sig = now
+            last_grid = est.step // every - 1  # a grid point right after the break starts the segment
+        if advanced and est.step // every > last_grid:
+            last_grid = est.step // every
+            rec.grid_point(est.t_last_us, ekf.x, ekf.P)
+            modes.append(ekf.mode)
+            air.append((press, temp))
+        if progress is not None and i % 20000 == 0:
+            progress("filter", i, total_samples)
+    sm = rec.smooth(None if progress is None else lambda d, n: progress("smoother", d, n))
+    return _product(sm, np.array(modes, np.int8), np.array(air).reshape(-1, 2), baro_seen)
+
+
+def _product(sm, modes: np.ndarray, air: np.ndarray, baro_seen: bool) -> WindProduct:
+    n = len(sm.t_us)
+    var_n = np.maximum(sm.Ps[:, WIND_N, WIND_N], 0.0)
+    var_e = np.maximum(sm.Ps[:, WIND_E, WIND_E], 0.0)
+    cvar_n = np.maximum(sm.P[:, WIND_N, WIND_N], 0.0)
+    cvar_e = np.maximum(sm.P[:, WIND_E, WIND_E], 0.0)
+    wn, we = sm.xs[:, WIND_N], sm.xs[:, WIND_E]
+    flags = np.zeros(n, np.int8)
+    flags[sm.segment_start] |= FLAG_SEGMENT_START
+    moved = (np.abs(wn - sm.x[:, WIND_N]) > 1e-9) | (np.abs(we - sm.x[:, WIND_E]) > 1e-9)
+    flags[moved] |= FLAG_SMOOTHED
+    unknown = (modes == MODE_GROUND) | (np.sqrt(var_n + var_e) > np.maximum(UNKNOWN_SIGMA_MPS, 0.5 * np.hypot(wn, we)))
+    flags[unknown] |= FLAG_WIND_UNKNOWN
+    height = -sm.xs[:, POS_D]
+    if not baro_seen:
+        flags |= FLAG_NO_BARO
+        height = np.full(n, np.nan)
+    return WindProduct(
+        time_s=sm.t_us * 1e-6,
+        wind_n=wn.copy(),
+        wind_e=we.copy(),
+        sigma_n=np.sqrt(var_n),
+        sigma_e=np.sqrt(var_e),
+        causal_n=sm.x[:, WIND_N].copy(),
+        causal_e=sm.x[:, WIND_E].copy(),
+        causal_sigma_n=np.sqrt(cvar_n),
+        causal_sigma_e=np.sqrt(cvar_e),
+        height_m=height,
+        pos_n=sm.xs[:, POS_N].copy(),
+        pos_e=sm.xs[:, POS_E].copy(),
+        air_pressure_pa=air[:, 0] * 100.0 if n else np.zeros(0),
+        air_temperature_k=air[:, 1] + 273.15 if n else np.zeros(0),
+        mode=modes,
+        flags=flags,
+    )
