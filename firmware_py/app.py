@@ -1,13 +1,12 @@
 """The firmware's main loop body: MAVLink messages in, estimator, WIND_COV + HEARTBEAT out.
 
-Accepts HIGHRES_IMU (105) and HIL_SENSOR (107, what PX4-style simulators send; same fields and
-``fields_updated`` bits) for the IMU, barometer and thermometer, and SCALED_PRESSURE (29) when the IMU
-messages carry no barometer. Everything else is counted and ignored.
+Every message goes through the one sample interface (``firmware_py.samples``: HIGHRES_IMU and HIL_SENSOR
+with their ``fields_updated`` bits, ArduPilot's SCALED_IMU/2/3, SCALED_PRESSURE/2/3) and the input
+pipeline (``firmware_py.streams``: the IMU rate measured from the stream, a faster stream averaged to the
+filter's step), exactly as post-flight reprocessing does. Everything else is counted and ignored.
 """
 
 from __future__ import annotations
-
-import math
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -15,64 +14,92 @@ from firmware_py.config import Design
 from firmware_py.control import Estimator
 from firmware_py.mavio import LinkStats, pack
 from firmware_py.outputs import WindCovOutput
+from firmware_py.samples import BaroSample, MavlinkSampler, Sample, feed
 from firmware_py.state import FilterConfig
+from firmware_py.streams import InputPipeline, print_warning
 
 FW_SYSID = 1
 FW_COMPID = mavlink.MAV_COMP_ID_AUTOPILOT1
-ACC_GYRO_BITS = 0x3F
-MAG_BITS = 0x1C0
-PRESSURE_BIT = 0x200
-TEMPERATURE_BIT = 0x1000
 
 
 class Firmware:
-    def __init__(self, design: Design, cfg: FilterConfig | None = None, sink=None, wind_cov_hz: float = 10.0) -> None:
+    def __init__(
+        self, design: Design, cfg: FilterConfig | None = None, sink=None, wind_cov_hz: float = 10.0,
+        rate_explicit: bool = False, warn=print_warning,
+    ) -> None:  # fmt: skip
+        self.design = design
         self.est = Estimator(design, cfg)
         self.out = WindCovOutput(self.est.cfg.imu_rate_hz, design.site.altitude_amsl_m)
         self.sinks = [sink] if sink is not None else []
         self.mav = mavlink.MAVLink(None, srcSystem=FW_SYSID, srcComponent=FW_COMPID)
         self.period_us = round(1e6 / wind_cov_hz)
         self.stats = LinkStats()
+        self.sampler = MavlinkSampler()
+        self.pipe = InputPipeline(self.est.cfg, rate_explicit, hold=self._hold)
+        self.streams = None  # a live link's StreamRequester (cli.run_live), for its hold and summary
+        self.warn = warn
         self.other_messages = 0
         self.wind_cov_sent = 0
         self._next_wind_us = 0
         self._next_hb_us = 0
-        self._highres_baro = False
-        self._last_temp_c = math.nan
 
     # ----------------------------------------------------------------- input
 
     def handle(self, msg) -> None:
-        mid = msg.get_msgId()
-        if mid in (mavlink.MAVLINK_MSG_ID_HIGHRES_IMU, mavlink.MAVLINK_MSG_ID_HIL_SENSOR):
-            self._imu(msg)
-        elif mid == mavlink.MAVLINK_MSG_ID_SCALED_PRESSURE:
-            if not self._highres_baro:
-                self.est.on_baro(msg.time_boot_ms * 1000, msg.press_abs, msg.temperature / 100.0)
-        else:
+        samples = self.sampler.convert(msg)
+        if samples is None:
             self.other_messages += 1
-
-    def _imu(self, m) -> None:
-        bits = m.fields_updated or 0xFFFF  # 0: a sender that does not fill the field
-        t = m.time_usec
-        est = self.est
-        if bits & PRESSURE_BIT:
-            self._highres_baro = True
-            temp = m.temperature if bits & TEMPERATURE_BIT else self._last_temp_c
-            if bits & TEMPERATURE_BIT:
-                self._last_temp_c = m.temperature
-            est.on_baro(t, m.abs_pressure, temp if math.isfinite(temp) else 15.0)
-        if bits & ACC_GYRO_BITS != ACC_GYRO_BITS:
-            est.counters.rejected += 1
             return
-        if bits & MAG_BITS == MAG_BITS:
-            mx, my, mz = m.xmag, m.ymag, m.zmag
-        else:
-            mx = my = mz = math.nan
+        for s in samples:
+            self.push(s)
+
+    def push(self, s: Sample) -> None:
+        """One sample from any source: through the input pipeline into the estimator."""
+        decided = self.pipe.decided
+        out = self.pipe.push(s)
+        if not decided:
+            if self.pipe.decided:
+                self._configure()
+            elif self._live and type(s) is not BaroSample and s.t_us >= self._next_hb_us:
+                self.heartbeat(s.t_us)  # still measuring the rate: a live link hears from us all the same
+                self._next_hb_us = s.t_us + 1_000_000
+        for r in out:
+            self._step(r)
+
+    def flush(self) -> None:
+        """End of a file: decide the rate with what there is and run what is held."""
+        decided = self.pipe.decided
+        out = self.pipe.flush()
+        if not decided:
+            self._configure()
+        for r in out:
+            self._step(r)
+
+    @property
+    def _live(self) -> bool:
+        return not any(hasattr(sink, "send_at") for sink in self.sinks)
+
+    def _hold(self) -> bool:
+        return self.streams is not None and self.streams.pending()
+
+    def _configure(self) -> None:
+        """The rate is known: the estimator runs at it (a new one only if it differs from the config's)."""
+        d = self.pipe.decision
+        if d.warning:
+            self.warn(d.warning)
+        if self.pipe.cfg.imu_rate_hz != self.est.cfg.imu_rate_hz:
+            self.est = Estimator(self.design, self.pipe.cfg)
+            self.out = WindCovOutput(self.est.cfg.imu_rate_hz, self.design.site.altitude_amsl_m)
+
+    def _step(self, s: Sample) -> None:
+        est = self.est
+        if type(s) is BaroSample:
+            est.on_baro(s.t_us, s.pressure_hpa, s.temperature_c)
+            return
         resets = est.counters.time_resets
-        if est.on_imu(t, m.xacc, m.yacc, m.zacc, m.xgyro, m.ygyro, m.zgyro, mx, my, mz):
-            self.out.update(est, t)
-            self.emit_due(t)
+        if feed(est, s):
+            self.out.update(est, s.t_us)
+            self.emit_due(s.t_us)
         if est.counters.time_resets != resets:
             self.out.reset()
             self._next_wind_us = self._next_hb_us = 0
@@ -120,9 +147,18 @@ class Firmware:
         return (
             f"balloon-fw: {c.imu_samples} IMU samples, {c.baro_samples} baro samples, "
             f"{c.rejected} rejected, {self.stats.bad_frames} bad frames, {self.other_messages} other messages, "
-            f"{c.duplicates} duplicates, "
-            f"{c.reordered} reordered, {c.gaps} gaps, {c.long_gaps} long gaps, "
+            f"{self.sampler.ignored} from other sensor instances, "
+            f"{c.duplicates + self.pipe.duplicates} duplicates, "
+            f"{c.reordered + self.pipe.reordered} reordered, {c.gaps} gaps, {c.long_gaps} long gaps, "
             f"resets: {c.time_resets} reboot, {c.numeric_resets} numeric, {c.taut_resets} taut, "
             f"{c.baro_resets} baro, {c.false_releases} false release, {c.mode_switches} mode switches, "
-            f"{self.wind_cov_sent} WIND_COV sent, final mode {self.est.mode_name}"
+            f"{self.wind_cov_sent} WIND_COV sent, final mode {self.est.mode_name}, "
+            f"filter at {self.est.cfg.imu_rate_hz:g} Hz{self._rate_note()}"
+            + (self.streams.summary() if self.streams is not None else "")
         )
+
+    def _rate_note(self) -> str:
+        d = self.pipe.decision
+        if d is None or d.stream_hz is None:
+            return ""
+        return f" (IMU stream {d.stream_hz:.1f} Hz{', averaged' if d.resample else ''})"

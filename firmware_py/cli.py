@@ -12,6 +12,7 @@ from firmware_py.app import Firmware
 from firmware_py.config import ConfigError, design_from_dict, load_toml
 from firmware_py.mavio import Decoder, open_link, open_sink, raw_messages, tlog_messages
 from firmware_py.state import FilterConfig
+from firmware_py.streams import StreamRequester
 
 
 def load_config(path: str | None):
@@ -23,6 +24,11 @@ def load_config(path: str | None):
     return design_from_dict(data), FilterConfig.from_dict(data.get("filter", {}))
 
 
+def rate_is_explicit(path: str | None) -> bool:
+    """Does the config set ``[filter] imu_rate_hz`` (else the rate is measured from the stream)?"""
+    return path is not None and "imu_rate_hz" in load_toml(path).get("filter", {})
+
+
 def replay_file(fw: Firmware, path: str) -> None:
     if path.endswith(".tlog"):
         for m in tlog_messages(path, fw.stats):
@@ -31,6 +37,7 @@ def replay_file(fw: Firmware, path: str) -> None:
         with open(path, "rb") as fh:
             for m in raw_messages(fh, fw.stats):
                 fw.handle(m)
+    fw.flush()
 
 
 def run_live(fw: Firmware, spec: str, stop) -> None:
@@ -38,6 +45,8 @@ def run_live(fw: Firmware, spec: str, stop) -> None:
     the wall clock when the sensors fall silent (accuracy then reflects the silence)."""
     link = open_link(spec)
     fw.sinks.append(link)  # like any vehicle, it also talks back on the link its sensors come from
+    # an autopilot on the link that does not stream its sensors fast enough is asked to (streams.py)
+    fw.streams = streams = StreamRequester(fw.mav, fw.sampler, fw.est.cfg.imu_rate_hz)
     dec = Decoder(fw.stats)
     last_rx = time.monotonic()
     last_emit = 0.0
@@ -49,9 +58,12 @@ def run_live(fw: Firmware, spec: str, stop) -> None:
                 last_rx = now
                 for m in dec.feed(data):
                     fw.handle(m)
+                    streams.on_message(m, now)
             elif now - last_rx > 0.5 and now - last_emit > 0.1:
                 fw.coast(now)
                 last_emit = now
+            for frame in streams.poll(now):
+                link.send(frame)
     finally:
         link.close()
 
@@ -72,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, OSError) as exc:
         print(f"balloon-fw: {exc}", file=sys.stderr)
         return 2
-    fw = Firmware(design, fcfg, sink)
+    fw = Firmware(design, fcfg, sink, rate_explicit=rate_is_explicit(args.config))
     stopping = []
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stopping.append(1))

@@ -11,6 +11,9 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+from pymavlink.dialects.v20 import common as mavlink
+
+from firmware_py.atmosphere import G0
 from firmware_py.control import Estimator
 
 
@@ -42,3 +45,134 @@ def feed(est: Estimator, s: Sample) -> bool:
         return est.on_imu(s.t_us, s.ax, s.ay, s.az, s.gx, s.gy, s.gz, s.mx, s.my, s.mz)
     est.on_baro(s.t_us, s.pressure_hpa, s.temperature_c)
     return False
+
+
+# ---------------------------------------------------------------------------------------------- MAVLink
+
+MSG_HIGHRES_IMU = mavlink.MAVLINK_MSG_ID_HIGHRES_IMU  # 105, PX4 and our simulator
+MSG_HIL_SENSOR = mavlink.MAVLINK_MSG_ID_HIL_SENSOR  # 107, PX4-style simulators
+MSG_SCALED_IMU = mavlink.MAVLINK_MSG_ID_SCALED_IMU  # 26, ArduPilot (and 116, 129: the 2nd and 3rd IMU)
+MSG_SCALED_IMU2 = mavlink.MAVLINK_MSG_ID_SCALED_IMU2
+MSG_SCALED_IMU3 = mavlink.MAVLINK_MSG_ID_SCALED_IMU3
+MSG_SCALED_PRESSURE = mavlink.MAVLINK_MSG_ID_SCALED_PRESSURE  # 29 (and 137, 143: the 2nd and 3rd barometer)
+MSG_SCALED_PRESSURE2 = mavlink.MAVLINK_MSG_ID_SCALED_PRESSURE2
+MSG_SCALED_PRESSURE3 = mavlink.MAVLINK_MSG_ID_SCALED_PRESSURE3
+HIGHRES_IMUS = (MSG_HIGHRES_IMU, MSG_HIL_SENSOR)
+SCALED_IMUS = (MSG_SCALED_IMU, MSG_SCALED_IMU2, MSG_SCALED_IMU3)
+IMU_MESSAGES = HIGHRES_IMUS + SCALED_IMUS
+PRESSURE_MESSAGES = (MSG_SCALED_PRESSURE, MSG_SCALED_PRESSURE2, MSG_SCALED_PRESSURE3)
+SENSOR_MESSAGES = frozenset(IMU_MESSAGES + PRESSURE_MESSAGES)
+
+ACC_GYRO_BITS = 0x3F  # HIGHRES_IMU / HIL_SENSOR fields_updated
+MAG_BITS = 0x1C0
+PRESSURE_BIT = 0x200
+TEMPERATURE_BIT = 0x1000
+NO_TEMPERATURE_C = 15.0  # a barometer sample before any thermometer reading: ISA sea level
+MILLI_G = G0 / 1000.0  # SCALED_IMU acceleration unit, m/s^2
+SWITCH_AFTER = 200  # IMU messages from other instances in a row (selected one silent): take the newest
+
+
+def scaled_imu_sample(m) -> ImuSample:
+    """SCALED_IMU / SCALED_IMU2 / SCALED_IMU3 in the estimator's units. ``xacc`` is milli-g of specific
+    force as the accelerometer measures it (level at rest zacc = -1000), ``xgyro`` mrad/s, ``xmag``
+    milligauss (all three 0: no magnetometer), ``time_boot_ms`` ms since the autopilot's boot."""
+    if m.xmag == 0 and m.ymag == 0 and m.zmag == 0:
+        mx = my = mz = math.nan
+    else:
+        mx, my, mz = m.xmag * 1e-3, m.ymag * 1e-3, m.zmag * 1e-3
+    return ImuSample(
+        m.time_boot_ms * 1000, m.xacc * MILLI_G, m.yacc * MILLI_G, m.zacc * MILLI_G,
+        m.xgyro * 1e-3, m.ygyro * 1e-3, m.zgyro * 1e-3, mx, my, mz,
+    )  # fmt: skip
+
+
+def scaled_pressure_sample(m) -> BaroSample:
+    """SCALED_PRESSURE / 2 / 3: ``press_abs`` hPa, ``temperature`` cdegC, ``time_boot_ms`` ms."""
+    return BaroSample(m.time_boot_ms * 1000, m.press_abs, m.temperature / 100.0)
+
+
+class MavlinkSampler:
+    """MAVLink messages -> samples: the one converter for live links, tlogs and raw captures.
+
+    One IMU and one barometer: the first IMU instance heard (message type, sender, ``id``) is used; the
+    others are counted in ``ignored``. (If the chosen one falls silent while another keeps talking for
+    ``SWITCH_AFTER`` messages, the other is taken and ``switched`` counts it.) The barometer is the one
+    inside the chosen HIGHRES_IMU / HIL_SENSOR when it carries one (``fields_updated``), else the first
+    SCALED_PRESSURE* instance heard. A message whose values are NaN or out of range still becomes a
+    sample: the estimator rejects and counts it."""
+
+    def __init__(self) -> None:
+        self.imu_key: tuple | None = None
+        self.baro_key: tuple | None = None
+        self.embedded_baro = False  # the chosen IMU message carries the barometer
+        self.ignored = 0
+        self.switched = 0
+        self._others = 0
+        self._last_temp_c = math.nan
+        self._last_mag: tuple[int, int, int] | None = None
+
+    @staticmethod
+    def is_sensor(msg) -> bool:
+        return msg.get_msgId() in SENSOR_MESSAGES
+
+    def _key(self, msg, mid: int) -> tuple:
+        return (mid, msg.get_srcSystem(), msg.get_srcComponent(), getattr(msg, "id", 0) if mid in HIGHRES_IMUS else 0)
+
+    def _chosen_imu(self, key: tuple) -> bool:
+        if self.imu_key is None:
+            self.imu_key = key
+        if key == self.imu_key:
+            self._others = 0
+            return True
+        self._others += 1
+        if self._others >= SWITCH_AFTER:
+            self.imu_key, self._others, self.embedded_baro, self._last_mag = key, 0, False, None
+            self.switched += 1
+            return True
+        self.ignored += 1
+        return False
+
+    def convert(self, msg) -> tuple[Sample, ...] | None:
+        """The samples in one message (a HIGHRES_IMU may hold a barometer and an IMU sample, in that
+        order); () for a sensor message that is not used; None for a message that is not a sensor's."""
+        mid = msg.get_msgId()
+        if mid in HIGHRES_IMUS:
+            return self._highres(msg) if self._chosen_imu(self._key(msg, mid)) else ()
+        if mid in SCALED_IMUS:
+            if not self._chosen_imu(self._key(msg, mid)):
+                return ()
+            s = scaled_imu_sample(msg)
+            mag = (msg.xmag, msg.ymag, msg.zmag)
+            if mag == self._last_mag:  # the autopilot repeats its last magnetometer reading: not a new sample
+                s = s._replace(mx=math.nan, my=math.nan, mz=math.nan)
+            self._last_mag = mag
+            return (s,)
+        if mid in PRESSURE_MESSAGES:
+            key = self._key(msg, mid)
+            if self.baro_key is None:
+                self.baro_key = key
+            if self.embedded_baro or key != self.baro_key:
+                self.ignored += 1
+                return ()
+            return (scaled_pressure_sample(msg),)
+        return None
+
+    def _highres(self, m) -> tuple[Sample, ...]:
+        bits = m.fields_updated or 0xFFFF  # 0: a sender that does not fill the field
+        t = m.time_usec
+        out: list[Sample] = []
+        if bits & PRESSURE_BIT:
+            self.embedded_baro = True
+            if bits & TEMPERATURE_BIT:
+                self._last_temp_c = m.temperature
+            temp = self._last_temp_c
+            out.append(BaroSample(t, m.abs_pressure, temp if math.isfinite(temp) else NO_TEMPERATURE_C))
+        if bits & ACC_GYRO_BITS != ACC_GYRO_BITS:  # no new accelerometer + gyro: a sample the estimator rejects
+            out.append(ImuSample(t, math.nan, math.nan, math.nan, math.nan, math.nan, math.nan))
+            return tuple(out)
+        if bits & MAG_BITS == MAG_BITS:
+            mx, my, mz = m.xmag, m.ymag, m.zmag
+        else:
+            mx = my = mz = math.nan
+        out.append(ImuSample(t, m.xacc, m.yacc, m.zacc, m.xgyro, m.ygyro, m.zgyro, mx, my, mz))
+        return tuple(out)
