@@ -17,6 +17,7 @@ from firmware_py.control import Estimator
 from firmware_py.samples import BaroSample, Sample, feed
 from firmware_py.smoother import SmootherRecorder
 from firmware_py.state import MODE_GROUND, N_STATES, POS_D, POS_E, POS_N, WIND_E, WIND_N, FilterConfig
+from firmware_py.streams import InputPipeline
 from ground_station.product import (
     FLAG_NO_BARO,
     FLAG_SEGMENT_START,
@@ -40,47 +41,74 @@ def reprocess(
     samples: Iterable[Sample],
     design: Design,
     cfg: FilterConfig | None = None,
+    rate_explicit: bool = True,
     grid_hz: float = GRID_HZ,
-    progress: Callable[[str, int, int], None] | None = None,
-    total_samples: int = 0,
+    progress: Callable[[int], None] | None = None,
+    warn: Callable[[str], None] | None = None,
 ) -> WindProduct:
-    """Forward filter + backward smoother over ``samples`` (time order, as logged).
+    """Forward filter + backward smoother over ``samples`` (as logged, in order).
 
-    ``progress(phase, done, total)`` is called now and then ("filter" over samples, "smoother" over
-    grid points)."""
-    cfg = dataclasses.replace(cfg or FilterConfig(), float32=False)  # the smoother needs float64
-    est = Estimator(design, cfg)
-    every = max(1, round(cfg.imu_rate_hz / grid_hz))
+    The samples pass the live firmware's input pipeline (firmware_py/streams.py: the IMU rate measured
+    from the stream unless ``rate_explicit``, a faster stream averaged down to the filter's step), so
+    the forward pass is what the firmware computes. ``progress(n)`` is called every 10 000 samples
+    with the count so far; ``warn`` gets the pipeline's one-line warnings."""
+    cfg = dataclasses.replace(cfg or FilterConfig(), float32=False)  # the smoother works in float64
+    pipe = InputPipeline(cfg, rate_explicit)
     rec = SmootherRecorder(N_STATES)
-    est.ekf.recorder = rec
-    ekf = est.ekf
-    sig = _signature(est)
-    last_grid = 0
-    baro_seen = False
-    press = temp = math.nan
-    modes: list[int] = []
-    air: list[tuple[float, float]] = []
+    run = _Run(design, rec, grid_hz)
     for i, s in enumerate(samples):
+        for t in pipe.push(s):
+            run.feed(pipe, t, warn)
+        if progress is not None and i % 10_000 == 0:
+            progress(i)
+    for t in pipe.flush():
+        run.feed(pipe, t, warn)
+    sm = rec.smooth()
+    return _product(sm, np.array(run.modes, np.int8), np.array(run.air).reshape(-1, 2), run.baro_seen)
+
+
+class _Run:
+    """The forward pass: the estimator (built once the input pipeline has chosen the rate), the
+    segment bookkeeping, and what the product needs beside the state at each grid point."""
+
+    def __init__(self, design: Design, rec: SmootherRecorder, grid_hz: float) -> None:
+        self.design, self.rec, self.grid_hz = design, rec, grid_hz
+        self.est: Estimator | None = None
+        self.every = 1
+        self.sig: tuple = ()
+        self.last_grid = 0
+        self.baro_seen = False
+        self.press = self.temp = math.nan
+        self.modes: list[int] = []
+        self.air: list[tuple[float, float]] = []
+
+    def feed(self, pipe: InputPipeline, s: Sample, warn) -> None:
+        est = self.est
+        if est is None:
+            est = self.est = Estimator(self.design, pipe.cfg)
+            est.ekf.recorder = self.rec
+            self.every = max(1, round(pipe.cfg.imu_rate_hz / self.grid_hz))
+            self.sig = _signature(est)
+            if pipe.decision.warning and warn is not None:
+                warn(pipe.decision.warning)
         if type(s) is BaroSample:
-            baro_seen = True
-            press, temp = s.pressure_hpa, s.temperature_c
+            self.baro_seen = True
+            self.press, self.temp = s.pressure_hpa, s.temperature_c
             feed(est, s)
-            continue
+            return
         advanced = feed(est, s)
         now = _signature(est)
-        if now != sig:
-            rec.broken()
-            sig = now
-            last_grid = est.step // every - 1  # a grid point right after the break starts the segment
-        if advanced and est.step // every > last_grid:
-            last_grid = est.step // every
-            rec.grid_point(est.t_last_us, ekf.x, ekf.P)
-            modes.append(ekf.mode)
-            air.append((press, temp))
-        if progress is not None and i % 20000 == 0:
-            progress("filter", i, total_samples)
-    sm = rec.smooth(None if progress is None else lambda d, n: progress("smoother", d, n))
-    return _product(sm, np.array(modes, np.int8), np.array(air).reshape(-1, 2), baro_seen)
+        every = self.every
+        if now != self.sig:
+            self.rec.broken()
+            self.sig = now
+            self.last_grid = est.step // every - 1  # a grid point right after the cut starts the segment
+        if advanced and est.step // every > self.last_grid:
+            self.last_grid = est.step // every
+            ekf = est.ekf
+            self.rec.grid_point(est.t_last_us, ekf.x, ekf.P)
+            self.modes.append(ekf.mode)
+            self.air.append((self.press, self.temp))
 
 
 def _product(sm, modes: np.ndarray, air: np.ndarray, baro_seen: bool) -> WindProduct:
