@@ -87,14 +87,14 @@ def _wind_vars(n, e, sn, se, suffix: str, what: str) -> dict:
         if std and sname:
             attrs["standard_name"] = sname
         if anc:
-            attrs["ancillary_variables"] = f"{name}_uncertainty{suffix}" + (" flags" if std else "")
+            attrs["ancillary_variables"] = f"{name}{suffix}_uncertainty" + (" flags" if std else "")
         return f"{name}{suffix}", data, attrs
 
     def unc(name, data, units, long, sname):
         attrs = {"long_name": f"1-sigma uncertainty of the {long}, {what}", "units": units}
         if std:
             attrs["standard_name"] = f"{sname} standard_error"
-        return f"{name}_uncertainty{suffix}", data, attrs
+        return f"{name}{suffix}_uncertainty", data, attrs
 
     out = [
         var("eastward_wind", e, "m s-1", "eastward wind (air velocity toward east)", "eastward_wind"),
