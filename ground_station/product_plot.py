@@ -95,12 +95,16 @@ def plot_product(product: WindProduct, path: str, title: str | None = None) -> N
             ax.axvspan(edges[a], edges[min(b, len(x) - 1)], color=colour, lw=0, zorder=0)
     mode_patches = [Patch(color=c, label=f"mode: {name}") for k, name, c in MODE_STYLE if np.any(modes == k)]
 
-    # speed
-    ax_s.fill_between(x, speed - sig_s, speed + sig_s, color="C0", alpha=0.25, lw=0, label="smoothed ±1σ")
-    ax_s.plot(x, c_speed, color="C1", lw=0.7, alpha=0.8, label="causal (real-time)")
-    ax_s.plot(x, speed, color="C0", lw=1.0, label="smoothed (zero-lag)")
+    # speed; where the flags say the wind is unknown, the estimate is drawn grey
+    k = lambda a: np.where(known, a, np.nan)  # noqa: E731
+    ax_s.fill_between(x, k(speed - sig_s), k(speed + sig_s), color="C0", alpha=0.25, lw=0, label="smoothed ±1σ")
+    ax_s.plot(x, k(c_speed), color="C1", lw=0.7, alpha=0.8, label="causal (real-time)")
+    ax_s.plot(x, k(speed), color="C0", lw=1.0, label="smoothed (zero-lag)")
+    if not known.all():
+        ax_s.plot(x, np.where(known, np.nan, speed), color="0.55", lw=0.7, label="smoothed, flagged wind unknown")
     ax_s.set_ylabel("wind speed [m/s]")
-    top = np.nanpercentile(np.r_[speed[good], c_speed[good]], 99.5) if good.any() else 1.0
+    shown = good if good.any() else np.isfinite(speed)
+    top = np.nanpercentile(np.r_[speed[shown], c_speed[shown]], 99.5) if shown.any() else 1.0
     ax_s.set_ylim(0, 1.25 * top + 0.1)
     h, _ = ax_s.get_legend_handles_labels()
     ax_s.legend(handles=h + mode_patches, loc="upper left", fontsize=8, ncol=3, framealpha=0.9)
@@ -108,13 +112,15 @@ def plot_product(product: WindProduct, path: str, title: str | None = None) -> N
     ax_s.tick_params(labelbottom=False)
 
     # direction, kept continuous around its circular mean
-    centre = _circular_mean_deg(dirs[good])
+    centre = _circular_mean_deg(dirs[shown])
     d, cd = _around(dirs, centre), _around(c_dirs, centre)
-    ax_d.fill_between(x, d - sig_d, d + sig_d, color="C0", alpha=0.25, lw=0, label="smoothed ±1σ")
-    ax_d.plot(x, cd, color="C1", lw=0.7, alpha=0.8, label="causal (real-time)")
-    ax_d.plot(x, d, color="C0", lw=1.0, label="smoothed (zero-lag)")
-    if good.any():
-        lo, hi = np.nanpercentile(np.r_[d[good], cd[good]], [0.5, 99.5])
+    ax_d.fill_between(x, k(d - sig_d), k(d + sig_d), color="C0", alpha=0.25, lw=0, label="smoothed ±1σ")
+    ax_d.plot(x, k(cd), color="C1", lw=0.7, alpha=0.8, label="causal (real-time)")
+    ax_d.plot(x, k(d), color="C0", lw=1.0, label="smoothed (zero-lag)")
+    if not known.all():
+        ax_d.plot(x, np.where(known, np.nan, d), color="0.55", lw=0.7, label="smoothed, flagged wind unknown")
+    if shown.any():
+        lo, hi = np.nanpercentile(np.r_[d[shown], cd[shown]], [0.5, 99.5])
         pad = max(10.0, 0.15 * (hi - lo))
         ax_d.set_ylim(lo - pad, hi + pad)
     ax_d.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v % 360:.0f}°"))
@@ -132,7 +138,7 @@ def plot_product(product: WindProduct, path: str, title: str | None = None) -> N
         mn, me = np.mean(n[run]), np.mean(e[run])
         mag = np.hypot(mn, me) or 1.0
         un, ue = mn / mag, me / mag
-        for (wn, we, label, colour) in ((n, e, "smoothed", "C0"), (cn, ce, "causal", "C1")):
+        for wn, we, label, colour in ((cn, ce, "causal", "C1"), (n, e, "smoothed", "C0")):  # smoothed on top
             along = wn[run] * un + we[run] * ue
             cross = -wn[run] * ue + we[run] * un
             for comp, ls, name in ((along, "-", "along-wind"), (cross, "--", "cross-wind")):
@@ -151,12 +157,12 @@ def plot_product(product: WindProduct, path: str, title: str | None = None) -> N
     ax_p.grid(alpha=0.3, which="both")
 
     _wind_rose(ax_r, dirs[good], speed[good])
-    mean_speed = np.nanmean(speed[good]) if good.any() else np.nan
     when = (np.datetime_as_string(x[0], unit="s") + " UTC") if p.utc_start_s is not None and len(x) else "sensor time"
     src = p.attrs.get("source_log", "")
     span = float(p.time_s[-1] - p.time_s[0]) if len(x) else 0.0
+    speed_text = f"mean speed {np.mean(speed[good]):.2f} m/s" if good.any() else "wind unknown throughout (flags)"
     fig.suptitle(title or f"{src + ': ' if src else ''}wind from the tethered balloon, {when}, {span:.0f} s, "
-                 f"mean speed {mean_speed:.2f} m/s", fontsize=11)  # fmt: skip
+                 f"{speed_text}", fontsize=11)  # fmt: skip
     os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
     fig.savefig(path, dpi=90)
     plt.close(fig)
@@ -170,12 +176,14 @@ def _wind_rose(ax, dirs: np.ndarray, speed: np.ndarray) -> None:
     ax.set_theta_direction(-1)
     ax.set_title("wind rose (from), % of time", fontsize=9)
     if len(dirs) == 0:
+        ax.text(0.5, 0.5, "no known wind", ha="center", va="center", transform=ax.transAxes)
+        ax.set_yticks([])
         return
     width = 2 * np.pi / ROSE_SECTORS
     sector = np.floor(((dirs + 180.0 / ROSE_SECTORS) % 360.0) / (360.0 / ROSE_SECTORS)).astype(int) % ROSE_SECTORS
     top = float(np.nanmax(speed))
     step = max(0.5, float(np.ceil(top / 5 / 0.5) * 0.5))  # about 5 classes of a round width
-    edges = np.arange(0.0, top + step, step)
+    edges = np.arange(np.floor(float(np.nanmin(speed)) / step) * step, top + step, step)  # classes that occur
     cmap = matplotlib.colormaps["viridis"]
     bottom = np.zeros(ROSE_SECTORS)
     theta = np.arange(ROSE_SECTORS) * width
@@ -188,5 +196,5 @@ def _wind_rose(ax, dirs: np.ndarray, speed: np.ndarray) -> None:
     ax.set_xticks(np.radians(np.arange(0, 360, 45)), ["N", "NE", "E", "SE", "S", "SW", "W", "NW"])
     ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:.0f}%"))
     ax.tick_params(axis="y", labelsize=7)
-    ax.set_rlabel_position(float(np.argmin(bottom)) * 360.0 / ROSE_SECTORS)  # radial labels in the emptiest sector
+    ax.set_rlabel_position((float(np.argmax(bottom)) + ROSE_SECTORS / 2 + 0.5) * 360.0 / ROSE_SECTORS)  # opposite
     ax.legend(loc="upper left", bbox_to_anchor=(1.05, 1.0), fontsize=7, title="speed", title_fontsize=7)
