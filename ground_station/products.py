@@ -135,8 +135,10 @@ def to_dataset(product: WindProduct, history: str | None = None):
     vars_["air_temperature"] = (f(p.air_temperature_k), {"standard_name": "air_temperature", "long_name":
                                                          "air temperature at the balloon (thermometer)",
                                                          "units": "K"})  # fmt: skip
-    vars_["mode"] = (np.asarray(p.mode, np.int8), {
-        "long_name": "estimator mode", "flag_values": np.array(MODE_VALUES, np.int8), "flag_meanings": MODE_MEANINGS})
+    vars_["mode"] = (
+        np.asarray(p.mode, np.int8),
+        {"long_name": "estimator mode", "flag_values": np.array(MODE_VALUES, np.int8), "flag_meanings": MODE_MEANINGS},
+    )
     vars_["flags"] = (np.asarray(p.flags, np.int8), {
         "standard_name": "status_flag", "long_name": "estimator health flags (bit field)",
         "flag_masks": np.array(FLAG_MASKS, np.int8), "flag_meanings": FLAG_MEANINGS})  # fmt: skip

@@ -263,7 +263,7 @@ def test_write_products_writes_the_averages_as_csv_and_cf_netcdf(tmp_path):
         assert float(rows[0]["n_samples"]) == np.sum((p.time_s < 400) & (p.time_s >= 5) & np.isfinite(p.wind_n))
     with xr.open_dataset(tmp_path / "wind_avg_1s.nc") as ds:
         i = 100  # one 1-s period well inside the flight
-        sel = (p.time_s >= ds["time_bnds"].values[i, 0].astype("datetime64[ms]").astype(float) / 1e3 - UTC0 - 1e-6)
+        sel = p.time_s >= ds["time_bnds"].values[i, 0].astype("datetime64[ms]").astype(float) / 1e3 - UTC0 - 1e-6
         sel &= p.time_s < ds["time_bnds"].values[i, 1].astype("datetime64[ms]").astype(float) / 1e3 - UTC0 - 1e-6
         assert sel.sum() == 10
         assert float(ds["northward_wind"].values[i]) == pytest.approx(np.mean(p.wind_n[sel]), rel=1e-5)
