@@ -39,13 +39,29 @@ def _longest_finite_run(ok: np.ndarray) -> slice:
     return slice(*best)
 
 
-def _time_axis(p: WindProduct) -> tuple[np.ndarray, str]:
+def _time_axis(p: WindProduct):
+    """(sensor seconds -> plot x, x label): UTC datetimes when known, else time since boot."""
     t = np.asarray(p.time_s, float)
-    if p.utc_start_s is not None:
-        return (np.round((t + p.utc_start_s) * 1e3).astype("int64")).astype("datetime64[ms]"), "time (UTC)"
+    utc = p.utc_start_s
+    if utc is not None:
+        return lambda s: np.round((np.asarray(s) + utc) * 1e3).astype("int64").astype("datetime64[ms]"), "time (UTC)"
     if len(t) and t[-1] - t[0] > 1800:
-        return t / 60.0, "time since boot [min] (no UTC in the log)"
-    return t, "time since boot [s] (no UTC in the log)"
+        return lambda s: np.asarray(s) / 60.0, "time since boot [min] (no UTC in the log)"
+    return lambda s: np.asarray(s, float), "time since boot [s] (no UTC in the log)"
+
+
+def _ten_minute_means(ax, p: WindProduct, to_x, key: str, shift=None) -> None:
+    """The WMO 10-min means (the ``*_avg_10min`` product) as black steps."""
+    from ground_station.products import product_averages
+
+    a = product_averages(p, 600.0)
+    first = True
+    for t0, t1, v in zip(a["time_start_s"], a["time_end_s"], a[key]):
+        if np.isfinite(v):
+            t0, t1 = max(t0, p.time_s[0]), min(t1, p.time_s[-1])
+            v = shift(v) if shift else v
+            ax.plot(to_x([t0, t1]), [v, v], color="k", lw=1.6, label="10-min mean (WMO)" if first else None)
+            first = False
 
 
 def _circular_mean_deg(d: np.ndarray) -> float:
@@ -70,7 +86,8 @@ def plot_product(product: WindProduct, path: str, title: str | None = None) -> N
     from ground_station.report import psd
 
     p = product
-    x, xlabel = _time_axis(p)
+    to_x, xlabel = _time_axis(p)
+    x = to_x(p.time_s)
     n, e = np.asarray(p.wind_n, float), np.asarray(p.wind_e, float)
     cn, ce = np.asarray(p.causal_n, float), np.asarray(p.causal_e, float)
     speed, c_speed = np.hypot(n, e), np.hypot(cn, ce)
@@ -102,6 +119,7 @@ def plot_product(product: WindProduct, path: str, title: str | None = None) -> N
     ax_s.plot(x, k(speed), color="C0", lw=1.0, label="smoothed (zero-lag)")
     if not known.all():
         ax_s.plot(x, np.where(known, np.nan, speed), color="0.55", lw=0.7, label="smoothed, flagged wind unknown")
+    _ten_minute_means(ax_s, p, to_x, "scalar_mean_wind_speed")
     ax_s.set_ylabel("wind speed [m/s]")
     shown = good if good.any() else np.isfinite(speed)
     top = np.nanpercentile(np.r_[speed[shown], c_speed[shown]], 99.5) if shown.any() else 1.0
@@ -119,6 +137,7 @@ def plot_product(product: WindProduct, path: str, title: str | None = None) -> N
     ax_d.plot(x, k(d), color="C0", lw=1.0, label="smoothed (zero-lag)")
     if not known.all():
         ax_d.plot(x, np.where(known, np.nan, d), color="0.55", lw=0.7, label="smoothed, flagged wind unknown")
+    _ten_minute_means(ax_d, p, to_x, "vector_mean_wind_from_direction", lambda v: _around(v, centre))
     if shown.any():
         lo, hi = np.nanpercentile(np.r_[d[shown], cd[shown]], [0.5, 99.5])
         pad = max(10.0, 0.15 * (hi - lo))
@@ -147,7 +166,7 @@ def plot_product(product: WindProduct, path: str, title: str | None = None) -> N
         ax_p.axvline(BAND_HZ, ls=":", color="k", lw=1.0)
         ax_p.annotate(f"{BAND_HZ} Hz", (BAND_HZ, 0.97), xycoords=("data", "axes fraction"), ha="left", va="top",
                       fontsize=8, xytext=(3, 0), textcoords="offset points")  # fmt: skip
-        ax_p.legend(loc="lower left", fontsize=8, ncol=2)
+        ax_p.legend(loc="upper right", fontsize=8, ncol=2)
         ax_p.set_title(f"Welch spectra over {t[-1] - t[0]:.0f} s (longest stretch with a known wind)", fontsize=9)
     else:
         ax_p.text(0.5, 0.5, "too little known wind for a spectrum", ha="center", va="center",
