@@ -163,6 +163,8 @@ def plot_product(product: WindProduct, path: str, title: str | None = None) -> N
             for comp, ls, name in ((along, "-", "along-wind"), (cross, "--", "cross-wind")):
                 f, pxx = psd(comp, fs)
                 ax_p.loglog(f[1:], pxx[1:], ls=ls, color=colour, lw=1.0, label=f"{label}, {name}")
+        lo, hi = ax_p.get_ylim()
+        ax_p.set_ylim(max(lo, hi * 1e-9), hi)  # ten decades at most: a filter's numerical floor is not data
         ax_p.axvline(BAND_HZ, ls=":", color="k", lw=1.0)
         ax_p.annotate(f"{BAND_HZ} Hz", (BAND_HZ, 0.97), xycoords=("data", "axes fraction"), ha="left", va="top",
                       fontsize=8, xytext=(3, 0), textcoords="offset points")  # fmt: skip
