@@ -29,7 +29,12 @@ def psd(x: np.ndarray, fs: float, segment_s: float = 200.0) -> tuple[np.ndarray,
 
 
 def report(wind_path: str, truth_path: str, plot_path: str | None = None, start_s: float = 120.0) -> Score:
-    est = as_arrays(read_records(wind_path))
+    if wind_path.endswith(".nc"):  # a balloon-gs reprocess product: its smoothed wind and accuracy
+        from ground_station.products import read_netcdf_wind
+
+        est = read_netcdf_wind(wind_path)
+    else:
+        est = as_arrays(read_records(wind_path))
     if len(est["time_s"]) < 10:
         raise ValueError(f"{wind_path}: fewer than 10 WIND_COV messages")
     truth = read_truth_csv(truth_path)
