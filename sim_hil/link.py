@@ -58,7 +58,7 @@ class Lockstep:
 
 
 def stream(sim: Simulation, enc: SensorPacketEncoder, spec: str, speed: float, lockstep: bool,
-           window_s: float = 0.5, timeout_s: float = 2.0, stop=lambda: False) -> int:  # fmt: skip
+           window_s: float = 0.5, timeout_s: float = 2.0, stop=lambda: False, progress=None) -> int:  # fmt: skip
     """Send every sample's frames to ``spec``; returns the number of IMU samples sent."""
     link = open_link(spec)
     ls = Lockstep(link, window_s, timeout_s)
@@ -79,6 +79,8 @@ def stream(sim: Simulation, enc: SensorPacketEncoder, spec: str, speed: float, l
             for frame in enc.encode(s):
                 link.send(frame)
             n += 1
+            if progress is not None:
+                progress.done = s.time_usec * 1e-6
     finally:
         link.close()
     if lockstep and ls.timeouts:
@@ -86,10 +88,11 @@ def stream(sim: Simulation, enc: SensorPacketEncoder, spec: str, speed: float, l
     return n
 
 
-def stream_udp(sim: Simulation, enc: SensorPacketEncoder, spec: str, args) -> int:
+def stream_udp(sim: Simulation, enc: SensorPacketEncoder, spec: str, args, progress=None) -> int:
     import signal
 
     stopping: list[int] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stopping.append(1))
-    return stream(sim, enc, spec, args.speed, args.lockstep, args.lockstep_window, 2.0, lambda: bool(stopping))
+    return stream(sim, enc, spec, args.speed, args.lockstep, args.lockstep_window, 2.0, lambda: bool(stopping),
+                  progress)  # fmt: skip
