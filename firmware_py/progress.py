@@ -13,6 +13,7 @@ Three ways to show it, chosen once from the stream:
 - not a terminal (a pipe, a log file): one plain line every ``interval_s`` (default 10 s),
   ``label: 35 % (1260/3600 s simulated), 12 s elapsed, ~22 s left | status``;
 - ``quiet``: nothing.
+The environment variable BALLOON_STATUS_INTERVAL_S overrides ``interval_s`` for every program.
 ``log(line)`` prints a line that stays (above the bar on a terminal; dropped when quiet). ``update``
 only stores numbers; a background thread draws, so a hot loop pays an attribute store.
 The program's own final summary is not this module's business: print it after ``close``.
@@ -26,6 +27,8 @@ import sys
 import threading
 import time
 from typing import TextIO
+
+INTERVAL_ENV = "BALLOON_STATUS_INTERVAL_S"  # overrides every program's status-line period (tests, log files)
 
 
 def stream_is_terminal(stream: TextIO) -> bool:
@@ -63,7 +66,7 @@ class Progress:
     ) -> None:
         self.label, self.total, self.unit = label, total, unit
         self.stream = stream if stream is not None else sys.stderr
-        self.interval_s = interval_s
+        self.interval_s = float(os.environ.get(INTERVAL_ENV, interval_s))
         if quiet:
             self.mode = "quiet"
         elif terminal if terminal is not None else stream_is_terminal(self.stream):
