@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 import time
 from dataclasses import asdict
 from multiprocessing import Pool
@@ -30,6 +29,7 @@ from multiprocessing import Pool
 import numpy as np
 
 from benchmarks.common import attitude_errors, fly, response_flight, score_flight
+from firmware_py.progress import Progress
 from ground_station.score import describe
 
 DEFAULT_SCENARIOS = (
@@ -228,7 +228,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--scenarios", nargs="+", default=list(DEFAULT_SCENARIOS), metavar="NAME",
                     help="scenario names (sim_hil.scenarios.SCENARIOS, or " + ", ".join(variants()) + ")")  # fmt: skip
-    ap.add_argument("--quiet", action="store_true", help="no per-flight progress lines on stderr")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar / per-flight lines on stderr")
     ap.add_argument("--json", metavar="FILE", help="write every flight's results here")
     args = ap.parse_args(argv)
 
@@ -239,11 +239,12 @@ def main(argv: list[str] | None = None) -> None:
         print(f"note: skipping '{n}': not in sim_hil.scenarios.SCENARIOS")
     jobs = [(n, s, args.duration) for n in names for s in range(1, args.seeds + 1)]
     results = []
-    with Pool(max(1, args.jobs)) as pool:
+    with Pool(max(1, args.jobs)) as pool, Progress("bench_accuracy", total=len(jobs), unit="flights",
+                                                   quiet=args.quiet) as bar:  # fmt: skip
         for k, r in enumerate(pool.imap_unordered(one, jobs), 1):
             results.append(r)
-            if not args.quiet:
-                print(progress_line(k, len(jobs), r), file=sys.stderr, flush=True)
+            bar.log(progress_line(k, len(jobs), r))
+            bar.update(k, f"last: {r['scenario']} seed {r['seed']}")
     results.sort(key=lambda r: (names.index(r["scenario"]), r["seed"]))
 
     print(f"{args.seeds} seeds x {args.duration:.0f} s, metrics after {START_S:.0f} s (mean over seeds, [worst])")

@@ -8,6 +8,8 @@ filter's step), exactly as post-flight reprocessing does. Everything else is cou
 
 from __future__ import annotations
 
+import math
+
 from pymavlink.dialects.v20 import common as mavlink
 
 from firmware_py.config import Design
@@ -20,6 +22,8 @@ from firmware_py.streams import InputPipeline, print_warning
 
 FW_SYSID = 1
 FW_COMPID = mavlink.MAV_COMP_ID_AUTOPILOT1
+SENSOR_BITS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+               | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE)  # fmt: skip
 
 
 class Firmware:
@@ -121,6 +125,22 @@ class Firmware:
             mavlink.MAV_STATE_ACTIVE if self.est.initialised else mavlink.MAV_STATE_STANDBY,
         ))  # fmt: skip
         self._send(frame, t_us)
+        self.sys_status(t_us)
+
+    def sys_status(self, t_us: int) -> None:
+        """SYS_STATUS with each HEARTBEAT: the health a ground station (or a lockstep sender) shows.
+        ``drop_rate_comm`` = input packets lost (c%), ``errors_comm`` = corrupt input frames,
+        ``errors_count1`` = input packets lost, ``errors_count2`` = filter resets (reboot + numeric +
+        taut + baro), ``errors_count3`` = long input gaps, ``errors_count4`` = rejected samples."""
+        c, st = self.est.counters, self.stats
+        sensors = SENSOR_BITS
+        resets = c.time_resets + c.numeric_resets + c.taut_resets + c.baro_resets
+        frame = pack(self.mav, self.mav.sys_status_encode(
+            sensors, sensors, sensors, 0, 0xFFFF, -1, -1, min(round(10000 * st.lost_fraction()), 10000),
+            min(st.bad_frames, 0xFFFF), min(st.lost, 0xFFFF), min(resets, 0xFFFF), min(c.long_gaps, 0xFFFF),
+            min(c.rejected, 0xFFFF),
+        ))  # fmt: skip
+        self._send(frame, t_us)
 
     def wind_cov(self, t_us: int) -> None:
         self._send(pack(self.mav, self.mav.wind_cov_encode(*self.out.fields(self.est))), t_us)
@@ -153,7 +173,8 @@ class Firmware:
             f"resets: {c.time_resets} reboot, {c.numeric_resets} numeric, {c.taut_resets} taut, "
             f"{c.baro_resets} baro, {c.false_releases} false release, {c.mode_switches} mode switches, "
             f"{self.wind_cov_sent} WIND_COV sent, final mode {self.est.mode_name}, "
-            f"filter at {self.est.cfg.imu_rate_hz:g} Hz{self._rate_note()}"
+            f"filter at {self.est.cfg.imu_rate_hz:g} Hz{self._rate_note()}, "
+            f"input packets {self.stats.loss_summary()}"
             + (self.streams.summary() if self.streams is not None else "")
         )
 
@@ -162,3 +183,14 @@ class Firmware:
         if d is None or d.stream_hz is None:
             return ""
         return f" (IMU stream {d.stream_hz:.1f} Hz{', averaged' if d.resample else ''})"
+
+    def status(self) -> str:
+        """The estimate at a glance (the live status line): mode, wind, accuracy, input loss."""
+        est = self.est
+        if not est.initialised:
+            return f"waiting for the sensors, {self.stats.lost} lost"
+        wn, we = est.wind()
+        frm = math.degrees(math.atan2(-we, -wn)) % 360.0
+        return (f"mode {est.mode_name}, wind {math.hypot(wn, we):.1f} m/s from {frm:03.0f} deg "
+                f"\u00b1{est.ekf.wind_accuracy():.2f}, {self.stats.lost} lost "
+                f"({100 * self.stats.lost_fraction():.1f} %), {est.counters.long_gaps} long gaps")  # fmt: skip

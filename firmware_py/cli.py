@@ -11,6 +11,7 @@ import time
 from firmware_py.app import Firmware
 from firmware_py.config import ConfigError, design_from_dict, load_toml
 from firmware_py.mavio import Decoder, open_link, open_sink, raw_messages, tlog_messages
+from firmware_py.progress import Progress, RateMeter
 from firmware_py.state import FilterConfig
 from firmware_py.streams import StreamRequester
 
@@ -29,20 +30,31 @@ def rate_is_explicit(path: str | None) -> bool:
     return path is not None and "imu_rate_hz" in load_toml(path).get("filter", {})
 
 
-def replay_file(fw: Firmware, path: str) -> None:
-    if path.endswith(".tlog"):
-        for m in tlog_messages(path, fw.stats):
-            fw.handle(m)
+def replay_file(fw: Firmware, path: str, progress: Progress | None = None) -> None:
+    tlog = path.endswith(".tlog")
+    st = fw.stats
+    if tlog:
+        msgs = tlog_messages(path, st)
     else:
-        with open(path, "rb") as fh:
-            for m in raw_messages(fh, fw.stats):
-                fw.handle(m)
+        fh = open(path, "rb")
+        msgs = raw_messages(fh, st)
+    try:
+        for k, m in enumerate(msgs):
+            fw.handle(m)
+            if progress is not None and k % 1000 == 0:
+                # file position: the frames' bytes (+ the tlog's 8-byte record headers) and the garbage
+                progress.done = (st.bytes + st.garbage_bytes + (8 * (st.frames + st.bad_frames) if tlog else 0)) / 1e6
+                progress.status = fw.status()
+    finally:
+        if not tlog:
+            fh.close()
     fw.flush()
 
 
-def run_live(fw: Firmware, spec: str, stop) -> None:
+def run_live(fw: Firmware, spec: str, stop, progress: Progress | None = None) -> None:
     """Until stopped: decode what arrives; keep the 1 Hz heartbeat and the WIND_COV stream going on
-    the wall clock when the sensors fall silent (accuracy then reflects the silence)."""
+    the wall clock when the sensors fall silent (accuracy then reflects the silence). Once a second the
+    status (input rate, mode, wind, accuracy, lost) goes to ``progress``."""
     link = open_link(spec)
     fw.sinks.append(link)  # like any vehicle, it also talks back on the link its sensors come from
     # an autopilot on the link that does not stream its sensors fast enough is asked to (streams.py)
@@ -50,6 +62,8 @@ def run_live(fw: Firmware, spec: str, stop) -> None:
     dec = Decoder(fw.stats)
     last_rx = time.monotonic()
     last_emit = 0.0
+    next_status = last_rx + 1.0
+    frames, imu = RateMeter(), RateMeter()
     try:
         while not stop():
             data = link.recv(0.05)
@@ -64,6 +78,11 @@ def run_live(fw: Firmware, spec: str, stop) -> None:
                 last_emit = now
             for frame in streams.poll(now):
                 link.send(frame)
+            if progress is not None and now >= next_status:
+                next_status = now + 1.0
+                silent = f", silent {now - last_rx:.0f} s" if now - last_rx > 2.0 else ""
+                progress.update(fw.stats.frames, f"in {frames.rate(now, fw.stats.frames):.0f} msg/s "
+                                f"({imu.rate(now, fw.est.counters.imu_samples):.0f} IMU/s){silent}, {fw.status()}")
     finally:
         link.close()
 
@@ -73,6 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--in", dest="source", required=True, help=".tlog, raw capture, udpin:/udpout:, serial port")
     ap.add_argument("--out", dest="sink", help="udpout:HOST:PORT or FILE.tlog for WIND_COV + HEARTBEAT")
     ap.add_argument("--config", help="TOML design file (the same one balloon-sim reads)")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar / live status (the summary stays)")
     args = ap.parse_args(argv)
     try:
         design, fcfg = load_config(args.config)
@@ -88,15 +108,23 @@ def main(argv: list[str] | None = None) -> int:
     stopping = []
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stopping.append(1))
+    is_file = os.path.isfile(args.source)
+    if is_file:
+        bar = Progress("balloon-fw", total=os.path.getsize(args.source) / 1e6, unit="MB", quiet=args.quiet)
+    else:
+        bar = Progress("balloon-fw", unit="frames", quiet=args.quiet, interval_s=5.0)
     try:
-        if os.path.isfile(args.source):
-            replay_file(fw, args.source)
+        if is_file:
+            replay_file(fw, args.source, bar)
+            bar.done = bar.total
         else:
-            run_live(fw, args.source, lambda: bool(stopping))
+            run_live(fw, args.source, lambda: bool(stopping), bar)
     except ValueError as exc:
+        bar.close()
         print(f"balloon-fw: {exc}", file=sys.stderr)
         return 2
     finally:
+        bar.close()
         if sink is not None:
             sink.close()
         print(fw.summary(), file=sys.stderr)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import socket
 import struct
 import time
+from collections import deque
 from collections.abc import Iterator
 from typing import BinaryIO
 
@@ -24,23 +25,104 @@ def pack(mav, msg) -> bytes:
     return frame
 
 
+class SenderSeq:
+    """One sender's (system, component) MAVLink sequence numbers: packets received, lost, late and
+    duplicated. The 8-bit sequence is unwrapped into a packet index: a packet up to 127 ahead of the
+    newest is new (the ones skipped are counted lost), one up to 128 behind is late. A late packet that
+    fills a hole within the last 128 is "reordered" and no longer lost; any other late one is a
+    duplicate. A run of RESYNC_AFTER such packets in a row is a sender that restarted: follow it."""
+
+    __slots__ = ("received", "lost", "reordered", "duplicates", "restarts", "_newest", "_holes", "_behind")
+    WINDOW = 128
+    RESYNC_AFTER = 4
+
+    def __init__(self) -> None:
+        self.received = self.lost = self.reordered = self.duplicates = self.restarts = 0
+        self._newest = -1  # unwrapped index of the newest packet
+        self._holes: deque[int] = deque()  # unwrapped indices counted lost, ascending, within WINDOW
+        self._behind = 0
+
+    def see(self, seq: int) -> int:
+        """Account for one packet; returns the change in the lost count (+n for a hole, -1 when a late
+        packet fills one)."""
+        self.received += 1
+        newest = self._newest
+        if newest < 0:
+            self._newest = seq
+            return 0
+        ahead = (seq - newest) % 256
+        if ahead == 1:  # the usual case
+            self._newest = newest + 1
+            self._behind = 0
+            holes = self._holes
+            while holes and holes[0] <= newest + 1 - self.WINDOW:
+                holes.popleft()
+            return 0
+        if 0 < ahead < self.WINDOW:
+            holes = self._holes
+            holes.extend(range(newest + 1, newest + ahead))
+            self._newest = newest = newest + ahead
+            while holes and holes[0] <= newest - self.WINDOW:
+                holes.popleft()
+            self._behind = 0
+            self.lost += ahead - 1
+            return ahead - 1
+        index = newest - (256 - ahead) % 256  # ahead == 0 or >= WINDOW: this or an earlier packet again
+        if index in self._holes:
+            self._holes.remove(index)
+            self.reordered += 1
+            self.lost -= 1
+            self._behind = 0
+            return -1
+        self.duplicates += 1
+        self._behind += 1
+        if self._behind >= self.RESYNC_AFTER:  # not a stray copy: the sender started again
+            self.restarts += 1
+            self.duplicates -= self.RESYNC_AFTER  # they were the restarted sender's new packets
+            self._newest = newest + 256 + (seq - newest) % 256  # a fresh index range (index = seq mod 256)
+            self._holes.clear()
+            self._behind = 0
+        return 0
+
+
 class LinkStats:
-    __slots__ = ("bytes", "frames", "bad_frames", "garbage_bytes", "lost", "_last_seq")
+    """What came over one link: bytes, frames, corrupt frames, garbage, and per sender (system,
+    component) the packets received, lost, reordered and duplicated (``SenderSeq``). ``lost`` is the
+    total over the senders."""
+
+    __slots__ = ("bytes", "frames", "bad_frames", "garbage_bytes", "lost", "senders")
 
     def __init__(self) -> None:
         self.bytes = self.frames = self.bad_frames = self.garbage_bytes = self.lost = 0
-        self._last_seq: dict[tuple[int, int], int] = {}
+        self.senders: dict[tuple[int, int], SenderSeq] = {}
 
     def sequence(self, msg) -> None:
         """Count lost packets from the per-(system, component) sequence numbers."""
         key = (msg.get_srcSystem(), msg.get_srcComponent())
-        seq = msg.get_seq()
-        last = self._last_seq.get(key)
-        if last is not None:
-            gap = (seq - last - 1) % 256
-            if gap < 128:
-                self.lost += gap
-        self._last_seq[key] = seq
+        sender = self.senders.get(key)
+        if sender is None:
+            sender = self.senders[key] = SenderSeq()
+        self.lost += sender.see(msg.get_seq())
+
+    def lost_fraction(self) -> float:
+        """Lost / (received + lost) over all senders (0 before anything came)."""
+        got = sum(s.received - s.duplicates for s in self.senders.values())
+        return self.lost / (got + self.lost) if got + self.lost > 0 else 0.0
+
+    def loss_summary(self) -> str:
+        """``12 lost (0.10 %; 1/154: 12)``: packets lost in total, and by each sender that lost any."""
+        per = ", ".join(f"{sys}/{comp}: {s.lost}" for (sys, comp), s in sorted(self.senders.items()) if s.lost)
+        extra = []
+        if per:
+            extra.append(per)
+        dups = sum(s.duplicates for s in self.senders.values())
+        restarts = sum(s.restarts for s in self.senders.values())
+        if dups:
+            extra.append(f"{dups} duplicated")
+        if restarts:
+            extra.append(f"{restarts} sender restarts")
+        tail = f"; {'; '.join(extra)}" if extra else ""
+        return f"{self.lost} lost ({100 * self.lost_fraction():.2f} %{tail})"
 
 
 class Decoder:

@@ -1,35 +1,96 @@
 """``balloon-gs listen ENDPOINT``: live view of WIND_COV from any MAVLink vehicle, with link
-statistics, CSV and tlog logging; stops cleanly on SIGINT/SIGTERM (or after --duration)."""
+statistics, CSV and tlog logging; stops cleanly on SIGINT/SIGTERM (or after --duration).
+
+On a terminal: a table redrawn in place (rich Live), one row per balloon (system id), that fits 80x24
+and shows more columns (N/E components, variability, altitude, a sparkline of the last minutes) on a
+wide screen. A row whose WIND_COV stopped more than ``STALE_S`` ago is marked STALE. Not on a
+terminal (piped, logged): one plain line per balloon every second."""
 
 from __future__ import annotations
 
 import csv
+import math
 import sys
 import time
+from collections import deque
+from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mavlink
 
 from firmware_py.mavio import Decoder, LinkStats, TlogSink, open_link, pack
+from firmware_py.progress import fmt_duration, stream_is_terminal
 from ground_station.wind import CSV_COLUMNS, WindRecord
 
 MODE_NAMES = {0: "ground", 1: "free", 2: "taut"}  # balloon-fw's HEARTBEAT custom_mode
+STALE_S = 2.0  # no WIND_COV for this long: the row's wind is old
+HB_LATE_S = 3.0  # no HEARTBEAT for this long: shown in red
+RATE_WINDOW_S = 2.0
+SPARK = "▁▂▃▄▅▆▇█"
+WIDE_COLUMNS = 110  # from this terminal width on, the wide table
+
+
+@dataclass
+class Vehicle:
+    """What the ground station knows of one system id."""
+
+    sysid: int
+    last: WindRecord | None = None
+    wind_at: float | None = None  # monotonic time of the last WIND_COV
+    hb_at: float | None = None  # ... of the last HEARTBEAT
+    mode: str = "?"
+    vehicle_type: int | None = None
+    status: object | None = None  # the last SYS_STATUS (balloon-fw: resets, input loss)
+    wind_count: int = 0
+    times: deque = field(default_factory=deque)  # WIND_COV arrival times within RATE_WINDOW_S
+    history: deque = field(default_factory=lambda: deque(maxlen=240))  # (arrival time, speed) each second
+
+    @property
+    def ours(self) -> bool:
+        return self.vehicle_type == mavlink.MAV_TYPE_FREE_BALLOON
+
+    def rate(self, now: float) -> float:
+        while self.times and now - self.times[0] > RATE_WINDOW_S:
+            self.times.popleft()
+        return len(self.times) / RATE_WINDOW_S
+
+    def age(self, now: float) -> float:
+        return math.inf if self.wind_at is None else now - self.wind_at
+
+    def stale(self, now: float) -> bool:
+        return self.last is not None and self.age(now) > STALE_S
+
+    def resets(self) -> int | None:
+        """Filter resets the balloon reports (balloon-fw's SYS_STATUS errors_count2)."""
+        return int(self.status.errors_count2) if self.status is not None and self.ours else None
+
+    def input_lost_pct(self) -> float | None:
+        """Sensor packets the balloon's firmware lost, % (SYS_STATUS drop_rate_comm)."""
+        return self.status.drop_rate_comm / 100.0 if self.status is not None else None
 
 
 class GroundStation:
     def __init__(self, csv_path: str | None = None, tlog_path: str | None = None, out=sys.stdout) -> None:
         self.stats = LinkStats()
         self.mav = mavlink.MAVLink(None, srcSystem=255, srcComponent=mavlink.MAV_COMP_ID_MISSIONPLANNER)
-        self.last: WindRecord | None = None
-        self.mode = "?"
-        self.vehicle_type: int | None = None
+        self.vehicles: dict[int, Vehicle] = {}
         self.wind_count = 0
-        self._window: list[float] = []
         self.out = out
+        self.endpoint = ""
+        self.t0 = time.monotonic()
         self._csv_fh = open(csv_path, "w", newline="") if csv_path else None
         self._csv = csv.writer(self._csv_fh) if self._csv_fh else None
+        self.csv_path, self.tlog_path = csv_path, tlog_path
         if self._csv:
             self._csv.writerow(CSV_COLUMNS)
         self._tlog = TlogSink(tlog_path) if tlog_path else None
+
+    # ------------------------------------------------------------ input
+
+    def vehicle(self, sysid: int) -> Vehicle:
+        v = self.vehicles.get(sysid)
+        if v is None:
+            v = self.vehicles[sysid] = Vehicle(sysid)
+        return v
 
     def handle(self, m, now: float) -> None:
         if self._tlog:
@@ -37,37 +98,156 @@ class GroundStation:
         t = m.get_type()
         if t == "WIND_COV":
             rec = WindRecord.from_msg(m)
-            self.last = rec
+            v = self.vehicle(rec.sysid)
+            v.last, v.wind_at = rec, now
+            v.wind_count += 1
+            v.times.append(now)
+            if not v.history or now - v.history[-1][0] >= 1.0:
+                v.history.append((now, rec.speed_mps))
             self.wind_count += 1
-            self._window.append(now)
             if self._csv:
                 self._csv.writerow(rec.csv_row())
         elif t == "HEARTBEAT" and m.type != mavlink.MAV_TYPE_GCS:
-            self.vehicle_type = m.type
+            v = self.vehicle(m.get_srcSystem())
+            v.vehicle_type, v.hb_at = m.type, now
             if m.type == mavlink.MAV_TYPE_FREE_BALLOON:
-                self.mode = MODE_NAMES.get(m.custom_mode, str(m.custom_mode))
+                v.mode = MODE_NAMES.get(m.custom_mode, str(m.custom_mode))
+        elif t == "SYS_STATUS":
+            self.vehicle(m.get_srcSystem()).status = m
 
     def heartbeat(self) -> bytes:
         return pack(self.mav, self.mav.heartbeat_encode(
             mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE
         ))  # fmt: skip
 
-    def rate(self, now: float) -> float:
-        self._window = [t for t in self._window if now - t <= 2.0]
-        return len(self._window) / 2.0
+    def link_lost(self, sysid: int) -> int:
+        """Packets from this system lost on the way to the ground station (all its components)."""
+        return sum(s.lost for (sys_, _), s in self.stats.senders.items() if sys_ == sysid)
+
+    # ------------------------------------------------------------ the plain line (not a terminal)
+
+    @property
+    def last(self) -> WindRecord | None:
+        """The newest WIND_COV of any vehicle."""
+        recs = [v for v in self.vehicles.values() if v.last is not None]
+        return max(recs, key=lambda v: v.wind_at).last if recs else None
+
+    def status_lines(self, now: float) -> list[str]:
+        s = self.stats
+        link = f"lost {s.lost}, CRC errors {s.bad_frames}"
+        shown = [v for v in self.vehicles.values() if v.last is not None]
+        if not shown:
+            return [f"waiting for WIND_COV | {link}"]
+        lines = []
+        for v in sorted(shown, key=lambda v: v.sysid):
+            r = v.last
+            var = "  n/a" if r.var_horiz != r.var_horiz else f"{r.var_horiz:5.2f}"
+            stale = f" STALE {v.age(now):.0f} s" if v.stale(now) else ""
+            resets = v.resets()
+            health = f"resets {resets}, " if resets is not None else ""
+            hb = "-" if v.hb_at is None else f"{now - v.hb_at:.0f} s"
+            lines.append(
+                f"sys {v.sysid}: t={r.time_usec * 1e-6:7.1f}s wind {r.speed_mps:5.2f} m/s from {r.from_deg:5.1f} deg "
+                f"(N {r.wind_x:+5.2f} E {r.wind_y:+5.2f}) ±{r.horiz_accuracy:4.2f} var {var} "
+                f"alt {r.wind_alt:6.1f} m mode {v.mode}{stale} | {v.rate(now):4.1f} msg/s, {health}"
+                f"heartbeat {hb} ago, {link}"
+            )
+        return lines
 
     def status_line(self, now: float) -> str:
+        return "\n".join(self.status_lines(now))
+
+    # ------------------------------------------------------------ the terminal view
+
+    def view(self, now: float, width: int):
+        """A rich renderable: header, one row per system id, footer; fits ``width`` columns."""
+        from rich import box
+        from rich.console import Group
+        from rich.table import Table
+        from rich.text import Text
+
+        wide = width >= WIDE_COLUMNS
         s = self.stats
-        link = f"{self.rate(now):4.1f} msg/s, lost {s.lost}, CRC errors {s.bad_frames}"
-        r = self.last
+        head = Text(no_wrap=True, overflow="ellipsis")
+        head.append("balloon-gs ", style="bold")
+        head.append(f"{self.endpoint}  up {fmt_duration(now - self.t0)}")
+        link = Text(no_wrap=True, overflow="ellipsis")
+        link.append(f"link: {s.frames} frames, ")
+        link.append(f"{s.lost} lost", style="red bold" if s.lost else "")
+        link.append(f", {s.bad_frames} CRC errors, {s.garbage_bytes} garbage bytes, {s.bytes / 1024:.0f} kB")
+        if wide:
+            head.append("  ")
+            head.append_text(link)
+            lines = [head]
+        else:
+            lines = [head, link]
+
+        t = Table(box=box.SIMPLE_HEAD, pad_edge=False, expand=False, padding=(0, 1), show_edge=False)
+        cols = [("sys", "right"), ("wind", "right"), ("from", "right"), ("±acc", "right")]
+        if wide:
+            cols = [("sys", "right"), ("t [s]", "right"), ("wind m/s", "right"), ("from °", "right"), ("N", "right"),
+                    ("E", "right"), ("±acc", "right"), ("var", "right"), ("alt m", "right")]  # fmt: skip
+        cols += [("mode", "left"), ("Hz", "right"), ("resets", "right") if wide else ("rst", "right"),
+                 ("lost", "right"), ("fw in", "right") if wide else ("in%", "right"),
+                 ("heartbeat", "right") if wide else ("hb", "right"), ("state", "left")]  # fmt: skip
+        for name, justify in cols:
+            t.add_column(name, justify=justify, no_wrap=True, overflow="ellipsis")
+        spark_w = max(0, min(60, width - 150)) if wide else 0
+        if spark_w >= 10:
+            t.add_column(f"wind, last {spark_w} s", no_wrap=True)
+        if not self.vehicles:
+            t.add_row(*(["-"] * len(t.columns)))
+        for v in sorted(self.vehicles.values(), key=lambda v: v.sysid):
+            t.add_row(*self._row(v, now, wide, spark_w))
+        logs = ", ".join(p for p in (self.csv_path, self.tlog_path) if p)
+        if wide:
+            notes = [f"STALE: no WIND_COV for {STALE_S:g} s.  resets: the balloon's filter resets.  lost: packets "
+                     "lost on the way here.  fw in: sensor packets the balloon lost, %.  Ctrl-C stops."]  # fmt: skip
+        else:
+            notes = ["wind, ±acc: m/s; from: deg; rst: filter resets; lost: lost on the way here;",
+                     f"in%: sensor packets the balloon lost; hb: heartbeat age; STALE: no WIND_COV {STALE_S:g} s",
+                     "Ctrl-C stops."]  # fmt: skip
+        if logs:
+            notes[-1] += f" Logging to {logs}."
+        foot = [Text(n, no_wrap=True, overflow="ellipsis", style="dim") for n in notes]
+        return Group(*lines, t, *foot)
+
+    def _row(self, v: Vehicle, now: float, wide: bool, spark_w: int) -> list:
+        from rich.text import Text
+
+        r = v.last
+        stale = v.stale(now)
+        dim = "dim" if stale else ""
         if r is None:
-            return f"waiting for WIND_COV | {link}"
-        var = "  n/a" if r.var_horiz != r.var_horiz else f"{r.var_horiz:5.2f}"
-        return (
-            f"t={r.time_usec * 1e-6:7.1f}s wind {r.speed_mps:5.2f} m/s from {r.from_deg:5.1f} deg "
-            f"(N {r.wind_x:+5.2f} E {r.wind_y:+5.2f}) ±{r.horiz_accuracy:4.2f} var {var} "
-            f"alt {r.wind_alt:6.1f} m mode {self.mode} | {link}"
-        )
+            vals = ["-"] * (8 if wide else 3)
+        else:
+            vals = [f"{r.speed_mps:.2f}", f"{r.from_deg:03.0f}", f"{r.horiz_accuracy:.2f}"]
+            if wide:
+                var = "-" if r.var_horiz != r.var_horiz else f"{r.var_horiz:.2f}"
+                vals = [f"{r.time_usec * 1e-6:.1f}", vals[0], vals[1], f"{r.wind_x:+.2f}", f"{r.wind_y:+.2f}", vals[2],
+                        var, f"{r.wind_alt:.0f}"]  # fmt: skip
+        cells: list = [str(v.sysid), *(Text(x, style=dim) for x in vals)]
+        resets = v.resets()
+        lost = self.link_lost(v.sysid)
+        in_pct = v.input_lost_pct()
+        hb_age = None if v.hb_at is None else now - v.hb_at
+        cells += [
+            Text(v.mode, style=dim),
+            f"{v.rate(now):.0f}" if not wide else f"{v.rate(now):.1f}",
+            Text("-" if resets is None else str(resets), style="yellow" if resets else ""),
+            Text(str(lost), style="red bold" if lost else ""),
+            Text("-" if in_pct is None else f"{in_pct:.1f}", style="red bold" if in_pct else ""),
+            Text("-" if hb_age is None else f"{hb_age:.0f}s", style="red bold" if (hb_age or 0) > HB_LATE_S else ""),
+        ]
+        if r is None:
+            cells.append(Text("WAIT", style="yellow"))
+        elif stale:
+            cells.append(Text(f"STALE {v.age(now):.0f}s", style="bold white on red"))
+        else:
+            cells.append(Text("OK", style="green"))
+        if spark_w >= 10:
+            cells.append(Text(sparkline([sp for _, sp in v.history][-spark_w:]), style=dim or "cyan"))
+        return cells
 
     def close(self) -> None:
         if self._csv_fh:
@@ -77,14 +257,32 @@ class GroundStation:
 
     def summary(self) -> str:
         s = self.stats
-        return (f"balloon-gs: {self.wind_count} WIND_COV, {s.frames} frames, {s.lost} lost, "
-                f"{s.bad_frames} CRC errors, {s.garbage_bytes} garbage bytes")  # fmt: skip
+        return (f"balloon-gs: {self.wind_count} WIND_COV from {len(self.vehicles)} systems, {s.frames} frames, "
+                f"{s.lost} lost, {s.bad_frames} CRC errors, {s.garbage_bytes} garbage bytes")  # fmt: skip
+
+
+def sparkline(values: list[float]) -> str:
+    if not values:
+        return ""
+    lo, hi = min(values), max(values)
+    span = hi - lo if hi > lo else 1.0
+    return "".join(SPARK[min(len(SPARK) - 1, int((x - lo) / span * len(SPARK)))] for x in values)
 
 
 def listen(endpoint: str, gs: GroundStation, stop, duration_s: float | None = None) -> None:
     link = open_link(endpoint)
+    gs.endpoint = endpoint
     dec = Decoder(gs.stats)
-    tty = gs.out.isatty()
+    tty = stream_is_terminal(gs.out)
+    live = None
+    if tty:
+        from rich.console import Console
+        from rich.live import Live
+
+        console = Console(file=gs.out)
+        live = Live(console=console, auto_refresh=False, transient=False, redirect_stdout=False,
+                    redirect_stderr=False, vertical_overflow="ellipsis")  # fmt: skip
+        live.start()
     t0 = time.monotonic()
     next_show = next_hb = t0
     try:
@@ -100,11 +298,16 @@ def listen(endpoint: str, gs: GroundStation, stop, duration_s: float | None = No
                 link.send(gs.heartbeat())
                 next_hb = now + 1.0
             if now >= next_show:
-                line = gs.status_line(now)
-                gs.out.write(("\r\x1b[K" + line) if tty else line + "\n")
-                gs.out.flush()
-                next_show = now + 1.0
+                if live is not None:
+                    live.update(gs.view(now, live.console.size.width), refresh=True)
+                    next_show = now + 0.25
+                else:
+                    for line in gs.status_lines(now):
+                        gs.out.write(line + "\n")
+                    gs.out.flush()
+                    next_show = now + 1.0
     finally:
         link.close()
-        if tty:
-            gs.out.write("\n")
+        if live is not None:
+            live.update(gs.view(time.monotonic(), live.console.size.width), refresh=True)
+            live.stop()

@@ -8,6 +8,7 @@ import time
 
 from firmware_py.config import ConfigError
 from firmware_py.mavio import TlogWriter
+from firmware_py.progress import Progress
 from sim_hil.packets import SensorPacketEncoder
 from sim_hil.scenarios import SCENARIOS, WIND_CHOICES, resolve
 from sim_hil.simulator import Simulation, write_truth_csv
@@ -28,6 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lockstep", action="store_true",
                    help="do not run ahead of the firmware's WIND_COV time (lossless fast runs)")
     p.add_argument("--lockstep-window", type=float, default=0.5, help="seconds the simulator may lead")
+    p.add_argument("--quiet", action="store_true", help="no progress bar / status lines (the final line stays)")
     p.add_argument("--list-scenarios", action="store_true")
     p.add_argument("--print-config", action="store_true",
                    help="print the scenario (with --config applied) as a design TOML and exit")
@@ -56,27 +58,35 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     n = 0
     out = args.out
-    if out and (out.startswith(("udpin:", "udpout:")) or out.startswith("/dev/") or "://" in out):
-        from sim_hil.link import stream_udp  # network edge, only when asked for
+    bar = Progress("balloon-sim", total=args.duration, unit="s simulated", quiet=args.quiet)
+    try:
+        if out and (out.startswith(("udpin:", "udpout:")) or out.startswith("/dev/") or "://" in out):
+            from sim_hil.link import stream_udp  # network edge, only when asked for
 
-        try:
-            n = stream_udp(sim, enc, out, args)
-        except ValueError as exc:
-            print(f"balloon-sim: {exc}", file=sys.stderr)
-            return 2
-    elif out:
-        with open(out, "wb") as fh:
-            tlog = out.endswith(".tlog")
-            w = TlogWriter(fh)
+            try:
+                n = stream_udp(sim, enc, out, args, bar)
+            except ValueError as exc:
+                bar.close()
+                print(f"balloon-sim: {exc}", file=sys.stderr)
+                return 2
+        elif out:
+            with open(out, "wb") as fh:
+                tlog = out.endswith(".tlog")
+                w = TlogWriter(fh)
+                for s in sim.samples():
+                    for frame in enc.encode(s):
+                        if tlog:
+                            w.write(s.time_usec, frame)
+                        else:
+                            fh.write(frame)  # raw bytes, as a serial capture holds them
+                    n += 1
+                    bar.done = s.time_usec * 1e-6
+        else:
             for s in sim.samples():
-                for frame in enc.encode(s):
-                    if tlog:
-                        w.write(s.time_usec, frame)
-                    else:
-                        fh.write(frame)  # raw bytes, as a serial capture holds them
                 n += 1
-    else:
-        n = sim.run()
+                bar.done = s.time_usec * 1e-6
+    finally:
+        bar.close()
     if args.truth:
         write_truth_csv(args.truth, sim.truth[:n])
     wall = time.perf_counter() - t0

@@ -1,22 +1,52 @@
-"""``balloon-replay FILE --out ENDPOINT [--speed N]``: play a capture into a UDP endpoint or a serial
-port at the recorded timing (or N times faster; 0 = as fast as possible). Serial log replay without
-hardware. A .tlog is paced by its record timestamps; a raw capture by the time fields of the
+"""``balloon-replay FILE --out ENDPOINT [--speed N] [--lockstep]``: play a capture into a UDP endpoint or
+a serial port at the recorded timing (or N times faster; 0 = as fast as possible). Serial log replay
+without hardware. A .tlog is paced by its record timestamps; a raw capture by the time fields of the
 messages inside it (HIGHRES_IMU / HIL_SENSOR time_usec, SCALED_PRESSURE time_boot_ms), and its bytes
-are sent exactly as captured, garbage included."""
+are sent exactly as captured, garbage included.
+
+Lockstep (the default with --speed 0): like balloon-sim --lockstep, a sample is sent only once the
+firmware's WIND_COV says it has digested the samples up to half a second before it, so nothing is
+dropped however fast. The last line says what the firmware reported it lost (its SYS_STATUS), or
+that nothing came back to say."""
 
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import struct
 import sys
 import time
+from dataclasses import dataclass
 
-from firmware_py.mavio import TLOG_HEADER, Decoder, LinkStats, frame_length, open_link
+from firmware_py.mavio import MAGIC_V1, MAGIC_V2, TLOG_HEADER, Decoder, LinkStats, frame_length, open_link
+from firmware_py.progress import Progress
+from sim_hil.link import Lockstep
+
+IMU_MSG_IDS = {105, 107}  # HIGHRES_IMU, HIL_SENSOR: time_usec (uint64) is the first payload field
+IMU_MS_MSG_IDS = {26}  # SCALED_IMU: time_boot_ms (uint32) is the first payload field
+
+
+def imu_time_us(frame: bytes) -> int | None:
+    """The sample time of an IMU frame (HIGHRES_IMU, HIL_SENSOR, SCALED_IMU), else None; read from the
+    frame's header and first payload field, without decoding it."""
+    if len(frame) < 8:
+        return None
+    if frame[0] == MAGIC_V2:
+        msgid, payload = frame[7] | frame[8] << 8 | frame[9] << 16, frame[10 : 10 + frame[1]]
+    elif frame[0] == MAGIC_V1:
+        msgid, payload = frame[5], frame[6 : 6 + frame[1]]
+    else:
+        return None
+    if msgid in IMU_MSG_IDS:
+        return struct.unpack("<Q", (bytes(payload[:8]) + bytes(8))[:8])[0]  # MAVLink 2 trims trailing zeros
+    if msgid in IMU_MS_MSG_IDS:
+        return struct.unpack("<I", (bytes(payload[:4]) + bytes(4))[:4])[0] * 1000
+    return None
 
 
 def tlog_records(path: str):
-    """(timestamp us, frame bytes) of each record."""
+    """(record timestamp us, IMU sample time us or None, frame bytes) of each record."""
     with open(path, "rb") as fh:
         buf = fh.read()
     i = 0
@@ -26,35 +56,76 @@ def tlog_records(path: str):
             i += 1
             continue
         (ts,) = struct.unpack(">Q", buf[i : i + TLOG_HEADER])
-        yield ts, buf[i + TLOG_HEADER : i + TLOG_HEADER + ln]
+        frame = buf[i + TLOG_HEADER : i + TLOG_HEADER + ln]
+        yield ts, imu_time_us(frame), frame
         i += TLOG_HEADER + ln
 
 
 def raw_chunks(path: str, chunk: int = 64):
-    """(time us or None, bytes) of a raw capture, timed by the messages decoded so far."""
+    """(time us or None, newest IMU time us or None, bytes) of a raw capture, timed by the messages
+    decoded so far."""
     dec = Decoder(LinkStats())
     with open(path, "rb") as fh:
         data = fh.read()
     for i in range(0, len(data), chunk):
         piece = data[i : i + chunk]
-        t = None
+        t = t_imu = None
         for m in dec.feed(piece):
             if hasattr(m, "time_usec"):
                 t = m.time_usec
+                if m.get_msgId() in IMU_MSG_IDS:
+                    t_imu = t
             elif hasattr(m, "time_boot_ms"):
                 t = m.time_boot_ms * 1000
-        yield t, piece
+                if m.get_msgId() in IMU_MS_MSG_IDS:
+                    t_imu = t
+        yield t, t_imu, piece
 
 
-def replay(path: str, out: str, speed: float, stop=lambda: False) -> int:
+@dataclass
+class ReplayResult:
+    bytes_sent: int = 0
+    imu_sent: int = 0
+    lockstep: bool = False
+    timeouts: int = 0
+    acknowledged: bool = False  # the firmware caught up with the last sample and reported after it
+    fw_lost: int | None = None  # the firmware's own count of packets it lost (SYS_STATUS), if it said
+    fw_long_gaps: int = 0
+    interrupted: bool = False
+
+    def final_line(self, out: str, speed: float) -> str:
+        head = f"balloon-replay: {self.imu_sent} IMU samples ({self.bytes_sent} bytes) sent to {out}"
+        if self.interrupted:
+            head += ", interrupted"
+        if self.lockstep:
+            head += " in lockstep"
+            if self.timeouts:
+                head += f", LOST SYNC {self.timeouts} times (the firmware fell silent for 2 s)"
+        else:
+            head += " flat out" if speed == 0 else f" at {speed:g}x"
+        if self.fw_lost is None:
+            if self.lockstep or speed == 0:
+                return head + "; nothing came back to say what arrived: losses unknown"
+            return head + "; no receiver report: losses unknown"
+        if self.fw_lost or self.fw_long_gaps:
+            return head + (f"; DATA LOST: the firmware counted {self.fw_lost} packets lost, "
+                           f"{self.fw_long_gaps} long gaps")  # fmt: skip
+        return head + ("; the firmware counted 0 packets lost" if self.acknowledged
+                       else "; the firmware counted 0 lost but did not confirm the end")  # fmt: skip
+
+
+def replay(path: str, out: str, speed: float, stop=lambda: False, lockstep: bool = False, window_s: float = 0.5,
+           timeout_s: float = 2.0, progress: Progress | None = None) -> ReplayResult:  # fmt: skip
     link = open_link(out)
+    ls = Lockstep(link, window_s, timeout_s)
     items = tlog_records(path) if path.endswith(".tlog") else raw_chunks(path)
+    res = ReplayResult(lockstep=lockstep)
     t_first = None
     wall0 = time.monotonic()
-    sent = 0
     try:
-        for t, data in items:
+        for k, (t, t_imu, data) in enumerate(items):
             if stop():
+                res.interrupted = True
                 break
             if t is not None and speed > 0:
                 if t_first is None:
@@ -62,28 +133,56 @@ def replay(path: str, out: str, speed: float, stop=lambda: False) -> int:
                 ahead = wall0 + (t - t_first) * 1e-6 / speed - time.monotonic()
                 if ahead > 0.001:
                     time.sleep(ahead)
+            if t_imu is not None:
+                if lockstep:
+                    ls.wait_for(t_imu)
+                res.imu_sent += 1
+            if not lockstep and k % 100 == 0:
+                ls.poll(0.0)  # drain what comes back (and keep the firmware's SYS_STATUS)
             link.send(data)
-            sent += len(data)
+            res.bytes_sent += len(data)
+            if progress is not None:
+                progress.done = res.bytes_sent / 1e6
+        if not res.interrupted and (lockstep or ls.fw_status is not None):
+            res.acknowledged = ls.finish(timeout_s + 1.5)
     finally:
         link.close()
-    return sent
+    res.timeouts = ls.timeouts
+    res.fw_lost = ls.firmware_lost()
+    if ls.fw_status is not None:
+        res.fw_long_gaps = int(ls.fw_status.errors_count3)
+    return res
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="balloon-replay", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="balloon-replay", description=__doc__.split("\n\n")[0].replace("``", ""))
     ap.add_argument("file", help=".tlog or raw capture")
     ap.add_argument("--out", required=True, help="udpout:HOST:PORT, udpin:..., or a serial port")
     ap.add_argument("--speed", type=float, default=1.0, help="N x recorded timing; 0 = as fast as possible")
+    ap.add_argument("--lockstep", action=argparse.BooleanOptionalAction, default=None,
+                    help="send only as fast as the firmware's WIND_COV acknowledges (default: on with --speed 0)")
+    ap.add_argument("--lockstep-window", type=float, default=0.5, help="seconds the replay may lead the firmware")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar / status lines (the final line stays)")
     args = ap.parse_args(argv)
+    lockstep = args.lockstep if args.lockstep is not None else args.speed == 0
     stopping: list[int] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stopping.append(1))
     try:
-        n = replay(args.file, args.out, args.speed, lambda: bool(stopping))
-    except (OSError, ValueError) as exc:
+        size = os.path.getsize(args.file)
+    except OSError as exc:
         print(f"balloon-replay: {exc}", file=sys.stderr)
         return 2
-    print(f"balloon-replay: {n} bytes sent to {args.out}", file=sys.stderr)
+    bar = Progress("balloon-replay", total=size / 1e6, unit="MB", quiet=args.quiet)
+    try:
+        res = replay(args.file, args.out, args.speed, lambda: bool(stopping), lockstep, args.lockstep_window,
+                     progress=bar)  # fmt: skip
+    except (OSError, ValueError) as exc:
+        bar.close()
+        print(f"balloon-replay: {exc}", file=sys.stderr)
+        return 2
+    bar.close()
+    print(res.final_line(args.out, args.speed), file=sys.stderr)
     return 0
 
 

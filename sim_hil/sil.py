@@ -90,20 +90,23 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(sig, lambda *_: stopping.append(1))
     latest = [""]
     t_start = time.monotonic()
+    tty = sys.stdout.isatty()
     try:
         gs_args = ["ground_station", "listen", f"udpin:127.0.0.1:{p_gs}", "--csv", gs_csv, "--tlog", gs_tlog]
-        gs = kids.start("gs", gs_args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        threading.Thread(target=_follow, args=(gs.stdout, latest), daemon=True).start()
-        fw_args = ["firmware_py", "--in", f"udpin:127.0.0.1:{p_fw}", "--out", f"udpout:127.0.0.1:{p_gs}", *cfg]
+        # on a terminal the ground station draws its live view there itself; otherwise we relay its lines
+        gs = kids.start("gs", gs_args, stdout=None if tty else subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        if not tty:
+            threading.Thread(target=_follow, args=(gs.stdout, latest), daemon=True).start()
+        fw_args = ["firmware_py", "--in", f"udpin:127.0.0.1:{p_fw}", "--out", f"udpout:127.0.0.1:{p_gs}", "--quiet",
+                   *cfg]  # fmt: skip
         kids.start("fw", fw_args, stderr=subprocess.PIPE, text=True)
         time.sleep(0.5)  # let both bind before the sensors start flowing
         sim = kids.start("sim", ["sim_hil", "--scenario", args.scenario, "--duration", str(args.duration),
                                  "--seed", str(args.seed), "--out", f"udpout:127.0.0.1:{p_fw}", "--truth", truth,
-                                 "--speed", str(args.speed), "--lockstep", *cfg],
+                                 "--speed", str(args.speed), "--lockstep", "--quiet", *cfg],
                          stderr=subprocess.PIPE, text=True)  # fmt: skip
         print(f"balloon-sil: {args.scenario}, {args.duration:.0f} s at {args.speed:g}x, seed {args.seed} "
               f"(sim -> udp:{p_fw} -> fw -> udp:{p_gs} -> gs)")  # fmt: skip
-        tty = sys.stdout.isatty()
         next_show = 0.0
         while sim.poll() is None:
             if stopping:
@@ -114,23 +117,24 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"\nballoon-sil: {', '.join(died)} died; stopping all", file=sys.stderr)
                 return 1
             now = time.monotonic()
-            if now >= next_show and latest[0]:
-                print(("\r\x1b[K" if tty else "") + latest[0][:150], end="" if tty else "\n", flush=True)
-                next_show = now + (1.0 if tty else 10.0)
+            if not tty and now >= next_show and latest[0]:
+                print(latest[0], flush=True)
+                next_show = now + 10.0
             time.sleep(0.1)
-        if tty:
-            print()
         if sim.returncode != 0:
             print(f"balloon-sil: simulator failed:\n{sim.stderr.read()}", file=sys.stderr)
             return 1
         time.sleep(1.0)  # the last WIND_COV reach the ground station
         kids.stop("fw")
         kids.stop("gs")
+        tails = {}
         for name in ("sim", "fw"):
             err = kids.procs[name].stderr.read().strip()
+            tails[name] = err
             if err:
                 print(err.splitlines()[-1])
-        print(gs.stderr.read().strip())
+        tails["gs"] = gs.stderr.read().strip()
+        print(tails["gs"])
     finally:
         kids.stop_all()
     wall = time.monotonic() - t_start
@@ -143,7 +147,29 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     print(f"score: {format_score(s)}")
     print(f"plot: {plot}   logs: {gs_csv}, {gs_tlog}   truth: {truth}   design: {design}   wall time {wall:.0f} s")
+    print(loss_line(tails.get("sim", ""), tails.get("fw", ""), tails.get("gs", "")))
     return 0
+
+
+def loss_line(sim_err: str, fw_err: str, gs_err: str) -> str:
+    """The run's last word on data: what the firmware lost from the simulator, what the ground station
+    lost from the firmware (both from MAVLink sequence numbers), and lockstep timeouts."""
+    import re
+
+    def grab(pattern: str, text: str) -> int | None:
+        m = re.findall(pattern, text)
+        return int(m[-1]) if m else None
+
+    up = grab(r"input packets (\d+) lost", fw_err)
+    gaps = grab(r"(\d+) long gaps", fw_err)
+    down = grab(r"(\d+) lost, \d+ CRC errors", gs_err)
+    timeouts = grab(r"lockstep: (\d+) timeouts", sim_err) or 0
+    if up is None or down is None:
+        return "balloon-sil: losses unknown (a program did not report them)"
+    parts = f"sim -> fw {up} packets lost, {gaps or 0} long gaps; fw -> gs {down} lost; {timeouts} lockstep timeouts"
+    if up or down or gaps or timeouts:
+        return f"balloon-sil: DATA LOST: {parts}"
+    return f"balloon-sil: nothing lost ({parts})"
 
 
 def _follow(stream, latest: list[str]) -> None:
