@@ -7,13 +7,11 @@ optional; an unknown section or key is a clear error, never silently ignored.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-
 
 
 class ConfigError(ValueError):
@@ -281,10 +279,10 @@ def validate_document(data: dict[str, Any]) -> dict[str, dict[str, Any]]:
     wind, truth, balloon = out.get("wind", {}), out.get("truth", {}), out.get("balloon", {})
     sample_hz = wind.get("sample_hz", SIM_DEFAULTS["wind.sample_hz"])
     if max(wind.get("multisine_hz", ()), default=0.0) >= sample_hz / 2:
-        raise ConfigError(f"[wind] multisine_hz must lie below the Nyquist frequency of sample_hz ({sample_hz / 2:g} Hz)")
+        raise ConfigError(f"[wind] multisine_hz must lie below sample_hz / 2 (Nyquist, {sample_hz / 2:g} Hz)")
     physics_hz = truth.get("physics_hz", SIM_DEFAULTS["truth.physics_hz"])
     if physics_hz % SIM_IMU_HZ:
-        raise ConfigError(f"[truth] physics_hz must be a whole multiple of the {SIM_IMU_HZ:g} Hz IMU rate, got {physics_hz:g}")
+        raise ConfigError(f"[truth] physics_hz must be a multiple of the {SIM_IMU_HZ:g} Hz IMU rate: {physics_hz:g}")
     offset = truth.get("avionics_offset_m", 0.0)
     if offset > 0.0:
         radius = balloon.get("radius_m", BalloonConfig.radius_m)

@@ -12,7 +12,6 @@ from sim_hil.packets import SensorPacketEncoder
 from sim_hil.scenarios import SCENARIOS, WIND_CHOICES, resolve
 from sim_hil.simulator import Simulation, TruthCsvWriter
 
-
 PROG = "balloon-sim"
 
 

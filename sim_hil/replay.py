@@ -6,13 +6,13 @@ are sent exactly as captured, garbage included."""
 
 from __future__ import annotations
 
-import argparse
 import signal
 import struct
 import sys
 import time
 
-from firmware_py.mavio import TLOG_HEADER, Decoder, LinkStats, frame_length, open_link
+from firmware_py import userargs
+from firmware_py.mavio import TLOG_HEADER, Decoder, LinkStats, frame_length, open_link, raw_messages, tlog_messages
 
 
 def tlog_records(path: str):
@@ -69,20 +69,35 @@ def replay(path: str, out: str, speed: float, stop=lambda: False) -> int:
     return sent
 
 
+def first_frame(path: str):
+    """The first MAVLink message in a capture (None if there is none), without reading it all."""
+    stats = LinkStats()
+    if path.endswith(".tlog"):
+        return next(iter(tlog_messages(path, stats)), None)
+    with open(path, "rb") as fh:
+        return next(iter(raw_messages(fh, stats)), None)
+
+
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="balloon-replay", description=__doc__.split("\n\n")[0])
-    ap.add_argument("file", help=".tlog or raw capture")
-    ap.add_argument("--out", required=True, help="udpout:HOST:PORT, udpin:..., or a serial port")
-    ap.add_argument("--speed", type=float, default=1.0, help="N x recorded timing; 0 = as fast as possible")
+    prog = "balloon-replay"
+    ap = userargs.Parser(prog=prog, description=" ".join(__doc__.split("\n\n")[0].replace("``", "").split()))
+    ap.add_argument("file", type=userargs.input_file, help=".tlog or raw capture")
+    ap.add_argument("--out", required=True, type=userargs.link, help="udpout:HOST:PORT, udpin:..., or a serial port")
+    ap.add_argument("--speed", type=userargs.nonneg_float, default=1.0,
+                    help="N x recorded timing; 0 = as fast as possible")
     args = ap.parse_args(argv)
+    try:
+        if first_frame(args.file) is None:
+            return userargs.fail(prog, f"no MAVLink frame in {args.file}")
+    except OSError as exc:
+        return userargs.fail(prog, exc)
     stopping: list[int] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stopping.append(1))
     try:
         n = replay(args.file, args.out, args.speed, lambda: bool(stopping))
     except (OSError, ValueError) as exc:
-        print(f"balloon-replay: {exc}", file=sys.stderr)
-        return 2
+        return userargs.fail(prog, exc)
     print(f"balloon-replay: {n} bytes sent to {args.out}", file=sys.stderr)
     return 0
 
