@@ -149,6 +149,9 @@ def main(argv: list[str] | None = None) -> int:
             print()
         if stopping or sim.returncode == 130:
             kids.stop_all()
+            said = [ln for ln in sim.stderr.read().splitlines() if "simulated" in ln]
+            if said:
+                print(said[-1], file=sys.stderr)
             print(f"{PROG}: interrupted after {time.monotonic() - t_start:.0f} s; logs so far in {args.outdir}",
                   file=sys.stderr)  # fmt: skip
             return 130
