@@ -24,7 +24,7 @@ from sim_hil.dynamics import (
     rk4_step,
 )
 from sim_hil.sensors import SensorSuite
-from sim_hil.wind import WindConfig, WindSeries, generate_wind
+from sim_hil.wind import WindConfig, WindSeries, WindStream, wind_source
 
 TRUTH_COLUMNS = (
     "time_s", "wind_n", "wind_e", "wind_d", "pos_n", "pos_e", "pos_d", "vel_n", "vel_e", "vel_d",
@@ -53,7 +53,7 @@ class Simulation:
         seed: int,
         imu_hz: float = 100.0,
         baro_hz: float = 20.0,
-        wind_series: WindSeries | None = None,
+        wind_series: WindSeries | WindStream | None = None,
         keep_truth: bool = True,
         truth_sink: Callable[[np.ndarray], None] | None = None,
     ) -> None:
@@ -68,7 +68,7 @@ class Simulation:
         self.baro_every = max(1, round(imu_hz / baro_hz))
         self.n_imu = int(round(duration_s * imu_hz))
         self.imu_hz = imu_hz
-        self.wind = wind_series or generate_wind(
+        self.wind = wind_series or wind_source(
             wind, duration_s + 1.0, seed, 2.0 * design.balloon.radius_m if truth.spatial_filter else 0.0
         )
         self.sensors = SensorSuite(design, truth, imu_hz, seed)
@@ -96,9 +96,12 @@ class Simulation:
     def _wind_chunk(self, step0: int, n: int) -> list[list[float]]:
         """Wind (n, e, d, dn, de, dd) at physics half-steps step0*h ... (step0+n)*h, as plain floats."""
         t = (step0 + np.arange(2 * n + 1) * 0.5) * self.h
-        grid = np.arange(len(self.wind.ned)) * self.wind.dt_s
-        cols = [np.interp(t, grid, self.wind.ned[:, k]) for k in range(3)]
-        cols += [np.interp(t, grid, self.wind.rate[:, k]) for k in range(3)]
+        dt = self.wind.dt_s
+        i0 = int(t[0] / dt)
+        ned, rate = self.wind.window(i0, int(math.ceil(t[-1] / dt)) + 1)
+        grid = (i0 + np.arange(len(ned))) * dt
+        cols = [np.interp(t, grid, ned[:, k]) for k in range(3)]
+        cols += [np.interp(t, grid, rate[:, k]) for k in range(3)]
         return np.column_stack(cols).tolist()
 
     def samples(self) -> Iterator[SensorSample]:
