@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import argparse
 import os
 import signal
 import sys
 import time
 
+from firmware_py import userargs
 from firmware_py.app import Firmware
 from firmware_py.config import ConfigError, design_from_dict, load_toml
 from firmware_py.mavio import Decoder, open_link, open_sink, raw_messages, tlog_messages
@@ -31,6 +31,13 @@ def rate_is_explicit(path: str | None) -> bool:
 
 
 def replay_file(fw: Firmware, path: str, progress: Progress | None = None) -> None:
+    """Every message of a capture; a file without a single MAVLink frame in it is a UserError."""
+    _replay(fw, path, progress)
+    if fw.stats.frames == 0:
+        raise userargs.UserError(f"no MAVLink frame in {path}")
+
+
+def _replay(fw: Firmware, path: str, progress: Progress | None) -> None:
     tlog = path.endswith(".tlog")
     st = fw.stats
     if tlog:
@@ -88,22 +95,23 @@ def run_live(fw: Firmware, spec: str, stop, progress: Progress | None = None) ->
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="balloon-fw", description="Tethered-balloon wind EKF firmware")
-    ap.add_argument("--in", dest="source", required=True, help=".tlog, raw capture, udpin:/udpout:, serial port")
-    ap.add_argument("--out", dest="sink", help="udpout:HOST:PORT or FILE.tlog for WIND_COV + HEARTBEAT")
-    ap.add_argument("--config", help="TOML design file (the same one balloon-sim reads)")
+    prog = "balloon-fw"
+    ap = userargs.Parser(prog=prog, description="Tethered-balloon wind EKF firmware")
+    ap.add_argument("--in", dest="source", required=True, type=userargs.source,
+                    help=".tlog, raw capture, udpin:/udpout:, serial port")  # fmt: skip
+    ap.add_argument("--out", dest="sink", type=userargs.tlog_sink,
+                    help="udpout:HOST:PORT or FILE.tlog for WIND_COV + HEARTBEAT")  # fmt: skip
+    ap.add_argument("--config", type=userargs.input_file, help="TOML design file (the same one balloon-sim reads)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar / live status (the summary stays)")
     args = ap.parse_args(argv)
     try:
         design, fcfg = load_config(args.config)
     except ConfigError as exc:
-        print(f"balloon-fw: {exc}", file=sys.stderr)
-        return 2
+        return userargs.fail(prog, exc)
     try:
         sink = open_sink(args.sink) if args.sink else None
     except (ValueError, OSError) as exc:
-        print(f"balloon-fw: {exc}", file=sys.stderr)
-        return 2
+        return userargs.fail(prog, exc)
     fw = Firmware(design, fcfg, sink, rate_explicit=rate_is_explicit(args.config))
     stopping = []
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -119,15 +127,15 @@ def main(argv: list[str] | None = None) -> int:
             bar.done = bar.total
         else:
             run_live(fw, args.source, lambda: bool(stopping), bar)
-    except ValueError as exc:
-        bar.close()
-        print(f"balloon-fw: {exc}", file=sys.stderr)
-        return 2
-    finally:
+    except (ValueError, OSError, userargs.UserError) as exc:
         bar.close()
         if sink is not None:
             sink.close()
-        print(fw.summary(), file=sys.stderr)
+        return userargs.fail(prog, exc)
+    bar.close()
+    if sink is not None:
+        sink.close()
+    print(fw.summary(), file=sys.stderr)
     return 0
 
 

@@ -7,15 +7,11 @@ optional; an unknown section or key is a clear error, never silently ignored.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-
-#: Every top-level section any program of the project understands.
-KNOWN_SECTIONS = ("balloon", "tether", "site", "sensors", "wind", "truth", "filter")
 
 
 class ConfigError(ValueError):
@@ -92,55 +88,248 @@ class Design:
 _SHARED = {"balloon": BalloonConfig, "tether": TetherConfig, "site": SiteConfig, "sensors": SensorsConfig}
 
 
+# ---------------------------------------------------------------- the schema of the whole file
+
+
+@dataclass(frozen=True)
+class Rule:
+    """Type and range of one key: ``kind`` number | integer | bool | str | numbers; a number lies in
+    [lo, hi] (lo excluded when ``lo_open``); a str is one of ``choices``; numbers is a list of them."""
+
+    kind: str
+    lo: float = -math.inf
+    hi: float = math.inf
+    lo_open: bool = False
+    choices: tuple[str, ...] = ()
+    length: int | None = None
+
+    def describe(self) -> str:
+        if self.kind == "str":
+            return " or ".join(repr(c) for c in self.choices)
+        lo = "(" if self.lo_open else "["
+        return f"a number in {lo}{self.lo:g}, {self.hi:g}]"
+
+
+def num(lo: float, hi: float) -> Rule:
+    return Rule("number", lo, hi)
+
+
+def pos(hi: float) -> Rule:
+    """A number > 0 and <= hi."""
+    return Rule("number", 0.0, hi, lo_open=True)
+
+
+BOOL = Rule("bool")
+
+
+def one_of(*choices: str) -> Rule:
+    return Rule("str", choices=choices)
+
+
+#: Every key of every section any program reads, with its type and range. balloon-sim and balloon-fw
+#: both check the whole file against it (``validate_document``), so one file gets one verdict; the
+#: dataclasses that hold the values (here, sim_hil.wind, sim_hil.dynamics, firmware_py.state) must
+#: have exactly these keys (tests/test_user_errors.py checks).
+SCHEMA: dict[str, dict[str, Rule]] = {
+    "balloon": {
+        "radius_m": pos(20.0),
+        "skin_and_avionics_kg": pos(1000.0),
+        "gas_density_kg_m3": num(0.0, 10.0),
+        "drag_coefficient": pos(3.0),
+    },
+    "tether": {"length_m": pos(5000.0), "linear_density_kg_m": num(0.0, 1.0)},
+    "site": {
+        "altitude_amsl_m": num(-500.0, 9000.0),
+        "mag_declination_deg": num(-180.0, 180.0),
+        "ground_pressure_hpa": num(300.0, 1100.0),
+        "ground_temperature_c": num(-80.0, 60.0),
+    },
+    "sensors": {
+        "accel_mps2": pos(10.0),
+        "baro_m": pos(1000.0),
+        "gyro_dps": pos(100.0),
+        "mag_gauss": pos(1.0),
+        "thermometer_k": pos(50.0),
+    },
+    "wind": {
+        "kind": one_of("vdh", "multisine", "steady"),
+        "mean_mps": num(0.0, 50.0),
+        "from_deg": num(-360.0, 360.0),
+        "vdh_amplitude": one_of("consistent", "paper"),
+        "gap_cph": pos(360.0),
+        "turbulence": one_of("kaimal", "none"),
+        "turbulence_intensity": num(0.0, 1.0),
+        "iec_class": one_of("", "A", "B", "C"),
+        "vertical": BOOL,
+        "multisine_hz": Rule("numbers", 0.0, 100.0, lo_open=True),
+        "multisine_amplitude_mps": num(0.0, 20.0),
+        "multisine_axes": one_of("along", "both"),
+        "sample_hz": pos(1000.0),
+    },
+    "truth": {
+        "added_mass_coefficient": num(0.0, 2.0),
+        "tether_ea_n": pos(1e9),
+        "tether_damping_ratio": num(0.0, 10.0),
+        "rope_drag": BOOL,
+        "rope_normal_cd": num(0.0, 5.0),
+        "rot_damping_nms": num(0.0, 1000.0),
+        "release_s": num(0.0, 3600.0),
+        "initial_yaw_deg": num(-360.0, 360.0),
+        "physics_hz": num(100.0, 10000.0),
+        "isa_density": BOOL,
+        "drag": BOOL,
+        "spatial_filter": BOOL,
+        "froude_krylov": BOOL,
+        "gyro_bias_dps": num(0.0, 100.0),
+        "gyro_bias_walk_dps_rt_s": num(0.0, 10.0),
+        "accel_bias_mps2": num(0.0, 10.0),
+        "baro_offset_m": num(0.0, 1000.0),
+        "mag_bias_gauss": num(0.0, 1.0),
+        "mag_hard_iron_gauss": Rule("numbers", -10.0, 10.0, length=3),
+        "quantize": BOOL,
+        "mag_field_h_gauss": num(0.0, 2.0),
+        "mag_field_z_gauss": num(-2.0, 2.0),
+        "drag_model": one_of("constant", "reynolds"),
+        "drag_crisis_reynolds": pos(1e8),
+        "drag_crisis_exponent": pos(50.0),
+        "avionics_offset_m": num(0.0, 20.0),
+        "avionics_kg": num(0.0, 1000.0),
+    },
+    "filter": {
+        "imu_rate_hz": pos(10000.0),
+        "float32": BOOL,
+        "accel_process_mps2": pos(100.0),
+        "expected_wind_mps": num(0.0, 50.0),
+        "turbulence_intensity": pos(1.0),
+        "drag_walk_rt_s": num(0.0, 1.0),
+        "gyro_bias_walk_dps_rt_s": num(0.0, 10.0),
+        "accel_model_mps2": num(0.0, 100.0),
+        "accel_taut_mps2": num(0.0, 100.0),
+        "accel_static_mps2": num(0.0, 100.0),
+        "align_rad": num(0.0, 1.0),
+        "radial_m": pos(100.0),
+        "radial_rate_mps": pos(100.0),
+        "rope_normal_cd": num(0.0, 5.0),
+        "gate_sigma": pos(100.0),
+        "recover_after_s": num(0.0, 3600.0),
+        "init_wind_mps": pos(100.0),
+        "init_drag": pos(10.0),
+        "init_gyro_bias_dps": pos(100.0),
+        "init_tilt_deg": pos(180.0),
+        "init_yaw_deg": pos(360.0),
+        "taut_margin_m": num(0.0, 100.0),
+        "mode_dwell_s": num(0.0, 3600.0),
+        "release_accel_mps2": pos(100.0),
+        "release_height_m": num(0.0, 1000.0),
+        "max_gap_s": pos(3600.0),
+    },
+}
+KNOWN_SECTIONS = tuple(SCHEMA)
+SIM_IMU_HZ = 100.0  # the simulator's IMU rate: its physics step must divide it evenly
+# defaults of the simulator's keys that cross-key checks need when the file leaves them out
+# (sim_hil.wind.WindConfig, sim_hil.dynamics.TruthConfig; tests/test_user_errors.py keeps them equal)
+SIM_DEFAULTS = {"wind.sample_hz": 20.0, "truth.avionics_kg": 0.5, "truth.physics_hz": 200.0}
+
+
+def check_value(section: str, key: str, val: Any) -> Any:
+    """``val`` checked against the schema; numbers come back as float, lists as tuples of float."""
+    rule = SCHEMA[section][key]
+    where = f"[{section}] {key}"
+    if rule.kind == "bool":
+        if not isinstance(val, bool):
+            raise ConfigError(f"{where} must be true or false, got {val!r}")
+        return val
+    if rule.kind == "str":
+        if not isinstance(val, str) or val not in rule.choices:
+            raise ConfigError(f"{where} must be {rule.describe()}, got {val!r}")
+        return val
+    if rule.kind == "numbers":
+        if not isinstance(val, (list, tuple)) or (rule.length is not None and len(val) != rule.length):
+            n = f"{rule.length} " if rule.length else ""
+            raise ConfigError(f"{where} must be a list of {n}numbers, got {val!r}")
+        return tuple(_number(where, x, rule) for x in val)
+    return _number(where, val, rule)
+
+
+def _number(where: str, val: Any, rule: Rule) -> float:
+    if isinstance(val, bool) or not isinstance(val, (int, float)):
+        raise ConfigError(f"{where} must be a number, got {val!r}")
+    x = float(val)
+    if not math.isfinite(x):
+        raise ConfigError(f"{where} must be finite, got {val}")
+    if x < rule.lo or x > rule.hi or (rule.lo_open and x == rule.lo):
+        raise ConfigError(f"{where} must be {rule.describe()}, got {val}")
+    return x
+
+
+def validate_document(data: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The whole parsed file checked against ``SCHEMA`` (every section, whichever program reads it),
+    plus the checks that involve two keys. Returns the values with numbers as floats."""
+    out: dict[str, dict[str, Any]] = {}
+    for section, values in data.items():
+        if section not in SCHEMA:
+            raise ConfigError(f"unknown section [{section}]; known: {', '.join(KNOWN_SECTIONS)}")
+        if not isinstance(values, dict):
+            raise ConfigError(f"[{section}] must be a table")
+        known = SCHEMA[section]
+        for key in values:
+            if key not in known:
+                raise ConfigError(f"unknown key '{key}' in [{section}]; known: {', '.join(sorted(known))}")
+        out[section] = {key: check_value(section, key, val) for key, val in values.items()}
+    wind, truth, balloon = out.get("wind", {}), out.get("truth", {}), out.get("balloon", {})
+    sample_hz = wind.get("sample_hz", SIM_DEFAULTS["wind.sample_hz"])
+    if max(wind.get("multisine_hz", ()), default=0.0) >= sample_hz / 2:
+        raise ConfigError(f"[wind] multisine_hz must lie below sample_hz / 2 (Nyquist, {sample_hz / 2:g} Hz)")
+    physics_hz = truth.get("physics_hz", SIM_DEFAULTS["truth.physics_hz"])
+    if physics_hz % SIM_IMU_HZ:
+        raise ConfigError(f"[truth] physics_hz must be a multiple of the {SIM_IMU_HZ:g} Hz IMU rate: {physics_hz:g}")
+    offset = truth.get("avionics_offset_m", 0.0)
+    if offset > 0.0:
+        radius = balloon.get("radius_m", BalloonConfig.radius_m)
+        if offset >= radius:
+            raise ConfigError(f"[truth] avionics_offset_m = {offset:g} must be inside the sphere (< radius {radius:g})")
+        skin = balloon.get("skin_and_avionics_kg", BalloonConfig.skin_and_avionics_kg)
+        if truth.get("avionics_kg", SIM_DEFAULTS["truth.avionics_kg"]) > skin:
+            raise ConfigError("[truth] avionics_kg must not exceed [balloon] skin_and_avionics_kg")
+    return out
+
+
 def build_section(cls: type, section: str, values: dict[str, Any]) -> Any:
-    """Instantiate a frozen dataclass from a TOML table, rejecting unknown keys and non-finite numbers."""
+    """Instantiate a frozen dataclass from a TOML table checked against ``SCHEMA``."""
     if not isinstance(values, dict):
         raise ConfigError(f"[{section}] must be a table")
-    names = {f.name: f for f in dataclasses.fields(cls)}
-    for key, val in values.items():
-        if key not in names:
-            raise ConfigError(f"unknown key '{key}' in [{section}]; known: {', '.join(sorted(names))}")
-        if isinstance(val, bool):
-            continue
-        if isinstance(val, (int, float)) and not math.isfinite(float(val)):
-            raise ConfigError(f"[{section}] {key} must be finite, got {val}")
-    converted = {}
-    for key, val in values.items():
-        default = names[key].default
-        if isinstance(default, float) or (default is None and isinstance(val, (int, float))):
-            if not isinstance(val, (int, float)) or isinstance(val, bool):
-                raise ConfigError(f"[{section}] {key} must be a number, got {val!r}")
-            val = float(val)
-        converted[key] = val
-    return cls(**converted)
+    checked = validate_document({section: values})[section]
+    return cls(**checked)
+
+
+def lift_balance(d: Design) -> tuple[float, float, float, float, float]:
+    """(buoyancy, skin and avionics weight, gas weight, tether weight, net lift) in N at the ground
+    (the simulator's air: ground_pressure_hpa or 1013.25 hPa at ground_temperature_c)."""
+    from firmware_py.atmosphere import G0, R_AIR
+
+    p0 = (d.site.ground_pressure_hpa or 1013.25) * 100.0
+    rho = p0 / (R_AIR * (d.site.ground_temperature_c + 273.15))
+    b = d.balloon
+    buoyancy = rho * b.volume_m3 * G0
+    skin = b.skin_and_avionics_kg * G0
+    gas = b.gas_mass_kg * G0
+    rope = d.tether.linear_density_kg_m * d.tether.length_m * G0
+    return buoyancy, skin, gas, rope, buoyancy - skin - gas - rope
 
 
 def _check_design(d: Design) -> None:
-    positive = {
-        "balloon.radius_m": d.balloon.radius_m,
-        "balloon.skin_and_avionics_kg": d.balloon.skin_and_avionics_kg,
-        "balloon.drag_coefficient": d.balloon.drag_coefficient,
-        "tether.length_m": d.tether.length_m,
-        "sensors.accel_mps2": d.sensors.accel_mps2,
-        "sensors.baro_m": d.sensors.baro_m,
-        "sensors.gyro_dps": d.sensors.gyro_dps,
-        "sensors.mag_gauss": d.sensors.mag_gauss,
-        "sensors.thermometer_k": d.sensors.thermometer_k,
-    }
-    for name, v in positive.items():
-        if not v > 0.0:
-            raise ConfigError(f"{name} must be > 0, got {v}")
-    if d.balloon.gas_density_kg_m3 < 0 or d.tether.linear_density_kg_m < 0:
-        raise ConfigError("densities must be >= 0")
-    if d.site.ground_pressure_hpa is not None and not 300.0 <= d.site.ground_pressure_hpa <= 1100.0:
-        raise ConfigError(f"site.ground_pressure_hpa out of range: {d.site.ground_pressure_hpa}")
+    buoyancy, skin, gas, rope, net = lift_balance(d)
+    if net <= 0.0:
+        raise ConfigError(
+            f"the balloon cannot lift its tether: buoyancy {buoyancy:.2f} N - skin and avionics {skin:.2f} N "
+            f"- gas {gas:.2f} N - tether {rope:.2f} N = net lift {net:.2f} N (needs > 0: a larger radius_m, "
+            f"a lighter skin, gas or tether)"
+        )
 
 
 def design_from_dict(data: dict[str, Any]) -> Design:
     """The shared sections of a parsed TOML document as a validated :class:`Design`."""
-    for section in data:
-        if section not in KNOWN_SECTIONS:
-            raise ConfigError(f"unknown section [{section}]; known: {', '.join(KNOWN_SECTIONS)}")
+    validate_document(data)
     parts = {name: build_section(cls, name, data.get(name, {})) for name, cls in _SHARED.items()}
     design = Design(**parts)
     _check_design(design)
@@ -148,13 +337,21 @@ def design_from_dict(data: dict[str, Any]) -> Design:
 
 
 def load_toml(path: str | Path) -> dict[str, Any]:
+    """A design file, parsed and checked as a whole (``validate_document``): any error is a ConfigError."""
     try:
         with open(path, "rb") as fh:
-            return tomllib.load(fh)
+            data = tomllib.load(fh)
     except FileNotFoundError as exc:
         raise ConfigError(f"config file not found: {path}") from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"cannot read config file {path}: {exc}") from exc
     except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from exc
+    try:
+        validate_document(data)
+    except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from exc
+    return data
 
 
 def load_design(path: str | Path | None) -> Design:

@@ -2,24 +2,27 @@
 
 from __future__ import annotations
 
-import argparse
 import signal
 import sys
 
+from firmware_py import userargs
+
+PROG = "balloon-gs"
+
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="balloon-gs", description="WIND_COV ground station")
+    ap = userargs.Parser(prog=PROG, description="WIND_COV ground station")
     sub = ap.add_subparsers(dest="cmd", required=True)
     li = sub.add_parser("listen", help="live view of WIND_COV from a UDP endpoint or a serial port")
-    li.add_argument("endpoint", help="udpin:0.0.0.0:14550, udpout:HOST:PORT, /dev/ttyUSB0:57600 ...")
-    li.add_argument("--csv", help="log every WIND_COV to this CSV")
-    li.add_argument("--tlog", help="log every received frame to this tlog")
-    li.add_argument("--duration", type=float, help="stop after this many seconds")
+    li.add_argument("endpoint", type=userargs.link, help="udpin:0.0.0.0:14550, udpout:HOST:PORT, /dev/ttyUSB0:57600")
+    li.add_argument("--csv", type=userargs.output_path, help="log every WIND_COV to this CSV")
+    li.add_argument("--tlog", type=userargs.output_path, help="log every received frame to this tlog")
+    li.add_argument("--duration", type=userargs.positive_float, help="stop after this many seconds")
     rp = sub.add_parser("report", help="score a WIND_COV log against a truth CSV and plot it")
-    rp.add_argument("file", help="ground-station CSV, .tlog or raw capture holding WIND_COV")
-    rp.add_argument("--truth", required=True, help="balloon-sim --truth CSV")
-    rp.add_argument("--plot", help="write the Fig. 6-style figure here (PNG)")
-    rp.add_argument("--start", type=float, default=120.0, help="score from this time since boot [s]")
+    rp.add_argument("file", type=userargs.input_file, help="ground-station CSV, .tlog or raw capture holding WIND_COV")
+    rp.add_argument("--truth", required=True, type=userargs.input_file, help="balloon-sim --truth CSV")
+    rp.add_argument("--plot", type=userargs.output_path, help="write the Fig. 6-style figure here (PNG)")
+    rp.add_argument("--start", type=userargs.start_time, default=120.0, help="score from this time since boot [s]")
     args = ap.parse_args(argv)
     if args.cmd == "listen":
         from ground_station.listen import GroundStation, listen
@@ -27,23 +30,24 @@ def main(argv: list[str] | None = None) -> int:
         stopping: list[int] = []
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, lambda *_: stopping.append(1))
-        gs = GroundStation(args.csv, args.tlog)
+        try:
+            gs = GroundStation(args.csv, args.tlog)
+        except OSError as exc:
+            return userargs.fail(PROG, exc)
         try:
             listen(args.endpoint, gs, lambda: bool(stopping), args.duration)
-        except ValueError as exc:
-            print(f"balloon-gs: {exc}", file=sys.stderr)
-            return 2
-        finally:
+        except (ValueError, OSError) as exc:
             gs.close()
-            print(gs.summary(), file=sys.stderr)
+            return userargs.fail(PROG, exc)
+        gs.close()
+        print(gs.summary(), file=sys.stderr)
         return 0
     from ground_station.report import format_score, report
 
     try:
         s = report(args.file, args.truth, args.plot, args.start)
     except (ValueError, OSError) as exc:
-        print(f"balloon-gs report: {exc}", file=sys.stderr)
-        return 2
+        return userargs.fail(f"{PROG} report", exc)
     print(format_score(s))
     if args.plot:
         print(f"plot: {args.plot}")

@@ -28,6 +28,25 @@ def psd(x: np.ndarray, fs: float, segment_s: float = 200.0) -> tuple[np.ndarray,
     return np.fft.rfftfreq(n, 1.0 / fs), acc / max(k, 1)
 
 
+TRUTH_NEEDED = ("time_s", "wind_n", "wind_e")
+
+
+def read_truth(path: str) -> dict[str, np.ndarray]:
+    """A balloon-sim truth CSV, checked: a header with the columns scoring needs and at least 2 rows."""
+    with open(path, errors="replace") as fh:
+        header = fh.readline().strip().split(",")
+        has_rows = bool(fh.readline().strip()) and bool(fh.readline().strip())
+    missing = [c for c in TRUTH_NEEDED if c not in header]
+    if missing:
+        raise ValueError(f"{path}: not a balloon-sim truth CSV (no column {', '.join(missing)})")
+    if not has_rows:
+        raise ValueError(f"{path}: the truth CSV holds fewer than 2 rows")
+    truth = read_truth_csv(path)
+    if not all(np.all(np.isfinite(truth[c])) for c in TRUTH_NEEDED):
+        raise ValueError(f"{path}: the truth CSV holds values that are not numbers")
+    return truth
+
+
 def report(wind_path: str, truth_path: str, plot_path: str | None = None, start_s: float = 120.0) -> Score:
     if wind_path.endswith(".nc"):  # a balloon-gs reprocess product: its smoothed wind and accuracy
         from ground_station.products import read_netcdf_wind
@@ -37,7 +56,7 @@ def report(wind_path: str, truth_path: str, plot_path: str | None = None, start_
         est = as_arrays(read_records(wind_path))
     if len(est["time_s"]) < 10:
         raise ValueError(f"{wind_path}: fewer than 10 WIND_COV messages")
-    truth = read_truth_csv(truth_path)
+    truth = read_truth(truth_path)
     s = score(est["time_s"], est["wind_n"], est["wind_e"], est["accuracy"],
               truth["time_s"], truth["wind_n"], truth["wind_e"], start_s=start_s)  # fmt: skip
     if plot_path:

@@ -54,9 +54,15 @@ def read_records(path: str) -> list[WindRecord]:
     """WIND_COV records from a ground-station CSV, a .tlog or a raw MAVLink capture."""
     if path.endswith(".csv"):
         with open(path, newline="") as fh:
-            rows = list(csv.DictReader(fh))
-        return [WindRecord(int(r["time_usec"]), int(r["sysid"]), int(r["compid"]),
-                           *(float(r[k]) for k in CSV_COLUMNS[3:11])) for r in rows]  # fmt: skip
+            reader = csv.DictReader(fh)
+            missing = [c for c in CSV_COLUMNS[:11] if c not in (reader.fieldnames or ())]
+            if missing:
+                raise ValueError(f"{path}: not a ground-station WIND_COV CSV (no column {', '.join(missing[:3])})")
+            try:
+                return [WindRecord(int(r["time_usec"]), int(r["sysid"]), int(r["compid"]),
+                                   *(float(r[k]) for k in CSV_COLUMNS[3:11])) for r in reader]  # fmt: skip
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f"{path} line {reader.line_num}: {exc}") from None
     from firmware_py.mavio import LinkStats, raw_messages, tlog_messages
 
     stats = LinkStats()

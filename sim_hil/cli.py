@@ -2,33 +2,36 @@
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 
+from firmware_py import userargs
 from firmware_py.config import ConfigError
 from firmware_py.mavio import TlogWriter
 from firmware_py.progress import Progress
 from sim_hil.packets import SensorPacketEncoder
 from sim_hil.scenarios import SCENARIOS, WIND_CHOICES, resolve
-from sim_hil.simulator import Simulation, write_truth_csv
+from sim_hil.simulator import Simulation, TruthCsvWriter
+
+PROG = "balloon-sim"
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="balloon-sim", description="Tethered-balloon HIL simulator")
+def build_parser() -> userargs.Parser:
+    p = userargs.Parser(prog=PROG, description="Tethered-balloon HIL simulator")
     p.add_argument("--scenario", default="paper-reference", help="named scenario (see --list-scenarios)")
-    p.add_argument("--duration", type=float, default=600.0, help="simulated seconds")
-    p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--out", help="FILE.tlog or a raw FILE (as fast as possible), or a UDP endpoint / serial "
-                   "port (paced: --speed, --lockstep)")
-    p.add_argument("--truth", help="truth CSV, one row per IMU sample")
-    p.add_argument("--config", help="TOML design file (overrides the scenario)")
+    p.add_argument("--duration", type=userargs.duration, default=600.0, help="simulated seconds (at most 7 days)")
+    p.add_argument("--seed", type=userargs.seed, default=1, help="0 .. 2^32-1")
+    p.add_argument("--out", type=userargs.sink, help="FILE.tlog or a raw FILE (as fast as possible), or a UDP "
+                   "endpoint / serial port (paced: --speed, --lockstep)")  # fmt: skip
+    p.add_argument("--truth", type=userargs.output_path, help="truth CSV, one row per IMU sample")
+    p.add_argument("--config", type=userargs.input_file, help="TOML design file (overrides the scenario)")
     p.add_argument("--wind", choices=sorted(WIND_CHOICES), help="override the scenario's wind model")
-    p.add_argument("--speed", type=float, default=1.0,
+    p.add_argument("--speed", type=userargs.nonneg_float, default=1.0,
                    help="UDP/serial output: N x real time (0: as fast as possible)")
     p.add_argument("--lockstep", action="store_true",
                    help="do not run ahead of the firmware's WIND_COV time (lossless fast runs)")
-    p.add_argument("--lockstep-window", type=float, default=0.5, help="seconds the simulator may lead")
+    p.add_argument("--lockstep-window", type=userargs.positive_float, default=0.5,
+                   help="seconds the simulator may lead")
     p.add_argument("--quiet", action="store_true", help="no progress bar / status lines (the final line stays)")
     p.add_argument("--list-scenarios", action="store_true")
     p.add_argument("--print-config", action="store_true",
@@ -45,30 +48,29 @@ def main(argv: list[str] | None = None) -> int:
     try:
         sc = resolve(args.scenario, args.config, args.wind)
     except ConfigError as exc:
-        print(f"balloon-sim: {exc}", file=sys.stderr)
-        return 2
+        return userargs.fail(PROG, exc)
     if args.print_config:
         print(sc.to_toml(), end="")
         return 0
-    if args.duration <= 0:
-        print("balloon-sim: --duration must be > 0", file=sys.stderr)
-        return 2
-    sim = Simulation(sc.design, sc.wind, sc.truth, args.duration, args.seed)
+    try:
+        truth_csv = TruthCsvWriter(args.truth) if args.truth else None
+        return _run(args, sc, truth_csv)
+    except (OSError, ValueError) as exc:
+        return userargs.fail(PROG, exc)
+
+
+def _run(args, sc, truth_csv: TruthCsvWriter | None) -> int:
+    sim = Simulation(sc.design, sc.wind, sc.truth, args.duration, args.seed, keep_truth=False, truth_sink=truth_csv)
     enc = SensorPacketEncoder()
     t0 = time.perf_counter()
     n = 0
     out = args.out
-    bar = Progress("balloon-sim", total=args.duration, unit="s simulated", quiet=args.quiet)
+    bar = Progress(PROG, total=args.duration, unit="s simulated", quiet=args.quiet)
     try:
-        if out and (out.startswith(("udpin:", "udpout:")) or out.startswith("/dev/") or "://" in out):
+        if out and userargs.is_link(out):
             from sim_hil.link import stream_udp  # network edge, only when asked for
 
-            try:
-                n = stream_udp(sim, enc, out, args, bar)
-            except ValueError as exc:
-                bar.close()
-                print(f"balloon-sim: {exc}", file=sys.stderr)
-                return 2
+            n = stream_udp(sim, enc, out, args, bar)
         elif out:
             with open(out, "wb") as fh:
                 tlog = out.endswith(".tlog")
@@ -87,15 +89,19 @@ def main(argv: list[str] | None = None) -> int:
                 bar.done = s.time_usec * 1e-6
     finally:
         bar.close()
-    if args.truth:
-        write_truth_csv(args.truth, sim.truth[:n])
+        sim.flush_truth()
+        if truth_csv is not None:
+            truth_csv.close()
     wall = time.perf_counter() - t0
+    simulated = n / sim.imu_hz
+    interrupted = n < sim.n_imu
     print(
-        f"balloon-sim: {sc.name} seed {args.seed}: {n} IMU samples, {args.duration:.0f} s simulated "
-        f"in {wall:.1f} s ({args.duration / max(wall, 1e-9):.0f}x real time)",
+        f"{PROG}: {sc.name} seed {args.seed}: {n} IMU samples, {simulated:.0f} s simulated "
+        f"in {wall:.1f} s ({simulated / max(wall, 1e-9):.0f}x real time)"
+        + (f"; interrupted before the {args.duration:.0f} s asked for" if interrupted else ""),
         file=sys.stderr,
     )
-    return 0
+    return 130 if interrupted else 0
 
 
 if __name__ == "__main__":

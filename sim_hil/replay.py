@@ -19,7 +19,18 @@ import sys
 import time
 from dataclasses import dataclass
 
-from firmware_py.mavio import MAGIC_V1, MAGIC_V2, TLOG_HEADER, Decoder, LinkStats, frame_length, open_link
+from firmware_py import userargs
+from firmware_py.mavio import (
+    MAGIC_V1,
+    MAGIC_V2,
+    TLOG_HEADER,
+    Decoder,
+    LinkStats,
+    frame_length,
+    open_link,
+    raw_messages,
+    tlog_messages,
+)
 from firmware_py.progress import Progress
 from sim_hil.link import Lockstep
 
@@ -154,33 +165,48 @@ def replay(path: str, out: str, speed: float, stop=lambda: False, lockstep: bool
     return res
 
 
+def first_frame(path: str):
+    """The first MAVLink message in a capture (None if there is none), without reading it all."""
+    stats = LinkStats()
+    if path.endswith(".tlog"):
+        return next(iter(tlog_messages(path, stats)), None)
+    with open(path, "rb") as fh:
+        return next(iter(raw_messages(fh, stats)), None)
+
+
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="balloon-replay", description=__doc__.split("\n\n")[0].replace("``", ""))
-    ap.add_argument("file", help=".tlog or raw capture")
-    ap.add_argument("--out", required=True, help="udpout:HOST:PORT, udpin:..., or a serial port")
-    ap.add_argument("--speed", type=float, default=1.0, help="N x recorded timing; 0 = as fast as possible")
+    prog = "balloon-replay"
+    ap = userargs.Parser(prog=prog, description=" ".join(__doc__.split("\n\n")[0].replace("``", "").split()))
+    ap.add_argument("file", type=userargs.input_file, help=".tlog or raw capture")
+    ap.add_argument("--out", required=True, type=userargs.link, help="udpout:HOST:PORT, udpin:..., or a serial port")
+    ap.add_argument("--speed", type=userargs.nonneg_float, default=1.0,
+                    help="N x recorded timing; 0 = as fast as possible")
     ap.add_argument("--lockstep", action=argparse.BooleanOptionalAction, default=None,
                     help="send only as fast as the firmware's WIND_COV acknowledges (default: on with --speed 0)")
-    ap.add_argument("--lockstep-window", type=float, default=0.5, help="seconds the replay may lead the firmware")
+    ap.add_argument("--lockstep-window", type=userargs.positive_float, default=0.5,
+                    help="seconds the replay may lead the firmware")
     ap.add_argument("--quiet", action="store_true", help="no progress bar / status lines (the final line stays)")
     args = ap.parse_args(argv)
     lockstep = args.lockstep if args.lockstep is not None else args.speed == 0
+    try:
+        if first_frame(args.file) is None:
+            return userargs.fail(prog, f"no MAVLink frame in {args.file}")
+    except OSError as exc:
+        return userargs.fail(prog, exc)
     stopping: list[int] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stopping.append(1))
     try:
         size = os.path.getsize(args.file)
     except OSError as exc:
-        print(f"balloon-replay: {exc}", file=sys.stderr)
-        return 2
-    bar = Progress("balloon-replay", total=size / 1e6, unit="MB", quiet=args.quiet)
+        return userargs.fail(prog, exc)
+    bar = Progress(prog, total=size / 1e6, unit="MB", quiet=args.quiet)
     try:
         res = replay(args.file, args.out, args.speed, lambda: bool(stopping), lockstep, args.lockstep_window,
                      progress=bar)  # fmt: skip
     except (OSError, ValueError) as exc:
         bar.close()
-        print(f"balloon-replay: {exc}", file=sys.stderr)
-        return 2
+        return userargs.fail(prog, exc)
     bar.close()
     print(res.final_line(args.out, args.speed), file=sys.stderr)
     return 0

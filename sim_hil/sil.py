@@ -8,7 +8,6 @@ them all cleanly (also on Ctrl-C or when one of them dies), then scores the run 
 
 from __future__ import annotations
 
-import argparse
 import os
 import signal
 import socket
@@ -16,6 +15,8 @@ import subprocess
 import sys
 import threading
 import time
+
+from firmware_py import userargs
 
 
 def free_port() -> int:
@@ -54,16 +55,40 @@ class Children:
         return [n for n, p in self.procs.items() if p.poll() is not None]
 
 
+PROG = "balloon-sil"
+DEFAULT_START_S = 120.0  # the estimator has settled by then (release at 5 s)
+MIN_SCORED_S = 20.0  # the least a score is computed over
+
+
+def last_lines(text: str | None, n: int = 5) -> str:
+    lines = [ln for ln in (text or "").strip().splitlines() if ln.strip()]
+    return "\n".join("    " + ln for ln in lines[-n:]) or "    (nothing on stderr)"
+
+
+def score_start(duration_s: float, start_s: float | None) -> float | None:
+    """Where scoring starts: ``start_s`` if given, else 120 s, moved earlier for a short run so that at
+    least MIN_SCORED_S are scored (never before 40 % of the run); None if the run is too short."""
+    if start_s is None:
+        start_s = min(DEFAULT_START_S, max(0.4 * duration_s, duration_s - MIN_SCORED_S - 1.0))
+    return start_s if duration_s - start_s >= MIN_SCORED_S else None
+
+
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="balloon-sil", description="simulator + firmware + ground station")
+    ap = userargs.Parser(prog=PROG, description="simulator + firmware + ground station")
     ap.add_argument("--scenario", default="paper-reference")
-    ap.add_argument("--duration", type=float, default=600.0, help="simulated seconds")
-    ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--speed", type=float, default=10.0, help="N x real time (lockstep keeps it lossless)")
-    ap.add_argument("--config", help="TOML design file for simulator and firmware")
-    ap.add_argument("--outdir", default="out", help="truth, logs and plot go here")
+    ap.add_argument("--duration", type=userargs.duration, default=600.0, help="simulated seconds")
+    ap.add_argument("--seed", type=userargs.seed, default=1)
+    ap.add_argument("--speed", type=userargs.positive_float, default=10.0,
+                    help="N x real time (lockstep keeps it lossless)")
+    ap.add_argument("--config", type=userargs.input_file, help="TOML design file for simulator and firmware")
+    ap.add_argument("--outdir", type=userargs.output_dir, default="out", help="truth, logs and plot go here")
+    ap.add_argument("--start", type=userargs.start_time,
+                    help="score from this time since boot [s] (default 120, earlier for a short run)")
     args = ap.parse_args(argv)
-    os.makedirs(args.outdir, exist_ok=True)
+    try:
+        os.makedirs(args.outdir, exist_ok=True)
+    except OSError as exc:
+        return userargs.fail(PROG, exc)
     tag = f"{args.scenario}-seed{args.seed}"
     truth = os.path.join(args.outdir, f"{tag}-truth.csv")
     gs_csv = os.path.join(args.outdir, f"{tag}-wind.csv")
@@ -78,8 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         sc = resolve(args.scenario, args.config)
     except ConfigError as exc:
-        print(f"balloon-sil: {exc}", file=sys.stderr)
-        return 2
+        return userargs.fail(PROG, exc)
     design = os.path.join(args.outdir, f"{tag}-design.toml")
     with open(design, "w") as fh:
         fh.write(sc.to_toml())
@@ -110,19 +134,31 @@ def main(argv: list[str] | None = None) -> int:
         next_show = 0.0
         while sim.poll() is None:
             if stopping:
-                print("\nballoon-sil: interrupted, stopping all", file=sys.stderr)
-                return 130
+                break
             died = [n for n in kids.dead() if n != "sim"]
             if died:
-                print(f"\nballoon-sil: {', '.join(died)} died; stopping all", file=sys.stderr)
+                print(f"\n{PROG}: {', '.join(died)} died; stopping all", file=sys.stderr)
+                for n in died:
+                    p = kids.procs[n]
+                    print(f"  {n} (exit {p.returncode}), last lines on its stderr:\n"
+                          f"{last_lines(p.stderr.read())}", file=sys.stderr)  # fmt: skip
                 return 1
             now = time.monotonic()
             if not tty and now >= next_show and latest[0]:
                 print(latest[0], flush=True)
                 next_show = now + 10.0
             time.sleep(0.1)
+        if stopping or sim.returncode == 130:
+            kids.stop_all()
+            said = [ln for ln in sim.stderr.read().splitlines() if "simulated" in ln]
+            if said:
+                print(said[-1], file=sys.stderr)
+            print(f"{PROG}: interrupted after {time.monotonic() - t_start:.0f} s; logs so far in {args.outdir}",
+                  file=sys.stderr)  # fmt: skip
+            return 130
         if sim.returncode != 0:
-            print(f"balloon-sil: simulator failed:\n{sim.stderr.read()}", file=sys.stderr)
+            print(f"{PROG}: simulator failed (exit {sim.returncode}), last lines on its stderr:\n"
+                  f"{last_lines(sim.stderr.read())}", file=sys.stderr)  # fmt: skip
             return 1
         time.sleep(1.0)  # the last WIND_COV reach the ground station
         kids.stop("fw")
@@ -140,12 +176,18 @@ def main(argv: list[str] | None = None) -> int:
     wall = time.monotonic() - t_start
     from ground_station.report import format_score, report
 
+    start = score_start(args.duration, args.start)
+    if start is None:
+        after = "" if args.start is None else f" from {args.start:g} s"
+        print(f"{PROG}: a {args.duration:g} s run is too short to score{after} (needs {MIN_SCORED_S:g} s of "
+              f"settled estimates); logs: {gs_csv}, {gs_tlog}   truth: {truth}")  # fmt: skip
+        return 0
     try:
-        s = report(gs_csv, truth, plot)
+        s = report(gs_csv, truth, plot, start)
     except ValueError as exc:
-        print(f"balloon-sil: cannot score: {exc}", file=sys.stderr)
+        print(f"{PROG}: cannot score: {exc}", file=sys.stderr)
         return 1
-    print(f"score: {format_score(s)}")
+    print(f"score: {format_score(s)}" + (f" (from {start:g} s)" if start != DEFAULT_START_S else ""))
     print(f"plot: {plot}   logs: {gs_csv}, {gs_tlog}   truth: {truth}   design: {design}   wall time {wall:.0f} s")
     print(loss_line(tails.get("sim", ""), tails.get("fw", ""), tails.get("gs", "")))
     return 0

@@ -7,7 +7,7 @@ goes; what is done with the samples (tlog, UDP, tests) is the caller's business.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,13 +24,14 @@ from sim_hil.dynamics import (
     rk4_step,
 )
 from sim_hil.sensors import SensorSuite
-from sim_hil.wind import WindConfig, WindSeries, generate_wind
+from sim_hil.wind import WindConfig, WindSeries, WindStream, wind_source
 
 TRUTH_COLUMNS = (
     "time_s", "wind_n", "wind_e", "wind_d", "pos_n", "pos_e", "pos_d", "vel_n", "vel_e", "vel_d",
     "roll_deg", "pitch_deg", "yaw_deg", "tether_taut", "tension_n", "height_m",
 )  # fmt: skip
 CHUNK_STEPS = 4000
+TRUTH_CHUNK_ROWS = 6000  # truth rows handed to the sink at a time (keep_truth=False): one minute at 100 Hz
 
 
 @dataclass(frozen=True)
@@ -52,8 +53,12 @@ class Simulation:
         seed: int,
         imu_hz: float = 100.0,
         baro_hz: float = 20.0,
-        wind_series: WindSeries | None = None,
+        wind_series: WindSeries | WindStream | None = None,
+        keep_truth: bool = True,
+        truth_sink: Callable[[np.ndarray], None] | None = None,
     ) -> None:
+        """``keep_truth``: the whole flight's truth table in ``self.truth`` (memory grows with the
+        duration); otherwise it is handed to ``truth_sink`` in chunks of rows and not kept."""
         if duration_s <= 0:
             raise ValueError("duration must be > 0")
         self.design, self.truth_cfg = design, truth
@@ -63,19 +68,40 @@ class Simulation:
         self.baro_every = max(1, round(imu_hz / baro_hz))
         self.n_imu = int(round(duration_s * imu_hz))
         self.imu_hz = imu_hz
-        self.wind = wind_series or generate_wind(
+        self.wind = wind_series or wind_source(
             wind, duration_s + 1.0, seed, 2.0 * design.balloon.radius_m if truth.spatial_filter else 0.0
         )
         self.sensors = SensorSuite(design, truth, imu_hz, seed)
         self.state = resting_state(self.physics, math.radians(truth.initial_yaw_deg))
-        self.truth = np.zeros((self.n_imu, len(TRUTH_COLUMNS)))
+        self.keep_truth = keep_truth
+        self.truth_sink = truth_sink
+        rows = self.n_imu if keep_truth else min(self.n_imu, TRUTH_CHUNK_ROWS)
+        self.truth = np.zeros((rows, len(TRUTH_COLUMNS)))
+        self._truth_base = 0  # flight row index of self.truth[0]
+        self._truth_rows = 0  # rows filled so far (whole flight)
+        self.samples_done = 0  # IMU samples yielded so far
+
+    def flush_truth(self) -> None:
+        """Hand the truth rows not yet handed over to the sink (streaming mode; idempotent)."""
+        if self.keep_truth:
+            if self.truth_sink is not None and self._truth_rows > self._truth_base:
+                self.truth_sink(self.truth[self._truth_base : self._truth_rows])
+                self._truth_base = self._truth_rows
+            return
+        k = self._truth_rows - self._truth_base
+        if k > 0 and self.truth_sink is not None:
+            self.truth_sink(self.truth[:k])
+        self._truth_base = self._truth_rows
 
     def _wind_chunk(self, step0: int, n: int) -> list[list[float]]:
         """Wind (n, e, d, dn, de, dd) at physics half-steps step0*h ... (step0+n)*h, as plain floats."""
         t = (step0 + np.arange(2 * n + 1) * 0.5) * self.h
-        grid = np.arange(len(self.wind.ned)) * self.wind.dt_s
-        cols = [np.interp(t, grid, self.wind.ned[:, k]) for k in range(3)]
-        cols += [np.interp(t, grid, self.wind.rate[:, k]) for k in range(3)]
+        dt = self.wind.dt_s
+        i0 = int(t[0] / dt)
+        ned, rate = self.wind.window(i0, int(math.ceil(t[-1] / dt)) + 1)
+        grid = (i0 + np.arange(len(ned))) * dt
+        cols = [np.interp(t, grid, ned[:, k]) for k in range(3)]
+        cols += [np.interp(t, grid, rate[:, k]) for k in range(3)]
         return np.column_stack(cols).tolist()
 
     def samples(self) -> Iterator[SensorSample]:
@@ -86,6 +112,8 @@ class Simulation:
         spi = self.steps_per_imu
         n_steps = self.n_imu * spi
         truth = self.truth
+        chunk_rows = len(truth)
+        keep = self.keep_truth
         zero = [0.0] * 13
         baro_every = self.baro_every
         d = ph.imu_offset_m  # avionics (IMU, barometer) this far below the centre along body z
@@ -114,11 +142,15 @@ class Simulation:
                         sensor_height = height
                     baro = self.sensors.baro(sensor_height) if i % baro_every == 0 else None
                     roll, pitch, yaw = euler_from_quat(*s[6:10])
-                    truth[i] = (
+                    if not keep and i - self._truth_base == chunk_rows:
+                        self.flush_truth()
+                    truth[i - self._truth_base if not keep else i] = (
                         step * h, w0[0], w0[1], w0[2], s[0], s[1], s[2], s[3], s[4], s[5],
                         math.degrees(roll), math.degrees(pitch), math.degrees(yaw),
                         1.0 if tension > 0.0 else 0.0, tension, height,
                     )  # fmt: skip
+                    self._truth_rows = i + 1
+                    self.samples_done = i + 1
                     yield SensorSample(round(step * h * 1e6), acc, gyro, mag, baro)
                 if not held:
                     s = rk4_step(s, h, w0, wind[2 * j + 1], wind[2 * j + 2], ph, k1)
@@ -126,7 +158,23 @@ class Simulation:
 
     def run(self) -> int:
         """Run the whole flight, discarding the sensor samples; returns their count."""
-        return sum(1 for _ in self.samples())
+        n = sum(1 for _ in self.samples())
+        self.flush_truth()
+        return n
+
+
+class TruthCsvWriter:
+    """The truth CSV written as the rows come (a truth sink): memory does not grow with the flight."""
+
+    def __init__(self, path: str) -> None:
+        self.fh = open(path, "w")
+        self.fh.write(",".join(TRUTH_COLUMNS) + "\n")
+
+    def __call__(self, rows: np.ndarray) -> None:
+        np.savetxt(self.fh, rows, delimiter=",", fmt="%.6f")
+
+    def close(self) -> None:
+        self.fh.close()
 
 
 def write_truth_csv(path: str, truth: np.ndarray) -> None:

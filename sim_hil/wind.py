@@ -2,9 +2,10 @@
 above the spectral gap, a multisine for frequency-response tests (along the mean wind, or along and
 across it), and a steady wind.
 
-All generators are vectorised: a whole flight is synthesised up front (inverse FFT for the
+All generators are vectorised: a flight of up to ``STREAM_ABOVE_S`` is synthesised up front (inverse FFT for the
 unit-consistent spectra, a matrix of cosines for the paper's 47 discrete lines), so the cost per
-simulated sample does not depend on the number of frequency lines. The wind field is uniform in
+simulated sample does not depend on the number of frequency lines. Longer flights are made block by
+block (``WindStream``), so the simulator's memory does not grow with the duration. The wind field is uniform in
 space (no shear); the balloon sees it at its own position.
 """
 
@@ -184,6 +185,11 @@ class WindSeries:
     ned: np.ndarray  # (n, 3) m/s
     rate: np.ndarray  # (n, 3) m/s^2
 
+    def window(self, i0: int, i1: int) -> tuple[np.ndarray, np.ndarray]:
+        """NED wind and its rate at samples i0 .. i1 (clipped to the series)."""
+        i0, i1 = max(0, i0), min(len(self.ned) - 1, i1)
+        return self.ned[i0 : i1 + 1], self.rate[i0 : i1 + 1]
+
 
 def spatial_average(x: np.ndarray, sample_hz: float, length_m: float, mean_mps: float) -> np.ndarray:
     """The wind a body of size ``length_m`` feels: frozen turbulence (Taylor) averaged along the wind
@@ -241,10 +247,143 @@ def wind_components(
 def generate_wind(cfg: WindConfig, duration_s: float, seed: int, averaging_length_m: float = 0.0) -> WindSeries:
     """The wind for one flight: along-wind u, cross-wind v, vertical w (``wind_components``), rotated
     into NED, optionally as felt by a body of the given size (``spatial_average``)."""
-    u, v, w = wind_components(cfg, duration_s, seed, averaging_length_m)
+    ned = to_ned(cfg, *wind_components(cfg, duration_s, seed, averaging_length_m))
+    rate = np.gradient(ned, 1.0 / cfg.sample_hz, axis=0)
+    return WindSeries(1.0 / cfg.sample_hz, ned, rate)
+
+
+# ---------------------------------------------------------------- long flights: the wind in blocks
+
+STREAM_ABOVE_S = 6 * SECONDS_PER_HOUR  # longer flights are synthesised block by block (WindStream)
+SPLIT_HZ = 0.01  # below: one series for the whole flight on a coarse grid; above: overlapping blocks
+COARSE_HZ = 1.0  # sample rate of the low band (linear interpolation error < 2e-4 of a 0.01 Hz line)
+BLOCK_SAMPLES = 2**16  # high-band block: 55 min at 20 Hz, lines every 0.0003 Hz (1/33 of SPLIT_HZ)
+
+
+class WindStream:
+    """The wind of a long flight without holding the flight: memory does not grow with the duration
+    (a few MB whatever it is), the series is continuous and deterministic for a seed.
+
+    The spectrum is split at ``SPLIT_HZ``. Below it, a random-phase sum of cosines on the flight's own
+    frequency grid (as ``generate_wind``), synthesised once at ``COARSE_HZ`` (a day is 86 400 samples)
+    and interpolated. Above it, independent random-phase blocks of ``BLOCK_SAMPLES`` overlap by half and
+    are cross-faded with sine windows (w_j^2 + w_j+1^2 = 1), so the variance stays that of the band at
+    every instant and the spectrum is the band's, smoothed over 2 / block length. Block j draws its
+    phases from its own seed, so any stretch of the flight is made without the ones before it.
+    The paper's discrete lines and the multisine are evaluated directly at the requested times."""
+
+    def __init__(self, cfg: WindConfig, duration_s: float, seed: int, averaging_length_m: float = 0.0,
+                 block_samples: int = BLOCK_SAMPLES) -> None:  # fmt: skip
+        self.cfg = cfg
+        self.dt_s = 1.0 / cfg.sample_hz
+        self.n = int(math.ceil(duration_s * cfg.sample_hz)) + 2
+        self.seed = seed
+        self.block = block_samples - block_samples % 2
+        self.length_m = averaging_length_m if cfg.kind == "vdh" else 0.0
+        rng = np.random.default_rng(np.random.SeedSequence([seed, 0x57494E44]))
+        self.psds = self._component_psds()
+        self.coarse_hz = COARSE_HZ
+        mc, dfc = fft_grid(duration_s, COARSE_HZ)
+        self.low = np.zeros((3, mc))
+        self.high_var: dict[int, np.ndarray] = {}
+        for k, psd in self.psds.items():
+            low = band_variances(lambda f, p=psd: np.where(f < SPLIT_HZ, p(f), 0.0), mc, dfc)
+            self.low[k] = synthesize(low * self._felt(np.arange(low.size) * dfc), mc, rng)
+            dfb = cfg.sample_hz / self.block
+            high = band_variances(lambda f, p=psd: np.where(f >= SPLIT_HZ, p(f), 0.0), self.block, dfb)
+            self.high_var[k] = high * self._felt(np.arange(high.size) * dfb)
+        self.lines = None
+        if cfg.kind == "vdh" and cfg.vdh_amplitude == "paper":
+            omega, amp = paper_line_amplitudes(0.0, cfg.gap_cph / SECONDS_PER_HOUR)
+            self.lines = (omega, amp, rng.uniform(0.0, 2.0 * math.pi, size=amp.size))
+        self.ms_phases = None
+        if cfg.kind == "multisine":
+            n_lines = len(cfg.multisine_hz)
+            u = rng.uniform(0.0, 2.0 * math.pi, n_lines)
+            v = rng.uniform(0.0, 2.0 * math.pi, n_lines) if cfg.multisine_axes == "both" else None
+            self.ms_phases = (u, v)
+        self._cache: dict[int, np.ndarray] = {}
+
+    def _component_psds(self) -> dict:
+        cfg = self.cfg
+        out = {}
+        if cfg.kind != "vdh":
+            return out
+        if cfg.vdh_amplitude == "consistent":
+            out[0] = lambda f: longitudinal_psd(cfg, f)
+        elif cfg.turbulence == "kaimal":
+            out[0] = lambda f: above_gap_psd(cfg, "u", f)
+        if cfg.turbulence == "kaimal":
+            out[1] = lambda f: above_gap_psd(cfg, "v", f)
+            if cfg.vertical:
+                out[2] = lambda f: above_gap_psd(cfg, "w", f)
+        return out
+
+    def _felt(self, f: np.ndarray) -> np.ndarray:
+        """Variance factor of the averaging over the body (``spatial_average``): sinc^2(f L / U)."""
+        if self.length_m <= 0.0 or self.cfg.mean_mps <= 0.0:
+            return np.ones_like(f)
+        return np.sinc(f * self.length_m / self.cfg.mean_mps) ** 2
+
+    def _block(self, j: int) -> np.ndarray:
+        if j not in self._cache:
+            if len(self._cache) >= 4:
+                self._cache.pop(min(self._cache))  # the flight runs forward: drop the oldest
+            rng = np.random.default_rng(np.random.SeedSequence([self.seed, 0x57494E44, 1, j + 1]))
+            y = np.zeros((3, self.block))
+            for k, var in self.high_var.items():
+                y[k] = synthesize(var, self.block, rng)
+            self._cache[j] = y
+        return self._cache[j]
+
+    def components(self, i0: int, i1: int) -> np.ndarray:
+        """(3, i1 - i0 + 1): u, v, w at samples i0 .. i1."""
+        idx = np.arange(i0, i1 + 1)
+        t = idx * self.dt_s
+        out = np.zeros((3, idx.size))
+        if self.high_var:
+            half = self.block // 2
+            for j in range(i0 // half - 1, i1 // half + 1):
+                start = j * half
+                sel = (idx >= start) & (idx < start + self.block)
+                if not sel.any():
+                    continue
+                n = idx[sel] - start
+                out[:, sel] += np.sin(math.pi * (n + 0.5) / self.block) * self._block(j)[:, n]
+            grid = np.arange(self.low.shape[1]) / self.coarse_hz
+            for k in self.high_var:
+                out[k] += np.interp(t, grid, self.low[k])
+        if self.lines is not None:
+            omega, amp, xi = self.lines
+            for k in range(amp.size):
+                out[0] += amp[k] * np.cos(omega[k] * t + xi[k])
+        if self.ms_phases is not None:
+            u, v = self.ms_phases
+            out[0] += multisine(self.cfg.multisine_hz, self.cfg.multisine_amplitude_mps, u, t)
+            if v is not None:
+                out[1] += multisine(self.cfg.multisine_hz, self.cfg.multisine_amplitude_mps, v, t)
+        return out
+
+    def window(self, i0: int, i1: int) -> tuple[np.ndarray, np.ndarray]:
+        """NED wind and its rate, (i1 - i0 + 1, 3) each, at samples i0 .. i1 (as ``WindSeries.window``)."""
+        i0, i1 = max(0, i0), min(self.n - 1, i1)
+        lo, hi = max(0, i0 - 1), min(self.n - 1, i1 + 1)
+        ned = to_ned(self.cfg, *self.components(lo, hi))
+        rate = np.gradient(ned, self.dt_s, axis=0)
+        return ned[i0 - lo : i1 - lo + 1], rate[i0 - lo : i1 - lo + 1]
+
+
+def to_ned(cfg: WindConfig, u: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Along-wind, cross-wind and down fluctuations plus the mean wind, in NED, (n, 3)."""
     to_rad = math.radians(cfg.from_deg + 180.0)
     c, s = math.cos(to_rad), math.sin(to_rad)
     speed = cfg.mean_mps + u
-    ned = np.column_stack([speed * c - v * s, speed * s + v * c, w])
-    rate = np.gradient(ned, 1.0 / cfg.sample_hz, axis=0)
-    return WindSeries(1.0 / cfg.sample_hz, ned, rate)
+    return np.column_stack([speed * c - v * s, speed * s + v * c, w])
+
+
+def wind_source(cfg: WindConfig, duration_s: float, seed: int, averaging_length_m: float = 0.0):
+    """The wind of one flight for the simulator: the whole-flight series (``generate_wind``) up to
+    ``STREAM_ABOVE_S``, a ``WindStream`` (memory independent of the duration) beyond."""
+    if duration_s > STREAM_ABOVE_S:
+        return WindStream(cfg, duration_s, seed, averaging_length_m)
+    return generate_wind(cfg, duration_s, seed, averaging_length_m)

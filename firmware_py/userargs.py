@@ -1,0 +1,187 @@
+"""Command-line argument checking shared by every program: argparse ``type=`` functions that turn a
+bad value into a one-line error before any work starts, and a parser whose errors are one line.
+
+Every user error of every program ends the same way (CONTRACT.md): exit status 2 and ONE line on
+stderr, ``PROG: error: WHAT``. No usage block, no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+from typing import NoReturn
+
+# a week of simulated flight (about an hour of computing); memory does not grow with it (the wind, the
+# truth and the packets are streamed)
+MAX_DURATION_S = 7 * 86400.0
+MAX_SEED = 2**32 - 1
+UDP_KINDS = ("udpin:", "udpout:", "udp:", "tcp:", "tcpin:")
+
+
+class UserError(Exception):
+    """A problem the user can fix (bad input file, ...): reported as one line, exit 2."""
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with one-line errors: ``PROG: error: MESSAGE`` (no usage block), exit 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def fail(prog: str, message: object) -> int:
+    """Print the one-line user error and return exit status 2."""
+    text = " ".join(str(message).split()) or type(message).__name__
+    print(f"{prog}: error: {text}", file=sys.stderr)
+    return 2
+
+
+# ---------------------------------------------------------------- numbers
+
+
+def _number(text: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(x):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+    return x
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0 (nan, inf, 0 and negatives rejected)."""
+    x = _number(text)
+    if x <= 0.0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+    return x
+
+
+def nonneg_float(text: str) -> float:
+    """A finite number >= 0."""
+    x = _number(text)
+    if x < 0.0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
+    return x
+
+
+def start_time(text: str) -> float:
+    """A time since boot [s]: finite, >= 0."""
+    return nonneg_float(text)
+
+
+def duration(text: str) -> float:
+    """Seconds: finite, > 0 and at most a week."""
+    x = positive_float(text)
+    if x > MAX_DURATION_S:
+        raise argparse.ArgumentTypeError(f"must be at most {MAX_DURATION_S:.0f} s (7 days), got {text!r}")
+    return x
+
+
+def seed(text: str) -> int:
+    """An integer 0 .. 2^32 - 1."""
+    try:
+        n = int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if not 0 <= n <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"must be 0 .. {MAX_SEED}, got {text!r}")
+    return n
+
+
+# ---------------------------------------------------------------- endpoints and files
+
+
+def _port(spec: str, text: str) -> None:
+    if not text.isdigit() or not 1 <= int(text) <= 65535:
+        raise argparse.ArgumentTypeError(f"{spec}: port must be 1..65535, got {text!r}")
+
+
+def is_link(spec: str) -> bool:
+    """A network endpoint or a serial port (not a file)."""
+    return spec.startswith(UDP_KINDS) or spec.startswith("/dev/") or "://" in spec or spec.upper().startswith("COM")
+
+
+def link(spec: str) -> str:
+    """``udpin:HOST:PORT``, ``udpout:HOST:PORT``, ``/dev/ttyX[:BAUD]``, a pyserial URL or ``COMn[:BAUD]``."""
+    if spec.startswith(UDP_KINDS):
+        parts = spec.split(":")
+        if len(parts) != 3 or not parts[1]:
+            raise argparse.ArgumentTypeError(f"{spec}: expected {parts[0]}:HOST:PORT")
+        _port(spec, parts[2])
+        if not spec.startswith(("udpin:", "udpout:")):
+            raise argparse.ArgumentTypeError(f"{spec}: only udpin: and udpout: endpoints are supported")
+        return spec
+    if spec.startswith("/dev/") or spec.upper().startswith("COM"):
+        path, sep, baud = spec.rpartition(":")
+        if sep and baud.isdigit():
+            if int(baud) <= 0:
+                raise argparse.ArgumentTypeError(f"{spec}: baud rate must be > 0")
+        elif sep and not path.startswith("/dev/"):
+            raise argparse.ArgumentTypeError(f"{spec}: baud rate must be a positive integer, got {baud!r}")
+        return spec
+    if "://" in spec:
+        return spec
+    raise argparse.ArgumentTypeError(f"{spec}: not a UDP endpoint (udpin:HOST:PORT, udpout:HOST:PORT) or serial port")
+
+
+def output_path(path: str) -> str:
+    """A file to be written: its directory exists and is writable, and it is not a directory."""
+    if not path:
+        raise argparse.ArgumentTypeError("empty output path")
+    if os.path.isdir(path):
+        raise argparse.ArgumentTypeError(f"{path}: is a directory")
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(parent):
+        raise argparse.ArgumentTypeError(f"{path}: directory {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK) or (os.path.exists(path) and not os.access(path, os.W_OK)):
+        raise argparse.ArgumentTypeError(f"{path}: not writable")
+    return path
+
+
+def output_dir(path: str) -> str:
+    """A directory to write into: it exists and is writable, or its parent does (it will be created)."""
+    if os.path.isdir(path):
+        if not os.access(path, os.W_OK | os.X_OK):
+            raise argparse.ArgumentTypeError(f"{path}: directory not writable")
+        return path
+    if os.path.exists(path):
+        raise argparse.ArgumentTypeError(f"{path}: exists and is not a directory")
+    output_path(path)  # the parent must exist and be writable
+    return path
+
+
+def input_file(path: str) -> str:
+    """An existing, readable regular file."""
+    if not os.path.exists(path):
+        raise argparse.ArgumentTypeError(f"{path}: no such file")
+    if not os.path.isfile(path):
+        raise argparse.ArgumentTypeError(f"{path}: not a regular file")
+    if not os.access(path, os.R_OK):
+        raise argparse.ArgumentTypeError(f"{path}: not readable")
+    return path
+
+
+def source(spec: str) -> str:
+    """Where MAVLink comes from: an existing file (tlog or raw capture), a UDP endpoint or a serial port."""
+    if is_link(spec) and not os.path.isfile(spec):
+        return link(spec)
+    if os.path.exists(spec):
+        return input_file(spec)
+    raise argparse.ArgumentTypeError(f"{spec}: no such file, and not a UDP endpoint or serial port")
+
+
+def sink(spec: str) -> str:
+    """Where MAVLink goes: a UDP endpoint, a serial port or a file (``FILE.tlog``, or raw bytes)."""
+    if is_link(spec):
+        return link(spec)
+    return output_path(spec)
+
+
+def tlog_sink(spec: str) -> str:
+    """A UDP endpoint, a serial port or a ``.tlog`` file."""
+    if not is_link(spec) and not spec.endswith(".tlog"):
+        raise argparse.ArgumentTypeError(f"{spec}: expected a UDP endpoint, a serial port or FILE.tlog")
+    return sink(spec)
