@@ -1,4 +1,4 @@
-"""``balloon-gs``: listen (live view + logs) and report (score + plot)."""
+"""``balloon-gs``: listen (live view + logs), report (score + plot) and reprocess (post-flight products)."""
 
 from __future__ import annotations
 
@@ -19,11 +19,25 @@ def main(argv: list[str] | None = None) -> int:
     li.add_argument("--tlog", type=userargs.output_path, help="log every received frame to this tlog")
     li.add_argument("--duration", type=userargs.positive_float, help="stop after this many seconds")
     rp = sub.add_parser("report", help="score a WIND_COV log against a truth CSV and plot it")
-    rp.add_argument("file", type=userargs.input_file, help="ground-station CSV, .tlog or raw capture holding WIND_COV")
+    rp.add_argument("file", type=userargs.input_file,
+                    help="ground-station CSV, .tlog or raw capture holding WIND_COV, or a reprocess .nc")
     rp.add_argument("--truth", required=True, type=userargs.input_file, help="balloon-sim --truth CSV")
     rp.add_argument("--plot", type=userargs.output_path, help="write the Fig. 6-style figure here (PNG)")
     rp.add_argument("--start", type=userargs.start_time, default=120.0, help="score from this time since boot [s]")
+    rr = sub.add_parser("reprocess", help="post-flight: filter + smoother over a whole flight log -> NetCDF (CF-1.8)")
+    rr.add_argument("flight", type=userargs.input_file, help="a .tlog, raw capture, PX4 .ulg or ArduPilot .bin")
+    rr.add_argument("--out", required=True, type=userargs.output_path, help="the NetCDF product (FILE.nc)")
+    rr.add_argument("--config", type=userargs.input_file, help="TOML design file (the one the firmware flew with)")
+    rr.add_argument("--plot", type=userargs.output_path, help="also draw the product here (PNG)")
+    rr.add_argument("--quiet", action="store_true", help="no progress bar / status lines (the final lines stay)")
     args = ap.parse_args(argv)
+    if args.cmd == "reprocess":
+        from ground_station.reprocess import run_reprocess
+
+        try:
+            return run_reprocess(args, argv)
+        except (ValueError, OSError, userargs.UserError) as exc:
+            return userargs.fail(f"{PROG} reprocess", exc)
     if args.cmd == "listen":
         from ground_station.listen import GroundStation, listen
 

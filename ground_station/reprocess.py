@@ -8,6 +8,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
+import sys
+import time
 from collections.abc import Callable, Iterable
 
 import numpy as np
@@ -146,3 +149,71 @@ def _product(sm, modes: np.ndarray, air: np.ndarray, baro_seen: bool) -> WindPro
         mode=modes,
         flags=flags,
     )
+
+
+def run_reprocess(args, argv: list[str] | None) -> int:
+    """``balloon-gs reprocess FLIGHT --out FILE.nc [--config] [--plot] [--quiet]``."""
+    import shlex
+
+    from firmware_py.config import ConfigError, design_from_dict, load_toml
+    from firmware_py.progress import Progress
+    from ground_station.flightlog import read_flight
+    from ground_station.products import write_products
+
+    prog = "balloon-gs reprocess"
+    if not args.out.endswith(".nc"):
+        raise ValueError(f"--out {args.out}: the product is NetCDF, its name must end in .nc")
+    try:
+        data = load_toml(args.config) if args.config else {}
+        design = design_from_dict(data)
+        cfg = FilterConfig.from_dict(data.get("filter", {}))
+    except ConfigError as exc:
+        raise ValueError(str(exc)) from None
+    design_text = open(args.config).read() if args.config else "# the defaults (no --config given)\n"
+    t0 = time.perf_counter()
+    bar = Progress(prog, unit="", quiet=args.quiet)
+    bar.update(status=f"reading {os.path.basename(args.flight)}")
+    try:
+        flight = read_flight(args.flight)
+        meta = flight.meta
+        bar.log(f"{prog}: {meta.describe()}")
+        for note in meta.notes:
+            bar.log(f"{prog}: note: {note}")
+        bar.total, bar.unit = float(len(flight)), "samples"
+        product = reprocess(flight.samples(), design, cfg, rate_explicit="imu_rate_hz" in data.get("filter", {}),
+                            progress=lambda n: bar.update(n, "forward filter"),
+                            warn=lambda w: bar.log(f"{prog}: {w}"))  # fmt: skip
+        bar.update(len(flight), "smoother done; writing the products")
+        if len(product.time_s) == 0:
+            raise ValueError(f"{args.flight}: the estimator never started (no usable IMU + magnetometer sample)")
+        product.utc_start_s = meta.utc_start_s
+        product.attrs.update({
+            "design_toml": design_text,
+            "source_log": meta.source,
+            "source_log_sha256": meta.sha256,
+            "source_log_format": meta.format,
+            "source_log_sensors": ", ".join(f"{k}: {v}" for k, v in meta.sensors.items()),
+        })  # fmt: skip
+        words = argv if argv is not None else sys.argv[1:]
+        history = "balloon-gs " + " ".join(shlex.quote(a) for a in words)
+        paths = write_products(product, args.out, args.plot, history)
+    finally:
+        bar.close()
+    print(_summary(product, meta, time.perf_counter() - t0))
+    print("wrote " + ", ".join(paths))
+    return 0
+
+
+def _summary(p: WindProduct, meta, wall_s: float) -> str:
+    known = (p.flags & FLAG_WIND_UNKNOWN) == 0
+    segments = int(np.count_nonzero(p.flags & FLAG_SEGMENT_START))
+    if np.any(known):
+        sp = float(np.hypot(np.mean(p.wind_n[known]), np.mean(p.wind_e[known])))
+        acc = float(np.median(np.hypot(p.sigma_n[known], p.sigma_e[known])))
+        frm = math.degrees(math.atan2(-np.mean(p.wind_e[known]), -np.mean(p.wind_n[known]))) % 360.0
+        wind = f"mean wind {sp:.2f} m/s from {frm:03.0f} deg, median accuracy {acc:.2f} m/s over {known.mean():.0%}"
+    else:
+        wind = "the wind is NOT known anywhere in this flight (accuracy too poor: not a tethered balloon?)"
+    baro = "" if meta.has_baro else ", NO barometer: height unknown"
+    return (f"{meta.source}: {len(p.time_s)} estimates over {p.time_s[-1] - p.time_s[0]:.0f} s, {segments} segments, "
+            f"{wind}{baro}; {wall_s:.1f} s")  # fmt: skip
