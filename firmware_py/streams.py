@@ -34,6 +34,7 @@ from firmware_py.state import FilterConfig
 RATE_WINDOW_S = 2.0  # the IMU rate is the median sample interval over this much of the stream
 RATE_SETTLE_MAX_S = 6.0  # a stream slower than the filter's rate: wait this long for it to speed up
 RATE_TOLERANCE = 0.1  # within 10 % of the filter's rate the estimator's own clock takes the jitter
+QUICK_WINDOW_S = 0.25  # a stream already at the filter's rate over this much is decided at once
 MAX_HELD = 20_000  # samples held while the rate is measured (bounds memory whatever the stream)
 
 
@@ -158,7 +159,8 @@ class Resampler:
 
 class InputPipeline:
     """Samples in, samples for the estimator out. Holds the first samples until the IMU rate is known
-    (``RATE_WINDOW_S`` of valid IMU samples on the sensor's clock; if that window is slower than the
+    (at once after ``QUICK_WINDOW_S`` if the stream runs at the filter's rate; otherwise after
+    ``RATE_WINDOW_S`` of valid IMU samples on the sensor's clock; if that window is slower than the
     filter's rate it waits up to ``RATE_SETTLE_MAX_S`` for the stream to speed up, as it does once an
     autopilot has been asked for its streams), then decides the filter's rate (``decide_rate``) and
     releases everything held, averaged down (``Resampler``) when the stream is faster than the filter.
@@ -203,8 +205,16 @@ class InputPipeline:
         self._imu_t.append(t)
         while self._imu_t[-1] - self._imu_t[0] > RATE_WINDOW_S * 1e6 + 1:
             self._imu_t.popleft()  # the last RATE_WINDOW_S
-        if self._imu_t[-1] - self._imu_t[0] < RATE_WINDOW_S * 1e6 - 1 or (self.hold is not None and self.hold()):
+        if self.hold is not None and self.hold():
             return []
+        span = self._imu_t[-1] - self._imu_t[0]
+        if span < RATE_WINDOW_S * 1e6 - 1:
+            # the common case decides at once: a stream at the filter's own rate over QUICK_WINDOW_S
+            # (a lockstep sender waiting for WIND_COV then never waits on the measurement)
+            quick = measure_rate_hz(self._imu_t) if span >= QUICK_WINDOW_S * 1e6 else None
+            if quick is None or abs(quick / self.base_cfg.imu_rate_hz - 1.0) > RATE_TOLERANCE:
+                return []
+            return self._decide(list(self._imu_t))
         rate = measure_rate_hz(self._imu_t)
         slow = rate is not None and rate < (1.0 - RATE_TOLERANCE) * self.base_cfg.imu_rate_hz
         if slow and t - self._t_first < RATE_SETTLE_MAX_S * 1e6:
