@@ -1,0 +1,91 @@
+"""``balloon-gs reprocess``: a flight file in, the NetCDF product (and its averages and plot) out, as a
+user runs it; real autopilot logs that are not balloons; user errors."""
+
+from __future__ import annotations
+
+import hashlib
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from ground_station.product import FLAG_NO_BARO, FLAG_WIND_UNKNOWN
+
+PY = sys.executable
+DATA = "tests/data"
+
+
+def gs(*args, **kw):
+    return subprocess.run([PY, "-m", "ground_station", *map(str, args)], capture_output=True, text=True, **kw)
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory):
+    d = tmp_path_factory.mktemp("rp")
+    tlog, truth = d / "flight.tlog", d / "truth.csv"
+    subprocess.run([PY, "-m", "sim_hil", "--scenario", "multisine-2d", "--duration", "200", "--seed", "4", "--out",
+                    str(tlog), "--truth", str(truth), "--quiet"], check=True, capture_output=True)  # fmt: skip
+    return d, tlog, truth
+
+
+def test_reprocess_writes_a_product_that_scores_against_the_truth(flight):
+    d, tlog, truth = flight
+    nc, png = d / "wind.nc", d / "wind.png"
+    r = gs("reprocess", tlog, "--out", nc, "--plot", png, "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert r.stderr == ""  # --quiet: the result lines are on stdout
+    assert "wrote" in r.stdout and png.stat().st_size > 10_000
+    for avg in ("wind_avg_1s.nc", "wind_avg_1s.csv", "wind_avg_10min.nc", "wind_avg_10min.csv"):
+        assert (d / avg).exists()
+    with xr.open_dataset(nc) as ds:
+        assert ds["eastward_wind"].attrs["standard_name"] == "eastward_wind"
+        assert ds.attrs["source_log_sha256"] == hashlib.sha256(tlog.read_bytes()).hexdigest()
+        assert ds.attrs["history"].startswith("balloon-gs reprocess")
+        speed = ds["wind_speed"].values
+        assert np.all(np.isfinite(speed[ds["mode"].values == 2]))
+    # the same product scored the way a WIND_COV log is: smoothed estimate against the truth
+    r = gs("report", nc, "--truth", truth, "--start", "100")
+    assert r.returncode == 0, r.stderr
+    assert "band" in r.stdout
+
+
+@pytest.mark.parametrize("name", ["pyulog-sample.ulg", "pyulog-sample_px4_events.ulg", "pyulog-sample_log_small.ulg",
+                                  "balloon-sim.bin"])  # fmt: skip
+def test_real_logs_reprocess_without_crashing_and_say_what_they_lack(tmp_path, name):
+    nc = tmp_path / "w.nc"
+    r = gs("reprocess", f"{DATA}/{name}", "--out", nc, "--quiet")
+    assert r.returncode == 0, r.stderr
+    with xr.open_dataset(nc) as ds:
+        flags = ds["flags"].values
+        wn, we = ds["northward_wind"].values, ds["eastward_wind"].values
+        sig = np.hypot(ds["northward_wind_uncertainty"].values, ds["eastward_wind_uncertainty"].values)
+        assert np.all(np.isfinite(wn)) and np.all(np.isfinite(we)) and np.all(np.isfinite(sig))
+        height = ds["height"].values
+    no_baro = name == "pyulog-sample.ulg"  # a real AUAV-X2.1 flight without a barometer
+    assert bool(np.all(flags & FLAG_NO_BARO)) == no_baro
+    assert np.all(np.isnan(height)) == no_baro
+    if no_baro:
+        assert "NO barometer" in r.stdout
+    if name.startswith("pyulog"):
+        # not balloons (a multicopter, a SITL vehicle, a bench log): the wind is not known, and the
+        # product says so for most of the flight instead of claiming a wind
+        assert np.mean((flags & FLAG_WIND_UNKNOWN) > 0) > 0.8, np.median(sig)
+    else:
+        assert np.mean((flags & FLAG_WIND_UNKNOWN) > 0) < 0.3
+
+
+@pytest.mark.parametrize("content, message", [(b"", "empty"), (bytes(range(256)) * 400, "no IMU")])
+def test_unusable_flight_files_are_user_errors(tmp_path, content, message):
+    bad = tmp_path / "bad.raw"
+    bad.write_bytes(content)
+    r = gs("reprocess", bad, "--out", tmp_path / "w.nc")
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and message in r.stderr
+
+
+def test_the_product_must_be_netcdf(flight, tmp_path):
+    _, tlog, _ = flight
+    r = gs("reprocess", tlog, "--out", tmp_path / "w.csv")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and ".nc" in r.stderr
