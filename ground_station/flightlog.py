@@ -59,7 +59,8 @@ class FlightMeta:
         rate = f"{self.imu_rate_hz:.1f} Hz" if self.imu_rate_hz else "unknown rate"
         baro = f"{self.n_baro} barometer samples" if self.has_baro else "NO barometer (height unknown)"
         mag = f"{self.n_mag} magnetometer samples" if self.has_mag else "NO magnetometer"
-        return f"{self.source} ({self.format}): {self.n_imu} IMU samples at {rate}, {mag}, {baro}, {self.duration_s:.1f} s"
+        head = f"{self.source} ({self.format}): {self.n_imu} IMU samples at {rate}"
+        return f"{head}, {mag}, {baro}, {self.duration_s:.1f} s"
 
 
 @dataclass
