@@ -386,7 +386,7 @@ class FakeArduPilot(threading.Thread):
     for never) and obeys it, and obeys REQUEST_DATA_STREAM. Sensor time runs with the wall clock (the
     balloon rests on the ground station) until the IMU stream has been sped up, then ``speed`` x faster."""
 
-    def __init__(self, fw_port: int, ack: int | None, speed: float = 6.0) -> None:
+    def __init__(self, fw_port: int, ack: int | None, speed: float = 10.0) -> None:
         super().__init__(daemon=True)
         self.samples, _ = stream("paper-reference", 120.0, 13)
         self.fw = ("127.0.0.1", fw_port)
@@ -458,7 +458,8 @@ class FakeArduPilot(threading.Thread):
                     self.every[mid] = max(1, round(100 / m.req_message_rate))
 
 
-def run_live_fw(ack: int | None, seconds: float):
+def run_live_fw(ack: int | None, seconds: float, until_s: float):
+    """balloon-fw live against a FakeArduPilot; its WIND_COV until one is stamped ``until_s`` (sensor time)."""
     p_in, p_out = free_port(), free_port()
     out = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     out.bind(("127.0.0.1", p_out))
@@ -477,6 +478,8 @@ def run_live_fw(ack: int | None, seconds: float):
         except (TimeoutError, OSError):
             continue
         wind += [m for m in dec.feed(data) if m.get_type() == "WIND_COV"]
+        if wind and wind[-1].time_usec > until_s * 1e6:
+            break
     peer.stop.set()
     peer.join(5)
     fw.send_signal(signal.SIGINT)
@@ -486,7 +489,7 @@ def run_live_fw(ack: int | None, seconds: float):
 
 
 def test_live_ardupilot_link_is_asked_for_its_streams():
-    peer, wind, summary, rc = run_live_fw(mavlink.MAV_RESULT_ACCEPTED, 11.0)
+    peer, wind, summary, rc = run_live_fw(mavlink.MAV_RESULT_ACCEPTED, 25.0, 60.0)
     assert rc == 0, summary
     asked = {mid: interval for mid, interval, _ in peer.commands}
     assert asked == {mavlink.MAVLINK_MSG_ID_SCALED_IMU2: 10_000, mavlink.MAVLINK_MSG_ID_SCALED_PRESSURE: 50_000}
@@ -495,7 +498,7 @@ def test_live_ardupilot_link_is_asked_for_its_streams():
     assert "filter at 100 Hz (IMU stream 100.0 Hz)" in summary
     assert len(wind) > 100, summary
     last = wind[-1]
-    assert last.time_usec > 30_000_000 and math.isfinite(last.wind_x) and math.isfinite(last.wind_y)
+    assert last.time_usec > 60_000_000 and math.isfinite(last.wind_x) and math.isfinite(last.wind_y)
     truth = stream("paper-reference", 120.0, 13)[1]
     t = np.array([m.time_usec * 1e-6 for m in wind])
     late = t > t[-1] - 10.0
@@ -507,7 +510,7 @@ def test_live_ardupilot_link_is_asked_for_its_streams():
 
 
 def test_live_link_falls_back_to_request_data_stream_when_never_acknowledged():
-    peer, wind, summary, rc = run_live_fw(None, 10.0)
+    peer, wind, summary, rc = run_live_fw(None, 20.0, 20.0)
     assert rc == 0, summary
     assert len(peer.commands) == 6 and [c for _, _, c in peer.commands[:4:2]] == [0, 1]  # 3 tries each, confirmation
     assert peer.data_streams and peer.data_streams[0] == (mavlink.MAV_DATA_STREAM_RAW_SENSORS, 100, 1)
