@@ -111,11 +111,13 @@ def _merge(imu_t: np.ndarray, imu: np.ndarray, baro_t: np.ndarray, baro: np.ndar
     n, m = len(imu_t), len(baro_t)
     kind = np.concatenate([np.full(n, KIND_IMU, np.int8), np.full(m, KIND_BARO, np.int8)])
     t = np.concatenate([imu_t.astype(np.int64), baro_t.astype(np.int64)])
-    values = np.full((n + m, N_VALUES), np.nan)
-    values[:n] = imu
-    values[n:, :2] = baro
     order = np.lexsort((kind == KIND_IMU, t))
-    return kind[order], t[order], values[order]
+    where = np.empty(n + m, np.int64)
+    where[order] = np.arange(n + m)  # the row each input sample goes to
+    values = np.full((n + m, N_VALUES), np.nan)
+    values[where[:n]] = imu
+    values[where[n:], :2] = baro
+    return kind[order], t[order], values
 
 
 def _build(path: str, fmt: str, imu_t, imu, baro_t, baro, sensors, notes, utc=None) -> Flight:
@@ -264,8 +266,12 @@ def _df_records(log, name: str):
         raise ValueError(f"DataFlash {name}: format length {fmt.len} does not match its fields")
     buf = np.frombuffer(log.data_map, dtype=np.uint8)
     offs = offs[offs + fmt.len <= len(buf)]
-    rows = buf[(offs + 3)[:, None] + np.arange(size)]
-    return np.ascontiguousarray(rows).view(dtype).ravel(), fmt
+    out = np.empty(len(offs), dtype)
+    raw = out.view(np.uint8).reshape(len(offs), size)
+    cols = np.arange(size)
+    for a in range(0, len(offs), 32768):  # gathered in chunks: the index array stays small
+        raw[a : a + 32768] = buf[(offs[a : a + 32768] + 3)[:, None] + cols]
+    return out, fmt
 
 
 def _struct_codes(msg_struct: str) -> list[str]:
