@@ -36,6 +36,8 @@ def read_truth(path: str) -> dict[str, np.ndarray]:
     with open(path, errors="replace") as fh:
         header = fh.readline().strip().split(",")
         has_rows = bool(fh.readline().strip()) and bool(fh.readline().strip())
+    if header == [""]:
+        raise ValueError(f"{path}: the truth CSV is empty")
     missing = [c for c in TRUTH_NEEDED if c not in header]
     if missing:
         raise ValueError(f"{path}: not a balloon-sim truth CSV (no column {', '.join(missing)})")
