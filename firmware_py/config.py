@@ -1,4 +1,4 @@
-"""One TOML file describes one design (CONTRACT.md): balloon, tether, site and sensors.
+"""One TOML file describes one design (docs/usage.md): balloon, tether, site and sensors.
 
 ``balloon-sim`` and ``balloon-fw`` read the same file. The shared sections are parsed here; a program
 may own extra sections ([wind], [truth] for the simulator, [filter] for the firmware). Every key is

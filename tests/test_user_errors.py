@@ -1,4 +1,4 @@
-"""Every user error of every program: exit 2, exactly one line on stderr, no traceback (CONTRACT.md).
+"""Every user error of every program: exit 2, exactly one line on stderr, no traceback (docs/usage.md).
 
 Run in-process (``main(argv)``) for speed; a few cases through ``python -m`` prove the console path.
 """
