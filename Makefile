@@ -1,15 +1,23 @@
 PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
-STAMP := $(VENV)/.installed
+# one stamp per install: `make test` installs the test extra only; `make bench` adds FilterPy
+STAMP := $(VENV)/.installed-test
+BENCH_STAMP := $(VENV)/.installed-bench
 
 .PHONY: test demo bench lint clean
 
-$(STAMP): pyproject.toml
-	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+$(BIN)/python:
+	$(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e '.[test,bench]'
+
+$(STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install -q -e '.[test]'
 	touch $(STAMP)
+
+$(BENCH_STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install -q -e '.[test,bench]'
+	touch $(BENCH_STAMP) $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/ruff check firmware_py ground_station sim_hil tests benchmarks
@@ -18,11 +26,11 @@ test: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/balloon-sil --scenario paper-reference
 
-bench: $(STAMP)
+bench: $(BENCH_STAMP)
 	$(BIN)/python -m benchmarks.run_all
 
 lint: $(STAMP)
 	$(BIN)/ruff check firmware_py ground_station sim_hil tests benchmarks
 
 clean:
-	rm -rf $(VENV) out
+	rm -rf $(VENV) out build *.egg-info

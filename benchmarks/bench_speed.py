@@ -9,6 +9,7 @@ their rates), in one run.
 
 from __future__ import annotations
 
+import importlib.util
 import statistics
 import sys
 import tempfile
@@ -110,10 +111,13 @@ def main() -> None:
     samples = sensor_stream(duration)
     warm = 6000  # after release and the first taut seconds
     ours = step_times(samples, warm)
-    theirs = filterpy_step_times(samples, warm)
     print(f"{'filter':34s} {'median step us':>15s} {'p99 us':>8s} {'x real time':>12s}")
     print(f"{'balloon-wind EKF (replay: decode+)':34s} {statistics.median(ours) * 1e6:15.1f} "
           f"{np.percentile(ours, 99) * 1e6:8.1f} {replay_rate(samples, duration):12.0f}")  # fmt: skip
+    if importlib.util.find_spec("filterpy") is None:
+        print("FilterPy is not installed (the bench extra: pip install -e '.[bench]'): comparison skipped")
+        return
+    theirs = filterpy_step_times(samples, warm)
     print(f"{'FilterPy EKF (filter only)':34s} {statistics.median(theirs) * 1e6:15.1f} "
           f"{np.percentile(theirs, 99) * 1e6:8.1f} {filterpy_replay_rate(samples, duration):12.0f}")  # fmt: skip
     ratio = statistics.median(ours) / statistics.median(theirs)

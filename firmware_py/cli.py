@@ -1,4 +1,4 @@
-"""``balloon-fw --in SOURCE --out SINK [--config FILE.toml]`` (CONTRACT.md)."""
+"""``balloon-fw --in SOURCE --out SINK [--config FILE.toml]`` (docs/usage.md)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""One TOML file describes one design (CONTRACT.md): balloon, tether, site and sensors.
+"""One TOML file describes one design (docs/usage.md): balloon, tether, site and sensors.
 
 ``balloon-sim`` and ``balloon-fw`` read the same file. The shared sections are parsed here; a program
 may own extra sections ([wind], [truth] for the simulator, [filter] for the firmware). Every key is
@@ -231,29 +231,36 @@ SIM_IMU_HZ = 100.0  # the simulator's IMU rate: its physics step must divide it 
 SIM_DEFAULTS = {"wind.sample_hz": 20.0, "truth.avionics_kg": 0.5, "truth.physics_hz": 200.0}
 
 
+def _literal(val: Any) -> str:
+    """A value as it is written in TOML (true, not True)."""
+    if isinstance(val, bool):
+        return "true" if val else "false"
+    return repr(val)
+
+
 def check_value(section: str, key: str, val: Any) -> Any:
     """``val`` checked against the schema; numbers come back as float, lists as tuples of float."""
     rule = SCHEMA[section][key]
     where = f"[{section}] {key}"
     if rule.kind == "bool":
         if not isinstance(val, bool):
-            raise ConfigError(f"{where} must be true or false, got {val!r}")
+            raise ConfigError(f"{where} must be true or false, got {_literal(val)}")
         return val
     if rule.kind == "str":
         if not isinstance(val, str) or val not in rule.choices:
-            raise ConfigError(f"{where} must be {rule.describe()}, got {val!r}")
+            raise ConfigError(f"{where} must be {rule.describe()}, got {_literal(val)}")
         return val
     if rule.kind == "numbers":
         if not isinstance(val, (list, tuple)) or (rule.length is not None and len(val) != rule.length):
             n = f"{rule.length} " if rule.length else ""
-            raise ConfigError(f"{where} must be a list of {n}numbers, got {val!r}")
+            raise ConfigError(f"{where} must be a list of {n}numbers, got {_literal(val)}")
         return tuple(_number(where, x, rule) for x in val)
     return _number(where, val, rule)
 
 
 def _number(where: str, val: Any, rule: Rule) -> float:
     if isinstance(val, bool) or not isinstance(val, (int, float)):
-        raise ConfigError(f"{where} must be a number, got {val!r}")
+        raise ConfigError(f"{where} must be a number, got {_literal(val)}")
     x = float(val)
     if not math.isfinite(x):
         raise ConfigError(f"{where} must be finite, got {val}")

@@ -1,8 +1,8 @@
 """Command-line argument checking shared by every program: argparse ``type=`` functions that turn a
 bad value into a one-line error before any work starts, and a parser whose errors are one line.
 
-Every user error of every program ends the same way (CONTRACT.md): exit status 2 and ONE line on
-stderr, ``PROG: error: WHAT``. No usage block, no traceback.
+Every user error of every program ends the same way (docs/usage.md, "Errors and exit codes"): exit
+status 2 and ONE line on stderr, ``PROG: error: WHAT``. No usage block, no traceback.
 """
 
 from __future__ import annotations

@@ -36,6 +36,8 @@ def read_truth(path: str) -> dict[str, np.ndarray]:
     with open(path, errors="replace") as fh:
         header = fh.readline().strip().split(",")
         has_rows = bool(fh.readline().strip()) and bool(fh.readline().strip())
+    if header == [""]:
+        raise ValueError(f"{path}: the truth CSV is empty")
     missing = [c for c in TRUTH_NEEDED if c not in header]
     if missing:
         raise ValueError(f"{path}: not a balloon-sim truth CSV (no column {', '.join(missing)})")
@@ -64,39 +66,62 @@ def report(wind_path: str, truth_path: str, plot_path: str | None = None, start_
     return s
 
 
-def plot(est: dict, truth: dict, s: Score, path: str, start_s: float) -> None:
+def direction_from(wind_n: np.ndarray, wind_e: np.ndarray, centre_deg: float) -> np.ndarray:
+    """Meteorological direction (where the wind comes FROM, deg clockwise from north), wrapped into
+    centre +- 180 deg so that a wind around north does not jump between 0 and 360 on the plot."""
+    d = np.degrees(np.arctan2(-np.asarray(wind_e), -np.asarray(wind_n)))
+    return (d - centre_deg + 180.0) % 360.0 - 180.0 + centre_deg
+
+
+def plot(est: dict, truth: dict, s: Score, path: str, start_s: float, band_hz: float = 0.05) -> None:
+    """The paper's Fig. 6 and more: speed with the reported accuracy, direction, the low-passed speed
+    (the band that is scored) from the launch on, and the spectra with the band edge."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fs = 10.0
-    grid = np.arange(max(start_s, est["time_s"][0]), min(est["time_s"][-1], truth["time_s"][-1]), 1.0 / fs)
+    t_end = min(est["time_s"][-1], truth["time_s"][-1])
+    grid = np.arange(0.0, t_end, 1.0 / fs)
     sp_est = np.interp(grid, est["time_s"], np.hypot(est["wind_n"], est["wind_e"]))
     sp_true = np.interp(grid, truth["time_s"], np.hypot(truth["wind_n"], truth["wind_e"]))
-    fig, ax = plt.subplots(3, 1, figsize=(9, 9))
+    scored = grid >= start_s
+    fig, ax = plt.subplots(4, 1, figsize=(9, 11.5))
     t_all = est["time_s"]
+    speed = np.hypot(est["wind_n"], est["wind_e"])
     ax[0].plot(truth["time_s"], np.hypot(truth["wind_n"], truth["wind_e"]), lw=0.6, label="truth", color="0.5")
-    ax[0].plot(t_all, np.hypot(est["wind_n"], est["wind_e"]), lw=0.8, label="estimate (WIND_COV)")
-    ax[0].fill_between(t_all, np.hypot(est["wind_n"], est["wind_e"]) - est["accuracy"],
-                       np.hypot(est["wind_n"], est["wind_e"]) + est["accuracy"], alpha=0.2,
+    ax[0].plot(t_all, speed, lw=0.8, label="estimate (WIND_COV)")
+    ax[0].fill_between(t_all, speed - est["accuracy"], speed + est["accuracy"], alpha=0.2,
                        label="± horiz_accuracy")  # fmt: skip
     ax[0].set_ylabel("wind speed [m/s]")
     ax[0].set_ylim(0, max(6.0, 1.3 * np.percentile(sp_true, 99)))
     ax[0].legend(loc="upper right", fontsize=8)
-    ax[1].plot(grid, lowpass(sp_true, fs, 0.05), label="truth < 0.05 Hz", color="0.3")
-    ax[1].plot(grid, lowpass(sp_est, fs, 0.05), label="estimate < 0.05 Hz")
-    ax[1].set_ylabel("low-passed speed [m/s]")
-    ax[1].set_xlabel("time since boot [s]")
-    ax[1].legend(loc="upper right", fontsize=8)
-    f, p_true = psd(sp_true, fs)
-    _, p_est = psd(sp_est, fs)
-    ax[2].loglog(f[1:], p_true[1:], label="truth", color="0.4")
-    ax[2].loglog(f[1:], p_est[1:], label="estimate")
-    ax[2].axvline(0.05, ls=":", color="k", lw=0.8)
-    ax[2].set_xlabel("frequency [Hz]")
-    ax[2].set_ylabel("PSD [(m/s)²/Hz]")
-    ax[2].legend(loc="lower left", fontsize=8)
+    centre = float(np.degrees(np.arctan2(-np.mean(truth["wind_e"]), -np.mean(truth["wind_n"])))) % 360.0
+    ax[1].plot(truth["time_s"], direction_from(truth["wind_n"], truth["wind_e"], centre), lw=0.6,
+               label="truth", color="0.5")  # fmt: skip
+    moving = speed > 0.3  # the direction of a near-zero estimate (before the release) means nothing
+    ax[1].plot(t_all[moving], direction_from(est["wind_n"], est["wind_e"], centre)[moving], ".", ms=1.0,
+               label="estimate (speed > 0.3 m/s)")  # fmt: skip
+    ax[1].set_ylabel("direction (from) [deg]")
+    ax[1].set_ylim(centre - 60.0, centre + 60.0)
+    ax[1].legend(loc="upper right", fontsize=8, markerscale=6)
+    ax[2].plot(grid, lowpass(sp_true, fs, band_hz), label=f"truth < {band_hz:g} Hz", color="0.3")
+    ax[2].plot(grid, lowpass(sp_est, fs, band_hz), label=f"estimate < {band_hz:g} Hz")
+    ax[2].axvspan(0.0, start_s, color="0.9", label=f"not scored (before {start_s:g} s)")
+    ax[2].set_ylabel("low-passed speed [m/s]")
+    ax[2].legend(loc="upper right", fontsize=8)
+    for a in ax[:3]:
+        a.set_xlim(0.0, t_end)
+        a.set_xlabel("time since boot [s]")
+    f, p_true = psd(sp_true[scored], fs)
+    _, p_est = psd(sp_est[scored], fs)
+    ax[3].loglog(f[1:], p_true[1:], label="truth", color="0.4")
+    ax[3].loglog(f[1:], p_est[1:], label="estimate")
+    ax[3].axvline(band_hz, ls=":", color="k", lw=0.8, label=f"{band_hz:g} Hz: upper edge of the scored band")
+    ax[3].set_xlabel(f"frequency [Hz] (speed from {start_s:g} s on)")
+    ax[3].set_ylabel("PSD [(m/s)²/Hz]")
+    ax[3].legend(loc="lower left", fontsize=8)
     fig.suptitle(f"band RMSE {s.band_rmse_mps:.2f} m/s, speed error {s.speed_error_pct:+.1f} %, "
                  f"direction error {s.direction_error_deg:+.1f}°, error/accuracy {s.error_ratio:.2f}")  # fmt: skip
     fig.tight_layout()

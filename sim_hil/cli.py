@@ -1,4 +1,4 @@
-"""``balloon-sim``: the HIL simulator's command line (CONTRACT.md)."""
+"""``balloon-sim``: the HIL simulator's command line (docs/usage.md)."""
 
 from __future__ import annotations
 

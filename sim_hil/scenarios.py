@@ -1,4 +1,4 @@
-"""Named scenarios (CONTRACT.md): a design + wind + truth options. The paper's Figs. 6-12 cases and
+"""Named scenarios (docs/usage.md): a design + wind + truth options. The paper's Figs. 6-12 cases and
 a few of our own. "better" = 10x smaller 1-sigma error of that sensor.
 
 The truth cases after ``rope-drag`` are outside the firmware's model on purpose (a two-axis

@@ -59,8 +59,8 @@ class Simulation:
     ) -> None:
         """``keep_truth``: the whole flight's truth table in ``self.truth`` (memory grows with the
         duration); otherwise it is handed to ``truth_sink`` in chunks of rows and not kept."""
-        if duration_s <= 0:
-            raise ValueError("duration must be > 0")
+        if not (0.0 < duration_s < math.inf):
+            raise ValueError(f"duration must be finite and > 0, got {duration_s}")
         self.design, self.truth_cfg = design, truth
         self.physics = BalloonPhysics.from_design(design, truth)
         self.steps_per_imu = max(1, round(truth.physics_hz / imu_hz))

@@ -254,7 +254,7 @@ def generate_wind(cfg: WindConfig, duration_s: float, seed: int, averaging_lengt
 
 # ---------------------------------------------------------------- long flights: the wind in blocks
 
-STREAM_ABOVE_S = 6 * SECONDS_PER_HOUR  # longer flights are synthesised block by block (WindStream)
+STREAM_ABOVE_S = 2 * SECONDS_PER_HOUR  # longer flights are synthesised block by block (WindStream)
 SPLIT_HZ = 0.01  # below: one series for the whole flight on a coarse grid; above: overlapping blocks
 COARSE_HZ = 1.0  # sample rate of the low band (linear interpolation error < 2e-4 of a 0.01 Hz line)
 BLOCK_SAMPLES = 2**16  # high-band block: 55 min at 20 Hz, lines every 0.0003 Hz (1/33 of SPLIT_HZ)

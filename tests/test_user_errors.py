@@ -1,4 +1,4 @@
-"""Every user error of every program: exit 2, exactly one line on stderr, no traceback (CONTRACT.md).
+"""Every user error of every program: exit 2, exactly one line on stderr, no traceback (docs/usage.md).
 
 Run in-process (``main(argv)``) for speed; a few cases through ``python -m`` prove the console path.
 """
@@ -118,7 +118,7 @@ def cases(d) -> list[tuple[str, str, list[str], str]]:
         ("gs", "number", ["report", wind, "--truth", truth, "--start", "inf"], "--start"),
         ("replay", "number", [s, "--out", "udpout:127.0.0.1:14599", "--speed", "-1"], "--speed"),
         ("gs", "report input", ["report", truth, "--truth", wind], "WIND_COV CSV"),  # arguments swapped
-        ("gs", "report input", ["report", wind, "--truth", str(d / "empty.csv")], "truth"),
+        ("gs", "report input", ["report", wind, "--truth", str(d / "empty.csv")], "empty"),
         ("gs", "report input", ["report", wind, "--truth", str(d / "header-only.csv")], "fewer than 2 rows"),
         ("gs", "report input", ["report", wind, "--truth", str(d / "no-wind.csv")], "wind_n"),
         ("gs", "report input", ["report", str(d / "nope.csv"), "--truth", truth], "no such file"),
