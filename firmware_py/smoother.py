@@ -59,7 +59,14 @@ class SmootherRecorder:
         self.Pi = np.eye(n)
         self.g = np.zeros(n)
         self.G = np.zeros((n, n))
-        self._tmp = np.zeros((n, n))
+        self._tmp = np.zeros((n, n))  # scratch: the recorder runs beside the filter at every step
+        self._hp = np.zeros(n)
+        self._hp_row = self._hp.reshape(1, n)
+        self._hp_col = self._hp.reshape(n, 1)
+        self._hp3 = np.zeros((3, n))
+        self._s3 = np.zeros((3, n))
+        self._v3 = np.zeros(3)
+        self._vn = np.zeros(n)
         self._linked = False  # the next grid point links to the one before (no break in between)
         self._blocks: list[dict[str, np.ndarray]] = []
         self._k = BLOCK  # fill index in the newest block (BLOCK: none open)
@@ -73,17 +80,28 @@ class SmootherRecorder:
 
     def update(self, h: np.ndarray, s_inv: float, innov: float, k: np.ndarray) -> None:
         """A scalar fusion: row h, 1/S, innovation (against the state as updated so far), gain K."""
-        hp = h @ self.Pi
-        self.g += hp * (s_inv * innov)
-        self.G += s_inv * np.outer(hp, hp)
-        self.Pi -= np.outer(k, hp)
+        hp, t = self._hp, self._tmp
+        np.matmul(h, self.Pi, out=hp)
+        np.multiply(hp, s_inv * innov, out=self._vn)
+        np.add(self.g, self._vn, out=self.g)
+        np.multiply(self._hp_col, self._hp_row, out=t)
+        np.multiply(t, s_inv, out=t)
+        np.add(self.G, t, out=self.G)
+        np.multiply(k.reshape(-1, 1), self._hp_row, out=t)
+        np.subtract(self.Pi, t, out=self.Pi)
 
     def update3(self, H: np.ndarray, S_inv: np.ndarray, innov: np.ndarray, K: np.ndarray) -> None:
         """A vector fusion of three rows at once."""
-        hp = H @ self.Pi
-        self.g += hp.T @ (S_inv @ innov)
-        self.G += hp.T @ S_inv @ hp
-        self.Pi -= K @ hp
+        hp, t = self._hp3, self._tmp
+        np.matmul(H, self.Pi, out=hp)
+        np.matmul(S_inv, innov, out=self._v3)
+        np.matmul(self._v3, hp, out=self._vn)
+        np.add(self.g, self._vn, out=self.g)
+        np.matmul(S_inv, hp, out=self._s3)
+        np.matmul(hp.T, self._s3, out=t)
+        np.add(self.G, t, out=self.G)
+        np.matmul(K, hp, out=t)
+        np.subtract(self.Pi, t, out=self.Pi)
 
     def broken(self) -> None:
         """The state was re-placed rather than fused: the chain to the last grid point is cut."""
