@@ -136,6 +136,8 @@ def replay(path: str, out: str, speed: float, stop=lambda: False, lockstep: bool
             if t_imu is not None:
                 if lockstep:
                     ls.wait_for(t_imu)
+                else:
+                    ls.note_sent(t_imu)
                 res.imu_sent += 1
             if not lockstep and k % 100 == 0:
                 ls.poll(0.0)  # drain what comes back (and keep the firmware's SYS_STATUS)
