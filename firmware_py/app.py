@@ -41,6 +41,8 @@ class Firmware:
         self._next_hb_us = 0
         self._highres_baro = False
         self._last_temp_c = math.nan
+        self.imu_missing = 0  # IMU samples missing by their time stamps (what 8-bit sequences cannot count)
+        self._prev_imu_us = -1
 
     # ----------------------------------------------------------------- input
 
@@ -58,6 +60,7 @@ class Firmware:
         bits = m.fields_updated or 0xFFFF  # 0: a sender that does not fill the field
         t = m.time_usec
         est = self.est
+        self._track_imu_time(t)
         if bits & PRESSURE_BIT:
             self._highres_baro = True
             temp = m.temperature if bits & TEMPERATURE_BIT else self._last_temp_c
@@ -78,6 +81,15 @@ class Firmware:
         if est.counters.time_resets != resets:
             self.out.reset()
             self._next_wind_us = self._next_hb_us = 0
+
+    def _track_imu_time(self, t_us: int) -> None:
+        """Count IMU samples missing between this one and the previous (at the filter's IMU rate). Late
+        ones are not counted twice; time going back by more than a second is a restart."""
+        prev = self._prev_imu_us
+        if prev >= 0 and t_us > prev:
+            self.imu_missing += max(0, (t_us - prev + self.est.dt_us // 2) // self.est.dt_us - 1)
+        if t_us > prev or t_us < prev - 1_000_000:
+            self._prev_imu_us = t_us
 
     # ----------------------------------------------------------------- output
 
@@ -102,14 +114,15 @@ class Firmware:
         """SYS_STATUS with each HEARTBEAT: the health a ground station (or a lockstep sender) shows.
         ``drop_rate_comm`` = input packets lost (c%), ``errors_comm`` = corrupt input frames,
         ``errors_count1`` = input packets lost, ``errors_count2`` = filter resets (reboot + numeric +
-        taut + baro), ``errors_count3`` = long input gaps, ``errors_count4`` = rejected samples."""
+        taut + baro), ``errors_count3`` = long input gaps, ``errors_count4`` = IMU samples missing by
+        their time stamps."""
         c, st = self.est.counters, self.stats
         sensors = SENSOR_BITS
         resets = c.time_resets + c.numeric_resets + c.taut_resets + c.baro_resets
         frame = pack(self.mav, self.mav.sys_status_encode(
             sensors, sensors, sensors, 0, 0xFFFF, -1, -1, min(round(10000 * st.lost_fraction()), 10000),
             min(st.bad_frames, 0xFFFF), min(st.lost, 0xFFFF), min(resets, 0xFFFF), min(c.long_gaps, 0xFFFF),
-            min(c.rejected, 0xFFFF),
+            min(self.imu_missing, 0xFFFF),
         ))  # fmt: skip
         self._send(frame, t_us)
 
@@ -143,7 +156,7 @@ class Firmware:
             f"resets: {c.time_resets} reboot, {c.numeric_resets} numeric, {c.taut_resets} taut, "
             f"{c.baro_resets} baro, {c.false_releases} false release, {c.mode_switches} mode switches, "
             f"{self.wind_cov_sent} WIND_COV sent, final mode {self.est.mode_name}, "
-            f"input packets {self.stats.loss_summary()}"
+            f"input packets {self.stats.loss_summary()}, {self.imu_missing} IMU samples missing by time"
         )
 
     def status(self) -> str:
@@ -155,4 +168,5 @@ class Firmware:
         frm = math.degrees(math.atan2(-we, -wn)) % 360.0
         return (f"mode {est.mode_name}, wind {math.hypot(wn, we):.1f} m/s from {frm:03.0f} deg "
                 f"\u00b1{est.ekf.wind_accuracy():.2f}, {self.stats.lost} lost "
-                f"({100 * self.stats.lost_fraction():.1f} %), {est.counters.long_gaps} long gaps")  # fmt: skip
+                f"({100 * self.stats.lost_fraction():.1f} %), {self.imu_missing} IMU missing, "
+                f"{est.counters.long_gaps} long gaps")  # fmt: skip

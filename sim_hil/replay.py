@@ -91,25 +91,26 @@ class ReplayResult:
     acknowledged: bool = False  # the firmware caught up with the last sample and reported after it
     fw_lost: int | None = None  # the firmware's own count of packets it lost (SYS_STATUS), if it said
     fw_long_gaps: int = 0
+    fw_imu_missing: int = 0
     interrupted: bool = False
 
     def final_line(self, out: str, speed: float) -> str:
         head = f"balloon-replay: {self.imu_sent} IMU samples ({self.bytes_sent} bytes) sent to {out}"
-        if self.interrupted:
-            head += ", interrupted"
         if self.lockstep:
             head += " in lockstep"
             if self.timeouts:
                 head += f", LOST SYNC {self.timeouts} times (the firmware fell silent for 2 s)"
         else:
             head += " flat out" if speed == 0 else f" at {speed:g}x"
+        if self.interrupted:
+            head += ", interrupted"
         if self.fw_lost is None:
             if self.lockstep or speed == 0:
                 return head + "; nothing came back to say what arrived: losses unknown"
             return head + "; no receiver report: losses unknown"
-        if self.fw_lost or self.fw_long_gaps:
+        if self.fw_lost or self.fw_long_gaps or self.fw_imu_missing:
             return head + (f"; DATA LOST: the firmware counted {self.fw_lost} packets lost, "
-                           f"{self.fw_long_gaps} long gaps")  # fmt: skip
+                           f"{self.fw_imu_missing} IMU samples missing, {self.fw_long_gaps} long gaps")  # fmt: skip
         return head + ("; the firmware counted 0 packets lost" if self.acknowledged
                        else "; the firmware counted 0 lost but did not confirm the end")  # fmt: skip
 
@@ -153,6 +154,7 @@ def replay(path: str, out: str, speed: float, stop=lambda: False, lockstep: bool
     res.fw_lost = ls.firmware_lost()
     if ls.fw_status is not None:
         res.fw_long_gaps = int(ls.fw_status.errors_count3)
+        res.fw_imu_missing = int(ls.fw_status.errors_count4)
     return res
 
 
@@ -185,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     bar.close()
     print(res.final_line(args.out, args.speed), file=sys.stderr)
-    return 0
+    return 130 if res.interrupted else 0
 
 
 if __name__ == "__main__":
