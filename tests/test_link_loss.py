@@ -155,11 +155,14 @@ def test_flat_out_without_lockstep_says_what_it_lost(capture):
     r, fw_summary = replay_into_firmware(capture, "--speed", "0", "--no-lockstep")
     assert r.returncode == 0, r.stderr
     got = int(re.search(r"(\d+) IMU samples", fw_summary).group(1))
+    lost = int(re.search(r"input packets (\d+) lost", fw_summary).group(1))
+    missing = int(re.search(r"(\d+) IMU samples missing by time", fw_summary).group(1))
     last = r.stderr.strip().splitlines()[-1]
-    if got < imu_in(capture):  # a receiver slower than the sender: the loss is in the final line
-        assert "DATA LOST" in last or "losses unknown" in last
+    assert "flat out" in last
+    if got < imu_in(capture) or lost or missing:  # a receiver slower than the sender: the loss is in the final line
+        assert "DATA LOST" in last or "losses unknown" in last, last
     else:
-        assert "counted 0 packets lost" in last
+        assert "counted 0 packets lost" in last, last
 
 
 def test_firmware_counts_missing_imu_samples_by_time_even_in_long_bursts(capture, tmp_path):

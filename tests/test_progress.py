@@ -95,7 +95,7 @@ def test_firmware_live_status_line(tmp_path):
                           text=True, env=env)  # fmt: skip
     time.sleep(0.6)
     subprocess.run([PY, "-m", "sim_hil.replay", str(cap), "--out", f"udpout:127.0.0.1:{port}", "--speed", "10",
-                    "--quiet"], check=True, capture_output=True, timeout=30)  # fmt: skip
+                    "--lockstep", "--quiet"], check=True, capture_output=True, timeout=30)  # fmt: skip
     fw.send_signal(signal.SIGINT)
     fw.wait(10)
     lines = fw.stderr.read().strip().splitlines()
