@@ -92,6 +92,8 @@ class ReplayResult:
     fw_lost: int | None = None  # the firmware's own count of packets it lost (SYS_STATUS), if it said
     fw_long_gaps: int = 0
     fw_imu_missing: int = 0
+    fw_time_s: float = -1.0  # the newest sample time the firmware's WIND_COV acknowledged
+    sent_time_s: float = -1.0  # the newest sample time sent
     interrupted: bool = False
 
     def final_line(self, out: str, speed: float) -> str:
@@ -108,9 +110,12 @@ class ReplayResult:
             if self.lockstep or speed == 0:
                 return head + "; nothing came back to say what arrived: losses unknown"
             return head + "; no receiver report: losses unknown"
-        if self.fw_lost or self.fw_long_gaps or self.fw_imu_missing:
-            return head + (f"; DATA LOST: the firmware counted {self.fw_lost} packets lost, "
-                           f"{self.fw_imu_missing} IMU samples missing, {self.fw_long_gaps} long gaps")  # fmt: skip
+        tail = ""
+        if not self.acknowledged and not self.interrupted and self.fw_time_s < self.sent_time_s - 0.2:
+            tail = f"; its estimate stops at {self.fw_time_s:.1f} s, the samples sent at {self.sent_time_s:.1f} s"
+        if self.fw_lost or self.fw_long_gaps or self.fw_imu_missing or tail:
+            counts = f"{self.fw_lost} packets lost, {self.fw_imu_missing} IMU samples missing"
+            return head + f"; DATA LOST: the firmware counted {counts}, {self.fw_long_gaps} long gaps{tail}"
         return head + ("; the firmware counted 0 packets lost" if self.acknowledged
                        else "; the firmware counted 0 lost but did not confirm the end")  # fmt: skip
 
@@ -152,6 +157,7 @@ def replay(path: str, out: str, speed: float, stop=lambda: False, lockstep: bool
         link.close()
     res.timeouts = ls.timeouts
     res.fw_lost = ls.firmware_lost()
+    res.fw_time_s, res.sent_time_s = ls.fw_time_us * 1e-6, ls.sent_us * 1e-6
     if ls.fw_status is not None:
         res.fw_long_gaps = int(ls.fw_status.errors_count3)
         res.fw_imu_missing = int(ls.fw_status.errors_count4)
