@@ -160,13 +160,13 @@ class Firmware:
         )
 
     def status(self) -> str:
-        """The estimate at a glance (the live status line): mode, wind, accuracy, input loss."""
+        """Health and estimate at a glance (the live status line): input loss first (what a narrow
+        terminal must show), then mode, wind, accuracy."""
         est = self.est
         if not est.initialised:
             return f"waiting for the sensors, {self.stats.lost} lost"
         wn, we = est.wind()
         frm = math.degrees(math.atan2(-we, -wn)) % 360.0
-        return (f"mode {est.mode_name}, wind {math.hypot(wn, we):.1f} m/s from {frm:03.0f} deg "
-                f"\u00b1{est.ekf.wind_accuracy():.2f}, {self.stats.lost} lost "
-                f"({100 * self.stats.lost_fraction():.1f} %), {self.imu_missing} IMU missing, "
-                f"{est.counters.long_gaps} long gaps")  # fmt: skip
+        return (f"{self.stats.lost} lost ({100 * self.stats.lost_fraction():.1f} %), {self.imu_missing} IMU missing, "
+                f"{est.counters.long_gaps} long gaps, mode {est.mode_name}, wind {math.hypot(wn, we):.1f} m/s "
+                f"from {frm:03.0f} deg \u00b1{est.ekf.wind_accuracy():.2f}")  # fmt: skip

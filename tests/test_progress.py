@@ -80,7 +80,7 @@ def test_sim_status_lines_and_quiet(tmp_path):
     assert len(q.stderr.strip().splitlines()) == 1
     f = subprocess.run([PY, "-m", "firmware_py", "--in", str(out)], capture_output=True, text=True, env=env, check=True)
     flines = f.stderr.strip().splitlines()
-    assert any(re.match(r"balloon-fw:\s+\d+ % \([\d.]+/[\d.]+ MB\).*\| mode ", ln) for ln in flines[:-1]), flines
+    assert any(re.match(r"balloon-fw:\s+\d+ % \([\d.]+/[\d.]+ MB\).*\| \d+ lost .*, mode \w+, wind", ln) for ln in flines[:-1]), flines
     assert "20000 IMU samples" in flines[-1] and "input packets 0 lost" in flines[-1]
 
 
@@ -101,8 +101,8 @@ def test_firmware_live_status_line(tmp_path):
     lines = fw.stderr.read().strip().splitlines()
     live = [ln for ln in lines[:-1] if "msg/s" in ln]
     assert live, lines
-    m = re.search(r"in (\d+) msg/s \((\d+) IMU/s\).*mode (\w+), wind ([\d.]+) m/s from \d+ deg ±([\d.]+), (\d+) lost",
-                  "\n".join(live))  # fmt: skip
+    m = re.search(r"in (\d+) msg/s \((\d+) IMU/s\), (\d+) lost \([\d.]+ %\), (\d+) IMU missing, (\d+) long gaps, "
+                  r"mode (\w+), wind ([\d.]+) m/s from \d+ deg ±([\d.]+)", "\n".join(live))  # fmt: skip
     assert m, live
     assert any(int(x) > 100 for x in re.findall(r"\((\d+) IMU/s\)", "\n".join(live)))  # 10x: ~1000 IMU/s
     assert "taut" in "\n".join(live) and "4000 IMU samples" in lines[-1]
