@@ -75,7 +75,7 @@ def test_sim_status_lines_and_quiet(tmp_path):
     lines = r.stderr.strip().splitlines()
     assert any(re.match(r"balloon-sim:\s+\d+ % \(\d+/120 s simulated\)", ln) for ln in lines[:-1]), lines
     assert "IMU samples" in lines[-1]
-    q = subprocess.run([PY, "-m", "sim_hil", "--duration", "200", "--out", str(out), "--quiet"], capture_output=True,
+    q = subprocess.run([PY, "-m", "sim_hil", "--duration", "120", "--out", str(out), "--quiet"], capture_output=True,
                        text=True, env=env, check=True)  # fmt: skip
     assert len(q.stderr.strip().splitlines()) == 1
     f = subprocess.run([PY, "-m", "firmware_py", "--in", str(out)], capture_output=True, text=True, env=env, check=True)
