@@ -46,6 +46,8 @@ class Firmware:
         self.wind_cov_sent = 0
         self._next_wind_us = 0
         self._next_hb_us = 0
+        self.imu_missing = 0  # IMU samples missing by their time stamps (what 8-bit sequences cannot count)
+        self._prev_imu_us = -1
 
     # ----------------------------------------------------------------- input
 
@@ -59,6 +61,8 @@ class Firmware:
 
     def push(self, s: Sample) -> None:
         """One sample from any source: through the input pipeline into the estimator."""
+        if type(s) is not BaroSample:
+            self._track_imu_time(s.t_us)
         decided = self.pipe.decided
         out = self.pipe.push(s)
         if not decided:
@@ -108,6 +112,15 @@ class Firmware:
             self.out.reset()
             self._next_wind_us = self._next_hb_us = 0
 
+    def _track_imu_time(self, t_us: int) -> None:
+        """Count IMU samples missing between this one and the previous (at the filter's IMU rate). Late
+        ones are not counted twice; time going back by more than a second is a restart."""
+        prev = self._prev_imu_us
+        if prev >= 0 and t_us > prev:
+            self.imu_missing += max(0, (t_us - prev + self.est.dt_us // 2) // self.est.dt_us - 1)
+        if t_us > prev or t_us < prev - 1_000_000:
+            self._prev_imu_us = t_us
+
     # ----------------------------------------------------------------- output
 
     def emit_due(self, t_us: int) -> None:
@@ -131,14 +144,15 @@ class Firmware:
         """SYS_STATUS with each HEARTBEAT: the health a ground station (or a lockstep sender) shows.
         ``drop_rate_comm`` = input packets lost (c%), ``errors_comm`` = corrupt input frames,
         ``errors_count1`` = input packets lost, ``errors_count2`` = filter resets (reboot + numeric +
-        taut + baro), ``errors_count3`` = long input gaps, ``errors_count4`` = rejected samples."""
+        taut + baro), ``errors_count3`` = long input gaps, ``errors_count4`` = IMU samples missing by
+        their time stamps."""
         c, st = self.est.counters, self.stats
         sensors = SENSOR_BITS
         resets = c.time_resets + c.numeric_resets + c.taut_resets + c.baro_resets
         frame = pack(self.mav, self.mav.sys_status_encode(
             sensors, sensors, sensors, 0, 0xFFFF, -1, -1, min(round(10000 * st.lost_fraction()), 10000),
             min(st.bad_frames, 0xFFFF), min(st.lost, 0xFFFF), min(resets, 0xFFFF), min(c.long_gaps, 0xFFFF),
-            min(c.rejected, 0xFFFF),
+            min(self.imu_missing, 0xFFFF),
         ))  # fmt: skip
         self._send(frame, t_us)
 
@@ -174,7 +188,7 @@ class Firmware:
             f"{c.baro_resets} baro, {c.false_releases} false release, {c.mode_switches} mode switches, "
             f"{self.wind_cov_sent} WIND_COV sent, final mode {self.est.mode_name}, "
             f"filter at {self.est.cfg.imu_rate_hz:g} Hz{self._rate_note()}, "
-            f"input packets {self.stats.loss_summary()}"
+            f"input packets {self.stats.loss_summary()}, {self.imu_missing} IMU samples missing by time"
             + (self.streams.summary() if self.streams is not None else "")
         )
 
@@ -185,12 +199,13 @@ class Firmware:
         return f" (IMU stream {d.stream_hz:.1f} Hz{', averaged' if d.resample else ''})"
 
     def status(self) -> str:
-        """The estimate at a glance (the live status line): mode, wind, accuracy, input loss."""
+        """Health and estimate at a glance (the live status line): input loss first (what a narrow
+        terminal must show), then mode, wind, accuracy."""
         est = self.est
         if not est.initialised:
             return f"waiting for the sensors, {self.stats.lost} lost"
         wn, we = est.wind()
         frm = math.degrees(math.atan2(-we, -wn)) % 360.0
-        return (f"mode {est.mode_name}, wind {math.hypot(wn, we):.1f} m/s from {frm:03.0f} deg "
-                f"\u00b1{est.ekf.wind_accuracy():.2f}, {self.stats.lost} lost "
-                f"({100 * self.stats.lost_fraction():.1f} %), {est.counters.long_gaps} long gaps")  # fmt: skip
+        return (f"{self.stats.lost} lost ({100 * self.stats.lost_fraction():.1f} %), {self.imu_missing} IMU missing, "
+                f"{est.counters.long_gaps} long gaps, mode {est.mode_name}, wind {math.hypot(wn, we):.1f} m/s "
+                f"from {frm:03.0f} deg \u00b1{est.ekf.wind_accuracy():.2f}")  # fmt: skip

@@ -71,6 +71,8 @@ def run_live(fw: Firmware, spec: str, stop, progress: Progress | None = None) ->
     last_emit = 0.0
     next_status = last_rx + 1.0
     frames, imu = RateMeter(), RateMeter()
+    frames.rate(last_rx, fw.stats.frames)  # the rates count from here
+    imu.rate(last_rx, fw.est.counters.imu_samples)
     try:
         while not stop():
             data = link.recv(0.05)

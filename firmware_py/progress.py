@@ -120,8 +120,8 @@ class Progress:
         if self._thread is not None:
             self._thread.join(2.0)
         if self._rich is not None:
-            self._draw_bar()
-            self._rich.stop()
+            self._rich.update(self._task, completed=self.done, status=self.status)
+            self._rich.stop()  # draws the final state
 
     def __enter__(self) -> Progress:
         return self
@@ -168,16 +168,18 @@ class Progress:
             TimeRemainingColumn,
         )
         from rich.progress import Progress as RichProgress
+        from rich.table import Column
 
         console = Console(file=self.stream, force_terminal=force or None, highlight=False)
+        fixed = Column(no_wrap=True)
+        status = TextColumn("{task.fields[status]}", table_column=Column(no_wrap=True, overflow="ellipsis", ratio=1))
         if self.total:
-            cols = [TextColumn("{task.description}"), BarColumn(bar_width=24), TaskProgressColumn(),
-                    TimeElapsedColumn(), TextColumn("left"), TimeRemainingColumn(),
-                    TextColumn("{task.fields[status]}")]  # fmt: skip
+            cols = [TextColumn("{task.description}", table_column=fixed), BarColumn(bar_width=20),
+                    TaskProgressColumn(), TimeElapsedColumn(), TextColumn("left", table_column=fixed),
+                    TimeRemainingColumn(), status]  # fmt: skip
         else:
-            cols = [SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
-                    TextColumn("{task.fields[status]}")]  # fmt: skip
-        self._rich = RichProgress(*cols, console=console, auto_refresh=False, transient=False)
+            cols = [SpinnerColumn(), TextColumn("{task.description}", table_column=fixed), TimeElapsedColumn(), status]
+        self._rich = RichProgress(*cols, console=console, auto_refresh=False, transient=False, expand=True)
         self._task = self._rich.add_task(self.label, total=self.total, status="")
         self._rich.start()
 

@@ -16,6 +16,11 @@ from collections import deque
 from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mavlink
+from rich import box
+from rich.console import Console, Group
+from rich.measure import Measurement
+from rich.table import Table
+from rich.text import Text
 
 from firmware_py.mavio import Decoder, LinkStats, TlogSink, open_link, pack
 from firmware_py.progress import fmt_duration, stream_is_terminal
@@ -26,7 +31,32 @@ STALE_S = 2.0  # no WIND_COV for this long: the row's wind is old
 HB_LATE_S = 3.0  # no HEARTBEAT for this long: shown in red
 RATE_WINDOW_S = 2.0
 SPARK = "▁▂▃▄▅▆▇█"
-WIDE_COLUMNS = 110  # from this terminal width on, the wide table
+SPARK_MAX = 120  # seconds of wind speed in the sparkline (as much as a wide screen holds)
+# column key: (header, justification); the wide headers where they differ
+COLUMNS = {
+    "sys": ("sys", "right"), "t": ("t [s]", "right"), "wind": ("wind", "right"), "from": ("from", "right"),
+    "N": ("N", "right"), "E": ("E", "right"), "acc": ("±acc", "right"), "var": ("var", "right"),
+    "alt": ("alt m", "right"), "mode": ("mode", "left"), "hz": ("Hz", "right"), "rst": ("rst", "right"),
+    "lost": ("lost", "right"), "in": ("in%", "right"), "hb": ("hb", "right"), "state": ("state", "left"),
+}  # fmt: skip
+WIDE_HEADERS = {"wind": "wind m/s", "from": "from °"}
+# the richest that fits wins; the last always does (80 columns)
+LAYOUTS = (
+    ("sys", "t", "wind", "from", "N", "E", "acc", "var", "alt", "mode", "hz", "rst", "lost", "in", "hb", "state"),
+    ("sys", "wind", "from", "N", "E", "acc", "var", "alt", "mode", "hz", "rst", "lost", "in", "hb", "state"),
+    ("sys", "wind", "from", "acc", "mode", "hz", "rst", "lost", "in", "hb", "state"),
+)
+
+
+class _Null:
+    def write(self, _s: str) -> int:
+        return 0
+
+    def flush(self) -> None:
+        pass
+
+
+_NULL = _Null()
 
 
 @dataclass
@@ -160,13 +190,8 @@ class GroundStation:
     # ------------------------------------------------------------ the terminal view
 
     def view(self, now: float, width: int):
-        """A rich renderable: header, one row per system id, footer; fits ``width`` columns."""
-        from rich import box
-        from rich.console import Group
-        from rich.table import Table
-        from rich.text import Text
-
-        wide = width >= WIDE_COLUMNS
+        """A rich renderable: header, one row per system id, footer; fits ``width`` columns, with the
+        richest set of columns (``LAYOUTS``) whose table fits."""
         s = self.stats
         head = Text(no_wrap=True, overflow="ellipsis")
         head.append("balloon-gs ", style="bold")
@@ -175,79 +200,86 @@ class GroundStation:
         link.append(f"link: {s.frames} frames, ")
         link.append(f"{s.lost} lost", style="red bold" if s.lost else "")
         link.append(f", {s.bad_frames} CRC errors, {s.garbage_bytes} garbage bytes, {s.bytes / 1024:.0f} kB")
-        if wide:
+        if head.cell_len + 2 + link.cell_len <= width:
             head.append("  ")
             head.append_text(link)
             lines = [head]
         else:
             lines = [head, link]
-
-        t = Table(box=box.SIMPLE_HEAD, pad_edge=False, expand=False, padding=(0, 1), show_edge=False)
-        cols = [("sys", "right"), ("wind", "right"), ("from", "right"), ("±acc", "right")]
-        if wide:
-            cols = [("sys", "right"), ("t [s]", "right"), ("wind m/s", "right"), ("from °", "right"), ("N", "right"),
-                    ("E", "right"), ("±acc", "right"), ("var", "right"), ("alt m", "right")]  # fmt: skip
-        cols += [("mode", "left"), ("Hz", "right"), ("resets", "right") if wide else ("rst", "right"),
-                 ("lost", "right"), ("fw in", "right") if wide else ("in%", "right"),
-                 ("heartbeat", "right") if wide else ("hb", "right"), ("state", "left")]  # fmt: skip
-        for name, justify in cols:
-            t.add_column(name, justify=justify, no_wrap=True, overflow="ellipsis")
-        spark_w = max(0, min(60, width - 150)) if wide else 0
-        if spark_w >= 10:
-            t.add_column(f"wind, last {spark_w} s", no_wrap=True)
-        if not self.vehicles:
-            t.add_row(*(["-"] * len(t.columns)))
-        for v in sorted(self.vehicles.values(), key=lambda v: v.sysid):
-            t.add_row(*self._row(v, now, wide, spark_w))
+        console = Console(width=width, file=_NULL)
+        for keys in LAYOUTS:
+            table = self._table(now, keys, 0)
+            natural = Measurement.get(console, console.options.update_width(10_000), table).maximum
+            if natural <= width or keys is LAYOUTS[-1]:
+                break
+        spark_w = min(SPARK_MAX, width - natural - 3)
+        if "t" in keys and spark_w >= 10:
+            table = self._table(now, keys, spark_w)
         logs = ", ".join(p for p in (self.csv_path, self.tlog_path) if p)
-        if wide:
-            notes = [f"STALE: no WIND_COV for {STALE_S:g} s.  resets: the balloon's filter resets.  lost: packets "
-                     "lost on the way here.  fw in: sensor packets the balloon lost, %.  Ctrl-C stops."]  # fmt: skip
-        else:
+        notes = [f"STALE: no WIND_COV for {STALE_S:g} s.  rst: the balloon's filter resets.  lost: packets lost on "
+                 "the way here.  in%: sensor packets the balloon lost.  hb: heartbeat age.  Ctrl-C stops."]
+        if len(notes[0]) > width:
             notes = ["wind, ±acc: m/s; from: deg; rst: filter resets; lost: lost on the way here;",
                      f"in%: sensor packets the balloon lost; hb: heartbeat age; STALE: no WIND_COV {STALE_S:g} s",
                      "Ctrl-C stops."]  # fmt: skip
         if logs:
             notes[-1] += f" Logging to {logs}."
         foot = [Text(n, no_wrap=True, overflow="ellipsis", style="dim") for n in notes]
-        return Group(*lines, t, *foot)
+        return Group(*lines, table, *foot)
 
-    def _row(self, v: Vehicle, now: float, wide: bool, spark_w: int) -> list:
-        from rich.text import Text
+    def _table(self, now: float, keys: tuple[str, ...], spark_w: int):
+        t = Table(box=box.SIMPLE_HEAD, pad_edge=False, expand=False, padding=(0, 1), show_edge=False)
+        wide = "t" in keys
+        for k in keys:
+            header, justify = COLUMNS[k]
+            if wide and k in WIDE_HEADERS:
+                header = WIDE_HEADERS[k]
+            t.add_column(header, justify=justify, no_wrap=True, overflow="ellipsis")
+        if spark_w:
+            t.add_column(f"wind, last {spark_w} s", no_wrap=True)
+        if not self.vehicles:
+            t.add_row(*(["-"] * len(t.columns)))
+        for v in sorted(self.vehicles.values(), key=lambda v: v.sysid):
+            cells = self._cells(v, now)
+            row = [cells[k] for k in keys]
+            if spark_w:
+                row.append(Text(sparkline([sp for _, sp in v.history][-spark_w:]),
+                                style="dim" if v.stale(now) else "cyan"))  # fmt: skip
+            t.add_row(*row)
+        return t
 
+    def _cells(self, v: Vehicle, now: float) -> dict:
         r = v.last
-        stale = v.stale(now)
-        dim = "dim" if stale else ""
+        dim = "dim" if v.stale(now) else ""
+        c: dict = {"sys": str(v.sysid)}
         if r is None:
-            vals = ["-"] * (8 if wide else 3)
+            for k in ("t", "wind", "from", "N", "E", "acc", "var", "alt"):
+                c[k] = "-"
         else:
-            vals = [f"{r.speed_mps:.2f}", f"{r.from_deg:03.0f}", f"{r.horiz_accuracy:.2f}"]
-            if wide:
-                var = "-" if r.var_horiz != r.var_horiz else f"{r.var_horiz:.2f}"
-                vals = [f"{r.time_usec * 1e-6:.1f}", vals[0], vals[1], f"{r.wind_x:+.2f}", f"{r.wind_y:+.2f}", vals[2],
-                        var, f"{r.wind_alt:.0f}"]  # fmt: skip
-        cells: list = [str(v.sysid), *(Text(x, style=dim) for x in vals)]
+            var = "-" if r.var_horiz != r.var_horiz else f"{r.var_horiz:.2f}"
+            vals = {"t": f"{r.time_usec * 1e-6:.1f}", "wind": f"{r.speed_mps:.2f}", "from": f"{r.from_deg:03.0f}",
+                    "N": f"{r.wind_x:+.2f}", "E": f"{r.wind_y:+.2f}", "acc": f"{r.horiz_accuracy:.2f}", "var": var,
+                    "alt": f"{r.wind_alt:.0f}"}  # fmt: skip
+            for k, x in vals.items():
+                c[k] = Text(x, style=dim)
         resets = v.resets()
         lost = self.link_lost(v.sysid)
         in_pct = v.input_lost_pct()
         hb_age = None if v.hb_at is None else now - v.hb_at
-        cells += [
-            Text(v.mode, style=dim),
-            f"{v.rate(now):.0f}" if not wide else f"{v.rate(now):.1f}",
-            Text("-" if resets is None else str(resets), style="yellow" if resets else ""),
-            Text(str(lost), style="red bold" if lost else ""),
-            Text("-" if in_pct is None else f"{in_pct:.1f}", style="red bold" if in_pct else ""),
-            Text("-" if hb_age is None else f"{hb_age:.0f}s", style="red bold" if (hb_age or 0) > HB_LATE_S else ""),
-        ]
+        c["mode"] = Text(v.mode, style=dim)
+        c["hz"] = f"{v.rate(now):.0f}"
+        c["rst"] = Text("-" if resets is None else str(resets), style="yellow" if resets else "")
+        c["lost"] = Text(str(lost), style="red bold" if lost else "")
+        c["in"] = Text("-" if in_pct is None else f"{in_pct:.1f}", style="red bold" if in_pct else "")
+        late = hb_age is None or hb_age > HB_LATE_S
+        c["hb"] = Text("-" if hb_age is None else f"{hb_age:.0f}s", style="red bold" if late else "")
         if r is None:
-            cells.append(Text("WAIT", style="yellow"))
-        elif stale:
-            cells.append(Text(f"STALE {v.age(now):.0f}s", style="bold white on red"))
+            c["state"] = Text("WAIT", style="yellow")
+        elif v.stale(now):
+            c["state"] = Text(f"STALE {v.age(now):.0f}s", style="bold white on red")
         else:
-            cells.append(Text("OK", style="green"))
-        if spark_w >= 10:
-            cells.append(Text(sparkline([sp for _, sp in v.history][-spark_w:]), style=dim or "cyan"))
-        return cells
+            c["state"] = Text("OK", style="green")
+        return c
 
     def close(self) -> None:
         if self._csv_fh:

@@ -50,10 +50,15 @@ class Lockstep:
             data = self.link.recv(0.0)
 
     def wait_for(self, t_us: int) -> None:
+        """Block until the sample at ``t_us`` may be sent (then it counts as sent)."""
         if self.first_us is None or t_us < self.sent_us - 1_000_000:
             # the first sample, or time went back (the capture holds a restart): start again from here
             self.first_us, self.fw_time_us = t_us, -1
         self._wait(t_us)
+        self.note_sent(t_us)
+
+    def note_sent(self, t_us: int) -> None:
+        """A sample at ``t_us`` went out (a small step back is reordering, a big one a restart)."""
         self.sent_us = max(self.sent_us, t_us) if t_us >= self.sent_us - 1_000_000 else t_us
 
     def _wait(self, t_us: int) -> None:

@@ -102,25 +102,31 @@ class ReplayResult:
     acknowledged: bool = False  # the firmware caught up with the last sample and reported after it
     fw_lost: int | None = None  # the firmware's own count of packets it lost (SYS_STATUS), if it said
     fw_long_gaps: int = 0
+    fw_imu_missing: int = 0
+    fw_time_s: float = -1.0  # the newest sample time the firmware's WIND_COV acknowledged
+    sent_time_s: float = -1.0  # the newest sample time sent
     interrupted: bool = False
 
     def final_line(self, out: str, speed: float) -> str:
         head = f"balloon-replay: {self.imu_sent} IMU samples ({self.bytes_sent} bytes) sent to {out}"
-        if self.interrupted:
-            head += ", interrupted"
         if self.lockstep:
             head += " in lockstep"
             if self.timeouts:
                 head += f", LOST SYNC {self.timeouts} times (the firmware fell silent for 2 s)"
         else:
             head += " flat out" if speed == 0 else f" at {speed:g}x"
+        if self.interrupted:
+            head += ", interrupted"
         if self.fw_lost is None:
             if self.lockstep or speed == 0:
                 return head + "; nothing came back to say what arrived: losses unknown"
             return head + "; no receiver report: losses unknown"
-        if self.fw_lost or self.fw_long_gaps:
-            return head + (f"; DATA LOST: the firmware counted {self.fw_lost} packets lost, "
-                           f"{self.fw_long_gaps} long gaps")  # fmt: skip
+        tail = ""
+        if not self.acknowledged and not self.interrupted and self.fw_time_s < self.sent_time_s - 0.2:
+            tail = f"; its estimate stops at {self.fw_time_s:.1f} s, the samples sent at {self.sent_time_s:.1f} s"
+        if self.fw_lost or self.fw_long_gaps or self.fw_imu_missing or tail:
+            counts = f"{self.fw_lost} packets lost, {self.fw_imu_missing} IMU samples missing"
+            return head + f"; DATA LOST: the firmware counted {counts}, {self.fw_long_gaps} long gaps{tail}"
         return head + ("; the firmware counted 0 packets lost" if self.acknowledged
                        else "; the firmware counted 0 lost but did not confirm the end")  # fmt: skip
 
@@ -147,6 +153,8 @@ def replay(path: str, out: str, speed: float, stop=lambda: False, lockstep: bool
             if t_imu is not None:
                 if lockstep:
                     ls.wait_for(t_imu)
+                else:
+                    ls.note_sent(t_imu)
                 res.imu_sent += 1
             if not lockstep and k % 100 == 0:
                 ls.poll(0.0)  # drain what comes back (and keep the firmware's SYS_STATUS)
@@ -160,8 +168,10 @@ def replay(path: str, out: str, speed: float, stop=lambda: False, lockstep: bool
         link.close()
     res.timeouts = ls.timeouts
     res.fw_lost = ls.firmware_lost()
+    res.fw_time_s, res.sent_time_s = ls.fw_time_us * 1e-6, ls.sent_us * 1e-6
     if ls.fw_status is not None:
         res.fw_long_gaps = int(ls.fw_status.errors_count3)
+        res.fw_imu_missing = int(ls.fw_status.errors_count4)
     return res
 
 
@@ -209,7 +219,7 @@ def main(argv: list[str] | None = None) -> int:
         return userargs.fail(prog, exc)
     bar.close()
     print(res.final_line(args.out, args.speed), file=sys.stderr)
-    return 0
+    return 130 if res.interrupted else 0
 
 
 if __name__ == "__main__":

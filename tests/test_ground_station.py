@@ -58,3 +58,38 @@ def test_report_refuses_a_log_without_wind(tmp_path):
     r = subprocess.run([sys.executable, "-m", "ground_station", "report", str(empty), "--truth", str(truth)],
                        capture_output=True, text=True)  # fmt: skip
     assert r.returncode == 2 and "WIND_COV" in r.stderr
+
+
+def _two_balloons(gs, now):
+    from firmware_py.mavio import Decoder
+
+    dec = Decoder(gs.stats)
+    for sysid, mode in ((3, 2), (12, 1)):
+        mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1)
+        frames = [pack(mav, mav.heartbeat_encode(mavlink.MAV_TYPE_FREE_BALLOON, mavlink.MAV_AUTOPILOT_GENERIC, 0,
+                                                 mode, 4)),
+                  pack(mav, mav.sys_status_encode(15, 15, 15, 0, 0xFFFF, -1, -1, 125, 0, 9, 2, 0, 0))]  # fmt: skip
+        frames += [px4_wind(mav, 5_000_000 + 100_000 * i, 2.0 * sysid / 3, 1.0) for i in range(5)]
+        for f in frames:
+            for m in dec.feed(f):
+                gs.handle(m, now)
+
+
+@pytest.mark.parametrize("width", [80, 120, 200])
+def test_live_view_fits_the_width_and_marks_stale(width):
+    from rich.console import Console
+
+    gs = GroundStation(out=io.StringIO())
+    _two_balloons(gs, 100.0)
+    for now, stale in ((100.5, False), (103.0, True)):
+        con = Console(width=width, record=True, file=io.StringIO(), force_terminal=True)
+        con.print(gs.view(now, width))
+        lines = con.export_text().splitlines()
+        assert all(len(ln) <= width for ln in lines) and len(lines) <= 24
+        rows = [ln for ln in lines if ln.split() and ln.split()[0] in ("3", "12")]
+        assert len(rows) == 2
+        assert all(("STALE" in r) == stale for r in rows)
+        assert "taut" in rows[0] and "free" in rows[1] and "1.2" in rows[0]  # mode, input loss 1.25 %
+    plain = gs.status_lines(103.0)
+    assert len(plain) == 2 and all("STALE" in ln and "resets 2" in ln for ln in plain)
+    assert not any("STALE" in ln for ln in gs.status_lines(100.5))

@@ -60,6 +60,7 @@ def test_sil_run_scores_and_leaves_no_process(tmp_path):
     m = re.search(r"band RMSE \(<0.05 Hz\) ([\d.]+) m/s, skill (-?[\d.]+)", r.stdout)
     assert m and float(m.group(1)) < 0.2 and float(m.group(2)) > 0.15  # 80 s scored: the pipeline, not the accuracy
     assert "0 lost" in r.stdout  # lockstep on loopback: lossless at 25x
+    assert r.stdout.strip().splitlines()[-1].startswith("balloon-sil: nothing lost (sim -> fw 0 packets lost")
     assert (tmp_path / "paper-reference-seed3.png").stat().st_size > 10_000
     assert not procs_with(str(tmp_path))
     ports = re.search(r"udp:(\d+) -> fw -> udp:(\d+)", r.stdout).groups()

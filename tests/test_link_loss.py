@@ -7,6 +7,7 @@ import random
 import re
 import signal
 import socket
+import struct
 import subprocess
 import sys
 import time
@@ -154,8 +155,42 @@ def test_flat_out_without_lockstep_says_what_it_lost(capture):
     r, fw_summary = replay_into_firmware(capture, "--speed", "0", "--no-lockstep")
     assert r.returncode == 0, r.stderr
     got = int(re.search(r"(\d+) IMU samples", fw_summary).group(1))
+    lost = int(re.search(r"input packets (\d+) lost", fw_summary).group(1))
+    missing = int(re.search(r"(\d+) IMU samples missing by time", fw_summary).group(1))
     last = r.stderr.strip().splitlines()[-1]
-    if got < imu_in(capture):  # a receiver slower than the sender: the loss is in the final line
-        assert "DATA LOST" in last or "losses unknown" in last
+    assert "flat out" in last
+    if got < imu_in(capture) or lost or missing:  # a receiver slower than the sender: the loss is in the final line
+        assert "DATA LOST" in last or "losses unknown" in last, last
     else:
-        assert "counted 0 packets lost" in last
+        assert "counted 0 packets lost" in last, last
+
+
+def test_firmware_counts_missing_imu_samples_by_time_even_in_long_bursts(capture, tmp_path):
+    """A burst of 300 lost IMU samples is beyond 8-bit sequence numbers; their time stamps show it."""
+    from firmware_py.app import Firmware
+    from firmware_py.config import Design
+    from firmware_py.mavio import TlogWriter, tlog_messages
+    from sim_hil.replay import tlog_records
+
+    recs = list(tlog_records(str(capture)))
+    imu_idx = [i for i, (_, t_imu, _) in enumerate(recs) if t_imu is not None]
+    # everything for 3 s (300 IMU samples + barometer + heartbeats: more than 256 packets), and 5 singles
+    drop = set(range(imu_idx[2000], imu_idx[2300])) | {imu_idx[k] for k in (100, 500, 501, 3000, 4500)}
+    lossy = tmp_path / "lossy.tlog"
+    with open(lossy, "wb") as fh:
+        w = TlogWriter(fh)
+        for i, (ts, _, frame) in enumerate(recs):
+            if i not in drop:
+                w.fh.write(struct.pack(">Q", ts) + frame)
+    sink = tmp_path / "fw.tlog"
+    from firmware_py.mavio import TlogSink
+
+    fw = Firmware(Design(), sink=TlogSink(str(sink)))
+    for m in tlog_messages(str(lossy), fw.stats):
+        fw.handle(m)
+    fw.sinks[0].close()
+    assert fw.imu_missing == 305
+    assert fw.stats.lost < 300  # the 8-bit sequence numbers alone cannot see the whole burst...
+    assert "305 IMU samples missing by time" in fw.summary()  # ...the summary does not
+    status = [m for m in tlog_messages(str(sink), LinkStats()) if m.get_type() == "SYS_STATUS"]
+    assert status[-1].errors_count4 == 305 and status[-1].errors_count1 == fw.stats.lost

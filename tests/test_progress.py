@@ -70,18 +70,19 @@ def test_helpers():
 def test_sim_status_lines_and_quiet(tmp_path):
     env = {**os.environ, INTERVAL_ENV: "0.3"}
     out = tmp_path / "s.tlog"
-    r = subprocess.run([PY, "-m", "sim_hil", "--duration", "200", "--out", str(out)], capture_output=True,
+    r = subprocess.run([PY, "-m", "sim_hil", "--duration", "120", "--out", str(out)], capture_output=True,
                        text=True, env=env, check=True)  # fmt: skip
     lines = r.stderr.strip().splitlines()
-    assert any(re.match(r"balloon-sim:\s+\d+ % \(\d+/200 s simulated\)", ln) for ln in lines[:-1]), lines
+    assert any(re.match(r"balloon-sim:\s+\d+ % \(\d+/120 s simulated\)", ln) for ln in lines[:-1]), lines
     assert "IMU samples" in lines[-1]
-    q = subprocess.run([PY, "-m", "sim_hil", "--duration", "200", "--out", str(out), "--quiet"], capture_output=True,
+    q = subprocess.run([PY, "-m", "sim_hil", "--duration", "120", "--out", str(out), "--quiet"], capture_output=True,
                        text=True, env=env, check=True)  # fmt: skip
     assert len(q.stderr.strip().splitlines()) == 1
     f = subprocess.run([PY, "-m", "firmware_py", "--in", str(out)], capture_output=True, text=True, env=env, check=True)
     flines = f.stderr.strip().splitlines()
-    assert any(re.match(r"balloon-fw:\s+\d+ % \([\d.]+/[\d.]+ MB\).*\| mode ", ln) for ln in flines[:-1]), flines
-    assert "20000 IMU samples" in flines[-1] and "input packets 0 lost" in flines[-1]
+    pattern = r"balloon-fw:\s+\d+ % \([\d.]+/[\d.]+ MB\).*\| \d+ lost .*, mode \w+, wind"
+    assert any(re.match(pattern, ln) for ln in flines[:-1]), flines
+    assert "12000 IMU samples" in flines[-1] and "input packets 0 lost" in flines[-1]
 
 
 def test_firmware_live_status_line(tmp_path):
@@ -95,14 +96,14 @@ def test_firmware_live_status_line(tmp_path):
                           text=True, env=env)  # fmt: skip
     time.sleep(0.6)
     subprocess.run([PY, "-m", "sim_hil.replay", str(cap), "--out", f"udpout:127.0.0.1:{port}", "--speed", "10",
-                    "--quiet"], check=True, capture_output=True, timeout=30)  # fmt: skip
+                    "--lockstep", "--quiet"], check=True, capture_output=True, timeout=30)  # fmt: skip
     fw.send_signal(signal.SIGINT)
     fw.wait(10)
     lines = fw.stderr.read().strip().splitlines()
     live = [ln for ln in lines[:-1] if "msg/s" in ln]
     assert live, lines
-    m = re.search(r"in (\d+) msg/s \((\d+) IMU/s\).*mode (\w+), wind ([\d.]+) m/s from \d+ deg ±([\d.]+), (\d+) lost",
-                  "\n".join(live))  # fmt: skip
+    m = re.search(r"in (\d+) msg/s \((\d+) IMU/s\), (\d+) lost \([\d.]+ %\), (\d+) IMU missing, (\d+) long gaps, "
+                  r"mode (\w+), wind ([\d.]+) m/s from \d+ deg ±([\d.]+)", "\n".join(live))  # fmt: skip
     assert m, live
     assert any(int(x) > 100 for x in re.findall(r"\((\d+) IMU/s\)", "\n".join(live)))  # 10x: ~1000 IMU/s
     assert "taut" in "\n".join(live) and "4000 IMU samples" in lines[-1]
