@@ -339,12 +339,15 @@ class StreamRequester:
             return
         if self.target is None or msg.get_srcSystem() != self.target[0]:
             return
+        imu_key, baro_key = self.sampler.imu_key, self.sampler.baro_key
         if mid in IMU_MESSAGES:
-            self.arrivals["imu"].append(now)
-            if mid in HIGHRES_IMUS and self.sampler.embedded_baro:
-                self.arrivals["baro"].append(now)
+            if imu_key is None or imu_key[0] == mid:  # the instance in use (the others do not count)
+                self.arrivals["imu"].append(now)
+                if mid in HIGHRES_IMUS and self.sampler.embedded_baro:
+                    self.arrivals["baro"].append(now)
         elif mid in PRESSURE_MESSAGES:
-            self.arrivals["baro"].append(now)
+            if baro_key is None or baro_key[0] == mid:
+                self.arrivals["baro"].append(now)
         elif mid == mavlink.MAVLINK_MSG_ID_COMMAND_ACK and msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
             if getattr(msg, "target_system", 0) not in (0, self.mav.srcSystem):
                 return
