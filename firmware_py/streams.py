@@ -87,9 +87,11 @@ def _valid_imu(s: ImuSample) -> bool:
 
 class Resampler:
     """A stream faster than the filter, averaged to its step: the valid IMU samples whose times fall in
-    one step (bins of 1/rate on the sensor's clock from its first sample) become one sample, stamped
-    with the mean of their times (the log's own timestamps: a gap stays a gap, a dropout a dropout);
-    the magnetometer is the mean of the bin's readings (NaN if none). Barometer samples and samples
+    one step (bins of 1/rate on the sensor's clock, centred on its first sample's time + k steps) become
+    one sample stamped with the bin's centre. The times are the log's own: a gap stays a gap, a dropout
+    a dropout; the jitter and the lost samples inside a step do not move the estimator's clock (a mean
+    of the times would, by up to half a step, and make it count spurious jitter and gaps). The
+    magnetometer is the mean of the bin's readings (NaN if none). Barometer samples and samples
     the estimator will reject pass straight through; a sample older than the open bin is dropped and
     counted (``reordered``), one repeating the last time too (``duplicates``); time going back by more
     than the estimator's reorder window is a reboot: the bins start again from it."""
@@ -100,7 +102,7 @@ class Resampler:
         self.k = 0
         self.n = 0
         self.mag_n = 0
-        self.sum = [0.0] * 10  # t, a(3), g(3), m(3)
+        self.sum = [0.0] * 9  # a(3), g(3), m(3)
         self.last_t = -1
         self.duplicates = 0
         self.reordered = 0
@@ -111,7 +113,7 @@ class Resampler:
         t = s.t_us
         if self.t0 is None:
             self.t0 = t
-        k = (t - self.t0) // self.dt_us
+        k = (t - self.t0 + self.dt_us // 2) // self.dt_us
         out: list[Sample] = []
         if self.n and k != self.k:
             if t == self.last_t:
@@ -122,7 +124,8 @@ class Resampler:
                     self.reordered += 1
                     return out
                 out.append(self._close())  # a reboot: start the bins again from this sample
-                self.t0, k = t, 0
+                self.t0 = t
+                k = 0
             else:
                 out.append(self._close())
         elif self.n and t == self.last_t:
@@ -137,22 +140,21 @@ class Resampler:
 
     def _add(self, s: ImuSample) -> None:
         acc = self.sum
-        vals = (s.t_us, s.ax, s.ay, s.az, s.gx, s.gy, s.gz)
-        for i, v in enumerate(vals):
+        for i, v in enumerate((s.ax, s.ay, s.az, s.gx, s.gy, s.gz)):
             acc[i] += v
         if math.isfinite(s.mx) and math.isfinite(s.my) and math.isfinite(s.mz):
-            acc[7] += s.mx
-            acc[8] += s.my
-            acc[9] += s.mz
+            acc[6] += s.mx
+            acc[7] += s.my
+            acc[8] += s.mz
             self.mag_n += 1
         self.n += 1
         self.last_t = s.t_us
 
     def _close(self) -> ImuSample:
         acc, n, m = self.sum, self.n, self.mag_n
-        mag = (acc[7] / m, acc[8] / m, acc[9] / m) if m else (math.nan, math.nan, math.nan)
-        out = ImuSample(round(acc[0] / n), *(v / n for v in acc[1:7]), *mag)
-        self.sum = [0.0] * 10
+        mag = (acc[6] / m, acc[7] / m, acc[8] / m) if m else (math.nan, math.nan, math.nan)
+        out = ImuSample(self.t0 + self.k * self.dt_us, *(v / n for v in acc[:6]), *mag)
+        self.sum = [0.0] * 9
         self.n = self.mag_n = 0
         return out
 
@@ -347,12 +349,15 @@ class StreamRequester:
             return
         if self.target is None or msg.get_srcSystem() != self.target[0]:
             return
+        imu_key, baro_key = self.sampler.imu_key, self.sampler.baro_key
         if mid in IMU_MESSAGES:
-            self.arrivals["imu"].append(now)
-            if mid in HIGHRES_IMUS and self.sampler.embedded_baro:
-                self.arrivals["baro"].append(now)
+            if imu_key is None or imu_key[0] == mid:  # the instance in use (the others do not count)
+                self.arrivals["imu"].append(now)
+                if mid in HIGHRES_IMUS and self.sampler.embedded_baro:
+                    self.arrivals["baro"].append(now)
         elif mid in PRESSURE_MESSAGES:
-            self.arrivals["baro"].append(now)
+            if baro_key is None or baro_key[0] == mid:
+                self.arrivals["baro"].append(now)
         elif mid == mavlink.MAVLINK_MSG_ID_COMMAND_ACK and msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
             if getattr(msg, "target_system", 0) not in (0, self.mav.srcSystem):
                 return

@@ -476,3 +476,51 @@ def read_flight(path: str) -> Flight:
     if kind == "dataflash":
         return read_dataflash(path)
     return read_mavlink(path)
+
+
+# ------------------------------------------------------------------------------------------ a look
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m ground_station.flightlog FILE [--estimate]``: what a flight file holds and, with
+    --estimate, what the estimator makes of it (ten lines over the flight, then its counters)."""
+    import argparse
+    import sys
+
+    from firmware_py.config import Design
+    from firmware_py.state import FilterConfig
+    from firmware_py.streams import estimator_steps
+
+    ap = argparse.ArgumentParser(prog="python -m ground_station.flightlog", description=main.__doc__)
+    ap.add_argument("file")
+    ap.add_argument("--estimate", action="store_true", help="run the estimator over it")
+    args = ap.parse_args(argv)
+    try:
+        flight = read_flight(args.file)
+    except (ValueError, OSError) as exc:
+        print(f"flightlog: {exc}", file=sys.stderr)
+        return 2
+    m = flight.meta
+    print(m.describe())
+    print(f"sensors {m.sensors}, utc_start_s {m.utc_start_s} ({m.utc_source}), sha256 {m.sha256}")
+    for note in m.notes:
+        print(f"note: {note}")
+    if not args.estimate:
+        return 0
+    rows, est = [], None
+    for est, s, advanced in estimator_steps(Design(), FilterConfig(), flight.samples(), warn=print):
+        if advanced:
+            wn, we = est.wind()
+            rows.append((s.t_us * 1e-6, wn, we, est.ekf.wind_accuracy(), est.ekf.mode, est.height_m()))
+    r = np.array(rows)
+    print(f"filter at {est.cfg.imu_rate_hz:g} Hz, {len(r)} steps, all finite: {bool(np.all(np.isfinite(r)))}")
+    for k in np.linspace(0, len(r) - 1, 10).astype(int):
+        t, wn, we, acc, mode, h = r[k]
+        print(f"t {t - r[0, 0]:7.1f} s  wind N {wn:6.2f} E {we:6.2f} |{math.hypot(wn, we):5.2f}| m/s  "
+              f"accuracy {acc:5.2f} m/s  mode {int(mode)}  height {h:6.1f} m")  # fmt: skip
+    print("counters", {k: v for k, v in est.counters.as_dict().items() if v})
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
