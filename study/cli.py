@@ -1,7 +1,7 @@
 """balloon-study: design sweeps, the simulator and the estimator per case, on Dask.
 
     balloon-study SPEC.toml --out DIR [--workers N | --scheduler tcp://HOST:PORT] [--paper]
-                  [--seeds N] [--duration S] [--no-plots] [--quiet]
+                  [--sweep NAME ...] [--seeds N] [--duration S] [--no-plots] [--quiet]
 
 Writes DIR/cases.parquet and DIR/cases.csv (one row per case), DIR/summary.csv (mean and worst over the
 seeds), DIR/plots/*.png, and keeps every finished case in DIR/parts/ (a rerun reuses them). ``--paper``
@@ -39,6 +39,7 @@ def parse_args(argv):
     ap.add_argument("--paper", action="store_true", help="the paper's study (Figs. 6-12 + tether and wind axes)")
     ap.add_argument("--seeds", type=int, help="override the spec's seeds with 1..N")
     ap.add_argument("--duration", type=float, help="override the spec's duration_s")
+    ap.add_argument("--sweep", action="append", metavar="NAME", help="run only this sweep of the spec (repeatable)")
     ap.add_argument("--no-plots", action="store_true")
     ap.add_argument("--quiet", action="store_true", help="no progress on stderr")
     return ap.parse_args(argv)
@@ -63,6 +64,13 @@ def load(args):
         if not Path(args.spec).is_file():
             raise UsageError(f"study file not found: {args.spec}")
         spec = load_spec(args.spec)
+    if args.sweep:
+        names = [sw.name for sw in spec.sweeps]
+        for n in args.sweep:
+            if n not in names:
+                raise UsageError(f"--sweep {n}: no such sweep; the spec has {', '.join(names)}")
+        kept = tuple(sw for sw in spec.sweeps if sw.name in args.sweep)
+        spec = replace(spec, sweeps=kept, axis_names=tuple(dict.fromkeys(a.name for sw in kept for a in sw.axes)))
     if args.seeds is not None:
         if args.seeds < 1:
             raise UsageError(f"--seeds must be >= 1, got {args.seeds}")

@@ -32,6 +32,8 @@ def axis_plots(spec: Spec, rows: list[dict[str, Any]], out: Path) -> list[Path]:
         if not rs:
             continue
         for ax_def in sw.axes:
+            if len(ax_def.values) < 2:
+                continue
             a = ax_def.name
             values = list(ax_def.values)
             numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
@@ -76,7 +78,7 @@ def maps(spec: Spec, summ: list[dict[str, Any]], out: Path) -> list[Path]:
     made = []
     metric = spec.metrics[0]
     for sw in spec.sweeps:
-        if len(sw.axes) != 2 or sw.combine != "grid":
+        if len(sw.axes) != 2 or sw.combine != "grid" or min(len(a.values) for a in sw.axes) < 2:
             continue
         (ax_a, ax_b) = sw.axes
         ss = [s for s in summ if s["sweep"] == sw.name]
