@@ -76,9 +76,9 @@ class Progress:
             from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
             from rich.progress import Progress as RichProgress
 
-            self.bar = RichProgress(TextColumn("cases"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[f]}"),
-                                    TimeElapsedColumn(), TimeRemainingColumn(), console=Console(file=self.stream),
-                                    transient=False)  # fmt: skip
+            self.bar = RichProgress(TextColumn("cases"), BarColumn(), MofNCompleteColumn(),
+                                    TextColumn("{task.fields[f]}"), TimeElapsedColumn(), TimeRemainingColumn(),
+                                    console=Console(file=self.stream), transient=False)  # fmt: skip
             self.task = self.bar.add_task("cases", total=total, completed=done, f="")
             self.bar.start()
 

@@ -37,7 +37,10 @@ def axis_plots(spec: Spec, rows: list[dict[str, Any]], out: Path) -> list[Path]:
             a = ax_def.name
             values = list(ax_def.values)
             numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
-            xs_of = (lambda v: float(v)) if numeric else (lambda v: float(values.index(v)))  # noqa: E731
+
+            def xs_of(v, values=values, numeric=numeric) -> float:
+                return float(v) if numeric else float(values.index(v))
+
             n = len(spec.metrics)
             cols = min(3, n)
             nrows = math.ceil(n / cols)
@@ -122,4 +125,3 @@ def write_plots(spec: Spec, rows, summ, out_dir: Path) -> list[Path]:
     out = out_dir / "plots"
     out.mkdir(parents=True, exist_ok=True)
     return axis_plots(spec, rows, out) + maps(spec, summ, out)
-

@@ -38,7 +38,6 @@ from firmware_py.state import FilterConfig
 from sim_hil.dynamics import TruthConfig
 from sim_hil.scenarios import SCENARIOS, Scenario
 from sim_hil.wind import WindConfig
-
 from study.metrics import METRICS
 
 DESIGN_SECTIONS = ("balloon", "tether", "site", "sensors")
