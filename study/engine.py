@@ -14,6 +14,7 @@ import logging
 import os
 import sys
 import time
+import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -179,6 +180,7 @@ def _run_dask(client, todo: list[Case], case_fn: CaseFn, take, window: int | Non
         return sum(w.get("nthreads", 1) for w in client.scheduler_info().get("workers", {}).values()) or 1
 
     pending = iter(todo)
+    run_id = uuid.uuid4().hex[:8]  # this run's task keys: never a stale result of another function
     width = window or 2 * threads() + 2
     by_future = {}
 
@@ -186,7 +188,7 @@ def _run_dask(client, todo: list[Case], case_fn: CaseFn, take, window: int | Non
         c = next(pending, None)
         if c is None:
             return False
-        fut = client.submit(case_fn, c.payload(), key=f"case-{c.key}", pure=False)
+        fut = client.submit(case_fn, c.payload(), key=f"case-{c.key}-{run_id}", pure=False)
         by_future[fut.key] = (c, fut)
         ac.add(fut)
         return True

@@ -12,6 +12,7 @@ import numpy as np
 
 from study.spec import Spec
 
+MAX_LINES = 6  # more combinations of the other axes than this: pooled into one line
 SLACK_MARK = 0.05  # a point whose mean slack fraction exceeds this is marked on the maps
 
 
@@ -45,28 +46,44 @@ def axis_plots(spec: Spec, rows: list[dict[str, Any]], out: Path) -> list[Path]:
             cols = min(3, n)
             nrows = math.ceil(n / cols)
             fig, axs = plt.subplots(nrows, cols, figsize=(4.2 * cols, 3.0 * nrows), squeeze=False)
+            others = [b.name for b in sw.axes if b.name != a]
+            groups: dict[tuple, list] = {}
+            for r in rs:
+                groups.setdefault(tuple(r[o] for o in others), []).append(r)
+            if len(groups) > MAX_LINES:  # too many lines to tell apart: pool the other axes
+                groups = {(): rs}
             for k, m in enumerate(spec.metrics):
                 ax = axs[k // cols][k % cols]
-                x = np.array([xs_of(r[a]) for r in rs])
-                y = np.array([r[m] for r in rs])
-                ok = np.isfinite(y)
-                ax.plot(x[ok], y[ok], ".", color="0.5", ms=4, label="seeds")
-                ux = sorted(set(x[ok].tolist()))
-                if ux:
-                    grouped = [y[ok][x[ok] == u] for u in ux]
-                    ax.fill_between(ux, [g.min() for g in grouped], [g.max() for g in grouped], alpha=0.2)
-                    ax.plot(ux, [g.mean() for g in grouped], "-o", ms=3, label="mean")
                 ax.set_title(m, fontsize=9)
                 ax.grid(alpha=0.3)
+                drawn = False
+                for gkey, grs in groups.items():
+                    x = np.array([xs_of(r[a]) for r in grs])
+                    y = np.array([r[m] for r in grs])
+                    ok = np.isfinite(y)
+                    if not ok.any():
+                        continue
+                    drawn = True
+                    label = ", ".join(f"{o} {fmt(v)}" for o, v in zip(others, gkey)) if gkey else "mean"
+                    ux = sorted(set(x[ok].tolist()))
+                    grouped = [y[ok][x[ok] == u] for u in ux]
+                    (line,) = ax.plot(ux, [g.mean() for g in grouped], "-o", ms=3, label=label)
+                    ax.fill_between(ux, [g.min() for g in grouped], [g.max() for g in grouped], alpha=0.15,
+                                    color=line.get_color())  # fmt: skip
+                    ax.plot(x[ok], y[ok], ".", color=line.get_color(), ms=3)
+                if not drawn:
+                    ax.text(0.5, 0.5, "not defined here", ha="center", va="center", transform=ax.transAxes)
                 if not numeric:
                     ax.set_xticks(range(len(values)), [str(v) for v in values], rotation=30, ha="right", fontsize=7)
                 else:
                     ax.set_xlabel(a, fontsize=8)
+                if k == 0 and drawn and len(groups) > 1:
+                    ax.legend(fontsize=6)
             for k in range(n, nrows * cols):
                 axs[k // cols][k % cols].axis("off")
-            others = [b.name for b in sw.axes if b.name != a]
-            fig.suptitle(f"{sw.name}: metrics against {a}" + (f" (all {', '.join(others)} pooled)" if others else "")
-                         + f"; {len(spec.seeds)} seed(s), {spec.duration_s:g} s", fontsize=10)  # fmt: skip
+            pooled = f" ({', '.join(others)} pooled)" if others and len(groups) == 1 else ""
+            fig.suptitle(f"{sw.name}: metrics against {a}{pooled}; mean line, seed range band, seeds as dots; "
+                         f"{len(spec.seeds)} seed(s), {spec.duration_s:g} s", fontsize=10)  # fmt: skip
             fig.tight_layout()
             path = out / f"{sw.name}-{safe(a)}.png"
             fig.savefig(path, dpi=90)
@@ -103,8 +120,8 @@ def maps(spec: Spec, summ: list[dict[str, Any]], out: Path) -> list[Path]:
                         color="w" if not slack[i, j] else "r")  # fmt: skip
                 if slack[i, j]:
                     ax.add_patch(plt.Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, hatch="//", ec="r", lw=0))
-        ax.set_xticks(range(len(ax_a.values)), [f"{v:g}" if isinstance(v, float) else str(v) for v in ax_a.values])
-        ax.set_yticks(range(len(ax_b.values)), [f"{v:g}" if isinstance(v, float) else str(v) for v in ax_b.values])
+        ax.set_xticks(range(len(ax_a.values)), [fmt(v) for v in ax_a.values])
+        ax.set_yticks(range(len(ax_b.values)), [fmt(v) for v in ax_b.values])
         ax.set_xlabel(ax_a.name)
         ax.set_ylabel(ax_b.name)
         ax.set_title(f"{sw.name}: {metric}; red hatch = slack > {SLACK_MARK:.0%} of the time or no spare lift",
@@ -115,6 +132,10 @@ def maps(spec: Spec, summ: list[dict[str, Any]], out: Path) -> list[Path]:
         plt.close(fig)
         made.append(path)
     return made
+
+
+def fmt(v) -> str:
+    return f"{v:g}" if isinstance(v, float) else str(v)
 
 
 def safe(name: str) -> str:

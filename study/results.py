@@ -101,7 +101,10 @@ def format_summary(spec: Spec, summ: list[dict[str, Any]], metrics: tuple[str, .
         cells = [s["sweep"], *(fmt_value(s[a]) for a in axes), f"{s['seeds'] - s['failed']}/{s['seeds']}"]
         for m in metrics:
             mean, w = s[f"{m}_mean"], s[f"{m}_worst"]
-            cells.append("-" if not math.isfinite(mean) else f"{mean:.3g} [{w:.3g}]")
+            if not math.isfinite(mean):
+                cells.append("-")
+            else:
+                cells.append(f"{mean:.3g}" + (f" [{w:.3g}]" if s["seeds"] - s["failed"] > 1 else ""))
         body.append(cells)
     widths = [max(len(str(x)) for x in col) for col in zip(head, *body)]
     line = lambda cells: "| " + " | ".join(str(c).ljust(w) for c, w in zip(cells, widths)) + " |"  # noqa: E731
