@@ -92,23 +92,32 @@ def write(out_dir: Path, spec: Spec, cases: list[Case], results: dict[str, dict[
 
 
 def format_summary(spec: Spec, summ: list[dict[str, Any]], metrics: tuple[str, ...] | None = None) -> list[str]:
-    """A plain text table of the summary (mean [worst]) for the terminal and the docs."""
+    """Plain text tables of the summary, one per sweep (mean, and [worst seed] with several seeds)."""
     metrics = metrics or spec.metrics
-    axes = list(spec.axis_names)
-    head = ["sweep", *axes, "n", *metrics]
-    body = []
-    for s in summ:
-        cells = [s["sweep"], *(fmt_value(s[a]) for a in axes), f"{s['seeds'] - s['failed']}/{s['seeds']}"]
-        for m in metrics:
-            mean, w = s[f"{m}_mean"], s[f"{m}_worst"]
-            if not math.isfinite(mean):
-                cells.append("-")
-            else:
-                cells.append(f"{mean:.3g}" + (f" [{w:.3g}]" if s["seeds"] - s["failed"] > 1 else ""))
-        body.append(cells)
-    widths = [max(len(str(x)) for x in col) for col in zip(head, *body)]
-    line = lambda cells: "| " + " | ".join(str(c).ljust(w) for c, w in zip(cells, widths)) + " |"  # noqa: E731
-    return [line(head), "|" + "|".join("-" * (w + 2) for w in widths) + "|", *(line(b) for b in body)]
+    out = []
+    for sw in spec.sweeps:
+        axes = [a.name for a in sw.axes if len(a.values) > 1] or [a.name for a in sw.axes]
+        head = [*axes, "n", *metrics]
+        body = []
+        for s in summ:
+            if s["sweep"] != sw.name:
+                continue
+            cells = [*(fmt_value(s[a]) for a in axes), f"{s['seeds'] - s['failed']}/{s['seeds']}"]
+            for m in metrics:
+                mean, w = s[f"{m}_mean"], s[f"{m}_worst"]
+                if not math.isfinite(mean):
+                    cells.append("-")
+                else:
+                    cells.append(f"{mean:.3g}" + (f" [{w:.3g}]" if s["seeds"] - s["failed"] > 1 else ""))
+            body.append(cells)
+        widths = [max(len(str(x)) for x in col) for col in zip(head, *body)]
+        out += [f"sweep {sw.name}:", md_line(head, widths), "|" + "|".join("-" * (w + 2) for w in widths) + "|"]
+        out += [md_line(b, widths) for b in body]
+    return out
+
+
+def md_line(cells: list, widths: list[int]) -> str:
+    return "| " + " | ".join(str(c).ljust(w) for c, w in zip(cells, widths)) + " |"
 
 
 def fmt_value(v: Any) -> str:

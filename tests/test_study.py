@@ -116,7 +116,7 @@ def test_a_case_that_raises_is_a_failed_row_and_the_sweep_goes_on(tmp_path, caps
     # an avionics point mass 1.0 m below the centre is outside a 0.95 m balloon: the simulator refuses it
     spec.write_text(TINY.replace('"wind.mean_mps" = [2.0, 4.0]', '"wind.mean_mps" = [3.0]')
                     + "[truth]\navionics_offset_m = 1.0\n")  # fmt: skip
-    assert main([str(spec), "--out", str(tmp_path / "o"), "--workers", "0", "--quiet", "--no-plots"]) == 0
+    assert main([str(spec), "--out", str(tmp_path / "o"), "--workers", "0", "--quiet"]) == 0
     rows = pq.read_table(tmp_path / "o" / "cases.parquet").to_pylist()
     by_r = {r["balloon.radius_m"]: r for r in rows}
     assert by_r[0.95]["status"] == "failed" and "avionics_offset_m" in by_r[0.95]["error"]
@@ -127,6 +127,7 @@ def test_a_case_that_raises_is_a_failed_row_and_the_sweep_goes_on(tmp_path, caps
     summary = (tmp_path / "o" / "summary.csv").read_text().splitlines()
     assert len(summary) == 3 and "band_skill_mean" in summary[0] and "band_skill_worst" in summary[0]
     assert "1 failed" in capsys.readouterr().out
+    assert (tmp_path / "o" / "plots" / "sweep-balloon.radius_m.png").stat().st_size > 10_000
 
 
 @pytest.mark.parametrize(
