@@ -197,7 +197,7 @@ def _run_dask(client, todo: list[Case], case_fn: CaseFn, take, window: int | Non
     for _ in range(width):
         if not submit_one(ac):
             break
-    n = 0
+    checked = time.monotonic()
     try:
         for fut in ac:
             c, _ = by_future.pop(fut.key)
@@ -211,9 +211,9 @@ def _run_dask(client, todo: list[Case], case_fn: CaseFn, take, window: int | Non
                     text = f"{type(e).__name__}: {e}"
                 take({"key": c.key, "status": "failed", "error": text, "wall_time_s": 0.0}, keep=False)
             fut.release()
-            n += 1
-            if window is None and n % 50 == 0:
-                width = 2 * threads() + 2  # a cluster that scaled up gets more in flight
+            if window is None and time.monotonic() - checked > 10.0:
+                checked = time.monotonic()
+                width = 2 * threads() + 2  # a cluster that scaled up (or whose workers joined late) gets more
             while ac.count() < width and submit_one(ac):
                 pass
     except BaseException:

@@ -14,6 +14,7 @@ from study.spec import Spec
 
 MAX_LINES = 6  # more combinations of the other axes than this: pooled into one line
 SLACK_MARK = 0.05  # a point whose mean slack fraction exceeds this is marked on the maps
+COLOUR_RANGE = {"band_skill": (0.0, 1.0)}  # a skill below 0 (worse than the mean) is all one colour
 
 
 def _plt():
@@ -103,28 +104,32 @@ def maps(spec: Spec, summ: list[dict[str, Any]], out: Path) -> list[Path]:
         (ax_a, ax_b) = sw.axes
         ss = [s for s in summ if s["sweep"] == sw.name]
         grid = np.full((len(ax_b.values), len(ax_a.values)), np.nan)
-        slack = np.zeros_like(grid, dtype=bool)
+        mark = np.full(grid.shape, "", dtype=object)
         for s in ss:
             i, j = ax_b.values.index(s[ax_b.name]), ax_a.values.index(s[ax_a.name])
             grid[i, j] = s[f"{metric}_mean"]
             sl = s.get("slack_frac_mean", math.nan)
             lift = s.get("lift_margin_n_mean", math.nan)
-            slack[i, j] = (math.isfinite(sl) and sl > SLACK_MARK) or (math.isfinite(lift) and lift <= 0.0)
+            if math.isfinite(lift) and lift <= 0.0:
+                mark[i, j] = "no lift"
+            elif math.isfinite(sl) and sl > SLACK_MARK:
+                mark[i, j] = f"slack {sl:.0%}"
         fig, ax = plt.subplots(figsize=(6.4, 4.8))
-        im = ax.imshow(grid, origin="lower", aspect="auto", cmap="viridis")
-        fig.colorbar(im, ax=ax, label=f"{metric} (mean over seeds)")
+        lo, hi = COLOUR_RANGE.get(metric, (None, None))
+        im = ax.imshow(grid, origin="lower", aspect="auto", cmap="viridis", vmin=lo, vmax=hi)
+        fig.colorbar(im, ax=ax, label=f"{metric} (mean over seeds)" + (" (colours clipped)" if lo is not None else ""))
         for i in range(grid.shape[0]):
             for j in range(grid.shape[1]):
                 txt = "-" if not math.isfinite(grid[i, j]) else f"{grid[i, j]:.2f}"
-                ax.text(j, i, txt + ("\nslack" if slack[i, j] else ""), ha="center", va="center", fontsize=7,
-                        color="w" if not slack[i, j] else "r")  # fmt: skip
-                if slack[i, j]:
+                ax.text(j, i, txt + (f"\n{mark[i, j]}" if mark[i, j] else ""), ha="center", va="center", fontsize=7,
+                        color="r" if mark[i, j] else "w")  # fmt: skip
+                if mark[i, j]:
                     ax.add_patch(plt.Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, hatch="//", ec="r", lw=0))
         ax.set_xticks(range(len(ax_a.values)), [fmt(v) for v in ax_a.values])
         ax.set_yticks(range(len(ax_b.values)), [fmt(v) for v in ax_b.values])
         ax.set_xlabel(ax_a.name)
         ax.set_ylabel(ax_b.name)
-        ax.set_title(f"{sw.name}: {metric}; red hatch = slack > {SLACK_MARK:.0%} of the time or no spare lift",
+        ax.set_title(f"{sw.name}: {metric}; red hatch: slack > {SLACK_MARK:.0%} of the time, or no spare lift",
                      fontsize=9)  # fmt: skip
         fig.tight_layout()
         path = out / f"{sw.name}-map-{metric}.png"
