@@ -86,6 +86,14 @@ def load(args):
 
 def main(argv: list[str] | None = None) -> int:
     try:
+        return _main(argv)
+    except KeyboardInterrupt:  # before the sweep started (while parsing, validating, starting the cluster)
+        print("balloon-study: interrupted", file=sys.stderr)
+        return 130
+
+
+def _main(argv: list[str] | None) -> int:
+    try:
         args = parse_args(argv)
         if args.workers is not None and args.workers < 0:
             raise UsageError(f"--workers must be >= 0, got {args.workers}")
