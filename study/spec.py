@@ -11,7 +11,7 @@
     [balloon]                      # optional: the programs' design sections override the base scenario
     radius_m = 1.1                 # ([balloon], [tether], [site], [sensors], [wind], [truth], [filter])
 
-    [axes]                         # one sweep; or several [[sweep]] tables, each with name, combine, axes
+    [axes]                         # one sweep ("main"); or several [[sweep]] tables: name, combine, axes
     "balloon.radius_m" = [0.92, 1.0, 1.15]              # a list of points
     "wind.mean_mps" = {start = 1.0, stop = 10.0, num = 4}  # or an even grid (inclusive ends)
     "wind.mean_mps+filter.expected_wind_mps" = [1, 5]  # one axis setting several keys to the same value
@@ -151,7 +151,7 @@ def parse_spec(data: dict[str, Any]) -> Spec:
             raise ConfigError("[[sweep]] must be one or more tables")
         sweeps = tuple(parse_sweep(sw, k, default_combine) for k, sw in enumerate(raw, 1))
     else:
-        sweeps = (parse_sweep({"name": "sweep", "axes": data.get("axes", {})}, 1, default_combine),)
+        sweeps = (parse_sweep({"name": "main", "axes": data.get("axes", {})}, 1, default_combine),)
     names = [sw.name for sw in sweeps]
     if len(set(names)) != len(names):
         raise ConfigError(f"sweep names must differ, got {names}")

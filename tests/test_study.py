@@ -127,7 +127,7 @@ def test_a_case_that_raises_is_a_failed_row_and_the_sweep_goes_on(tmp_path, caps
     summary = (tmp_path / "o" / "summary.csv").read_text().splitlines()
     assert len(summary) == 3 and "band_skill_mean" in summary[0] and "band_skill_worst" in summary[0]
     assert "1 failed" in capsys.readouterr().out
-    assert (tmp_path / "o" / "plots" / "sweep-balloon.radius_m.png").stat().st_size > 10_000
+    assert (tmp_path / "o" / "plots" / "main-balloon.radius_m.png").stat().st_size > 10_000
 
 
 @pytest.mark.parametrize(
