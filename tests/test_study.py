@@ -70,6 +70,9 @@ def test_tiny_sweep_on_two_workers_equals_the_serial_run(client, serial, tmp_pat
     assert r["status"] == "ok" and math.isfinite(r["band_skill"]) and r["band_skill"] <= 1.0
     assert r["lift_margin_n"] > 0 and r["wall_time_s"] > 0 and 0.0 < r["blowdown_deg"] < 90.0
     assert len(list((tmp_path / "parts").glob("*.json"))) == 4
+    # only metrics come back: plain numbers and short strings, no series
+    assert all(isinstance(v, (float, str)) for row in rows.values() for v in row.values())
+    assert all(len(json.dumps(row)) < 2000 for row in rows.values())
 
 
 def test_resume_computes_only_the_rest_and_a_repeat_nothing(client, serial, tmp_path):
