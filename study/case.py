@@ -1,0 +1,113 @@
+"""One case in one process: the simulator and the estimator (the same ``Estimator`` the firmware program
+runs, fed sample by sample; no files, no sockets), then the metrics. Only a dict of numbers leaves."""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from firmware_py.atmosphere import G0, R_AIR
+from firmware_py.config import Design
+from firmware_py.control import Estimator
+from firmware_py.state import FilterConfig
+from ground_station.score import response, score
+from sim_hil.dynamics import TruthConfig, euler_from_quat
+from sim_hil.simulator import TRUTH_COLUMNS, Simulation
+from sim_hil.wind import WindConfig
+from study.metrics import H_BAND_HZ, h_column
+
+
+def fly(design: Design, wind: WindConfig, truth: TruthConfig, filt: FilterConfig, duration_s: float, seed: int):
+    """Rows (time s, wind N, wind E, horiz accuracy, roll, pitch, yaw rad) per IMU sample, the truth table by
+    column, and the estimator (its counters)."""
+    sim = Simulation(design, wind, truth, duration_s, seed)
+    est = Estimator(design, filt)
+    rows = np.zeros((sim.n_imu, 7))
+    for i, s in enumerate(sim.samples()):
+        if s.baro:
+            est.on_baro(s.time_usec, *s.baro)
+        est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
+        wn, we = est.wind()
+        rows[i] = (s.time_usec * 1e-6, wn, we, est.ekf.wind_accuracy(), *euler_from_quat(*est.ekf.q.tolist()))
+    truth_cols = {c: sim.truth[:, k] for k, c in enumerate(TRUTH_COLUMNS)}
+    return rows, truth_cols, est
+
+
+def attitude_errors(rows, truth, start_s: float = 120.0) -> tuple[float, float]:
+    """RMS tilt error (roll and pitch combined) and RMS heading error of the on-board orientation, deg."""
+    late = rows[:, 0] >= start_s
+    d = np.degrees(rows[late, 4:7]) - np.column_stack([truth[c][late] for c in ("roll_deg", "pitch_deg", "yaw_deg")])
+    d = (d + 180.0) % 360.0 - 180.0
+    return float(np.sqrt(np.mean(d[:, 0] ** 2 + d[:, 1] ** 2))), float(np.sqrt(np.mean(d[:, 2] ** 2)))
+
+
+def lift_margin(design: Design) -> tuple[float, float]:
+    """Net free lift at the ground (N) with the whole rope aloft, and as a fraction of the buoyancy; the
+    ground air density the simulator uses (site pressure or 1013.25 hPa, site temperature)."""
+    p0 = (design.site.ground_pressure_hpa or 1013.25) * 100.0
+    rho = p0 / (R_AIR * (design.site.ground_temperature_c + 273.15))
+    b = design.balloon
+    buoyancy = rho * b.volume_m3 * G0
+    free = buoyancy - (b.mass_kg + design.tether.linear_density_kg_m * design.tether.length_m) * G0
+    return free, free / buoyancy
+
+
+def wind_lines_hz(wind: WindConfig) -> tuple[float, ...]:
+    return tuple(sorted(float(f) for f in wind.multisine_hz)) if wind.kind == "multisine" else ()
+
+
+def metrics(design: Design, wind: WindConfig, rows, truth, est, start_s: float) -> dict[str, float]:
+    t = rows[:, 0]
+    sc = score(t, rows[:, 1], rows[:, 2], rows[:, 3], truth["time_s"], truth["wind_n"], truth["wind_e"],
+               start_s=start_s)  # fmt: skip
+    out: dict[str, float] = {
+        "band_skill": sc.band_skill, "band_rmse_mps": sc.band_rmse_mps, "raw_rmse_mps": sc.raw_rmse_mps,
+        "speed_error_pct": sc.speed_error_pct, "direction_error_deg": sc.direction_error_deg,
+        "error_ratio": sc.error_ratio, "accuracy_mps": sc.mean_accuracy_mps,
+    }  # fmt: skip
+    out["h_err_max"] = math.nan
+    lines = wind_lines_hz(wind)
+    if lines:
+        window = t[-1] - start_s
+        shown = [f for f in lines if f * window >= 2.0]
+        h = response(t, rows[:, 1], rows[:, 2], truth["time_s"], truth["wind_n"], truth["wind_e"], shown,
+                     start_s=start_s, extra_hz=lines)  # fmt: skip
+        band = []
+        for f in shown:
+            for ax in ("along", "cross"):
+                v = h[f][ax]
+                out[h_column(ax, f)] = abs(v - 1.0) if v is not None else math.nan
+                if v is not None and f <= H_BAND_HZ + 1e-12:
+                    band.append(abs(v - 1.0))
+        out["h_err_max"] = max(band) if band else math.nan
+    out["lift_margin_n"], out["lift_margin_frac"] = lift_margin(design)
+    late = truth["time_s"] >= start_s
+    horiz = np.hypot(truth["pos_n"][late], truth["pos_e"][late])
+    up = -truth["pos_d"][late]
+    out["blowdown_deg"] = float(np.degrees(np.mean(np.arctan2(horiz, up))))
+    out["height_m"] = float(np.mean(up))
+    out["slack_frac"] = float(np.mean(truth["tether_taut"][late] < 0.5))
+    c = est.counters
+    out["mode_switches"] = float(c.mode_switches)
+    out["resets"] = float(c.taut_resets + c.numeric_resets + c.time_resets + c.baro_resets)
+    out["tilt_err_deg"], out["yaw_err_deg"] = attitude_errors(rows, truth, start_s)
+    return {k: float(v) for k, v in out.items()}
+
+
+def run_case(payload: dict[str, Any]) -> dict[str, Any]:
+    """A worker's whole job for one case: never raises; a failure is a row with its error text."""
+    from study.spec import build  # here, so that a worker imports only what it runs
+
+    t0 = time.perf_counter()
+    row: dict[str, Any] = {"key": payload["key"], "status": "ok", "error": ""}
+    try:
+        design, wind, truth_cfg, filt = build(payload["sections"])
+        rows, truth, est = fly(design, wind, truth_cfg, filt, payload["duration_s"], payload["seed"])
+        row.update(metrics(design, wind, rows, truth, est, payload["start_s"]))
+    except Exception as e:  # one broken case must not stop the sweep
+        row["status"], row["error"] = "failed", f"{type(e).__name__}: {e}"
+    row["wall_time_s"] = time.perf_counter() - t0
+    return row

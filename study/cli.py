@@ -1,0 +1,167 @@
+"""balloon-study: design sweeps, the simulator and the estimator per case, on Dask.
+
+    balloon-study SPEC.toml --out DIR [--workers N | --scheduler tcp://HOST:PORT] [--paper]
+                  [--sweep NAME ...] [--seeds N] [--duration S] [--no-plots] [--quiet]
+
+Writes DIR/cases.parquet and DIR/cases.csv (one row per case), DIR/summary.csv (mean and worst over the
+seeds), DIR/plots/*.png, and keeps every finished case in DIR/parts/ (a rerun reuses them). ``--paper``
+runs the paper's study (the spec shipped as examples/paper-study.toml) instead of SPEC.toml.
+Exit 0 done (failed cases are rows, not errors), 2 a user error (one line), 130 interrupted."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import replace
+from importlib import resources
+from pathlib import Path
+
+from firmware_py.config import ConfigError
+
+
+class UsageError(Exception):
+    pass
+
+
+class Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # one line, exit 2 (argparse prints usage too)
+        raise UsageError(message)
+
+
+def parse_args(argv):
+    ap = Parser(prog="balloon-study", description=__doc__.split("\n")[0])
+    ap.add_argument("spec", nargs="?", help="the study file (TOML); not needed with --paper")
+    ap.add_argument("--out", required=True, help="output directory (created; parts/ in it are reused)")
+    where = ap.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, help="LocalCluster worker processes (default: one per core); "
+                       "0 = no Dask, run the cases in this process")  # fmt: skip
+    where.add_argument("--scheduler", help="address of a running Dask scheduler, e.g. tcp://10.0.0.5:8786")
+    ap.add_argument("--paper", action="store_true", help="the paper's study (Figs. 6-12 + tether and wind axes)")
+    ap.add_argument("--seeds", type=int, help="override the spec's seeds with 1..N")
+    ap.add_argument("--duration", type=float, help="override the spec's duration_s")
+    ap.add_argument("--sweep", action="append", metavar="NAME", help="run only this sweep of the spec (repeatable)")
+    ap.add_argument("--no-plots", action="store_true")
+    ap.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    return ap.parse_args(argv)
+
+
+def paper_spec_text() -> str:
+    return resources.files("study").joinpath("data/paper-study.toml").read_text()
+
+
+def load(args):
+    import tomllib
+
+    from study.spec import load_spec, parse_spec
+
+    if args.paper:
+        if args.spec:
+            raise UsageError("give SPEC.toml or --paper, not both")
+        spec = parse_spec(tomllib.loads(paper_spec_text()))
+    elif not args.spec:
+        raise UsageError("a study file is required (or --paper)")
+    else:
+        if not Path(args.spec).is_file():
+            raise UsageError(f"study file not found: {args.spec}")
+        spec = load_spec(args.spec)
+    if args.sweep:
+        names = [sw.name for sw in spec.sweeps]
+        for n in args.sweep:
+            if n not in names:
+                raise UsageError(f"--sweep {n}: no such sweep; the spec has {', '.join(names)}")
+        kept = tuple(sw for sw in spec.sweeps if sw.name in args.sweep)
+        spec = replace(spec, sweeps=kept, axis_names=tuple(dict.fromkeys(a.name for sw in kept for a in sw.axes)))
+    if args.seeds is not None:
+        if args.seeds < 1:
+            raise UsageError(f"--seeds must be >= 1, got {args.seeds}")
+        spec = replace(spec, seeds=tuple(range(1, args.seeds + 1)))
+    if args.duration is not None:
+        from study.spec import MIN_SCORED_S
+
+        if args.duration - spec.start_s < MIN_SCORED_S:
+            raise UsageError(f"--duration must exceed start_s ({spec.start_s:g} s) by {MIN_SCORED_S:g} s")
+        spec = replace(spec, duration_s=float(args.duration))
+    return spec
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:  # before the sweep started (while parsing, validating, starting the cluster)
+        print("balloon-study: interrupted", file=sys.stderr)
+        return 130
+
+
+def _main(argv: list[str] | None) -> int:
+    try:
+        args = parse_args(argv)
+        if args.workers is not None and args.workers < 0:
+            raise UsageError(f"--workers must be >= 0, got {args.workers}")
+        spec = load(args)
+        out = Path(args.out)
+        if out.exists() and not out.is_dir():
+            raise UsageError(f"--out {out} exists and is not a directory")
+        out.mkdir(parents=True, exist_ok=True)
+    except (UsageError, ConfigError) as e:
+        print(f"balloon-study: error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:
+        print(f"balloon-study: error: {e.strerror or e}: {e.filename or args.out}", file=sys.stderr)
+        return 2
+    try:
+        return run(spec, out, args)
+    except KeyboardInterrupt:
+        print(f"balloon-study: interrupted; the finished cases are kept in {out / 'parts'}: run the same "
+              "command again to resume", file=sys.stderr)  # fmt: skip
+        return 130
+    except SchedulerUnreachable as e:
+        print(f"balloon-study: error: cannot reach the Dask scheduler {args.scheduler}: {e}", file=sys.stderr)
+        return 2
+
+
+class SchedulerUnreachable(Exception):
+    pass
+
+
+def run(spec, out: Path, args) -> int:
+    from study import engine, results
+
+    cases = spec.cases()
+    store = engine.Store(out / "parts")
+    n_unique = len({c.key for c in cases})
+    say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr, flush=True))  # noqa: E731
+    say(f"balloon-study: {len(spec.sweeps)} sweep(s), {len(cases)} cases ({n_unique} distinct), "
+        f"{len(spec.seeds)} seed(s), {spec.duration_s:g} s each")  # fmt: skip
+    if args.workers == 0:
+        rows, stats = engine.run(cases, store, None, progress=not args.quiet)
+    else:
+        connected = False
+        try:
+            with engine.dask_client(args.workers, args.scheduler) as client:
+                connected = True
+                workers = len(client.scheduler_info().get("workers", {}))
+                say(f"balloon-study: {workers} worker(s), dashboard {engine.dashboard_of(client)}")
+                rows, stats = engine.run(cases, store, client, progress=not args.quiet)
+        except (OSError, TimeoutError) as e:
+            if connected:
+                raise
+            raise SchedulerUnreachable(str(e).splitlines()[0] if str(e) else type(e).__name__) from None
+    case_rows, summ = results.write(out, spec, cases, rows)
+    plots = [] if args.no_plots else _plots(spec, case_rows, summ, out)
+    for line in results.format_summary(spec, summ):
+        print(line)
+    print(f"{stats.total} distinct cases: {stats.computed} computed, {stats.reused} reused, {stats.failed} failed; "
+          f"{stats.wall_s:.1f} s wall, {stats.case_s:.1f} s in cases")  # fmt: skip
+    print(f"wrote {out / 'cases.parquet'}, {out / 'cases.csv'}, {out / 'summary.csv'}"
+          + (f", {len(plots)} plots in {out / 'plots'}" if plots else ""))  # fmt: skip
+    return 0
+
+
+def _plots(spec, case_rows, summ, out):
+    from study.plots import write_plots
+
+    return write_plots(spec, case_rows, summ, out)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
