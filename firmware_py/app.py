@@ -208,4 +208,4 @@ class Firmware:
         frm = math.degrees(math.atan2(-we, -wn)) % 360.0
         return (f"{self.stats.lost} lost ({100 * self.stats.lost_fraction():.1f} %), {self.imu_missing} IMU missing, "
                 f"{est.counters.long_gaps} long gaps, mode {est.mode_name}, wind {math.hypot(wn, we):.1f} m/s "
-                f"from {frm:03.0f} deg \u00b1{est.ekf.wind_accuracy():.2f}")  # fmt: skip
+                f"from {frm:03.0f} deg \u00b1{est.wind_accuracy():.2f}")  # fmt: skip

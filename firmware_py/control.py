@@ -42,6 +42,15 @@ MAG_EVERY = 1  # magnetometer fusion at every IMU sample
 TAUT_EVERY = 5  # taut constraints at 20 Hz
 ALIGN_RESET_COUNT = 40  # 2 s of rejected alignment at 20 Hz
 JOIN_IN_FLIGHT_US = 10_000_000  # a first sample this long after the sender's boot: we restarted in flight
+# After a join in flight the balloon hypothesis is unconfirmed: the wind read from the tilt through the
+# static balance is only as good as the assumption that this is a balloon on its tether. The motion
+# confirms it: a tethered balloon in a real (turbulent) wind accelerates, and the force model explains
+# that acceleration. Until then the reported accuracy (``wind_accuracy``) is at least the wind's own
+# magnitude (and 1 m/s): the estimate cannot be told from calm. The filter itself runs on unchanged.
+CONFIRM_MOTION_MPS2 = 0.03  # RMS of the measured acceleration's fluctuation (a resting sensor: noise only)
+CONFIRM_EXPLAINED = 0.5  # the model's innovations below this share of that fluctuation's variance
+CONFIRM_S = 20.0  # both, for this long without a break (turbulent forcing persists; a bump dies away)
+CONFIRM_WINDOW_S = 10.0  # time constant of the measured acceleration's running mean
 BARO_RESET_COUNT = 40  # 2 s of rejected barometer at 20 Hz: reset the height to it
 FALSE_RELEASE_S = 3.0  # free ascent that stays below the release height this long was a bump
 BARO_MODEL_M = 0.3  # hypsometric conversion error (temperature profile, lag) added to the sensor's noise
@@ -140,6 +149,10 @@ class Estimator:
         self._field_n = 0
         self._field_sum = [0.0] * 6
         self._joined = False
+        self.unconfirmed = False  # joined in flight and not yet confirmed by the motion (see CONFIRM_*)
+        self._acc_mean = [0.0, 0.0, 0.0]
+        self._acc_var = 0.0
+        self._confirm_count = 0
         self.field_ned = (math.nan, math.nan, math.nan)
         self._dwell = 0
         self._accel_innov2 = 0.0
@@ -288,6 +301,8 @@ class Estimator:
         st = self.accel_status
         i2 = (st[0].innov**2 + st[1].innov**2 + st[2].innov**2) / 3.0
         self._accel_innov2 += self._innov_alpha * (i2 - self._accel_innov2)
+        if self.unconfirmed:
+            self._confirm(ax, ay, az)
         if self._baro_pending and not math.isnan(self.height_baro):
             fuse_baro(ekf, self.height_baro, self.ref_pos_d, self.baro_var, self.baro_status)
             self._baro_pending = False
@@ -360,10 +375,34 @@ class Estimator:
         height = m.taut_radius_m / math.sqrt(1.0 + tan_chord * tan_chord)
         ekf.mode = MODE_TAUT
         self._joined = True
+        self.unconfirmed = True
+        self._confirm_count = 0
+        self._acc_var = -1.0  # the fluctuation's running mean starts at the next sample
         self.counters.mode_switches += 1
         enter_taut(ekf, height, self.rho, from_tilt=True)
         if self._zeroing:
             self._join_height = height - m.radius_m  # above the (unseen) boot position
+
+    def _confirm(self, ax: float, ay: float, az: float) -> None:
+        """While a join in flight is unconfirmed: watch the measured acceleration's fluctuation and how
+        much of it the force model explains; confirmed once both have held for CONFIRM_S."""
+        m = self._acc_mean
+        if self._acc_var < 0.0:
+            m[0], m[1], m[2], self._acc_var = ax, ay, az, 0.0
+        a = 1.0 / (CONFIRM_WINDOW_S * self.cfg.imu_rate_hz)
+        dx, dy, dz = ax - m[0], ay - m[1], az - m[2]
+        m[0] += a * dx
+        m[1] += a * dy
+        m[2] += a * dz
+        # the fluctuation's variance over the same time as the innovations' (ACCEL_INNOV_S): compared
+        # with each other they say how much of the motion the model explains, then and there
+        self._acc_var += self._innov_alpha * ((dx * dx + dy * dy + dz * dz) / 3.0 - self._acc_var)
+        moving = self._acc_var > CONFIRM_MOTION_MPS2**2
+        explained = (self._accel_innov2 < CONFIRM_EXPLAINED * self._acc_var
+                     and self._accel_innov2 <= self.accel_taut_var)  # fmt: skip
+        self._confirm_count = self._confirm_count + 1 if moving and explained else 0
+        if self._confirm_count >= CONFIRM_S * self.cfg.imu_rate_hz:
+            self.unconfirmed = False
 
     def _reinitialise_in_flight(
         self, ax: float, ay: float, az: float, mx: float, my: float, mz: float, mag_ok: bool
@@ -445,6 +484,15 @@ class Estimator:
     @property
     def mode_name(self) -> str:
         return MODE_NAMES[self.ekf.mode]
+
+    def wind_accuracy(self) -> float:
+        """The horizontal wind's 1-sigma accuracy to report (WIND_COV horiz_accuracy): the filter's
+        sqrt(P_NN + P_EE), but while a join in flight is unconfirmed at least sqrt(|w|^2 + 1)."""
+        acc = self.ekf.wind_accuracy()
+        if self.unconfirmed:
+            wn, we = self.wind()
+            acc = max(acc, math.sqrt(wn * wn + we * we + 1.0))
+        return acc
 
     def wind(self) -> tuple[float, float]:
         return float(self.ekf.x[WIND_N]), float(self.ekf.x[WIND_E])

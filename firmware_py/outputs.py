@@ -74,6 +74,6 @@ class WindCovOutput:
             self.variability(),
             math.nan,
             self.site_altitude_m + est.height_m(),
-            est.ekf.wind_accuracy(),
+            est.wind_accuracy(),
             0.0,
         )

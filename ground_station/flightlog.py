@@ -511,7 +511,7 @@ def main(argv: list[str] | None = None) -> int:
     for est, s, advanced in estimator_steps(Design(), FilterConfig(), flight.samples(), warn=print):
         if advanced:
             wn, we = est.wind()
-            rows.append((s.t_us * 1e-6, wn, we, est.ekf.wind_accuracy(), est.ekf.mode, est.height_m()))
+            rows.append((s.t_us * 1e-6, wn, we, est.wind_accuracy(), est.ekf.mode, est.height_m()))
     r = np.array(rows)
     print(f"filter at {est.cfg.imu_rate_hz:g} Hz, {len(r)} steps, all finite: {bool(np.all(np.isfinite(r)))}")
     for k in np.linspace(0, len(r) - 1, 10).astype(int):

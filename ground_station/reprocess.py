@@ -67,7 +67,8 @@ def reprocess(
     for t in pipe.flush():
         run.feed(pipe, t, warn)
     sm = rec.smooth()
-    return _product(sm, np.array(run.modes, np.int8), np.array(run.air).reshape(-1, 2), run.baro_seen)
+    return _product(sm, np.array(run.modes, np.int8), np.array(run.air).reshape(-1, 2), run.baro_seen,
+                    np.array(run.unconfirmed, bool))  # fmt: skip
 
 
 class _Run:
@@ -83,6 +84,7 @@ class _Run:
         self.baro_seen = False
         self.press = self.temp = math.nan
         self.modes: list[int] = []
+        self.unconfirmed: list[bool] = []
         self.air: list[tuple[float, float]] = []
 
     def feed(self, pipe: InputPipeline, s: Sample, warn) -> None:
@@ -111,21 +113,42 @@ class _Run:
             ekf = est.ekf
             self.rec.grid_point(est.t_last_us, ekf.x, ekf.P)
             self.modes.append(ekf.mode)
+            self.unconfirmed.append(est.unconfirmed)
             self.air.append((self.press, self.temp))
 
 
-def _product(sm, modes: np.ndarray, air: np.ndarray, baro_seen: bool) -> WindProduct:
+def _unconfirmed_segments(segment_start: np.ndarray, unconfirmed: np.ndarray) -> np.ndarray:
+    """A segment that started with a join in flight is a balloon's if the motion confirmed it at any
+    time in the segment (smoothing looks both ways); one never confirmed stays unconfirmed throughout."""
+    out = unconfirmed.copy()
+    starts = [*np.flatnonzero(segment_start), len(out)]
+    for a, b in zip(starts[:-1], starts[1:]):
+        if out[a:b].any() and not out[a:b].all():
+            out[a:b] = False
+    return out
+
+
+def _product(sm, modes: np.ndarray, air: np.ndarray, baro_seen: bool, unconfirmed: np.ndarray) -> WindProduct:
     n = len(sm.t_us)
     var_n = np.maximum(sm.Ps[:, WIND_N, WIND_N], 0.0)
     var_e = np.maximum(sm.Ps[:, WIND_E, WIND_E], 0.0)
     cvar_n = np.maximum(sm.P[:, WIND_N, WIND_N], 0.0)
     cvar_e = np.maximum(sm.P[:, WIND_E, WIND_E], 0.0)
     wn, we = sm.xs[:, WIND_N], sm.xs[:, WIND_E]
+    # an unconfirmed join in flight: the reported accuracy is at least sqrt(|w|^2 + 1) (Estimator.wind_accuracy)
+    floor_c = 0.5 * (sm.x[:, WIND_N] ** 2 + sm.x[:, WIND_E] ** 2 + 1.0)
+    cvar_n = np.where(unconfirmed, np.maximum(cvar_n, floor_c), cvar_n)
+    cvar_e = np.where(unconfirmed, np.maximum(cvar_e, floor_c), cvar_e)
+    never = _unconfirmed_segments(sm.segment_start, unconfirmed)
+    floor_s = 0.5 * (wn**2 + we**2 + 1.0)
+    var_n = np.where(never, np.maximum(var_n, floor_s), var_n)
+    var_e = np.where(never, np.maximum(var_e, floor_s), var_e)
     flags = np.zeros(n, np.int8)
     flags[sm.segment_start] |= FLAG_SEGMENT_START
     moved = (np.abs(wn - sm.x[:, WIND_N]) > 1e-9) | (np.abs(we - sm.x[:, WIND_E]) > 1e-9)
     flags[moved] |= FLAG_SMOOTHED
-    unknown = (modes == MODE_GROUND) | (np.sqrt(var_n + var_e) > np.maximum(UNKNOWN_SIGMA_MPS, 0.5 * np.hypot(wn, we)))
+    unknown = never | (modes == MODE_GROUND)
+    unknown |= np.sqrt(var_n + var_e) > np.maximum(UNKNOWN_SIGMA_MPS, 0.5 * np.hypot(wn, we))
     flags[unknown] |= FLAG_WIND_UNKNOWN
     height = -sm.xs[:, POS_D]
     if not baro_seen:

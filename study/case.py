@@ -31,7 +31,7 @@ def fly(design: Design, wind: WindConfig, truth: TruthConfig, filt: FilterConfig
             est.on_baro(s.time_usec, *s.baro)
         est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
         wn, we = est.wind()
-        rows[i] = (s.time_usec * 1e-6, wn, we, est.ekf.wind_accuracy(), *euler_from_quat(*est.ekf.q.tolist()))
+        rows[i] = (s.time_usec * 1e-6, wn, we, est.wind_accuracy(), *euler_from_quat(*est.ekf.q.tolist()))
     truth_cols = {c: sim.truth[:, k] for k, c in enumerate(TRUTH_COLUMNS)}
     return rows, truth_cols, est
 

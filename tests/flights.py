@@ -27,5 +27,5 @@ def feed(est, samples, record: bool = False):
         est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
         if record:
             wn, we = est.wind()
-            rows.append((s.time_usec * 1e-6, wn, we, est.ekf.wind_accuracy()))
+            rows.append((s.time_usec * 1e-6, wn, we, est.wind_accuracy()))
     return np.array(rows) if record else None
