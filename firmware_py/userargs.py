@@ -67,6 +67,25 @@ def nonneg_float(text: str) -> float:
     return x
 
 
+MIN_SPEED, MAX_SPEED = 0.01, 10000.0
+
+
+def speed(text: str) -> float:
+    """A pace: N x real time, 0.01 .. 10000, or 0 = as fast as possible."""
+    x = nonneg_float(text)
+    if x != 0.0 and not MIN_SPEED <= x <= MAX_SPEED:
+        raise argparse.ArgumentTypeError(f"must be 0 (flat out) or {MIN_SPEED:g} .. {MAX_SPEED:g}, got {text!r}")
+    return x
+
+
+def positive_speed(text: str) -> float:
+    """A pace: N x real time, 0.01 .. 10000."""
+    x = positive_float(text)
+    if not MIN_SPEED <= x <= MAX_SPEED:
+        raise argparse.ArgumentTypeError(f"must be {MIN_SPEED:g} .. {MAX_SPEED:g}, got {text!r}")
+    return x
+
+
 def start_time(text: str) -> float:
     """A time since boot [s]: finite, >= 0."""
     return nonneg_float(text)

@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 
 from firmware_py import cli as fw_cli
 from firmware_py.config import SCHEMA, SIM_DEFAULTS, BalloonConfig, SensorsConfig, SiteConfig, TetherConfig
+from firmware_py.mavio import frame_length
 from firmware_py.state import FilterConfig
 from ground_station import cli as gs_cli
 from ground_station.wind import CSV_COLUMNS
@@ -44,6 +45,9 @@ def files(tmp_path_factory):
     d = tmp_path_factory.mktemp("inputs")
     tlog = d / "s.tlog"
     assert sim_cli.main(["--duration", "3", "--out", str(tlog), "--truth", str(d / "truth.csv")]) == 0
+    first = tlog.read_bytes()[:8]
+    first += tlog.read_bytes()[8 : 8 + frame_length(tlog.read_bytes(), 8)]
+    (d / "one.tlog").write_bytes(first)  # one record: replays in no time at any speed
     (d / "empty.raw").write_bytes(b"")
     (d / "random.raw").write_bytes(bytes((i * 7919 + (i >> 3) * 104729) % 251 for i in range(100_000)))
     (d / "empty.csv").write_text("")
@@ -245,3 +249,24 @@ def test_random_arguments_and_config_never_crash(files, capsys, duration, seed, 
     assert code_sim == code_fw, (text, err_sim, err_fw)
     if code_sim == 2:
         assert len(err_sim.strip().splitlines()) == 1 and len(err_fw.strip().splitlines()) == 1
+
+
+@settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(value=ANY_NUMBER_TEXT, which=st.sampled_from(["replay --speed", "gs --start", "gs --duration", "sil"]))
+def test_random_numbers_to_the_other_programs(files, capsys, value, which):
+    """Whatever number (or not) a person types: exit 0 or 2 and one line, never a traceback, never a hang
+    (a speed of 1e-300 would pace a replay for ever: speeds are 0 or 0.01 .. 10000)."""
+    tlog, truth, wind = str(files / "one.tlog"), str(files / "truth.csv"), str(files / "wind.csv")
+    argv = {
+        "replay --speed": ("replay", [tlog, "--out", "udpout:127.0.0.1:9", "--speed", value]),
+        "gs --start": ("gs", ["report", wind, "--truth", truth, "--start", value]),
+        "gs --duration": ("gs", ["listen", "udpin:127.0.0.1:0x", "--duration", value]),
+        # an argument error, or a config error before any child starts (the file is refused)
+        "sil": ("sil", ["--duration", value, "--seed", value, "--config", toml(files, "bad.toml", "[x]\n")]),
+    }[which]
+    code, err = run(*argv, capsys)
+    if which == "replay --speed" and code == 0:
+        assert float(value) == 0.0 or 0.01 <= float(value) <= 10000.0
+    assert code in (0, 2) and "Traceback" not in err
+    if code == 2:
+        assert len(err.strip().splitlines()) == 1
