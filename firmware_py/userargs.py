@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import sys
 from typing import NoReturn
 
@@ -118,9 +119,12 @@ def _port(spec: str, text: str) -> None:
         raise argparse.ArgumentTypeError(f"{spec}: port must be 1..65535, got {text!r}")
 
 
+COM_PORT = re.compile(r"COM\d+(:\d+)?$", re.IGNORECASE)  # a Windows serial port, optionally with its baud rate
+
+
 def is_link(spec: str) -> bool:
     """A network endpoint or a serial port (not a file)."""
-    return spec.startswith(UDP_KINDS) or spec.startswith("/dev/") or "://" in spec or spec.upper().startswith("COM")
+    return spec.startswith(UDP_KINDS) or spec.startswith("/dev/") or "://" in spec or bool(COM_PORT.match(spec))
 
 
 def link(spec: str) -> str:
@@ -133,7 +137,7 @@ def link(spec: str) -> str:
         if not spec.startswith(("udpin:", "udpout:")):
             raise argparse.ArgumentTypeError(f"{spec}: only udpin: and udpout: endpoints are supported")
         return spec
-    if spec.startswith("/dev/") or spec.upper().startswith("COM"):
+    if spec.startswith("/dev/") or COM_PORT.match(spec):
         path, sep, baud = spec.rpartition(":")
         if sep and baud.isdigit():
             if int(baud) <= 0:
