@@ -228,7 +228,12 @@ KNOWN_SECTIONS = tuple(SCHEMA)
 SIM_IMU_HZ = 100.0  # the simulator's IMU rate: its physics step must divide it evenly
 # defaults of the simulator's keys that cross-key checks need when the file leaves them out
 # (sim_hil.wind.WindConfig, sim_hil.dynamics.TruthConfig; tests/test_user_errors.py keeps them equal)
-SIM_DEFAULTS = {"wind.sample_hz": 20.0, "truth.avionics_kg": 0.5, "truth.physics_hz": 200.0}
+SIM_DEFAULTS = {
+    "wind.sample_hz": 20.0,
+    "wind.multisine_hz": (0.003, 0.01, 0.02, 0.05, 0.1, 0.2),
+    "truth.avionics_kg": 0.5,
+    "truth.physics_hz": 200.0,
+}
 
 
 def _literal(val: Any) -> str:
@@ -285,7 +290,7 @@ def validate_document(data: dict[str, Any]) -> dict[str, dict[str, Any]]:
         out[section] = {key: check_value(section, key, val) for key, val in values.items()}
     wind, truth, balloon = out.get("wind", {}), out.get("truth", {}), out.get("balloon", {})
     sample_hz = wind.get("sample_hz", SIM_DEFAULTS["wind.sample_hz"])
-    if max(wind.get("multisine_hz", ()), default=0.0) >= sample_hz / 2:
+    if max(wind.get("multisine_hz", SIM_DEFAULTS["wind.multisine_hz"]), default=0.0) >= sample_hz / 2:
         raise ConfigError(f"[wind] multisine_hz must lie below sample_hz / 2 (Nyquist, {sample_hz / 2:g} Hz)")
     physics_hz = truth.get("physics_hz", SIM_DEFAULTS["truth.physics_hz"])
     if physics_hz % SIM_IMU_HZ:

@@ -186,7 +186,8 @@ def test_schema_names_every_key_the_programs_read():
     assert set(SCHEMA) == set(classes)
     for name, cls in classes.items():
         assert set(SCHEMA[name]) == {f.name for f in dataclasses.fields(cls)}, name
-    assert SIM_DEFAULTS == {"wind.sample_hz": WindConfig().sample_hz, "truth.avionics_kg": TruthConfig().avionics_kg,
+    assert SIM_DEFAULTS == {"wind.sample_hz": WindConfig().sample_hz, "wind.multisine_hz": WindConfig().multisine_hz,
+                            "truth.avionics_kg": TruthConfig().avionics_kg,
                             "truth.physics_hz": TruthConfig().physics_hz}  # fmt: skip
 
 
