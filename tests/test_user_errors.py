@@ -271,3 +271,38 @@ def test_random_numbers_to_the_other_programs(files, capsys, value, which):
     assert code in (0, 2) and "Traceback" not in err
     if code == 2:
         assert len(err.strip().splitlines()) == 1
+
+
+def in_range(rule):
+    """Values anywhere in a key's range (its edges included)."""
+    if rule.kind == "bool":
+        return st.booleans()
+    if rule.kind == "str":
+        return st.sampled_from(rule.choices)
+    if rule.kind == "numbers":
+        return st.lists(st.floats(max(rule.lo, 1e-3), min(rule.hi, 5.0)), min_size=rule.length or 1,
+                        max_size=rule.length or 4)  # fmt: skip
+    return st.floats(rule.lo, rule.hi, exclude_min=rule.lo_open)
+
+
+IN_RANGE = st.sampled_from(KEYS).flatmap(lambda sk: st.tuples(st.just(sk), in_range(SCHEMA[sk[0]][sk[1]])))
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(entries=st.lists(IN_RANGE, min_size=1, max_size=8),
+       scenario=st.sampled_from(["steady", "paper-reference", "multisine-2d", "com-offset", "drag-crisis"]))
+def test_values_anywhere_in_their_ranges_run_or_are_refused_clearly(files, capsys, entries, scenario):
+    """The ranges hold what the programs can run: a flight past the release (6 s) and the firmware on a
+    capture, or a one-line refusal (a balloon that cannot lift, a design too stiff for the physics step)."""
+    sections: dict[str, dict[str, object]] = {}
+    for (sec, key), val in entries:
+        sections.setdefault(sec, {})[key] = val
+    text = "".join(f"[{sec}]\n" + "".join(f"{k} = {toml_literal(v)}\n" for k, v in kv.items())
+                   for sec, kv in sections.items())  # fmt: skip
+    cfg = toml(files, "r.toml", text)
+    for prog, argv in (("sim", ["--duration", "6", "--config", cfg, "--scenario", scenario]),
+                       ("fw", ["--in", str(files / "s.tlog"), "--config", cfg])):  # fmt: skip
+        code, err = run(prog, argv, capsys)
+        assert code in (0, 2) and "Traceback" not in err, (text, err)
+        if code == 2:
+            assert len(err.strip().splitlines()) == 1, err
