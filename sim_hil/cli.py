@@ -55,6 +55,9 @@ def main(argv: list[str] | None = None) -> int:
         return _run(args, sc, truth_csv)
     except (OSError, ValueError) as exc:
         return userargs.fail(PROG, exc)
+    except KeyboardInterrupt:  # Ctrl-C before the paced run took the signal over (or in a file run)
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
 
 
 def _run(args, sc, truth_csv: TruthCsvWriter | None) -> int:
