@@ -132,12 +132,12 @@ def one_of(*choices: str) -> Rule:
 #: have exactly these keys (tests/test_user_errors.py checks).
 SCHEMA: dict[str, dict[str, Rule]] = {
     "balloon": {
-        "radius_m": pos(20.0),
-        "skin_and_avionics_kg": pos(1000.0),
+        "radius_m": num(0.05, 20.0),
+        "skin_and_avionics_kg": num(0.001, 1000.0),
         "gas_density_kg_m3": num(0.0, 10.0),
-        "drag_coefficient": pos(3.0),
+        "drag_coefficient": num(0.01, 3.0),
     },
-    "tether": {"length_m": pos(5000.0), "linear_density_kg_m": num(0.0, 1.0)},
+    "tether": {"length_m": num(1.0, 5000.0), "linear_density_kg_m": num(0.0, 1.0)},
     "site": {
         "altitude_amsl_m": num(-500.0, 9000.0),
         "mag_declination_deg": num(-180.0, 180.0),
@@ -145,18 +145,18 @@ SCHEMA: dict[str, dict[str, Rule]] = {
         "ground_temperature_c": num(-80.0, 60.0),
     },
     "sensors": {
-        "accel_mps2": pos(10.0),
-        "baro_m": pos(1000.0),
-        "gyro_dps": pos(100.0),
-        "mag_gauss": pos(1.0),
-        "thermometer_k": pos(50.0),
+        "accel_mps2": num(1e-5, 10.0),
+        "baro_m": num(1e-3, 1000.0),
+        "gyro_dps": num(1e-4, 100.0),
+        "mag_gauss": num(1e-6, 1.0),
+        "thermometer_k": num(1e-3, 50.0),
     },
     "wind": {
         "kind": one_of("vdh", "multisine", "steady"),
         "mean_mps": num(0.0, 50.0),
         "from_deg": num(-360.0, 360.0),
         "vdh_amplitude": one_of("consistent", "paper"),
-        "gap_cph": pos(360.0),
+        "gap_cph": num(0.01, 360.0),
         "turbulence": one_of("kaimal", "none"),
         "turbulence_intensity": num(0.0, 1.0),
         "iec_class": one_of("", "A", "B", "C"),
@@ -164,15 +164,15 @@ SCHEMA: dict[str, dict[str, Rule]] = {
         "multisine_hz": Rule("numbers", 0.0, 100.0, lo_open=True),
         "multisine_amplitude_mps": num(0.0, 20.0),
         "multisine_axes": one_of("along", "both"),
-        "sample_hz": pos(1000.0),
+        "sample_hz": num(1.0, 1000.0),
     },
     "truth": {
         "added_mass_coefficient": num(0.0, 2.0),
-        "tether_ea_n": pos(1e9),
+        "tether_ea_n": num(100.0, 1e9),
         "tether_damping_ratio": num(0.0, 10.0),
         "rope_drag": BOOL,
         "rope_normal_cd": num(0.0, 5.0),
-        "rot_damping_nms": num(0.0, 1000.0),
+        "rot_damping_nms": num(0.0, 50.0),
         "release_s": num(0.0, 3600.0),
         "initial_yaw_deg": num(-360.0, 360.0),
         "physics_hz": num(100.0, 10000.0),
@@ -190,45 +190,50 @@ SCHEMA: dict[str, dict[str, Rule]] = {
         "mag_field_h_gauss": num(0.0, 2.0),
         "mag_field_z_gauss": num(-2.0, 2.0),
         "drag_model": one_of("constant", "reynolds"),
-        "drag_crisis_reynolds": pos(1e8),
-        "drag_crisis_exponent": pos(50.0),
+        "drag_crisis_reynolds": num(1e3, 1e8),
+        "drag_crisis_exponent": num(0.1, 10.0),
         "avionics_offset_m": num(0.0, 20.0),
         "avionics_kg": num(0.0, 1000.0),
     },
     "filter": {
-        "imu_rate_hz": pos(10000.0),
+        "imu_rate_hz": num(1.0, 10000.0),
         "float32": BOOL,
-        "accel_process_mps2": pos(100.0),
+        "accel_process_mps2": num(1e-4, 100.0),
         "expected_wind_mps": num(0.0, 50.0),
-        "turbulence_intensity": pos(1.0),
+        "turbulence_intensity": num(0.01, 1.0),
         "drag_walk_rt_s": num(0.0, 1.0),
         "gyro_bias_walk_dps_rt_s": num(0.0, 10.0),
         "accel_model_mps2": num(0.0, 100.0),
         "accel_taut_mps2": num(0.0, 100.0),
         "accel_static_mps2": num(0.0, 100.0),
         "align_rad": num(0.0, 1.0),
-        "radial_m": pos(100.0),
-        "radial_rate_mps": pos(100.0),
+        "radial_m": num(1e-3, 100.0),
+        "radial_rate_mps": num(1e-3, 100.0),
         "rope_normal_cd": num(0.0, 5.0),
-        "gate_sigma": pos(100.0),
+        "gate_sigma": num(1.0, 100.0),
         "recover_after_s": num(0.0, 3600.0),
-        "init_wind_mps": pos(100.0),
-        "init_drag": pos(10.0),
-        "init_gyro_bias_dps": pos(100.0),
-        "init_tilt_deg": pos(180.0),
-        "init_yaw_deg": pos(360.0),
+        "init_wind_mps": num(0.01, 100.0),
+        "init_drag": num(1e-3, 10.0),
+        "init_gyro_bias_dps": num(1e-3, 100.0),
+        "init_tilt_deg": num(0.01, 180.0),
+        "init_yaw_deg": num(0.01, 360.0),
         "taut_margin_m": num(0.0, 100.0),
         "mode_dwell_s": num(0.0, 3600.0),
-        "release_accel_mps2": pos(100.0),
+        "release_accel_mps2": num(0.1, 100.0),
         "release_height_m": num(0.0, 1000.0),
-        "max_gap_s": pos(3600.0),
+        "max_gap_s": num(0.01, 3600.0),
     },
 }
 KNOWN_SECTIONS = tuple(SCHEMA)
 SIM_IMU_HZ = 100.0  # the simulator's IMU rate: its physics step must divide it evenly
 # defaults of the simulator's keys that cross-key checks need when the file leaves them out
 # (sim_hil.wind.WindConfig, sim_hil.dynamics.TruthConfig; tests/test_user_errors.py keeps them equal)
-SIM_DEFAULTS = {"wind.sample_hz": 20.0, "truth.avionics_kg": 0.5, "truth.physics_hz": 200.0}
+SIM_DEFAULTS = {
+    "wind.sample_hz": 20.0,
+    "wind.multisine_hz": (0.003, 0.01, 0.02, 0.05, 0.1, 0.2),
+    "truth.avionics_kg": 0.5,
+    "truth.physics_hz": 200.0,
+}
 
 
 def _literal(val: Any) -> str:
@@ -285,7 +290,7 @@ def validate_document(data: dict[str, Any]) -> dict[str, dict[str, Any]]:
         out[section] = {key: check_value(section, key, val) for key, val in values.items()}
     wind, truth, balloon = out.get("wind", {}), out.get("truth", {}), out.get("balloon", {})
     sample_hz = wind.get("sample_hz", SIM_DEFAULTS["wind.sample_hz"])
-    if max(wind.get("multisine_hz", ()), default=0.0) >= sample_hz / 2:
+    if max(wind.get("multisine_hz", SIM_DEFAULTS["wind.multisine_hz"]), default=0.0) >= sample_hz / 2:
         raise ConfigError(f"[wind] multisine_hz must lie below sample_hz / 2 (Nyquist, {sample_hz / 2:g} Hz)")
     physics_hz = truth.get("physics_hz", SIM_DEFAULTS["truth.physics_hz"])
     if physics_hz % SIM_IMU_HZ:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import sys
 from typing import NoReturn
 
@@ -67,6 +68,25 @@ def nonneg_float(text: str) -> float:
     return x
 
 
+MIN_SPEED, MAX_SPEED = 0.01, 10000.0
+
+
+def speed(text: str) -> float:
+    """A pace: N x real time, 0.01 .. 10000, or 0 = as fast as possible."""
+    x = nonneg_float(text)
+    if x != 0.0 and not MIN_SPEED <= x <= MAX_SPEED:
+        raise argparse.ArgumentTypeError(f"must be 0 (flat out) or {MIN_SPEED:g} .. {MAX_SPEED:g}, got {text!r}")
+    return x
+
+
+def positive_speed(text: str) -> float:
+    """A pace: N x real time, 0.01 .. 10000."""
+    x = positive_float(text)
+    if not MIN_SPEED <= x <= MAX_SPEED:
+        raise argparse.ArgumentTypeError(f"must be {MIN_SPEED:g} .. {MAX_SPEED:g}, got {text!r}")
+    return x
+
+
 def start_time(text: str) -> float:
     """A time since boot [s]: finite, >= 0."""
     return nonneg_float(text)
@@ -99,9 +119,12 @@ def _port(spec: str, text: str) -> None:
         raise argparse.ArgumentTypeError(f"{spec}: port must be 1..65535, got {text!r}")
 
 
+COM_PORT = re.compile(r"COM\d+(:\d+)?$", re.IGNORECASE)  # a Windows serial port, optionally with its baud rate
+
+
 def is_link(spec: str) -> bool:
     """A network endpoint or a serial port (not a file)."""
-    return spec.startswith(UDP_KINDS) or spec.startswith("/dev/") or "://" in spec or spec.upper().startswith("COM")
+    return spec.startswith(UDP_KINDS) or spec.startswith("/dev/") or "://" in spec or bool(COM_PORT.match(spec))
 
 
 def link(spec: str) -> str:
@@ -114,7 +137,7 @@ def link(spec: str) -> str:
         if not spec.startswith(("udpin:", "udpout:")):
             raise argparse.ArgumentTypeError(f"{spec}: only udpin: and udpout: endpoints are supported")
         return spec
-    if spec.startswith("/dev/") or spec.upper().startswith("COM"):
+    if spec.startswith("/dev/") or COM_PORT.match(spec):
         path, sep, baud = spec.rpartition(":")
         if sep and baud.isdigit():
             if int(baud) <= 0:

@@ -26,7 +26,7 @@ def build_parser() -> userargs.Parser:
     p.add_argument("--truth", type=userargs.output_path, help="truth CSV, one row per IMU sample")
     p.add_argument("--config", type=userargs.input_file, help="TOML design file (overrides the scenario)")
     p.add_argument("--wind", choices=sorted(WIND_CHOICES), help="override the scenario's wind model")
-    p.add_argument("--speed", type=userargs.nonneg_float, default=1.0,
+    p.add_argument("--speed", type=userargs.speed, default=1.0,
                    help="UDP/serial output: N x real time (0: as fast as possible)")
     p.add_argument("--lockstep", action="store_true",
                    help="do not run ahead of the firmware's WIND_COV time (lossless fast runs)")
@@ -57,6 +57,9 @@ def main(argv: list[str] | None = None) -> int:
         return _run(args, sc, truth_csv)
     except (OSError, ValueError) as exc:
         return userargs.fail(PROG, exc)
+    except KeyboardInterrupt:  # Ctrl-C before the paced run took the signal over (or in a file run)
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
 
 
 def _run(args, sc, truth_csv: TruthCsvWriter | None) -> int:

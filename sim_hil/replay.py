@@ -189,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = userargs.Parser(prog=prog, description=" ".join(__doc__.split("\n\n")[0].replace("``", "").split()))
     ap.add_argument("file", type=userargs.input_file, help=".tlog or raw capture")
     ap.add_argument("--out", required=True, type=userargs.link, help="udpout:HOST:PORT, udpin:..., or a serial port")
-    ap.add_argument("--speed", type=userargs.nonneg_float, default=1.0,
+    ap.add_argument("--speed", type=userargs.speed, default=1.0,
                     help="N x recorded timing; 0 = as fast as possible")
     ap.add_argument("--lockstep", action=argparse.BooleanOptionalAction, default=None,
                     help="send only as fast as the firmware's WIND_COV acknowledges (default: on with --speed 0)")

@@ -78,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scenario", default="paper-reference")
     ap.add_argument("--duration", type=userargs.duration, default=600.0, help="simulated seconds")
     ap.add_argument("--seed", type=userargs.seed, default=1)
-    ap.add_argument("--speed", type=userargs.positive_float, default=10.0,
+    ap.add_argument("--speed", type=userargs.positive_speed, default=10.0,
                     help="N x real time (lockstep keeps it lossless)")
     ap.add_argument("--config", type=userargs.input_file, help="TOML design file for simulator and firmware")
     ap.add_argument("--outdir", type=userargs.output_dir, default="out", help="truth, logs and plot go here")

@@ -34,6 +34,16 @@ CHUNK_STEPS = 4000
 TRUTH_CHUNK_ROWS = 6000  # truth rows handed to the sink at a time (keep_truth=False): one minute at 100 Hz
 
 
+# a state beyond these is not a balloon any more: the explicit integration has gone unstable (NaN fails too)
+MAX_SPEED_MPS = 1000.0
+MAX_HEIGHT_M = 20000.0
+MAX_RATE_RPS = 1000.0
+
+
+class SimulationDiverged(ValueError):
+    """The truth integration blew up: the design is too stiff for the physics step (a user error)."""
+
+
 @dataclass(frozen=True)
 class SensorSample:
     time_usec: int
@@ -130,6 +140,13 @@ class Simulation:
                     k1, tension = derivative(s, *w0, ph)
                 if step % spi == 0:
                     i = step // spi
+                    if not (abs(s[3]) + abs(s[4]) + abs(s[5]) < MAX_SPEED_MPS and -s[2] < MAX_HEIGHT_M
+                            and abs(s[10]) + abs(s[11]) + abs(s[12]) < MAX_RATE_RPS):  # fmt: skip
+                        raise SimulationDiverged(
+                            f"the simulation diverged at t = {step * h:.2f} s (speed, height or spin beyond "
+                            f"any balloon's): this design's rope stiffness or damping needs a finer physics step "
+                            f"([truth] physics_hz, now {self.truth_cfg.physics_hz:g})"
+                        )
                     f_ned = (k1[3], k1[4], k1[5] - G0)
                     height = -s[2]
                     if d:

@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 
 from firmware_py import cli as fw_cli
 from firmware_py.config import SCHEMA, SIM_DEFAULTS, BalloonConfig, SensorsConfig, SiteConfig, TetherConfig
+from firmware_py.mavio import frame_length
 from firmware_py.state import FilterConfig
 from ground_station import cli as gs_cli
 from ground_station.wind import CSV_COLUMNS
@@ -44,6 +45,9 @@ def files(tmp_path_factory):
     d = tmp_path_factory.mktemp("inputs")
     tlog = d / "s.tlog"
     assert sim_cli.main(["--duration", "3", "--out", str(tlog), "--truth", str(d / "truth.csv")]) == 0
+    first = tlog.read_bytes()[:8]
+    first += tlog.read_bytes()[8 : 8 + frame_length(tlog.read_bytes(), 8)]
+    (d / "one.tlog").write_bytes(first)  # one record: replays in no time at any speed
     (d / "empty.raw").write_bytes(b"")
     (d / "random.raw").write_bytes(bytes((i * 7919 + (i >> 3) * 104729) % 251 for i in range(100_000)))
     (d / "empty.csv").write_text("")
@@ -182,7 +186,8 @@ def test_schema_names_every_key_the_programs_read():
     assert set(SCHEMA) == set(classes)
     for name, cls in classes.items():
         assert set(SCHEMA[name]) == {f.name for f in dataclasses.fields(cls)}, name
-    assert SIM_DEFAULTS == {"wind.sample_hz": WindConfig().sample_hz, "truth.avionics_kg": TruthConfig().avionics_kg,
+    assert SIM_DEFAULTS == {"wind.sample_hz": WindConfig().sample_hz, "wind.multisine_hz": WindConfig().multisine_hz,
+                            "truth.avionics_kg": TruthConfig().avionics_kg,
                             "truth.physics_hz": TruthConfig().physics_hz}  # fmt: skip
 
 
@@ -245,3 +250,59 @@ def test_random_arguments_and_config_never_crash(files, capsys, duration, seed, 
     assert code_sim == code_fw, (text, err_sim, err_fw)
     if code_sim == 2:
         assert len(err_sim.strip().splitlines()) == 1 and len(err_fw.strip().splitlines()) == 1
+
+
+@settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(value=ANY_NUMBER_TEXT, which=st.sampled_from(["replay --speed", "gs --start", "gs --duration", "sil"]))
+def test_random_numbers_to_the_other_programs(files, capsys, value, which):
+    """Whatever number (or not) a person types: exit 0 or 2 and one line, never a traceback, never a hang
+    (a speed of 1e-300 would pace a replay for ever: speeds are 0 or 0.01 .. 10000)."""
+    tlog, truth, wind = str(files / "one.tlog"), str(files / "truth.csv"), str(files / "wind.csv")
+    argv = {
+        "replay --speed": ("replay", [tlog, "--out", "udpout:127.0.0.1:9", "--speed", value]),
+        "gs --start": ("gs", ["report", wind, "--truth", truth, "--start", value]),
+        "gs --duration": ("gs", ["listen", "udpin:127.0.0.1:0x", "--duration", value]),
+        # an argument error, or a config error before any child starts (the file is refused)
+        "sil": ("sil", ["--duration", value, "--seed", value, "--config", toml(files, "bad.toml", "[x]\n")]),
+    }[which]
+    code, err = run(*argv, capsys)
+    if which == "replay --speed" and code == 0:
+        assert float(value) == 0.0 or 0.01 <= float(value) <= 10000.0
+    assert code in (0, 2) and "Traceback" not in err
+    if code == 2:
+        assert len(err.strip().splitlines()) == 1
+
+
+def in_range(rule):
+    """Values anywhere in a key's range (its edges included)."""
+    if rule.kind == "bool":
+        return st.booleans()
+    if rule.kind == "str":
+        return st.sampled_from(rule.choices)
+    if rule.kind == "numbers":
+        return st.lists(st.floats(max(rule.lo, 1e-3), min(rule.hi, 5.0)), min_size=rule.length or 1,
+                        max_size=rule.length or 4)  # fmt: skip
+    return st.floats(rule.lo, rule.hi, exclude_min=rule.lo_open)
+
+
+IN_RANGE = st.sampled_from(KEYS).flatmap(lambda sk: st.tuples(st.just(sk), in_range(SCHEMA[sk[0]][sk[1]])))
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(entries=st.lists(IN_RANGE, min_size=1, max_size=8),
+       scenario=st.sampled_from(["steady", "paper-reference", "multisine-2d", "com-offset", "drag-crisis"]))
+def test_values_anywhere_in_their_ranges_run_or_are_refused_clearly(files, capsys, entries, scenario):
+    """The ranges hold what the programs can run: a flight past the release (6 s) and the firmware on a
+    capture, or a one-line refusal (a balloon that cannot lift, a design too stiff for the physics step)."""
+    sections: dict[str, dict[str, object]] = {}
+    for (sec, key), val in entries:
+        sections.setdefault(sec, {})[key] = val
+    text = "".join(f"[{sec}]\n" + "".join(f"{k} = {toml_literal(v)}\n" for k, v in kv.items())
+                   for sec, kv in sections.items())  # fmt: skip
+    cfg = toml(files, "r.toml", text)
+    for prog, argv in (("sim", ["--duration", "6", "--config", cfg, "--scenario", scenario]),
+                       ("fw", ["--in", str(files / "s.tlog"), "--config", cfg])):  # fmt: skip
+        code, err = run(prog, argv, capsys)
+        assert code in (0, 2) and "Traceback" not in err, (text, err)
+        if code == 2:
+            assert len(err.strip().splitlines()) == 1, err
