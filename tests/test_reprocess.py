@@ -71,9 +71,9 @@ def test_real_logs_reprocess_without_crashing_and_say_what_they_lack(tmp_path, n
     if name == "balloon-sim.bin":  # a balloon: the wind is known once it flies on its tether
         assert np.mean((flags & FLAG_WIND_UNKNOWN) > 0) < 0.3
     else:
-        # drones (a real one, a SITL one, a bench log) whose logs start long after boot: "joined in flight" as a balloon, never confirmed by
-        # the motion of a balloon in wind, so the product says the wind is not known, and its 1-sigma
-        # cannot tell the estimate from calm
+        # drones (a real one, a SITL one, a bench log) whose logs start long after boot: "joined in
+        # flight" as a balloon, never confirmed by the motion of a balloon in wind, so the product says
+        # the wind is not known, and its 1-sigma cannot tell the estimate from calm
         assert np.all(flags & FLAG_WIND_UNKNOWN)
         assert np.all(np.hypot(wn, we) <= 2.0 * sig)
 
