@@ -30,14 +30,16 @@ def rate_is_explicit(path: str | None) -> bool:
     return path is not None and "imu_rate_hz" in load_toml(path).get("filter", {})
 
 
-def replay_file(fw: Firmware, path: str, progress: Progress | None = None) -> None:
-    """Every message of a capture; a file without a single MAVLink frame in it is a UserError."""
-    _replay(fw, path, progress)
-    if fw.stats.frames == 0:
+def replay_file(fw: Firmware, path: str, progress: Progress | None = None, stop=None) -> bool:
+    """Every message of a capture; a file without a single MAVLink frame in it is a UserError.
+    Returns False if ``stop()`` said to stop before the end (Ctrl-C)."""
+    done = _replay(fw, path, progress, stop)
+    if fw.stats.frames == 0 and done:
         raise userargs.UserError(f"no MAVLink frame in {path}")
+    return done
 
 
-def _replay(fw: Firmware, path: str, progress: Progress | None) -> None:
+def _replay(fw: Firmware, path: str, progress: Progress | None, stop) -> bool:
     tlog = path.endswith(".tlog")
     st = fw.stats
     if tlog:
@@ -48,6 +50,8 @@ def _replay(fw: Firmware, path: str, progress: Progress | None) -> None:
     try:
         for k, m in enumerate(msgs):
             fw.handle(m)
+            if k % 1000 == 0 and stop is not None and stop():
+                return False
             if progress is not None and k % 1000 == 0:
                 # file position: the frames' bytes (+ the tlog's 8-byte record headers) and the garbage
                 progress.done = (st.bytes + st.garbage_bytes + (8 * (st.frames + st.bad_frames) if tlog else 0)) / 1e6
@@ -56,6 +60,7 @@ def _replay(fw: Firmware, path: str, progress: Progress | None) -> None:
         if not tlog:
             fh.close()
     fw.flush()
+    return True
 
 
 def run_live(fw: Firmware, spec: str, stop, progress: Progress | None = None) -> None:
@@ -123,10 +128,11 @@ def main(argv: list[str] | None = None) -> int:
         bar = Progress("balloon-fw", total=os.path.getsize(args.source) / 1e6, unit="MB", quiet=args.quiet)
     else:
         bar = Progress("balloon-fw", unit="frames", quiet=args.quiet, interval_s=5.0)
+    finished = True
     try:
         if is_file:
-            replay_file(fw, args.source, bar)
-            bar.done = bar.total
+            finished = replay_file(fw, args.source, bar, lambda: bool(stopping))
+            bar.done = bar.total if finished else bar.done
         else:
             run_live(fw, args.source, lambda: bool(stopping), bar)
     except (ValueError, OSError, userargs.UserError) as exc:
@@ -138,6 +144,9 @@ def main(argv: list[str] | None = None) -> int:
     if sink is not None:
         sink.close()
     print(fw.summary(), file=sys.stderr)
+    if not finished:
+        print(f"{prog}: interrupted before the end of {args.source}", file=sys.stderr)
+        return 130
     return 0
 
 

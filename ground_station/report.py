@@ -9,7 +9,6 @@ import numpy as np
 
 from ground_station.score import Score, lowpass, score
 from ground_station.wind import as_arrays, read_records
-from sim_hil.simulator import read_truth_csv
 
 
 def psd(x: np.ndarray, fs: float, segment_s: float = 200.0) -> tuple[np.ndarray, np.ndarray]:
@@ -47,6 +46,12 @@ def read_truth(path: str) -> dict[str, np.ndarray]:
     if not all(np.all(np.isfinite(truth[c])) for c in TRUTH_NEEDED):
         raise ValueError(f"{path}: the truth CSV holds values that are not numbers")
     return truth
+
+
+def read_truth_csv(path: str) -> dict[str, np.ndarray]:
+    """The simulator's truth CSV (``balloon-sim --truth``): a header row, one row per IMU sample."""
+    data = np.genfromtxt(path, delimiter=",", names=True)
+    return {name: np.asarray(data[name]) for name in data.dtype.names}
 
 
 def report(wind_path: str, truth_path: str, plot_path: str | None = None, start_s: float = 120.0) -> Score:

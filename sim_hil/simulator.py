@@ -196,8 +196,3 @@ class TruthCsvWriter:
 
 def write_truth_csv(path: str, truth: np.ndarray) -> None:
     np.savetxt(path, truth, delimiter=",", header=",".join(TRUTH_COLUMNS), comments="", fmt="%.6f")
-
-
-def read_truth_csv(path: str) -> dict[str, np.ndarray]:
-    data = np.genfromtxt(path, delimiter=",", names=True)
-    return {name: np.asarray(data[name]) for name in data.dtype.names}

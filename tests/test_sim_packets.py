@@ -9,7 +9,8 @@ import pytest
 from pymavlink import mavutil
 
 from firmware_py.atmosphere import G0, hypsometric_height_m
-from sim_hil.simulator import TRUTH_COLUMNS, read_truth_csv
+from ground_station.report import read_truth_csv
+from sim_hil.simulator import TRUTH_COLUMNS
 
 
 @pytest.fixture(scope="module")
