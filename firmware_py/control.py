@@ -8,7 +8,7 @@ import math
 
 from firmware_py.atmosphere import G0, LAPSE_K_M, R_AIR, air_density, hypsometric_height_m
 from firmware_py.config import Design
-from firmware_py.ekf import FusionStatus, WindEkf
+from firmware_py.ekf import FusionStatus, WindEkf, rotation
 from firmware_py.measurements import (
     enter_taut,
     fuse_accel,
@@ -271,6 +271,10 @@ class Estimator:
                 self.t_filter_us = t_us - self.max_gap_steps * self.dt_us
                 steps = self.max_gap_steps
         ekf = self.ekf
+        # the tether pulls at the bottom of the sphere: where that is depends on the attitude
+        r = rotation(*ekf.q.tolist())
+        rad = self.model.radius_m
+        ekf.forces.attach_ned = self._probe.attach_ned = (rad * r[2], rad * r[5], rad * r[8])
         for i in range(steps):
             g = (gx, gy, gz) if i == steps - 1 else self._last_gyro
             ekf.predict(g[0], g[1], g[2], self.rho)
