@@ -46,7 +46,9 @@ class BalloonModel:
 
     @property
     def taut_radius_m(self) -> float:
-        """Distance anchor -> centre with the rope straight (stretch is centimetres: left to noise)."""
+        """Distance anchor -> centre with the rope straight and in line with the centre (the taut
+        placement); the taut model ties the rope to the attachment point, |p + r z_body| = L. The
+        stretch (centimetres, but a systematic lean: docs/estimator.md) is not known to the filter."""
         return self.tether_length_m + self.radius_m
 
 
