@@ -8,7 +8,7 @@ import math
 
 from firmware_py.atmosphere import G0, LAPSE_K_M, R_AIR, air_density, hypsometric_height_m
 from firmware_py.config import Design
-from firmware_py.ekf import FusionStatus, WindEkf
+from firmware_py.ekf import FusionStatus, WindEkf, rotation
 from firmware_py.measurements import (
     enter_taut,
     fuse_accel,
@@ -284,6 +284,10 @@ class Estimator:
                 self.t_filter_us = t_us - self.max_gap_steps * self.dt_us
                 steps = self.max_gap_steps
         ekf = self.ekf
+        # the tether pulls at the bottom of the sphere: where that is depends on the attitude
+        r = rotation(*ekf.q.tolist())
+        rad = self.model.radius_m
+        ekf.forces.attach_ned = self._probe.attach_ned = (rad * r[2], rad * r[5], rad * r[8])
         for i in range(steps):
             g = (gx, gy, gz) if i == steps - 1 else self._last_gyro
             ekf.predict(g[0], g[1], g[2], self.rho)
@@ -429,9 +433,18 @@ class Estimator:
 
     def _rope_would_pull(self) -> bool:
         """The tether can only be taut if the balloon pulls on it: the taut model's tension at the
-        current state (with lift lost, e.g., the rope stays slack however far out the balloon is)."""
+        current state (with lift lost, e.g., the rope stays slack however far out the balloon is).
+        Taken with the radial velocity removed, as the rope leaves it once it has snapped taut: at the
+        current state a climbing balloon's drag holds its lift, and the rope's pull shows only after the
+        snap has stopped the climb (reference balloon: 4 s of a taut truth taken for free ascent, and
+        the drag scale learnt from the snap, +2 %, when the pull was taken with the climb rate)."""
         x = self.ekf.x.tolist()
-        f = accelerations(self.model, self.rho, *x[0:6], *x[12:17], True, self._probe)
+        pn, pe, pd, vn, ve, vd = x[0:6]
+        dist = math.sqrt(pn * pn + pe * pe + pd * pd)
+        if dist > 0.0:
+            vr = (vn * pn + ve * pe + vd * pd) / (dist * dist)
+            vn, ve, vd = vn - vr * pn, ve - vr * pe, vd - vr * pd
+        f = accelerations(self.model, self.rho, pn, pe, pd, vn, ve, vd, *x[12:17], True, self._probe)
         return f.taut
 
     def _switch(self, mode: int) -> None:

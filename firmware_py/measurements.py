@@ -206,20 +206,24 @@ def enter_taut(ekf: WindEkf, height_m: float, rho: float, from_tilt: bool = Fals
 def fuse_taut(
     ekf: WindEkf, radial_var: float, radial_rate_var: float, align_var: float, status: list[FusionStatus]
 ) -> None:
-    """Restricted radial motion (paper Sec. 2.3): |p| = L + r, no radial velocity, and the balloon's
-    down axis along the rope force (tension towards the anchor + the rope's weight, Eq. 5, + the rope's
-    cross-flow drag if modelled): the tether pulls at the bottom of the sphere (Eq. 7)."""
+    """Restricted radial motion (paper Sec. 2.3): the attachment point at the bottom of the sphere
+    (Eq. 7; ``ekf.forces.attach_ned`` from the attitude) at |p_a| = L from the anchor, no radial
+    velocity, and the balloon's down axis along the rope force (tension towards the anchor + the rope's
+    weight, Eq. 5, + the rope's cross-flow drag if modelled). The attitude enters the first two as a
+    parameter (no attitude column: r / L ~ 1 %)."""
     x = ekf.x
     pn, pe, pd, vn, ve, vd = x[:6].tolist()
-    dist = math.sqrt(pn * pn + pe * pe + pd * pd)
+    on, oe, od = ekf.forces.attach_ned
+    qn, qe, qd = pn + on, pe + oe, pd + od  # the attachment point from the anchor
+    dist = math.sqrt(qn * qn + qe * qe + qd * qd)
     if dist < 1.0:
         return
-    e = (pn / dist, pe / dist, pd / dist)
+    e = (qn / dist, qe / dist, qd / dist)
     h = ekf.h
     h.fill(0.0)
     for i in range(3):
         h[POS_N + i] = e[i]
-    ekf.fuse(ekf.model.taut_radius_m - dist, radial_var, status[0], UNGATED)
+    ekf.fuse(ekf.model.tether_length_m - dist, radial_var, status[0], UNGATED)
     h.fill(0.0)
     vr = vn * e[0] + ve * e[1] + vd * e[2]
     v = (vn, ve, vd)

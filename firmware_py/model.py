@@ -3,7 +3,8 @@ in two configurations. Pure functions of plain floats; the Jacobians the EKF nee
 
 Free ascent (rope slack):  m_eff a = D + N_b up + lambda g h_air down
 Taut (restricted radial):  the same forces, with the radial component replaced by the constraint
-                           a_r = -|v_t|^2 / |p| (the tether supplies what is needed, tension >= 0)
+                           a_r = -|v_t|^2 / |p_a| (the tether supplies what is needed, tension >= 0),
+                           radial along the anchor -> attachment point p_a = p + r z_body (Eq. 7)
 with D = k (1/2 rho Cd pi r^2) |u| u, u = w - v (paper Eq. 3 with the frontal area), N_b the balloon's
 own net lift (rho V - m) g (Eq. 4 minus the weight), m_eff = m + Ca rho V (added mass), and the rope
 weight of Eq. (5). The air's acceleration (Froude-Krylov) is unknown to the filter: process noise.
@@ -45,7 +46,9 @@ class BalloonModel:
 
     @property
     def taut_radius_m(self) -> float:
-        """Distance anchor -> centre with the rope straight (stretch is centimetres: left to noise)."""
+        """Distance anchor -> centre with the rope straight and in line with the centre (the taut
+        placement); the taut model ties the rope to the attachment point, |p + r z_body| = L. The
+        stretch (centimetres, but a systematic lean: docs/estimator.md) is not known to the filter."""
         return self.tether_length_m + self.radius_m
 
 
@@ -63,14 +66,21 @@ class Forces:
     taut: bool = False
     m_eff_kg: float = 1.0
     params: tuple = ()  # the parameter tuple of the generated functions at this step
+    # input: the tether's attachment point relative to the centre, NED (radius times the body down axis),
+    # set by the caller from the attitude; (0, 0, 0) puts it on the line anchor -> centre
+    attach_ned: tuple = (0.0, 0.0, 0.0)
 
 
-def parameters(m: BalloonModel, rho: float, pd: float, taut: bool) -> tuple[float, ...]:
-    """(m_eff, push, c, lift, rope_w, rope_slope, kr) of the generated model, for air density ``rho``.
+def parameters(
+    m: BalloonModel, rho: float, pd: float, taut: bool, attach_ned: tuple = (0.0, 0.0, 0.0)
+) -> tuple[float, ...]:
+    """(m_eff, push, c, lift, rope_w, rope_slope, kr, att_n, att_e, att_d) of the generated model, for
+    air density ``rho``.
 
     push = (1 + Ca) rho V: the accelerating air's push per m/s^2 (Froude-Krylov + added mass);
     c = rho Cd pi r^2 / 2; lift = (rho V - m) g, the balloon's own net lift (Eq. 4 minus its weight);
-    rope weight of paper Eq. (5): the whole rope when taut, the airborne part in free ascent."""
+    rope weight of paper Eq. (5): the whole rope when taut, the airborne part in free ascent;
+    att = the attachment point relative to the centre (taut: the rope pulls from there)."""
     rho_v = rho * m.volume_m3
     m_eff = m.mass_kg + ADDED_MASS_COEFFICIENT * rho_v
     lam_g = m.rope_kg_m * G0
@@ -92,6 +102,7 @@ def parameters(m: BalloonModel, rho: float, pd: float, taut: bool) -> tuple[floa
         rope_w,
         slope,
         rho * m.rope_drag_m2 if taut else 0.0,
+        *attach_ned,
     )
 
 
@@ -108,8 +119,10 @@ def accelerations(
 ) -> Forces:  # fmt: skip
     """Model acceleration a(x) and d a / d x in the free or the taut configuration. Taut with a
     negative pull (the rope would push): the rope is slack this instant, the free model applies
-    with the whole rope hanging from the balloon. Fills ``out``."""
-    par = parameters(m, rho, pd, taut)
+    with the whole rope hanging from the balloon. Taut, the rope pulls from ``out.attach_ned`` (the
+    attitude enters as a parameter: no Jacobian column, its effect is r / L ~ 1 % of the tension's
+    direction). Fills ``out``."""
+    par = parameters(m, rho, pd, taut, out.attach_ned)
     out.params = par
     out.m_eff_kg = par[0]
     if taut:

@@ -8,7 +8,8 @@ The model (paper Sec. 2.3 with the Morison form of the translational equation, d
 
     m_eff a_free = (1 + Ca) rho V dw/dt + D + (rho V - m) g up + W_rope down + R_rope
     D = k (1/2 rho Cd pi r^2) |u| u,  u = w - v (horizontal wind, no vertical wind)
-    taut: a = a_free - (e . a_free + |v_t|^2 / |p|) e,  tension = m_eff (e . a_free + |v_t|^2 / |p|)
+    taut: a = a_free - (e . a_free + |v_t|^2 / |p_a|) e,  tension = m_eff (e . a_free + |v_t|^2 / |p_a|)
+    with p_a = p + r z_body the attachment point (r z_body a parameter, from the attitude), e = p_a / |p_a|
     rope force on the balloon (what it aligns with): F = -tension e + W_rope down + R_rope
 
 Inputs are plain floats; outputs are tuples of floats (no allocation beyond the tuple; a C port maps
@@ -32,14 +33,15 @@ def symbols():
     pn, pe, pd, vn, ve, vd, wn, we, rn, re, k = sp.symbols("pn pe pd vn ve vd wn we rn re k", real=True)
     x = sp.Matrix([pn, pe, pd, vn, ve, vd, wn, we, rn, re, k])
     # parameters: m_eff, (1+Ca) rho V, c = rho Cd pi r^2 / 2, net lift of the balloon (N, up), rope weight
-    # carried (N, down), its slope with pos_d (free ascent), rope cross-flow coefficient rho (Cn d L / 4)
-    par = sp.symbols("m_eff push c lift rope_w rope_slope kr", real=True)
+    # carried (N, down), its slope with pos_d (free ascent), rope cross-flow coefficient rho (Cn d L / 4),
+    # the tether's attachment point relative to the centre, NED (r times the body down axis; taut only)
+    par = sp.symbols("m_eff push c lift rope_w rope_slope kr att_n att_e att_d", real=True)
     return x, par
 
 
 def free_forces(x, par):
     pn, pe, pd, vn, ve, vd, wn, we, rn, re, k = x
-    m_eff, push, c, lift, rope_w, rope_slope, kr = par
+    m_eff, push, c, lift, rope_w, rope_slope, kr, *_ = par
     u = sp.Matrix([wn - vn, we - ve, -vd])
     speed = sp.sqrt(u.dot(u) + EPS2)
     weight = rope_w + rope_slope * pd  # rope_slope = -lambda g in free ascent (more rope airborne higher up)
@@ -49,9 +51,12 @@ def free_forces(x, par):
 
 def taut_parts(x, par):
     pn, pe, pd, vn, ve, vd, *_ = x
-    m_eff, push, c, lift, rope_w, rope_slope, kr = par
+    m_eff, push, c, lift, rope_w, rope_slope, kr, att_n, att_e, att_d = par
     a_free, u = free_forces(x, par)
-    p = sp.Matrix([pn, pe, pd])
+    # the rope pulls at the attachment point (bottom of the sphere, paper Eq. 7), along the line from
+    # it to the anchor: not along the centre's direction when the balloon leans differently from the
+    # rope (the rope's weight tilts the rope force, and the balloon with it, towards the vertical)
+    p = sp.Matrix([pn + att_n, pe + att_e, pd + att_d])
     v = sp.Matrix([vn, ve, vd])
     dist = sp.sqrt(p.dot(p))
     e = p / dist
@@ -89,7 +94,7 @@ def generate() -> str:
     jpull = sp.Matrix([pull]).jacobian(x)
     jn = n[:2, :].jacobian(x)
     # the paper's model has no rope drag: the same expressions with kr = 0, much shorter
-    kr = par[-1]
+    kr = par[6]
     a_plain = a_taut.subs(kr, 0)
     pull_plain = pull.subs(kr, 0)
     n_plain = n.subs(kr, 0)
