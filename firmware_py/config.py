@@ -329,10 +329,14 @@ def lift_balance(d: Design) -> tuple[float, float, float, float, float]:
     return buoyancy, skin, gas, rope, buoyancy - skin - gas - rope
 
 
+class LiftError(ConfigError):
+    """A design that is valid key by key but cannot lift its tether."""
+
+
 def _check_design(d: Design) -> None:
     buoyancy, skin, gas, rope, net = lift_balance(d)
     if net <= 0.0:
-        raise ConfigError(
+        raise LiftError(
             f"the balloon cannot lift its tether: buoyancy {buoyancy:.2f} N - skin and avionics {skin:.2f} N "
             f"- gas {gas:.2f} N - tether {rope:.2f} N = net lift {net:.2f} N (needs > 0: a larger radius_m, "
             f"a lighter skin, gas or tether)"
@@ -350,6 +354,16 @@ def design_from_dict(data: dict[str, Any]) -> Design:
 
 def load_toml(path: str | Path) -> dict[str, Any]:
     """A design file, parsed and checked as a whole (``validate_document``): any error is a ConfigError."""
+    data = read_toml(path)
+    try:
+        validate_document(data)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from exc
+    return data
+
+
+def read_toml(path: str | Path) -> dict[str, Any]:
+    """A TOML file parsed, not checked (a study file holds more than a design); errors are ConfigError."""
     try:
         with open(path, "rb") as fh:
             data = tomllib.load(fh)
@@ -359,10 +373,6 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"cannot read config file {path}: {exc}") from exc
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from exc
-    try:
-        validate_document(data)
-    except ConfigError as exc:
-        raise ConfigError(f"{path}: {exc}") from exc
     return data
 
 

@@ -18,6 +18,7 @@ import cloudpickle
 import pyarrow.parquet as pq
 import pytest
 
+import study.case
 from study import engine
 from study.case import run_case
 from study.cli import main, paper_spec_text
@@ -114,11 +115,19 @@ def test_a_worker_killed_mid_sweep_still_completes(client, serial, tmp_path):
     assert {k: numbers(r) for k, r in rows.items()} == {k: numbers(r) for k, r in serial.items()}
 
 
-def test_a_case_that_raises_is_a_failed_row_and_the_sweep_goes_on(tmp_path, capsys):
+def test_a_case_that_raises_is_a_failed_row_and_the_sweep_goes_on(tmp_path, capsys, monkeypatch):
     spec = tmp_path / "s.toml"
-    # an avionics point mass 1.0 m below the centre is outside a 0.95 m balloon: the simulator refuses it
-    spec.write_text(TINY.replace('"wind.mean_mps" = [2.0, 4.0]', '"wind.mean_mps" = [3.0]')
-                    + "[truth]\navionics_offset_m = 1.0\n")  # fmt: skip
+    spec.write_text(TINY.replace('"wind.mean_mps" = [2.0, 4.0]', '"wind.mean_mps" = [3.0]'))
+    # every design passes the up-front checks; one case then fails while it flies (as a numerical
+    # blow-up would): in this process (--workers 0) the flight of the 0.95 m balloon raises
+    real_fly = study.case.fly
+
+    def fly(design, *args):
+        if design.balloon.radius_m == 0.95:
+            raise FloatingPointError("avionics_offset_m: the truth integration diverged")
+        return real_fly(design, *args)
+
+    monkeypatch.setattr(study.case, "fly", fly)
     assert main([str(spec), "--out", str(tmp_path / "o"), "--workers", "0", "--quiet"]) == 0
     rows = pq.read_table(tmp_path / "o" / "cases.parquet").to_pylist()
     by_r = {r["balloon.radius_m"]: r for r in rows}
@@ -142,7 +151,7 @@ def test_a_case_that_raises_is_a_failed_row_and_the_sweep_goes_on(tmp_path, caps
         ('[study]\nbase = "no-such"\n', "unknown scenario 'no-such'"),
         ('[axes]\nscenario = ["paper-reference", "no-such"]\n', "unknown scenario 'no-such'"),
         ("[study]\nsedes = 3\n", "unknown key 'sedes'"),
-        ('[axes]\n"balloon.radius_m" = [1.0, -1.0]\n', "radius_m must be > 0"),
+        ('[axes]\n"balloon.radius_m" = [1.0, -1.0]\n', "radius_m must be a number in [0.05, 20]"),
         ('[axes]\n"tether.length_m" = {start = 50, stop = 300}\n', "needs start, stop and num"),
     ],
 )
