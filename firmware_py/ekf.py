@@ -96,6 +96,8 @@ class WindEkf:
         self._s3 = np.zeros((3, 3), z)
         self._si3 = np.zeros((3, 3), z)
         self._i3 = np.zeros(3, z)
+        self._scale = np.ones(N, z)  # fix_covariance: per-state scale of an over-limit variance
+        self._one = np.ones((), z)
         self._s = np.zeros((), z)  # 0-d operands/results: a Python scalar in a ufunc allocates a 0-d array
         self._r = np.zeros((), z)
         self._make_views()
@@ -127,7 +129,8 @@ class WindEkf:
         self.recover_after = int(cfg.recover_after_s * cfg.imu_rate_hz)
         self.recorder = None  # post-flight only: firmware_py.smoother.SmootherRecorder sees every event
 
-    _VIEWS = ("P_diag", "_k_col", "_ph_row", "_P_rows", "_P_cols", "_H3T", "_phtT", "H3_rows", "_F_vel_rows",
+    _VIEWS = ("_scale_col", "_scale_row",
+              "P_diag", "_k_col", "_ph_row", "_P_rows", "_P_cols", "_H3T", "_phtT", "H3_rows", "_F_vel_rows",
               "ja_flat", "_ja_pv", "_ja_wk", "_F_pv", "_F_wk", "H3_pv", "H3_wk", "hja_pv", "hja_wk")
 
     def _make_views(self) -> None:
@@ -147,6 +150,8 @@ class WindEkf:
         self.H3_rows = [self.H3[i] for i in range(3)]
         self._F_vel_rows = [self.F[VEL_N + i] for i in range(3)]
         self._phtT = self._pht.T
+        self._scale_col = self._scale.reshape(N, 1)
+        self._scale_row = self._scale.reshape(1, N)
 
     def __getstate__(self) -> dict:  # copies (snapshots, tests) must rebuild the views on their arrays
         return {k: v for k, v in self.__dict__.items() if k not in self._VIEWS}
@@ -448,10 +453,21 @@ class WindEkf:
         self.P[i, i] = v
 
     def fix_covariance(self) -> None:
+        """Symmetrise; variances above their limit are brought down by scaling their row and column
+        (P <- D P D, a congruence: P stays positive semi-definite, which clipping the diagonal alone
+        does not guarantee); variances below their floor are raised (adding to the diagonal keeps P
+        positive definite)."""
         np.add(self.P, self.P.T, out=self._t2)
         self._s[()] = 0.5
         np.multiply(self._t2, self._s, out=self.P)
-        np.clip(self.P_diag, self.var_min, self.var_max, out=self.P_diag)
+        np.divide(self.var_max, self.P_diag, out=self._scale)
+        np.minimum.reduce(self._scale, out=self._r)
+        if float(self._r) < 1.0:
+            np.minimum(self._scale, self._one, out=self._scale)
+            np.sqrt(self._scale, out=self._scale)
+            np.multiply(self.P, self._scale_col, out=self.P)
+            np.multiply(self.P, self._scale_row, out=self.P)
+        np.maximum(self.P_diag, self.var_min, out=self.P_diag)
 
     # ------------------------------------------------------------------ outputs
 
