@@ -131,7 +131,7 @@ def speed_and_memory(hours: float) -> list[str]:
         before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
         t0 = time.perf_counter()
         subprocess.run([py, "-m", "ground_station", "reprocess", tlog, "--out", os.path.join(tmp, "wind.nc"),
-                        "--quiet"], check=True)  # fmt: skip
+                        "--quiet"], check=True, stdout=subprocess.DEVNULL)  # fmt: skip
         wall = time.perf_counter() - t0
         peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
         size = os.path.getsize(tlog) / 1e6
