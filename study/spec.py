@@ -24,11 +24,14 @@ built (and so validated) once up front. A problem is a :class:`ConfigError` with
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import itertools
 import json
 import math
+import sys
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -350,8 +353,27 @@ def validate_designs(spec: Spec) -> None:
                 raise ConfigError(f"sweep '{sw.name}' at {where}: {e}") from None
 
 
+@functools.lru_cache(maxsize=1)
+def code_fingerprint() -> str:
+    """Hash of the code that computes a case (simulator, estimator, scoring, the case runner): results
+    stored by other code are not reused as this code's."""
+    import firmware_py
+    import ground_station
+    import sim_hil
+
+    h = hashlib.sha256()
+    for pkg in (firmware_py, sim_hil, ground_station, sys.modules[__name__.rsplit(".", 1)[0]]):
+        root = Path(pkg.__file__).parent
+        for f in sorted(root.glob("*.py")):
+            h.update(f.name.encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
 def case_key(c: Case) -> str:
-    """Hash of everything that decides the case's numbers: the full design, seed, duration, scoring start."""
-    doc = {"v": METRICS_VERSION, "sections": c.sections, "seed": c.seed, "duration_s": c.duration_s,
+    """Hash of everything that decides the case's numbers: the full design, seed, duration, scoring start,
+    and the code that computes it (``code_fingerprint``)."""
+    doc = {"v": METRICS_VERSION, "code": code_fingerprint(), "sections": c.sections, "seed": c.seed,
+           "duration_s": c.duration_s,
            "start_s": c.start_s}  # fmt: skip
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:20]
