@@ -110,7 +110,9 @@ def maps(spec: Spec, summ: list[dict[str, Any]], out: Path) -> list[Path]:
             grid[i, j] = s[f"{metric}_mean"]
             sl = s.get("slack_frac_mean", math.nan)
             lift = s.get("lift_margin_n_mean", math.nan)
-            if math.isfinite(lift) and lift <= 0.0:
+            if s.get("seeds", 0) and s.get("failed", 0) == s["seeds"]:
+                mark[i, j] = "failed"  # e.g. a design that cannot lift its tether (the row's error says)
+            elif math.isfinite(lift) and lift <= 0.0:
                 mark[i, j] = "no lift"
             elif math.isfinite(sl) and sl > SLACK_MARK:
                 mark[i, j] = f"slack {sl:.0%}"
@@ -129,7 +131,7 @@ def maps(spec: Spec, summ: list[dict[str, Any]], out: Path) -> list[Path]:
         ax.set_yticks(range(len(ax_b.values)), [fmt(v) for v in ax_b.values])
         ax.set_xlabel(ax_a.name)
         ax.set_ylabel(ax_b.name)
-        ax.set_title(f"{sw.name}: {metric}; red hatch: slack > {SLACK_MARK:.0%} of the time, or no spare lift",
+        ax.set_title(f"{sw.name}: {metric}; red hatch: slack > {SLACK_MARK:.0%} of the time, no spare lift, or failed",
                      fontsize=9)  # fmt: skip
         fig.tight_layout()
         path = out / f"{sw.name}-map-{metric}.png"

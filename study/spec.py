@@ -29,7 +29,6 @@ import hashlib
 import itertools
 import json
 import math
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -356,17 +355,19 @@ def validate_designs(spec: Spec) -> None:
 @functools.lru_cache(maxsize=1)
 def code_fingerprint() -> str:
     """Hash of the code that computes a case (simulator, estimator, scoring, the case runner): results
-    stored by other code are not reused as this code's."""
+    stored by other code are not reused as this code's. Plots, tables and I/O are not part of it."""
     import firmware_py
     import ground_station
     import sim_hil
 
+    here = Path(__file__).parent
+    files = [*sorted(Path(firmware_py.__file__).parent.glob("*.py")),
+             *sorted(Path(sim_hil.__file__).parent.glob("*.py")),
+             Path(ground_station.__file__).parent / "score.py", here / "case.py", here / "metrics.py", here / "spec.py"]
     h = hashlib.sha256()
-    for pkg in (firmware_py, sim_hil, ground_station, sys.modules[__name__.rsplit(".", 1)[0]]):
-        root = Path(pkg.__file__).parent
-        for f in sorted(root.glob("*.py")):
-            h.update(f.name.encode())
-            h.update(f.read_bytes())
+    for f in files:
+        h.update(f.name.encode())
+        h.update(f.read_bytes())
     return h.hexdigest()[:16]
 
 
