@@ -182,6 +182,7 @@ class Firmware:
             f"balloon-fw: {c.imu_samples} IMU samples, {c.baro_samples} baro samples, "
             f"{c.rejected} rejected, {self.stats.bad_frames} bad frames, {self.other_messages} other messages, "
             f"{self.sampler.ignored} from other sensor instances, "
+            f"{self.sampler.baro_beside} pressure messages not needed (the IMU messages carry the barometer), "
             f"{c.duplicates + self.pipe.duplicates} duplicates, "
             f"{c.reordered + self.pipe.reordered} reordered, {c.gaps} gaps, {c.long_gaps} long gaps, "
             f"resets: {c.time_resets} reboot, {c.numeric_resets} numeric, {c.taut_resets} taut, "

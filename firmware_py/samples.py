@@ -106,6 +106,7 @@ class MavlinkSampler:
         self.baro_key: tuple | None = None
         self.embedded_baro = False  # the chosen IMU message carries the barometer
         self.ignored = 0
+        self.baro_beside = 0  # pressure messages beside IMU messages that carry the barometer themselves
         self.switched = 0
         self._others = 0
         self._last_temp_c = math.nan
@@ -151,7 +152,10 @@ class MavlinkSampler:
             key = self._key(msg, mid)
             if self.baro_key is None:
                 self.baro_key = key
-            if self.embedded_baro or key != self.baro_key:
+            if self.embedded_baro:
+                self.baro_beside += 1  # the IMU messages carry the barometer: this one is not needed
+                return ()
+            if key != self.baro_key:
                 self.ignored += 1
                 return ()
             return (scaled_pressure_sample(msg),)
