@@ -38,6 +38,9 @@ def main(argv: list[str] | None = None) -> int:
             return run_reprocess(args, argv)
         except (ValueError, OSError, userargs.UserError) as exc:
             return userargs.fail(f"{PROG} reprocess", exc)
+        except KeyboardInterrupt:
+            print(f"{PROG} reprocess: interrupted; nothing written", file=sys.stderr)
+            return 130
     if args.cmd == "listen":
         from ground_station.listen import GroundStation, listen
 
