@@ -32,9 +32,9 @@ def main(argv: list[str] | None = None) -> int:
     rr.add_argument("--quiet", action="store_true", help="no progress bar / status lines (the final lines stay)")
     args = ap.parse_args(argv)
     if args.cmd == "reprocess":
-        from ground_station.reprocess import run_reprocess
-
         try:
+            from ground_station.reprocess import run_reprocess
+
             return run_reprocess(args, argv)
         except (ValueError, OSError, userargs.UserError) as exc:
             return userargs.fail(f"{PROG} reprocess", exc)

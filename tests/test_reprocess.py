@@ -4,8 +4,10 @@ user runs it; real autopilot logs that are not balloons; user errors."""
 from __future__ import annotations
 
 import hashlib
+import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -91,3 +93,15 @@ def test_the_product_must_be_netcdf(flight, tmp_path):
     _, tlog, _ = flight
     r = gs("reprocess", tlog, "--out", tmp_path / "w.csv")
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and ".nc" in r.stderr
+
+
+def test_ctrl_c_stops_reprocessing_with_130_and_writes_nothing(flight, tmp_path):
+    _, tlog, _ = flight
+    nc = tmp_path / "w.nc"
+    p = subprocess.Popen([PY, "-m", "ground_station", "reprocess", str(tlog), "--out", str(nc)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    time.sleep(2.0)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 130 and "interrupted" in err and "Traceback" not in err
+    assert not nc.exists()
