@@ -18,6 +18,7 @@ import hashlib
 import io
 import math
 import os
+import sys
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
@@ -312,7 +313,32 @@ def _df_instance(recs, fmt):
 def read_dataflash(path: str) -> Flight:
     """ArduPilot DataFlash: IMU (AccX.. m/s^2, GyrX.. rad/s, TimeUS), MAG (MagX.. milligauss), BARO
     (Press Pa, Temp degC), each the first instance logged; units checked against the FMTU/UNIT/MULT
-    messages when the log has them; UTC from GPS (GWk, GMS)."""
+    messages when the log has them; UTC from GPS (GWk, GMS). DFReader's own complaints about a
+    damaged log (a line per bad byte) are silenced: the verdict is this function's one ValueError."""
+    with _silenced():
+        return _read_dataflash(path)
+
+
+@contextlib.contextmanager
+def _silenced():
+    """Standard output and error closed to everything, Python and C alike, for the duration."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = os.dup(1), os.dup(2)
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 1)
+        os.dup2(null, 2)
+        with open(os.devnull, "w") as sink, contextlib.redirect_stderr(sink), contextlib.redirect_stdout(sink):
+            yield
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in (*saved, null):
+            os.close(fd)
+
+
+def _read_dataflash(path: str) -> Flight:
     from pymavlink import DFReader
 
     try:
@@ -450,12 +476,12 @@ def flight_format(path: str) -> str:
     ext = os.path.splitext(path)[1].lower()
     if ext == ".ulg":
         return "ulog"
-    if ext == ".bin":
-        return "dataflash"
     if ext == ".tlog":
         return "tlog"
     with open(path, "rb") as fh:
         head = fh.read(8)
+    if ext == ".bin":  # DataFlash's name, but also a common one for a raw serial capture: the bytes decide
+        return "dataflash" if head.startswith(DATAFLASH_MAGIC) else "raw"
     if head.startswith(ULOG_MAGIC):
         return "ulog"
     if head.startswith(DATAFLASH_MAGIC):

@@ -186,6 +186,12 @@ def run_reprocess(args, argv: list[str] | None) -> int:
     prog = "balloon-gs reprocess"
     if not args.out.endswith(".nc"):
         raise ValueError(f"--out {args.out}: the product is NetCDF, its name must end in .nc")
+    if args.plot:
+        from matplotlib.backend_bases import FigureCanvasBase
+
+        kinds = FigureCanvasBase.get_supported_filetypes()
+        if os.path.splitext(args.plot)[1].lower().lstrip(".") not in kinds:
+            raise ValueError(f"--plot {args.plot}: the name must end in one of .{', .'.join(sorted(kinds))}")
     try:
         data = load_toml(args.config) if args.config else {}
         design = design_from_dict(data)

@@ -304,7 +304,8 @@ def test_dataflash_units_are_checked(tmp_path):
         ("missing.ulg", None, "no such file"),
         ("empty.bin", b"", "empty"),
         ("junk.ulg", b"this is not a log" * 100, "not a readable PX4 ULog"),
-        ("junk.bin", b"\x00\x01" * 1000, "DataFlash"),
+        ("junk.bin", b"\x00\x01" * 1000, "no MAVLink"),  # not DataFlash by its bytes: read as a raw capture
+        ("junk-df.bin", b"\xa3\x95\x80" + b"\x00\x01" * 1000, "DataFlash"),
         ("junk.raw", bytes(range(256)) * 10, "no MAVLink"),
         ("hb.tlog", None, "no IMU"),
     ],
