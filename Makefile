@@ -20,7 +20,7 @@ $(BENCH_STAMP): pyproject.toml | $(BIN)/python
 	touch $(BENCH_STAMP) $(STAMP)
 
 test: $(STAMP)
-	$(BIN)/ruff check firmware_py ground_station sim_hil study tests benchmarks
+	$(BIN)/ruff check balloon_core firmware_py sim_hil ground_station postflight sil study tests benchmarks tools
 	$(BIN)/python -m pytest
 
 demo: $(STAMP)
@@ -30,7 +30,7 @@ bench: $(BENCH_STAMP)
 	$(BIN)/python -m benchmarks.run_all
 
 lint: $(STAMP)
-	$(BIN)/ruff check firmware_py ground_station sim_hil study tests benchmarks
+	$(BIN)/ruff check balloon_core firmware_py sim_hil ground_station postflight sil study tests benchmarks tools
 
 clean:
 	rm -rf $(VENV) out build *.egg-info

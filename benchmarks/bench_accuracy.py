@@ -28,9 +28,9 @@ from multiprocessing import Pool
 
 import numpy as np
 
+from balloon_core.progress import Progress
+from balloon_core.score import describe
 from benchmarks.common import attitude_errors, fly, response_flight, score_flight
-from firmware_py.progress import Progress
-from ground_station.score import describe
 
 DEFAULT_SCENARIOS = (
     "paper-reference", "reduced-balloon", "increased-balloon", "better-accel", "better-baro", "better-gyro-rate",
@@ -61,7 +61,7 @@ def variants() -> dict:
     told about the rope's drag, and told about a drag the rope does not have."""
     from dataclasses import replace
 
-    from firmware_py.state import FilterConfig
+    from firmware_py.estimator.state import FilterConfig
     from sim_hil.scenarios import SCENARIOS
 
     out = {}

@@ -29,9 +29,9 @@ from multiprocessing import Pool
 
 import numpy as np
 
-from firmware_py.samples import BaroSample, ImuSample
-from ground_station.reprocess import reprocess
-from ground_station.score import response, score
+from balloon_core.samples import BaroSample, ImuSample
+from balloon_core.score import response, score
+from postflight.reprocess import reprocess
 from sim_hil.scenarios import SCENARIOS
 from sim_hil.simulator import TRUTH_COLUMNS, Simulation
 

@@ -22,7 +22,7 @@ import subprocess
 import sys
 import time
 
-from firmware_py.mavio import TlogWriter
+from balloon_core.wire import TlogWriter
 from sim_hil.packets import SensorPacketEncoder
 from sim_hil.scenarios import SCENARIOS
 from sim_hil.simulator import Simulation, TruthCsvWriter

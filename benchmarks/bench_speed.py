@@ -17,11 +17,11 @@ import time
 
 import numpy as np
 
+from balloon_core.config import Design
+from balloon_core.wire import LinkStats, TlogWriter, tlog_messages
 from firmware_py.app import Firmware
-from firmware_py.config import Design
-from firmware_py.control import Estimator
-from firmware_py.mavio import LinkStats, TlogWriter, tlog_messages
-from firmware_py.state import MODE_TAUT, N_STATES
+from firmware_py.estimator.control import Estimator
+from firmware_py.estimator.state import MODE_TAUT, N_STATES
 from sim_hil.packets import SensorPacketEncoder
 from sim_hil.scenarios import SCENARIOS
 from sim_hil.simulator import Simulation

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from ground_station.score import Score, response, score
+from balloon_core.score import Score, response, score
 from sim_hil.scenarios import SCENARIOS
 from study.case import attitude_errors  # noqa: F401 - re-exported for the benchmarks
 from study.case import fly as fly_design
@@ -21,6 +21,6 @@ def score_flight(rows, truth, start_s: float = 120.0) -> Score:
 
 
 def response_flight(rows, truth, freqs, start_s: float = 120.0, extra_hz=()) -> dict[float, dict[str, complex | None]]:
-    """Along/cross transfer function of the flight's estimate (``ground_station.score.response``)."""
+    """Along/cross transfer function of the flight's estimate (``balloon_core.score.response``)."""
     return response(rows[:, 0], rows[:, 1], rows[:, 2], truth["time_s"], truth["wind_n"], truth["wind_e"], freqs,
                     start_s=start_s, extra_hz=extra_hz)  # fmt: skip

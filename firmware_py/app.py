@@ -1,6 +1,6 @@
 """The firmware's main loop body: MAVLink messages in, estimator, WIND_COV + HEARTBEAT out.
 
-Every message goes through the one sample interface (``firmware_py.samples``: HIGHRES_IMU and HIL_SENSOR
+Every message goes through the one sample interface (``balloon_core.samples``: HIGHRES_IMU and HIL_SENSOR
 with their ``fields_updated`` bits, ArduPilot's SCALED_IMU/2/3, SCALED_PRESSURE/2/3) and the input
 pipeline (``firmware_py.streams``: the IMU rate measured from the stream, a faster stream averaged to the
 filter's step), exactly as post-flight reprocessing does. Everything else is counted and ignored.
@@ -12,12 +12,12 @@ import math
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from firmware_py.config import Design
-from firmware_py.control import Estimator
-from firmware_py.mavio import LinkStats, pack
-from firmware_py.outputs import WindCovOutput
-from firmware_py.samples import BaroSample, MavlinkSampler, Sample, feed
-from firmware_py.state import FilterConfig
+from balloon_core.config import Design
+from balloon_core.samples import BaroSample, MavlinkSampler, Sample, feed
+from balloon_core.wire import LinkStats, pack
+from firmware_py.estimator.control import Estimator
+from firmware_py.estimator.outputs import WindCovOutput
+from firmware_py.estimator.state import FilterConfig
 from firmware_py.streams import InputPipeline, print_warning
 
 FW_SYSID = 1

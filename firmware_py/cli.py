@@ -7,18 +7,18 @@ import signal
 import sys
 import time
 
-from firmware_py import userargs
+from balloon_core import userargs
+from balloon_core.config import ConfigError, design_from_dict, load_toml
+from balloon_core.progress import Progress, RateMeter
+from balloon_core.wire import Decoder, open_link, open_sink, raw_messages, tlog_messages
 from firmware_py.app import Firmware
-from firmware_py.config import ConfigError, design_from_dict, load_toml
-from firmware_py.mavio import Decoder, open_link, open_sink, raw_messages, tlog_messages
-from firmware_py.progress import Progress, RateMeter
-from firmware_py.state import FilterConfig
+from firmware_py.estimator.state import FilterConfig
 from firmware_py.streams import StreamRequester
 
 
 def load_config(path: str | None):
     if path is None:
-        from firmware_py.config import Design
+        from balloon_core.config import Design
 
         return Design(), FilterConfig()
     data = load_toml(path)

@@ -15,10 +15,8 @@ from dataclasses import dataclass, replace
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from firmware_py.config import Design
-from firmware_py.control import ACC_MAX, GYRO_MAX, REORDER_WINDOW_US, Estimator
-from firmware_py.mavio import pack
-from firmware_py.samples import (
+from balloon_core.config import Design
+from balloon_core.samples import (
     HIGHRES_IMUS,
     IMU_MESSAGES,
     MSG_HIGHRES_IMU,
@@ -29,7 +27,9 @@ from firmware_py.samples import (
     Sample,
     feed,
 )
-from firmware_py.state import FilterConfig
+from balloon_core.wire import pack
+from firmware_py.estimator.control import ACC_MAX, GYRO_MAX, REORDER_WINDOW_US, Estimator
+from firmware_py.estimator.state import FilterConfig
 
 RATE_WINDOW_S = 2.0  # the IMU rate is the median sample interval over this much of the stream
 RATE_SETTLE_MAX_S = 6.0  # a stream slower than the filter's rate: wait this long for it to speed up
@@ -252,7 +252,7 @@ def estimator_steps(
     rate_explicit: bool = False,
     warn: Callable[[str], None] | None = None,
 ) -> Iterator[tuple[Estimator, Sample, bool]]:
-    """Post-flight: run samples (e.g. ``ground_station.flightlog.read_flight(path).samples()``) through
+    """Post-flight: run samples (e.g. ``postflight.logs.read_flight(path).samples()``) through
     the same pipeline as the live firmware into an Estimator built at the chosen rate. Yields
     ``(estimator, sample_fed, advanced)`` after every sample handed to it (``advanced``: a filter step
     was taken, the moment to record the state). ``warn`` gets the one-line rate warning, if any."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 import signal
 import sys
 
-from firmware_py import userargs
+from balloon_core import userargs
 
 PROG = "balloon-gs"
 
@@ -33,7 +33,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.cmd == "reprocess":
         try:
-            from ground_station.reprocess import run_reprocess
+            from postflight.reprocess import run_reprocess
 
             return run_reprocess(args, argv)
         except (ValueError, OSError, userargs.UserError) as exc:

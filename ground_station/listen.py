@@ -22,8 +22,8 @@ from rich.measure import Measurement
 from rich.table import Table
 from rich.text import Text
 
-from firmware_py.mavio import Decoder, LinkStats, TlogSink, open_link, pack
-from firmware_py.progress import fmt_duration, stream_is_terminal
+from balloon_core.progress import fmt_duration, stream_is_terminal
+from balloon_core.wire import Decoder, LinkStats, TlogSink, open_link, pack
 from ground_station.wind import CSV_COLUMNS, WindRecord
 
 MODE_NAMES = {0: "ground", 1: "free", 2: "taut"}  # balloon-fw's HEARTBEAT custom_mode

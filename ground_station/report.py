@@ -7,25 +7,8 @@ import os
 
 import numpy as np
 
-from ground_station.score import Score, lowpass, score
+from balloon_core.score import Score, lowpass, psd, score
 from ground_station.wind import as_arrays, read_records
-
-
-def psd(x: np.ndarray, fs: float, segment_s: float = 200.0) -> tuple[np.ndarray, np.ndarray]:
-    """Welch PSD (Hann, 50 % overlap), one-sided, (m/s)^2/Hz."""
-    n = min(len(x), int(segment_s * fs))
-    step = n // 2
-    win = np.hanning(n)
-    scale = 2.0 / (fs * np.sum(win**2))
-    acc = None
-    k = 0
-    for i in range(0, len(x) - n + 1, step):
-        seg = x[i : i + n] - np.mean(x[i : i + n])
-        p = np.abs(np.fft.rfft(seg * win)) ** 2 * scale
-        acc = p if acc is None else acc + p
-        k += 1
-    return np.fft.rfftfreq(n, 1.0 / fs), acc / max(k, 1)
-
 
 TRUTH_NEEDED = ("time_s", "wind_n", "wind_e")
 
@@ -56,7 +39,7 @@ def read_truth_csv(path: str) -> dict[str, np.ndarray]:
 
 def report(wind_path: str, truth_path: str, plot_path: str | None = None, start_s: float = 120.0) -> Score:
     if wind_path.endswith(".nc"):  # a balloon-gs reprocess product: its smoothed wind and accuracy
-        from ground_station.products import read_netcdf_wind
+        from postflight.netcdf import read_netcdf_wind
 
         est = read_netcdf_wind(wind_path)
     else:

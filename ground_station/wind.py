@@ -63,7 +63,7 @@ def read_records(path: str) -> list[WindRecord]:
                                    *(float(r[k]) for k in CSV_COLUMNS[3:11])) for r in reader]  # fmt: skip
             except (TypeError, ValueError) as exc:
                 raise ValueError(f"{path} line {reader.line_num}: {exc}") from None
-    from firmware_py.mavio import LinkStats, raw_messages, tlog_messages
+    from balloon_core.wire import LinkStats, raw_messages, tlog_messages
 
     stats = LinkStats()
     if path.endswith(".tlog"):

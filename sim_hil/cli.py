@@ -5,10 +5,10 @@ from __future__ import annotations
 import sys
 import time
 
-from firmware_py import userargs
-from firmware_py.config import ConfigError
-from firmware_py.mavio import TlogWriter
-from firmware_py.progress import Progress
+from balloon_core import userargs
+from balloon_core.config import ConfigError
+from balloon_core.progress import Progress
+from balloon_core.wire import TlogWriter
 from sim_hil.packets import SensorPacketEncoder
 from sim_hil.scenarios import SCENARIOS, WIND_CHOICES, resolve
 from sim_hil.simulator import Simulation, TruthCsvWriter

@@ -25,8 +25,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from firmware_py.atmosphere import G0, ISA_EXP, LAPSE_K_M, R_AIR
-from firmware_py.config import ConfigError, Design, build_section
+from balloon_core.atmosphere import G0, ISA_EXP, LAPSE_K_M, R_AIR
+from balloon_core.config import ConfigError, Design, build_section
+from balloon_core.rotation import quat_from_euler, rotation
 
 SUTHERLAND_MU0_PAS = 1.716e-5  # dynamic viscosity of air at 273.15 K (White, Viscous Fluid Flow)
 SUTHERLAND_T0_K = 273.15
@@ -273,18 +274,10 @@ def derivative(
     rho = density_at(ph, -pd)
     rho_v = rho * ph.volume_m3
     # third column of the body->NED rotation: where the body's down axis points
-    zx = 2.0 * (q1 * q3 + q0 * q2)
-    zy = 2.0 * (q2 * q3 - q0 * q1)
-    zz = q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3
+    r00, r01, zx, r10, r11, zy, r20, r21, zz = rotation(q0, q1, q2, q3)
     # attachment point (bottom of the sphere) relative to the anchor, and its velocity
     an, ae, ad = pn + rad * zx, pe + rad * zy, pd + rad * zz
     # omega in NED = R w_b; velocity of the attachment point = v + omega_ned x (rad * z_axis)
-    r00 = q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3
-    r01 = 2.0 * (q1 * q2 - q0 * q3)
-    r10 = 2.0 * (q1 * q2 + q0 * q3)
-    r11 = q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3
-    r20 = 2.0 * (q1 * q3 - q0 * q2)
-    r21 = 2.0 * (q2 * q3 + q0 * q1)
     on = r00 * p + r01 * q + zx * r
     oe = r10 * p + r11 * q + zy * r
     od = r20 * p + r21 * q + zz * r
@@ -380,15 +373,7 @@ def _offset_accelerations(
     sm = ph.static_moment_kgm
     ix, iz = ph.inertia_kgm2, ph.inertia_z_kgm2
     c = ph.rot_damping_nms
-    r00 = q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3
-    r01 = 2.0 * (q1 * q2 - q0 * q3)
-    r02 = 2.0 * (q1 * q3 + q0 * q2)
-    r10 = 2.0 * (q1 * q2 + q0 * q3)
-    r11 = q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3
-    r12 = 2.0 * (q2 * q3 - q0 * q1)
-    r20 = 2.0 * (q1 * q3 - q0 * q2)
-    r21 = 2.0 * (q2 * q3 + q0 * q1)
-    r22 = q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = rotation(q0, q1, q2, q3)
     # total force and the rope force in body axes
     bx = r00 * fn + r10 * fe + r20 * fd
     by = r01 * fn + r11 * fe + r21 * fd
@@ -442,26 +427,6 @@ def rk4_step(
     out[8] *= n
     out[9] *= n
     return out
-
-
-def quat_from_euler(roll: float, pitch: float, yaw: float) -> list[float]:
-    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
-    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
-    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    return [
-        cr * cp * cy + sr * sp * sy,
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-    ]
-
-
-def euler_from_quat(q0: float, q1: float, q2: float, q3: float) -> tuple[float, float, float]:
-    """(roll, pitch, yaw) in radians, ZYX convention."""
-    roll = math.atan2(2 * (q0 * q1 + q2 * q3), 1 - 2 * (q1 * q1 + q2 * q2))
-    pitch = math.asin(max(-1.0, min(1.0, 2 * (q0 * q2 - q3 * q1))))
-    yaw = math.atan2(2 * (q0 * q3 + q1 * q2), 1 - 2 * (q2 * q2 + q3 * q3))
-    return roll, pitch, yaw
 
 
 def resting_state(ph: BalloonPhysics, yaw_rad: float) -> list[float]:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import sys
 import time
 
-from firmware_py.mavio import Decoder, LinkStats, open_link
+from balloon_core.wire import Decoder, LinkStats, open_link
 from sim_hil.packets import SensorPacketEncoder
 from sim_hil.simulator import Simulation
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from firmware_py.mavio import pack
+from balloon_core.wire import pack
 from sim_hil.simulator import SensorSample
 
 SIM_SYSID = 1

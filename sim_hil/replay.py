@@ -19,8 +19,9 @@ import sys
 import time
 from dataclasses import dataclass
 
-from firmware_py import userargs
-from firmware_py.mavio import (
+from balloon_core import userargs
+from balloon_core.progress import Progress
+from balloon_core.wire import (
     MAGIC_V1,
     MAGIC_V2,
     TLOG_HEADER,
@@ -31,7 +32,6 @@ from firmware_py.mavio import (
     raw_messages,
     tlog_messages,
 )
-from firmware_py.progress import Progress
 from sim_hil.link import Lockstep
 
 IMU_MSG_IDS = {105, 107}  # HIGHRES_IMU, HIL_SENSOR: time_usec (uint64) is the first payload field

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, replace
 
-from firmware_py.config import ConfigError, Design, SensorsConfig, design_from_dict, load_toml
-from firmware_py.state import FilterConfig
+from balloon_core.config import ConfigError, Design, SensorsConfig, design_from_dict, load_toml
+from firmware_py.estimator.state import FilterConfig
 from sim_hil.dynamics import TruthConfig
 from sim_hil.wind import WindConfig
 

@@ -13,8 +13,9 @@ import math
 
 import numpy as np
 
-from firmware_py.atmosphere import G0, isa_pressure_pa, isa_temperature_k
-from firmware_py.config import Design
+from balloon_core.atmosphere import G0, isa_pressure_pa, isa_temperature_k
+from balloon_core.config import Design
+from balloon_core.rotation import rotation
 from sim_hil.dynamics import TruthConfig
 
 BLOCK = 4096
@@ -76,16 +77,8 @@ class SensorSuite:
         centre in body axes (dw/dt x rho + w x (w x rho)), when it is not at the centre."""
         n = self._draw()
         q0, q1, q2, q3 = q
-        # R^T (NED -> body) rows
-        r00 = q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3
-        r01 = 2.0 * (q1 * q2 + q0 * q3)
-        r02 = 2.0 * (q1 * q3 - q0 * q2)
-        r10 = 2.0 * (q1 * q2 - q0 * q3)
-        r11 = q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3
-        r12 = 2.0 * (q2 * q3 + q0 * q1)
-        r20 = 2.0 * (q1 * q3 + q0 * q2)
-        r21 = 2.0 * (q2 * q3 - q0 * q1)
-        r22 = q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3
+        # R^T (NED -> body) rows: the rotation's columns
+        r00, r10, r20, r01, r11, r21, r02, r12, r22 = rotation(q0, q1, q2, q3)
         fn, fe, fd = f_ned
         sa, sg, sm = self._sig
         ab, gb, mb = self.accel_bias, self.gyro_bias, self.mag_bias

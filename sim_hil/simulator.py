@@ -12,13 +12,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmware_py.atmosphere import G0
-from firmware_py.config import Design
+from balloon_core.atmosphere import G0
+from balloon_core.config import Design
+from balloon_core.rotation import euler_from_quat
 from sim_hil.dynamics import (
     BalloonPhysics,
     TruthConfig,
     derivative,
-    euler_from_quat,
     lever_arm_accel_b,
     resting_state,
     rk4_step,

@@ -19,7 +19,7 @@ from importlib import resources
 
 import numpy as np
 
-from firmware_py.config import ConfigError, build_section
+from balloon_core.config import ConfigError, build_section
 
 SECONDS_PER_HOUR = 3600.0
 KAIMAL_LAMBDA_M = 42.0  # IEC 61400-1 turbulence scale parameter above 60 m height

@@ -9,12 +9,13 @@ from typing import Any
 
 import numpy as np
 
-from firmware_py.atmosphere import G0, R_AIR
-from firmware_py.config import Design
-from firmware_py.control import Estimator
-from firmware_py.state import FilterConfig
-from ground_station.score import response, score
-from sim_hil.dynamics import TruthConfig, euler_from_quat
+from balloon_core.atmosphere import G0, R_AIR
+from balloon_core.config import Design
+from balloon_core.rotation import euler_from_quat
+from balloon_core.score import response, score
+from firmware_py.estimator.control import Estimator
+from firmware_py.estimator.state import FilterConfig
+from sim_hil.dynamics import TruthConfig
 from sim_hil.simulator import TRUTH_COLUMNS, Simulation
 from sim_hil.wind import WindConfig
 from study.metrics import H_BAND_HZ, h_column

@@ -16,7 +16,7 @@ from dataclasses import replace
 from importlib import resources
 from pathlib import Path
 
-from firmware_py.config import ConfigError
+from balloon_core.config import ConfigError
 
 
 class UsageError(Exception):

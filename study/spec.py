@@ -35,8 +35,8 @@ from typing import Any
 
 import numpy as np
 
-from firmware_py.config import ConfigError, Design, LiftError, design_from_dict, read_toml
-from firmware_py.state import FilterConfig
+from balloon_core.config import ConfigError, Design, LiftError, design_from_dict, read_toml
+from firmware_py.estimator.state import FilterConfig
 from sim_hil.dynamics import TruthConfig
 from sim_hil.scenarios import SCENARIOS, Scenario
 from sim_hil.wind import WindConfig

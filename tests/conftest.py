@@ -1,6 +1,6 @@
 import pytest
 
-from firmware_py.config import Design
+from balloon_core.config import Design
 from sim_hil.dynamics import BalloonPhysics, TruthConfig
 
 

@@ -6,10 +6,10 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from firmware_py.config import Design
-from firmware_py.control import Estimator
-from firmware_py.outputs import WindCovOutput
-from firmware_py.state import MODE_TAUT, FilterConfig
+from balloon_core.config import Design
+from firmware_py.estimator.control import Estimator
+from firmware_py.estimator.outputs import WindCovOutput
+from firmware_py.estimator.state import MODE_TAUT, FilterConfig
 from tests.flights import feed, stream
 from tests.numpy_alloc import count_allocations
 

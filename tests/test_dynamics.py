@@ -7,8 +7,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from firmware_py.atmosphere import G0
-from firmware_py.config import ConfigError, Design, TetherConfig
+from balloon_core.atmosphere import G0
+from balloon_core.config import ConfigError, Design, TetherConfig
+from balloon_core.rotation import quat_from_euler
 from sim_hil.dynamics import (
     BalloonPhysics,
     TruthConfig,
@@ -17,7 +18,6 @@ from sim_hil.dynamics import (
     drag_per_speed,
     lever_arm_accel_b,
     net_lift_n,
-    quat_from_euler,
     rk4_step,
     sphere_drag_coefficient,
     steady_blowdown_deg,

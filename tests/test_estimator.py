@@ -7,10 +7,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from firmware_py.config import Design
-from firmware_py.control import Estimator
-from firmware_py.state import MODE_TAUT, WIND_E, WIND_N, FilterConfig
-from ground_station.score import score
+from balloon_core.config import Design
+from balloon_core.score import score
+from firmware_py.estimator.control import Estimator
+from firmware_py.estimator.state import MODE_TAUT, WIND_E, WIND_N, FilterConfig
 from tests.flights import feed, stream
 
 
@@ -23,7 +23,7 @@ def check_covariance(P):
 def band_lag_s(rows, truth, start_s: float = 120.0, max_lag_s: float = 10.0) -> float:
     """Delay of the estimate behind the truth, s: the peak of the cross-correlation of both series
     low-passed below 0.05 Hz (horizontal vector), on a 10 Hz grid after ``start_s``."""
-    from ground_station.score import GRID_HZ, lowpass
+    from balloon_core.score import GRID_HZ, lowpass
 
     grid = np.arange(start_s, min(rows[-1, 0], truth["time_s"][-1]), 1.0 / GRID_HZ)
     e = [lowpass(np.interp(grid, rows[:, 0], rows[:, k]), GRID_HZ, 0.05) for k in (1, 2)]
@@ -163,7 +163,7 @@ def test_sensor_silence_grows_the_reported_accuracy(flying):
 
 
 def test_configured_ground_pressure_replaces_zeroing():
-    from firmware_py.config import SiteConfig
+    from balloon_core.config import SiteConfig
 
     samples, truth = stream("paper-reference", 300.0, 11)
     est = Estimator(replace(Design(), site=SiteConfig(ground_pressure_hpa=1013.25)))

@@ -11,7 +11,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
-from firmware_py.mavio import LinkStats, tlog_messages
+from balloon_core.wire import LinkStats, tlog_messages
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,7 @@ import math
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from firmware_py.mavio import pack
+from balloon_core.wire import pack
 from ground_station.listen import GroundStation
 from ground_station.wind import direction_from_deg, read_records
 
@@ -22,7 +22,7 @@ def test_direction_is_where_the_wind_comes_from():
 
 
 def test_any_vehicle_csv_and_losses(tmp_path):
-    from firmware_py.mavio import Decoder
+    from balloon_core.wire import Decoder
 
     px4 = mavlink.MAVLink(None, srcSystem=42, srcComponent=1)  # a PX4 vehicle, not ours
     hb = pack(px4, px4.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 0, 0, 4))
@@ -61,7 +61,7 @@ def test_report_refuses_a_log_without_wind(tmp_path):
 
 
 def _two_balloons(gs, now):
-    from firmware_py.mavio import Decoder
+    from balloon_core.wire import Decoder
 
     dec = Decoder(gs.stats)
     for sysid, mode in ((3, 2), (12, 1)):

@@ -20,12 +20,12 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from balloon_core.config import Design
+from balloon_core.samples import BaroSample, ImuSample, MavlinkSampler, feed
+from balloon_core.wire import Decoder, LinkStats
 from firmware_py.app import Firmware
-from firmware_py.config import Design
-from firmware_py.control import Estimator
-from firmware_py.mavio import Decoder, LinkStats
-from firmware_py.samples import BaroSample, ImuSample, MavlinkSampler, feed
-from firmware_py.state import FilterConfig
+from firmware_py.estimator.control import Estimator
+from firmware_py.estimator.state import FilterConfig
 from firmware_py.streams import (
     InputPipeline,
     Resampler,
@@ -34,7 +34,7 @@ from firmware_py.streams import (
     estimator_steps,
     measure_rate_hz,
 )
-from ground_station.flightlog import read_flight
+from postflight.logs import read_flight
 from tests.flights import stream
 
 DATA = Path(__file__).parent / "data"

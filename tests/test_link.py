@@ -15,7 +15,7 @@ import time
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from firmware_py.mavio import Decoder, LinkStats
+from balloon_core.wire import Decoder, LinkStats
 from ground_station.report import report
 from tests.relay import LossyRelay
 
@@ -54,7 +54,7 @@ def capture(tmp_path_factory):
 
 
 def test_sil_run_scores_and_leaves_no_process(tmp_path):
-    r = subprocess.run([PY, "-m", "sim_hil.sil", "--duration", "200", "--speed", "25", "--seed", "3",
+    r = subprocess.run([PY, "-m", "sil.cli", "--duration", "200", "--speed", "25", "--seed", "3",
                         "--outdir", str(tmp_path)], capture_output=True, text=True, timeout=120)  # fmt: skip
     assert r.returncode == 0, r.stdout + r.stderr
     m = re.search(r"band RMSE \(<0.05 Hz\) ([\d.]+) m/s, skill (-?[\d.]+)", r.stdout)
@@ -68,7 +68,7 @@ def test_sil_run_scores_and_leaves_no_process(tmp_path):
 
 
 def _start_sil(tmp_path, duration="600"):
-    p = subprocess.Popen([PY, "-m", "sim_hil.sil", "--duration", duration, "--speed", "2", "--outdir",
+    p = subprocess.Popen([PY, "-m", "sil.cli", "--duration", duration, "--speed", "2", "--outdir",
                           str(tmp_path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
     banner = p.stdout.readline()
     ports = re.search(r"udp:(\d+) -> fw -> udp:(\d+)", banner).groups()

@@ -17,7 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mavlink
 
-from firmware_py.mavio import Decoder, LinkStats, SenderSeq, pack
+from balloon_core.wire import Decoder, LinkStats, SenderSeq, pack
 
 PY = sys.executable
 
@@ -167,9 +167,9 @@ def test_flat_out_without_lockstep_says_what_it_lost(capture):
 
 def test_firmware_counts_missing_imu_samples_by_time_even_in_long_bursts(capture, tmp_path):
     """A burst of 300 lost IMU samples is beyond 8-bit sequence numbers; their time stamps show it."""
+    from balloon_core.config import Design
+    from balloon_core.wire import TlogWriter, tlog_messages
     from firmware_py.app import Firmware
-    from firmware_py.config import Design
-    from firmware_py.mavio import TlogWriter, tlog_messages
     from sim_hil.replay import tlog_records
 
     recs = list(tlog_records(str(capture)))
@@ -183,7 +183,7 @@ def test_firmware_counts_missing_imu_samples_by_time_even_in_long_bursts(capture
             if i not in drop:
                 w.fh.write(struct.pack(">Q", ts) + frame)
     sink = tmp_path / "fw.tlog"
-    from firmware_py.mavio import TlogSink
+    from balloon_core.wire import TlogSink
 
     fw = Firmware(Design(), sink=TlogSink(str(sink)))
     for m in tlog_messages(str(lossy), fw.stats):

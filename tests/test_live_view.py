@@ -19,7 +19,7 @@ import uuid
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from firmware_py.mavio import pack
+from balloon_core.wire import pack
 
 PY = sys.executable
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -6,12 +6,12 @@ import math
 import numpy as np
 import pytest
 
-from firmware_py.config import Design
-from firmware_py.control import Estimator
-from firmware_py.ekf import FusionStatus
-from firmware_py.measurements import fuse_accel, fuse_heading
-from firmware_py.model import BalloonModel, Forces, accelerations
-from firmware_py.state import ATT_D, ATT_N, MODE_FREE, N_STATES
+from balloon_core.config import Design
+from firmware_py.estimator.control import Estimator
+from firmware_py.estimator.ekf import FusionStatus
+from firmware_py.estimator.measurements import fuse_accel, fuse_heading
+from firmware_py.estimator.model import BalloonModel, Forces, accelerations
+from firmware_py.estimator.state import ATT_D, ATT_N, MODE_FREE, N_STATES
 
 MODEL = BalloonModel.from_design(Design())
 
@@ -62,7 +62,7 @@ def test_the_air_push_is_in_the_model():
 
 
 def test_generated_code_matches_the_derivation():
-    """tools/derive_model.py regenerates firmware_py/generated.py exactly (the check-in is not stale)."""
+    """tools/derive_model.py regenerates firmware_py/estimator/generated.py exactly (the check-in is not stale)."""
     pytest.importorskip("sympy")
     import subprocess
     import sys

@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from ground_station.averages import (
+from postflight.averages import (
     YAMARTINO_K,
     direction_from_deg,
     speed_direction_sigma,
     wind_averages,
 )
-from ground_station.product import FLAG_SEGMENT_START, FLAG_SMOOTHED, FLAG_WIND_UNKNOWN, WindProduct
-from ground_station.products import read_netcdf_wind, write_netcdf, write_products
+from postflight.netcdf import read_netcdf_wind, write_netcdf, write_products
+from postflight.product import FLAG_SEGMENT_START, FLAG_SMOOTHED, FLAG_WIND_UNKNOWN, WindProduct
 
 UTC0 = 1_700_000_000.0  # 2023-11-14T22:13:20Z
 
@@ -276,7 +276,7 @@ def test_write_products_writes_the_averages_as_csv_and_cf_netcdf(tmp_path):
 
 
 def test_plot_writes_a_png(tmp_path):
-    from ground_station.product_plot import plot_product
+    from postflight.plot import plot_product
 
     path = tmp_path / "wind.png"
     plot_product(make_product(n=3000), str(path))

@@ -12,7 +12,7 @@ import subprocess
 import sys
 import time
 
-from firmware_py.progress import INTERVAL_ENV, Progress, RateMeter, fmt_duration
+from balloon_core.progress import INTERVAL_ENV, Progress, RateMeter, fmt_duration
 
 PY = sys.executable
 

@@ -8,9 +8,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from firmware_py.config import Design
-from firmware_py.control import Estimator
-from firmware_py.state import MODE_FREE, MODE_TAUT, WIND_E, WIND_N, FilterConfig
+from balloon_core.config import Design
+from firmware_py.estimator.control import Estimator
+from firmware_py.estimator.state import MODE_FREE, MODE_TAUT, WIND_E, WIND_N, FilterConfig
 from tests.flights import feed, stream
 
 SETTINGS = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from ground_station.product import FLAG_NO_BARO, FLAG_WIND_UNKNOWN
+from postflight.product import FLAG_NO_BARO, FLAG_WIND_UNKNOWN
 
 PY = sys.executable
 DATA = "tests/data"

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from balloon_core.config import Design
+from balloon_core.score import describe, response, score
 from firmware_py.app import Firmware
-from firmware_py.config import Design
-from firmware_py.control import Estimator
-from ground_station.score import describe, response, score
+from firmware_py.estimator.control import Estimator
 from sim_hil.packets import SensorPacketEncoder
 from sim_hil.scenarios import SCENARIOS
 from tests.flights import feed, stream

@@ -8,8 +8,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from firmware_py.config import ConfigError
-from firmware_py.state import FilterConfig
+from balloon_core.config import ConfigError
+from firmware_py.estimator.state import FilterConfig
 from sim_hil.dynamics import TruthConfig
 from sim_hil.scenarios import SCENARIOS, resolve
 from sim_hil.simulator import Simulation

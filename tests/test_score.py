@@ -1,12 +1,12 @@
 """The measuring instrument: band skill, error ratio and the along/cross frequency response of
-ground_station.score, on synthetic winds whose answers are known."""
+balloon_core.score, on synthetic winds whose answers are known."""
 
 import math
 
 import numpy as np
 import pytest
 
-from ground_station.score import MIN_AMPLITUDE_MPS, describe, response, score
+from balloon_core.score import MIN_AMPLITUDE_MPS, describe, response, score
 
 FREQS = (0.01, 0.02, 0.05, 0.1)
 MULTISINE_HZ = (0.003, 0.01, 0.02, 0.05, 0.1, 0.2)  # the simulator's multisine: more lines than scored

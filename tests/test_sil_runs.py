@@ -11,7 +11,7 @@ import subprocess
 import sys
 import time
 
-from sim_hil.sil import MIN_SCORED_S, last_lines, score_start
+from sil.cli import MIN_SCORED_S, last_lines, score_start
 
 PY = sys.executable
 
@@ -34,7 +34,7 @@ def test_last_lines_of_a_dead_child():
 
 
 def sil(tmp_path, *args, **kw):
-    return subprocess.Popen([PY, "-m", "sim_hil.sil", "--outdir", str(tmp_path), *args], stdout=subprocess.PIPE,
+    return subprocess.Popen([PY, "-m", "sil.cli", "--outdir", str(tmp_path), *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, **kw)  # fmt: skip
 
 

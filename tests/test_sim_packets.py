@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
-from firmware_py.atmosphere import G0, hypsometric_height_m
+from balloon_core.atmosphere import G0, hypsometric_height_m
 from ground_station.report import read_truth_csv
 from sim_hil.simulator import TRUTH_COLUMNS
 

@@ -1,4 +1,4 @@
-"""The post-flight smoother (firmware_py/smoother.py): exact against a textbook RTS smoother on random
+"""The post-flight smoother (postflight/smoother.py): exact against a textbook RTS smoother on random
 linear systems, with segments; symmetric positive definite covariance; on simulated flights it removes
 the causal filter's lag."""
 
@@ -8,10 +8,10 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from firmware_py.samples import BaroSample, ImuSample
-from firmware_py.smoother import SmootherRecorder
-from ground_station.reprocess import reprocess
-from ground_station.score import response, score
+from balloon_core.samples import BaroSample, ImuSample
+from balloon_core.score import response, score
+from postflight.reprocess import reprocess
+from postflight.smoother import SmootherRecorder
 from tests.flights import stream
 
 

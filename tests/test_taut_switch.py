@@ -4,9 +4,9 @@ drag scale it learnt in the climb is not corrupted by the snap (the cause of a 1
 import numpy as np
 import pytest
 
-from firmware_py.config import Design
-from firmware_py.control import Estimator
-from firmware_py.state import DRAG, MODE_FREE, MODE_TAUT, POS_D, VEL_D
+from balloon_core.config import Design
+from firmware_py.estimator.control import Estimator
+from firmware_py.estimator.state import DRAG, MODE_FREE, MODE_TAUT, POS_D, VEL_D
 from tests.flights import feed, stream
 
 

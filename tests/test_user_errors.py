@@ -14,10 +14,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from balloon_core.config import SCHEMA, SIM_DEFAULTS, BalloonConfig, SensorsConfig, SiteConfig, TetherConfig
+from balloon_core.wire import frame_length
 from firmware_py import cli as fw_cli
-from firmware_py.config import SCHEMA, SIM_DEFAULTS, BalloonConfig, SensorsConfig, SiteConfig, TetherConfig
-from firmware_py.mavio import frame_length
-from firmware_py.state import FilterConfig
+from firmware_py.estimator.state import FilterConfig
 from ground_station import cli as gs_cli
 from ground_station.wind import CSV_COLUMNS
 from sim_hil import cli as sim_cli

@@ -187,7 +187,7 @@ def test_iec_class_b_sets_kaimal_sigma():
 
 
 def test_bad_wind_config_is_rejected():
-    from firmware_py.config import ConfigError
+    from balloon_core.config import ConfigError
 
     with pytest.raises(ConfigError):
         WindConfig(kind="hurricane")

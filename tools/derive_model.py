@@ -1,5 +1,5 @@
 """Derive the filter's balloon model and its Jacobians symbolically (sympy) and write them as plain-float
-Python to ``firmware_py/generated.py`` (PX4's SymForce derivation, in miniature).
+Python to ``firmware_py/estimator/generated.py`` (PX4's SymForce derivation, in miniature).
 
     .venv/bin/python tools/derive_model.py            # regenerate
     .venv/bin/python tools/derive_model.py --check    # exit 1 if the checked-in file differs
@@ -24,7 +24,7 @@ from pathlib import Path
 import sympy as sp
 from sympy.printing.pycode import PythonCodePrinter
 
-OUT = Path(__file__).resolve().parents[1] / "firmware_py" / "generated.py"
+OUT = Path(__file__).resolve().parents[1] / "firmware_py" / "estimator" / "generated.py"
 COLUMNS = ("pos_n", "pos_e", "pos_d", "vel_n", "vel_e", "vel_d", "wind_n", "wind_e", "wrate_n", "wrate_e", "drag_scale")
 EPS2 = sp.Rational(1, 10**12)  # keeps |u| differentiable at u = 0
 

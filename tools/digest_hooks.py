@@ -14,12 +14,12 @@ import numpy as np
 def _messages(fw, path: Path):
     """Every sample of the flight, into ``fw`` as the firmware program takes it."""
     if path.suffix in (".ulg", ".bin"):
-        from ground_station.flightlog import read_flight
+        from postflight.logs import read_flight
 
         for s in read_flight(str(path)).samples():
             fw.push(s)
         return
-    from firmware_py.mavio import raw_messages, tlog_messages
+    from balloon_core.wire import raw_messages, tlog_messages
 
     if path.suffix == ".tlog":
         for m in tlog_messages(str(path), fw.stats):
@@ -31,8 +31,8 @@ def _messages(fw, path: Path):
 
 
 def run_digest(path: Path) -> str:
+    from balloon_core.config import Design
     from firmware_py.app import Firmware
-    from firmware_py.config import Design
 
     fw = Firmware(Design(), sink=None)
     fw.sinks = [type("S", (), {"send_at": lambda self, f, t: None})()]

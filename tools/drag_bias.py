@@ -20,7 +20,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.common import fly, score_flight  # noqa: E402
-from firmware_py.state import DRAG  # noqa: E402
+from firmware_py.estimator.state import DRAG  # noqa: E402
 from sim_hil.dynamics import TruthConfig  # noqa: E402
 from sim_hil.scenarios import SCENARIOS  # noqa: E402
 

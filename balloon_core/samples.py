@@ -13,8 +13,8 @@ from typing import NamedTuple
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from firmware_py.atmosphere import G0
-from firmware_py.control import Estimator
+from balloon_core.atmosphere import G0
+from firmware_py.estimator.control import Estimator
 
 
 class ImuSample(NamedTuple):

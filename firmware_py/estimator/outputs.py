@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import math
 
-from firmware_py.control import Estimator
-from firmware_py.state import MODE_GROUND
+from firmware_py.estimator.control import Estimator
+from firmware_py.estimator.state import MODE_GROUND
 
 WINDOW_S = 60
 

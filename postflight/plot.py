@@ -10,8 +10,9 @@ import os
 
 import numpy as np
 
-from ground_station.averages import direction_from_deg, speed_direction_sigma
-from ground_station.product import FLAG_WIND_UNKNOWN, WindProduct
+from balloon_core.score import psd
+from postflight.averages import direction_from_deg, product_averages, speed_direction_sigma
+from postflight.product import FLAG_WIND_UNKNOWN, WindProduct
 
 MODE_STYLE = ((0, "ground", "#d8c3a5"), (1, "free ascent", "#c6dbef"), (2, "taut", "#d9f0d3"))
 ROSE_SECTORS = 16
@@ -52,8 +53,6 @@ def _time_axis(p: WindProduct):
 
 def _ten_minute_means(ax, p: WindProduct, to_x, key: str, shift=None) -> None:
     """The WMO 10-min means (the ``*_avg_10min`` product) as black steps."""
-    from ground_station.products import product_averages
-
     a = product_averages(p, 600.0)
     first = True
     for t0, t1, v in zip(a["time_start_s"], a["time_end_s"], a[key]):
@@ -82,8 +81,6 @@ def plot_product(product: WindProduct, path: str, title: str | None = None) -> N
     import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
     from matplotlib.ticker import FuncFormatter
-
-    from ground_station.report import psd
 
     p = product
     to_x, xlabel = _time_axis(p)

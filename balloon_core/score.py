@@ -150,3 +150,19 @@ def describe(h: complex | None) -> tuple[float, float, float]:
     if h is None:
         return math.nan, math.nan, math.nan
     return abs(h), math.degrees(math.atan2(h.imag, h.real)), abs(h - 1.0)
+
+
+def psd(x: np.ndarray, fs: float, segment_s: float = 200.0) -> tuple[np.ndarray, np.ndarray]:
+    """Welch PSD (Hann, 50 % overlap), one-sided, (m/s)^2/Hz."""
+    n = min(len(x), int(segment_s * fs))
+    step = n // 2
+    win = np.hanning(n)
+    scale = 2.0 / (fs * np.sum(win**2))
+    acc = None
+    k = 0
+    for i in range(0, len(x) - n + 1, step):
+        seg = x[i : i + n] - np.mean(x[i : i + n])
+        p = np.abs(np.fft.rfft(seg * win)) ** 2 * scale
+        acc = p if acc is None else acc + p
+        k += 1
+    return np.fft.rfftfreq(n, 1.0 / fs), acc / max(k, 1)

@@ -1,7 +1,7 @@
 """Post-flight reprocessing: the firmware's estimator over a whole flight, then the backward pass of
-the fixed-interval smoother (firmware_py/smoother.py), into a ``WindProduct``.
+the fixed-interval smoother (postflight/smoother.py), into a ``WindProduct``.
 
-The samples come through the same interface the live firmware uses (firmware_py/samples.py), so the
+The samples come through the same interface the live firmware uses (balloon_core/samples.py), so the
 forward pass is exactly what the balloon computed in flight, given the same design file."""
 
 from __future__ import annotations
@@ -15,19 +15,19 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 
-from firmware_py.config import Design
-from firmware_py.control import Estimator
-from firmware_py.samples import BaroSample, Sample, feed
-from firmware_py.smoother import SmootherRecorder
-from firmware_py.state import MODE_GROUND, N_STATES, POS_D, POS_E, POS_N, WIND_E, WIND_N, FilterConfig
+from balloon_core.config import Design
+from balloon_core.samples import BaroSample, Sample, feed
+from firmware_py.estimator.control import Estimator
+from firmware_py.estimator.state import MODE_GROUND, N_STATES, POS_D, POS_E, POS_N, WIND_E, WIND_N, FilterConfig
 from firmware_py.streams import InputPipeline
-from ground_station.product import (
+from postflight.product import (
     FLAG_NO_BARO,
     FLAG_SEGMENT_START,
     FLAG_SMOOTHED,
     FLAG_WIND_UNKNOWN,
     WindProduct,
 )
+from postflight.smoother import SmootherRecorder
 
 GRID_HZ = 10.0  # the product's rate: WIND_COV's default
 UNKNOWN_SIGMA_MPS = 1.0  # a horizontal 1-sigma above max(this, half the speed): the wind is not known
@@ -178,10 +178,10 @@ def run_reprocess(args, argv: list[str] | None) -> int:
     """``balloon-gs reprocess FLIGHT --out FILE.nc [--config] [--plot] [--quiet]``."""
     import shlex
 
-    from firmware_py.config import ConfigError, design_from_dict, load_toml
-    from firmware_py.progress import Progress
-    from ground_station.flightlog import read_flight
-    from ground_station.products import write_products
+    from balloon_core.config import ConfigError, design_from_dict, load_toml
+    from balloon_core.progress import Progress
+    from postflight.logs import read_flight
+    from postflight.netcdf import write_products
 
     prog = "balloon-gs reprocess"
     if not args.out.endswith(".nc"):

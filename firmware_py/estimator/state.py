@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from firmware_py.config import build_section
+from balloon_core.config import build_section
 
 POS_N, POS_E, POS_D = 0, 1, 2  # m, NED from the anchor, the balloon's centre
 VEL_N, VEL_E, VEL_D = 3, 4, 5  # m/s NED (body velocity U^B of paper Eq. 8 is R^T v)

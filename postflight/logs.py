@@ -5,7 +5,7 @@ pymavlink's DFReader), a telemetry log (``.tlog``) or a raw MAVLink capture (any
 extension and then by the file's first bytes, into a ``Flight``: the samples as numpy arrays (in time
 order for logs; in arrival order for MAVLink, whose reordering and reboots the estimator handles as the
 live firmware does) and what the log says about itself (``FlightMeta``). ``Flight.samples()`` iterates
-them as ``firmware_py.samples`` ImuSample / BaroSample, the interface every input goes through;
+them as ``balloon_core.samples`` ImuSample / BaroSample, the interface every input goes through;
 ``firmware_py.streams.estimator_steps`` runs them through the live firmware's input pipeline into an
 Estimator. A file that cannot be read, or that holds no IMU samples, is a ValueError with one clear line.
 """
@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from firmware_py.mavio import LinkStats, raw_messages, tlog_messages
-from firmware_py.samples import BaroSample, ImuSample, MavlinkSampler, Sample
+from balloon_core.samples import BaroSample, ImuSample, MavlinkSampler, Sample
+from balloon_core.wire import LinkStats, raw_messages, tlog_messages
 from firmware_py.streams import RATE_WINDOW_S, measure_rate_hz
 
 KIND_IMU, KIND_BARO = 0, 1
@@ -508,16 +508,16 @@ def read_flight(path: str) -> Flight:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m ground_station.flightlog FILE [--estimate]``: what a flight file holds and, with
+    """``python -m postflight.logs FILE [--estimate]``: what a flight file holds and, with
     --estimate, what the estimator makes of it (ten lines over the flight, then its counters)."""
     import argparse
     import sys
 
-    from firmware_py.config import Design
-    from firmware_py.state import FilterConfig
+    from balloon_core.config import Design
+    from firmware_py.estimator.state import FilterConfig
     from firmware_py.streams import estimator_steps
 
-    ap = argparse.ArgumentParser(prog="python -m ground_station.flightlog", description=main.__doc__)
+    ap = argparse.ArgumentParser(prog="python -m postflight.logs", description=main.__doc__)
     ap.add_argument("file")
     ap.add_argument("--estimate", action="store_true", help="run the estimator over it")
     args = ap.parse_args(argv)

@@ -14,10 +14,11 @@ import math
 
 import numpy as np
 
-from firmware_py.atmosphere import G0
-from firmware_py.ekf import FusionStatus, WindEkf, rotation
-from firmware_py.generated import rope_direction, rope_direction_plain
-from firmware_py.state import (
+from balloon_core.atmosphere import G0
+from balloon_core.rotation import rotation
+from firmware_py.estimator.ekf import FusionStatus, WindEkf
+from firmware_py.estimator.generated import rope_direction, rope_direction_plain
+from firmware_py.estimator.state import (
     ATT_D,
     ATT_E,
     ATT_N,

@@ -32,7 +32,7 @@ class WindProduct:
     pos_e: np.ndarray
     air_pressure_pa: np.ndarray  # NaN without a barometer
     air_temperature_k: np.ndarray
-    mode: np.ndarray  # int8: 0 ground, 1 free ascent, 2 taut (firmware_py.state MODE_*)
+    mode: np.ndarray  # int8: 0 ground, 1 free ascent, 2 taut (firmware_py.estimator.state MODE_*)
     flags: np.ndarray  # int8 bit field, FLAG_* above
     utc_start_s: float | None = None  # UNIX time of time_s == 0 when the log knows it (GPS time), else None
     attrs: dict[str, str] = field(default_factory=dict)  # design TOML, software version, source name, sha256

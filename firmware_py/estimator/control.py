@@ -6,10 +6,11 @@ from __future__ import annotations
 
 import math
 
-from firmware_py.atmosphere import G0, LAPSE_K_M, R_AIR, air_density, hypsometric_height_m
-from firmware_py.config import Design
-from firmware_py.ekf import FusionStatus, WindEkf, rotation
-from firmware_py.measurements import (
+from balloon_core.atmosphere import G0, LAPSE_K_M, R_AIR, air_density, hypsometric_height_m
+from balloon_core.config import Design
+from balloon_core.rotation import quat_from_euler, rotation
+from firmware_py.estimator.ekf import FusionStatus, WindEkf
+from firmware_py.estimator.measurements import (
     enter_taut,
     fuse_accel,
     fuse_baro,
@@ -18,8 +19,8 @@ from firmware_py.measurements import (
     fuse_taut,
     reset_height,
 )
-from firmware_py.model import BalloonModel, Forces, accelerations
-from firmware_py.state import (
+from firmware_py.estimator.model import BalloonModel, Forces, accelerations
+from firmware_py.estimator.state import (
     MODE_FREE,
     MODE_GROUND,
     MODE_NAMES,
@@ -95,15 +96,7 @@ def quat_from_accel_mag(ax: float, ay: float, az: float, mx: float, my: float, m
     bx = mx * cp + my * sr * sp + mz * cr * sp
     by = my * cr - mz * sr
     yaw = math.atan2(-by, bx) + dec if (bx or by) else 0.0
-    cr2, sr2 = math.cos(roll / 2), math.sin(roll / 2)
-    cp2, sp2 = math.cos(pitch / 2), math.sin(pitch / 2)
-    cy2, sy2 = math.cos(yaw / 2), math.sin(yaw / 2)
-    return (
-        cr2 * cp2 * cy2 + sr2 * sp2 * sy2,
-        sr2 * cp2 * cy2 - cr2 * sp2 * sy2,
-        cr2 * sp2 * cy2 + sr2 * cp2 * sy2,
-        cr2 * cp2 * sy2 - sr2 * sp2 * cy2,
-    )
+    return quat_from_euler(roll, pitch, yaw)
 
 
 class Estimator:

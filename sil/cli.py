@@ -16,7 +16,7 @@ import sys
 import threading
 import time
 
-from firmware_py import userargs
+from balloon_core import userargs
 
 
 def free_port() -> int:
@@ -97,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     p_fw, p_gs = free_port(), free_port()
     # one design file for both: the scenario with the user's file applied (the firmware must be told
     # what the scenario's balloon, tether and sensors are, and how to filter)
-    from firmware_py.config import ConfigError
+    from balloon_core.config import ConfigError
     from sim_hil.scenarios import resolve
 
     try:

@@ -20,6 +20,8 @@ import math
 
 import numpy as np
 
+from postflight.product import FLAG_WIND_UNKNOWN, WindProduct
+
 GUST_WINDOW_S = 3.0  # WMO: gusts are 3-s running means
 YAMARTINO_K = 2.0 / math.sqrt(3.0) - 1.0  # 0.1547
 
@@ -162,3 +164,12 @@ def _gust(t: np.ndarray, speed: np.ndarray, valid: np.ndarray, k: np.ndarray, st
     best = np.maximum.reduceat(vals, starts)
     out[np.isfinite(best)] = best[np.isfinite(best)]
     return out
+
+
+def product_averages(product: WindProduct, period_s: float) -> dict[str, np.ndarray]:
+    """WMO averages of the smoothed wind; samples flagged wind_unknown are left out."""
+    unknown = (np.asarray(product.flags).astype(np.int64) & FLAG_WIND_UNKNOWN) != 0
+    n = np.where(unknown, np.nan, product.wind_n)
+    e = np.where(unknown, np.nan, product.wind_e)
+    offset = product.utc_start_s if product.utc_start_s is not None else 0.0
+    return wind_averages(product.time_s, n, e, period_s, clock_offset_s=offset)

@@ -14,9 +14,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from firmware_py.atmosphere import G0
-from firmware_py.config import Design
-from firmware_py.generated import free_model, taut_model, taut_model_plain
+from balloon_core.atmosphere import G0
+from balloon_core.config import Design
+from firmware_py.estimator.generated import free_model, taut_model, taut_model_plain
 
 ADDED_MASS_COEFFICIENT = 0.5
 

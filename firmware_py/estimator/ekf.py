@@ -12,8 +12,9 @@ import math
 
 import numpy as np
 
-from firmware_py.model import BalloonModel, Forces, accelerations
-from firmware_py.state import (
+from balloon_core.rotation import rotation
+from firmware_py.estimator.model import BalloonModel, Forces, accelerations
+from firmware_py.estimator.state import (
     ATT_D,
     ATT_E,
     ATT_N,
@@ -34,7 +35,7 @@ from firmware_py.state import (
     WRATE_N,
     FilterConfig,
 )
-from firmware_py.tuning import wind_process
+from firmware_py.estimator.tuning import wind_process
 
 N = N_STATES
 
@@ -54,15 +55,6 @@ class FusionStatus:
         self.fused = 0
         self.rejected = 0
         self.consecutive_rejects = 0
-
-
-def rotation(q0: float, q1: float, q2: float, q3: float) -> tuple[float, ...]:
-    """Body(FRD) -> NED rotation matrix of a unit quaternion, row-major 9-tuple."""
-    return (
-        q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3, 2.0 * (q1 * q2 - q0 * q3), 2.0 * (q1 * q3 + q0 * q2),
-        2.0 * (q1 * q2 + q0 * q3), q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3, 2.0 * (q2 * q3 - q0 * q1),
-        2.0 * (q1 * q3 - q0 * q2), 2.0 * (q2 * q3 + q0 * q1), q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3,
-    )  # fmt: skip
 
 
 class WindEkf:
@@ -127,7 +119,7 @@ class WindEkf:
         self.learn_drag = False  # set by the control logic: only in established free ascent
         self._drag_correlated = True
         self.recover_after = int(cfg.recover_after_s * cfg.imu_rate_hz)
-        self.recorder = None  # post-flight only: firmware_py.smoother.SmootherRecorder sees every event
+        self.recorder = None  # post-flight only: postflight.smoother.SmootherRecorder sees every event
 
     _VIEWS = ("_scale_col", "_scale_row",
               "P_diag", "_k_col", "_ph_row", "_P_rows", "_P_cols", "_H3T", "_phtT", "H3_rows", "_F_vel_rows",

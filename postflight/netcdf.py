@@ -17,8 +17,8 @@ import re
 
 import numpy as np
 
-from ground_station.averages import AVERAGE_FIELDS, direction_from_deg, speed_direction_sigma, wind_averages
-from ground_station.product import (
+from postflight.averages import AVERAGE_FIELDS, direction_from_deg, product_averages, speed_direction_sigma
+from postflight.product import (
     FLAG_NO_BARO,
     FLAG_SEGMENT_START,
     FLAG_SMOOTHED,
@@ -26,7 +26,7 @@ from ground_station.product import (
     WindProduct,
 )
 
-MODE_VALUES = (0, 1, 2)  # firmware_py.state MODE_GROUND, MODE_FREE, MODE_TAUT
+MODE_VALUES = (0, 1, 2)  # firmware_py.estimator.state MODE_GROUND, MODE_FREE, MODE_TAUT
 MODE_MEANINGS = "ground free_ascent taut"
 FLAG_MASKS = (FLAG_SMOOTHED, FLAG_SEGMENT_START, FLAG_NO_BARO, FLAG_WIND_UNKNOWN)
 FLAG_MEANINGS = "smoothed segment_start no_barometer wind_unknown"
@@ -194,15 +194,6 @@ def write_netcdf(product: WindProduct, path: str, history: str | None = None) ->
     ds.to_netcdf(path, engine="netcdf4", format="NETCDF4", encoding=enc)
 
 
-def product_averages(product: WindProduct, period_s: float) -> dict[str, np.ndarray]:
-    """WMO averages of the smoothed wind; samples flagged wind_unknown are left out."""
-    unknown = (np.asarray(product.flags).astype(np.int64) & FLAG_WIND_UNKNOWN) != 0
-    n = np.where(unknown, np.nan, product.wind_n)
-    e = np.where(unknown, np.nan, product.wind_e)
-    offset = product.utc_start_s if product.utc_start_s is not None else 0.0
-    return wind_averages(product.time_s, n, e, period_s, clock_offset_s=offset)
-
-
 def avg_dataset(product: WindProduct, period_s: float, history: str | None = None):
     """The averages over ``period_s`` as a CF-1.8 Dataset: ``time`` (middle of each period) with ``time_bnds``."""
     import xarray as xr
@@ -266,7 +257,7 @@ def write_products(product: WindProduct, nc_path: str, plot_path: str | None = N
     write_netcdf(product, nc_path, history)
     paths = [nc_path, *write_averages(product, os.path.splitext(nc_path)[0], history)]
     if plot_path:
-        from ground_station.product_plot import plot_product
+        from postflight.plot import plot_product  # matplotlib only when a plot is asked for
 
         plot_product(product, plot_path)
         paths.append(plot_path)

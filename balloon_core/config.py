@@ -128,7 +128,7 @@ def one_of(*choices: str) -> Rule:
 
 #: Every key of every section any program reads, with its type and range. balloon-sim and balloon-fw
 #: both check the whole file against it (``validate_document``), so one file gets one verdict; the
-#: dataclasses that hold the values (here, sim_hil.wind, sim_hil.dynamics, firmware_py.state) must
+#: dataclasses that hold the values (here, sim_hil.wind, sim_hil.dynamics, firmware_py.estimator.state) must
 #: have exactly these keys (tests/test_user_errors.py checks).
 SCHEMA: dict[str, dict[str, Rule]] = {
     "balloon": {
@@ -317,7 +317,7 @@ def build_section(cls: type, section: str, values: dict[str, Any]) -> Any:
 def lift_balance(d: Design) -> tuple[float, float, float, float, float]:
     """(buoyancy, skin and avionics weight, gas weight, tether weight, net lift) in N at the ground
     (the simulator's air: ground_pressure_hpa or 1013.25 hPa at ground_temperature_c)."""
-    from firmware_py.atmosphere import G0, R_AIR
+    from balloon_core.atmosphere import G0, R_AIR
 
     p0 = (d.site.ground_pressure_hpa or 1013.25) * 100.0
     rho = p0 / (R_AIR * (d.site.ground_temperature_c + 273.15))

@@ -1,0 +1,37 @@
+"""Attitude: unit quaternions (scalar first, body FRD -> NED) and the rotation matrices and Euler angles
+they stand for. The one place every program (simulator, estimator, ground station) takes them from."""
+
+from __future__ import annotations
+
+import math
+
+
+def rotation(q0: float, q1: float, q2: float, q3: float) -> tuple[float, ...]:
+    """Body(FRD) -> NED rotation matrix of a unit quaternion, row-major 9-tuple (its transpose maps
+    NED to the body: unpack it column by column)."""
+    return (
+        q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3, 2.0 * (q1 * q2 - q0 * q3), 2.0 * (q1 * q3 + q0 * q2),
+        2.0 * (q1 * q2 + q0 * q3), q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3, 2.0 * (q2 * q3 - q0 * q1),
+        2.0 * (q1 * q3 - q0 * q2), 2.0 * (q2 * q3 + q0 * q1), q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3,
+    )  # fmt: skip
+
+
+def quat_from_euler(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
+    """Unit quaternion of ZYX Euler angles (radians)."""
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    )
+
+
+def euler_from_quat(q0: float, q1: float, q2: float, q3: float) -> tuple[float, float, float]:
+    """(roll, pitch, yaw) in radians, ZYX convention."""
+    roll = math.atan2(2 * (q0 * q1 + q2 * q3), 1 - 2 * (q1 * q1 + q2 * q2))
+    pitch = math.asin(max(-1.0, min(1.0, 2 * (q0 * q2 - q3 * q1))))
+    yaw = math.atan2(2 * (q0 * q3 + q1 * q2), 1 - 2 * (q2 * q2 + q3 * q3))
+    return roll, pitch, yaw

@@ -1,0 +1,2 @@
+"""Post-flight: log readers, the fixed-interval smoother, reprocessing, and the science products
+(data model, averages, NetCDF, plots)."""

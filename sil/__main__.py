@@ -1,0 +1,5 @@
+import sys
+
+from sil.cli import main
+
+sys.exit(main())
