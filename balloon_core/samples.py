@@ -14,7 +14,6 @@ from typing import NamedTuple
 from pymavlink.dialects.v20 import common as mavlink
 
 from balloon_core.atmosphere import G0
-from firmware_py.estimator.control import Estimator
 
 
 class ImuSample(NamedTuple):
@@ -37,14 +36,6 @@ class BaroSample(NamedTuple):
 
 
 Sample = ImuSample | BaroSample
-
-
-def feed(est: Estimator, s: Sample) -> bool:
-    """Hand one sample to the estimator. Returns True when the filter advanced (an IMU step)."""
-    if type(s) is ImuSample:
-        return est.on_imu(s.t_us, s.ax, s.ay, s.az, s.gx, s.gy, s.gz, s.mx, s.my, s.mz)
-    est.on_baro(s.t_us, s.pressure_hpa, s.temperature_c)
-    return False
 
 
 # ---------------------------------------------------------------------------------------------- MAVLink

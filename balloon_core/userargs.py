@@ -39,6 +39,30 @@ def fail(prog: str, message: object) -> int:
     return 2
 
 
+def stop_flag():
+    """Ctrl-C and SIGTERM set a flag instead of raising: the returned ``stop()`` says whether to stop
+    (the program then finishes its files and exits 0, or 130 when the run could not finish)."""
+    import signal
+
+    stopping: list[int] = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stopping.append(1))
+    return lambda: bool(stopping)
+
+
+# what each optional part needs; `pip install balloon-wind` brings the firmware, simulator and live station
+EXTRAS = {"postflight": ("pyulog", "xarray", "netCDF4"), "study": ("dask", "distributed", "pyarrow")}
+
+
+def require_extra(extra: str) -> None:
+    """A UserError naming the extra to install if a module of ``extra`` is missing (exit 2, one line)."""
+    import importlib.util
+
+    missing = [m for m in EXTRAS[extra] if importlib.util.find_spec(m) is None]
+    if missing:
+        raise UserError(f"this needs {', '.join(missing)}: pip install 'balloon-wind[{extra}]' (or '[all]')")
+
+
 # ---------------------------------------------------------------- numbers
 
 

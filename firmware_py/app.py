@@ -13,12 +13,12 @@ import math
 from pymavlink.dialects.v20 import common as mavlink
 
 from balloon_core.config import Design
-from balloon_core.samples import BaroSample, MavlinkSampler, Sample, feed
+from balloon_core.samples import BaroSample, MavlinkSampler, Sample
 from balloon_core.wire import LinkStats, pack
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.outputs import WindCovOutput
 from firmware_py.estimator.state import FilterConfig
-from firmware_py.streams import InputPipeline, print_warning
+from firmware_py.streams import InputPipeline, feed, print_warning
 
 FW_SYSID = 1
 FW_COMPID = mavlink.MAV_COMP_ID_AUTOPILOT1

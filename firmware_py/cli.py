@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import signal
 import sys
 import time
 
@@ -120,9 +119,7 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, OSError) as exc:
         return userargs.fail(prog, exc)
     fw = Firmware(design, fcfg, sink, rate_explicit=rate_is_explicit(args.config))
-    stopping = []
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stopping.append(1))
+    stop = userargs.stop_flag()
     is_file = os.path.isfile(args.source)
     if is_file:
         bar = Progress("balloon-fw", total=os.path.getsize(args.source) / 1e6, unit="MB", quiet=args.quiet)
@@ -131,10 +128,10 @@ def main(argv: list[str] | None = None) -> int:
     finished = True
     try:
         if is_file:
-            finished = replay_file(fw, args.source, bar, lambda: bool(stopping))
+            finished = replay_file(fw, args.source, bar, stop)
             bar.done = bar.total if finished else bar.done
         else:
-            run_live(fw, args.source, lambda: bool(stopping), bar)
+            run_live(fw, args.source, stop, bar)
     except (ValueError, OSError, userargs.UserError) as exc:
         bar.close()
         if sink is not None:

@@ -25,7 +25,6 @@ from balloon_core.samples import (
     PRESSURE_MESSAGES,
     ImuSample,
     Sample,
-    feed,
 )
 from balloon_core.wire import pack
 from firmware_py.estimator.control import ACC_MAX, GYRO_MAX, REORDER_WINDOW_US, Estimator
@@ -36,6 +35,15 @@ RATE_SETTLE_MAX_S = 6.0  # a stream slower than the filter's rate: wait this lon
 RATE_TOLERANCE = 0.1  # within 10 % of the filter's rate the estimator's own clock takes the jitter
 QUICK_WINDOW_S = 0.25  # a stream already at the filter's rate over this much is decided at once
 MAX_HELD = 20_000  # samples held while the rate is measured (bounds memory whatever the stream)
+
+
+def feed(est: Estimator, s: Sample) -> bool:
+    """Hand one sample to the estimator. Returns True when the filter advanced (an IMU step)."""
+    if type(s) is ImuSample:
+        return est.on_imu(s.t_us, s.ax, s.ay, s.az, s.gx, s.gy, s.gz, s.mx, s.my, s.mz)
+    est.on_baro(s.t_us, s.pressure_hpa, s.temperature_c)
+    return False
+
 
 
 # ------------------------------------------------------------------------------------------ the rate

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import signal
 import sys
 
 from balloon_core import userargs
@@ -44,15 +43,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.cmd == "listen":
         from ground_station.listen import GroundStation, listen
 
-        stopping: list[int] = []
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, lambda *_: stopping.append(1))
+        stop = userargs.stop_flag()
         try:
             gs = GroundStation(args.csv, args.tlog)
         except OSError as exc:
             return userargs.fail(PROG, exc)
         try:
-            listen(args.endpoint, gs, lambda: bool(stopping), args.duration)
+            listen(args.endpoint, gs, stop, args.duration)
         except (ValueError, OSError) as exc:
             gs.close()
             return userargs.fail(PROG, exc)
@@ -63,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         s = report(args.file, args.truth, args.plot, args.start)
-    except (ValueError, OSError) as exc:
+    except (ValueError, OSError, userargs.UserError) as exc:
         return userargs.fail(f"{PROG} report", exc)
     print(format_score(s))
     if args.plot:

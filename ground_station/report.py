@@ -39,6 +39,9 @@ def read_truth_csv(path: str) -> dict[str, np.ndarray]:
 
 def report(wind_path: str, truth_path: str, plot_path: str | None = None, start_s: float = 120.0) -> Score:
     if wind_path.endswith(".nc"):  # a balloon-gs reprocess product: its smoothed wind and accuracy
+        from balloon_core.userargs import require_extra
+
+        require_extra("postflight")
         from postflight.netcdf import read_netcdf_wind
 
         est = read_netcdf_wind(wind_path)

@@ -16,10 +16,10 @@ from collections.abc import Callable, Iterable
 import numpy as np
 
 from balloon_core.config import Design
-from balloon_core.samples import BaroSample, Sample, feed
+from balloon_core.samples import BaroSample, Sample
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.state import MODE_GROUND, N_STATES, POS_D, POS_E, POS_N, WIND_E, WIND_N, FilterConfig
-from firmware_py.streams import InputPipeline
+from firmware_py.streams import InputPipeline, feed
 from postflight.product import (
     FLAG_NO_BARO,
     FLAG_SEGMENT_START,
@@ -177,6 +177,10 @@ def _product(sm, modes: np.ndarray, air: np.ndarray, baro_seen: bool, unconfirme
 def run_reprocess(args, argv: list[str] | None) -> int:
     """``balloon-gs reprocess FLIGHT --out FILE.nc [--config] [--plot] [--quiet]``."""
     import shlex
+
+    from balloon_core.userargs import require_extra
+
+    require_extra("postflight")  # before any work: a missing extra is one line, exit 2
 
     from balloon_core.config import ConfigError, design_from_dict, load_toml
     from balloon_core.progress import Progress

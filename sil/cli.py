@@ -109,9 +109,7 @@ def main(argv: list[str] | None = None) -> int:
         fh.write(sc.to_toml())
     cfg = ["--config", design]
     kids = Children()
-    stopping: list[int] = []
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stopping.append(1))
+    stop = userargs.stop_flag()
     latest = [""]
     t_start = time.monotonic()
     tty = sys.stdout.isatty()
@@ -133,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
               f"(sim -> udp:{p_fw} -> fw -> udp:{p_gs} -> gs)")  # fmt: skip
         next_show = 0.0
         while sim.poll() is None:
-            if stopping:
+            if stop():
                 break
             died = [n for n in kids.dead() if n != "sim"]
             if died:
@@ -148,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(latest[0], flush=True)
                 next_show = now + 10.0
             time.sleep(0.1)
-        if stopping or sim.returncode == 130:
+        if stop() or sim.returncode == 130:
             kids.stop_all()
             said = [ln for ln in sim.stderr.read().splitlines() if "simulated" in ln]
             if said:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import sys
 import time
 
+from balloon_core import userargs
 from balloon_core.wire import Decoder, LinkStats, open_link
 from sim_hil.packets import SensorPacketEncoder
 from sim_hil.simulator import Simulation
@@ -126,10 +127,7 @@ def stream(sim: Simulation, enc: SensorPacketEncoder, spec: str, speed: float, l
 
 
 def stream_udp(sim: Simulation, enc: SensorPacketEncoder, spec: str, args, progress=None) -> int:
-    import signal
 
-    stopping: list[int] = []
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stopping.append(1))
-    return stream(sim, enc, spec, args.speed, args.lockstep, args.lockstep_window, 2.0, lambda: bool(stopping),
+    stop = userargs.stop_flag()
+    return stream(sim, enc, spec, args.speed, args.lockstep, args.lockstep_window, 2.0, stop,
                   progress)  # fmt: skip

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
 import struct
 import sys
 import time
@@ -203,16 +202,14 @@ def main(argv: list[str] | None = None) -> int:
             return userargs.fail(prog, f"no MAVLink frame in {args.file}")
     except OSError as exc:
         return userargs.fail(prog, exc)
-    stopping: list[int] = []
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stopping.append(1))
+    stop = userargs.stop_flag()
     try:
         size = os.path.getsize(args.file)
     except OSError as exc:
         return userargs.fail(prog, exc)
     bar = Progress(prog, total=size / 1e6, unit="MB", quiet=args.quiet)
     try:
-        res = replay(args.file, args.out, args.speed, lambda: bool(stopping), lockstep, args.lockstep_window,
+        res = replay(args.file, args.out, args.speed, stop, lockstep, args.lockstep_window,
                      progress=bar)  # fmt: skip
     except (OSError, ValueError) as exc:
         bar.close()

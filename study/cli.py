@@ -17,6 +17,7 @@ from importlib import resources
 from pathlib import Path
 
 from balloon_core.config import ConfigError
+from balloon_core.userargs import UserError, require_extra
 
 
 class UsageError(Exception):
@@ -95,6 +96,7 @@ def main(argv: list[str] | None = None) -> int:
 def _main(argv: list[str] | None) -> int:
     try:
         args = parse_args(argv)
+        require_extra("study")
         if args.workers is not None and args.workers < 0:
             raise UsageError(f"--workers must be >= 0, got {args.workers}")
         spec = load(args)
@@ -102,7 +104,7 @@ def _main(argv: list[str] | None) -> int:
         if out.exists() and not out.is_dir():
             raise UsageError(f"--out {out} exists and is not a directory")
         out.mkdir(parents=True, exist_ok=True)
-    except (UsageError, ConfigError) as e:
+    except (UsageError, ConfigError, UserError) as e:
         print(f"balloon-study: error: {e}", file=sys.stderr)
         return 2
     except OSError as e:

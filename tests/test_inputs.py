@@ -21,7 +21,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from balloon_core.config import Design
-from balloon_core.samples import BaroSample, ImuSample, MavlinkSampler, feed
+from balloon_core.samples import BaroSample, ImuSample, MavlinkSampler
 from balloon_core.wire import Decoder, LinkStats
 from firmware_py.app import Firmware
 from firmware_py.estimator.control import Estimator
@@ -32,6 +32,7 @@ from firmware_py.streams import (
     StreamRequester,
     decide_rate,
     estimator_steps,
+    feed,
     measure_rate_hz,
 )
 from postflight.logs import read_flight

@@ -20,9 +20,9 @@ from firmware_py import cli as fw_cli
 from firmware_py.estimator.state import FilterConfig
 from ground_station import cli as gs_cli
 from ground_station.wind import CSV_COLUMNS
+from sil import cli as sil_cli
 from sim_hil import cli as sim_cli
 from sim_hil import replay as replay_cli
-from sim_hil import sil as sil_cli
 from sim_hil.dynamics import TruthConfig
 from sim_hil.wind import WindConfig
 
