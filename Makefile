@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-test
 BENCH_STAMP := $(VENV)/.installed-bench
 
-.PHONY: test demo bench lint clean
+.PHONY: test test-fast demo bench lint clean
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -22,6 +22,11 @@ $(BENCH_STAMP): pyproject.toml | $(BIN)/python
 test: $(STAMP)
 	$(BIN)/ruff check balloon_core firmware_py sim_hil ground_station postflight sil study tests benchmarks tools
 	$(BIN)/python -m pytest
+
+# the quick loop: no slow, UDP, terminal or Dask tests (under 2 minutes)
+test-fast: $(STAMP)
+	$(BIN)/ruff check balloon_core firmware_py sim_hil ground_station postflight sil study tests benchmarks tools
+	$(BIN)/python -m pytest -m "not slow and not network and not terminal and not dask"
 
 demo: $(STAMP)
 	$(BIN)/balloon-sil --scenario paper-reference

@@ -129,7 +129,7 @@ def one_of(*choices: str) -> Rule:
 #: Every key of every section any program reads, with its type and range. balloon-sim and balloon-fw
 #: both check the whole file against it (``validate_document``), so one file gets one verdict; the
 #: dataclasses that hold the values (here, sim_hil.wind, sim_hil.dynamics, firmware_py.estimator.state) must
-#: have exactly these keys (tests/test_user_errors.py checks).
+#: have exactly these keys (tests/system/test_user_errors.py checks).
 SCHEMA: dict[str, dict[str, Rule]] = {
     "balloon": {
         "radius_m": num(0.05, 20.0),
@@ -227,7 +227,7 @@ SCHEMA: dict[str, dict[str, Rule]] = {
 KNOWN_SECTIONS = tuple(SCHEMA)
 SIM_IMU_HZ = 100.0  # the simulator's IMU rate: its physics step must divide it evenly
 # defaults of the simulator's keys that cross-key checks need when the file leaves them out
-# (sim_hil.wind.WindConfig, sim_hil.dynamics.TruthConfig; tests/test_user_errors.py keeps them equal)
+# (sim_hil.wind.WindConfig, sim_hil.dynamics.TruthConfig; tests/system/test_user_errors.py keeps them equal)
 SIM_DEFAULTS = {
     "wind.sample_hz": 20.0,
     "wind.multisine_hz": (0.003, 0.01, 0.02, 0.05, 0.1, 0.2),

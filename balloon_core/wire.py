@@ -206,6 +206,16 @@ def raw_messages(fh: BinaryIO, stats: LinkStats, chunk: int = 65536) -> Iterator
         yield from dec.feed(data)
 
 
+def capture_messages(path: str, stats: LinkStats) -> Iterator:
+    """The one way to open a capture by its name: a ``.tlog`` is a telemetry log, anything else raw
+    MAVLink bytes as they came off a serial port. The file is closed when the iteration ends or stops."""
+    if path.endswith(".tlog"):
+        yield from tlog_messages(path, stats)
+        return
+    with open(path, "rb") as fh:
+        yield from raw_messages(fh, stats)
+
+
 class UdpLink:
     """``udpin:HOST:PORT`` (bind and listen; replies go to the last sender) or ``udpout:HOST:PORT``
     (send there; packets coming back are read too)."""

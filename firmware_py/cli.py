@@ -9,7 +9,7 @@ import time
 from balloon_core import userargs
 from balloon_core.config import ConfigError, design_from_dict, load_toml
 from balloon_core.progress import Progress, RateMeter
-from balloon_core.wire import Decoder, open_link, open_sink, raw_messages, tlog_messages
+from balloon_core.wire import Decoder, capture_messages, open_link, open_sink
 from firmware_py.app import Firmware
 from firmware_py.estimator.state import FilterConfig
 from firmware_py.streams import StreamRequester
@@ -41,11 +41,7 @@ def replay_file(fw: Firmware, path: str, progress: Progress | None = None, stop=
 def _replay(fw: Firmware, path: str, progress: Progress | None, stop) -> bool:
     tlog = path.endswith(".tlog")
     st = fw.stats
-    if tlog:
-        msgs = tlog_messages(path, st)
-    else:
-        fh = open(path, "rb")
-        msgs = raw_messages(fh, st)
+    msgs = capture_messages(path, st)
     try:
         for k, m in enumerate(msgs):
             fw.handle(m)
@@ -56,8 +52,7 @@ def _replay(fw: Firmware, path: str, progress: Progress | None, stop) -> bool:
                 progress.done = (st.bytes + st.garbage_bytes + (8 * (st.frames + st.bad_frames) if tlog else 0)) / 1e6
                 progress.status = fw.status()
     finally:
-        if not tlog:
-            fh.close()
+        msgs.close()  # closes the file
     fw.flush()
     return True
 

@@ -27,7 +27,8 @@ from balloon_core.samples import (
     Sample,
 )
 from balloon_core.wire import pack
-from firmware_py.estimator.control import ACC_MAX, GYRO_MAX, REORDER_WINDOW_US, Estimator
+from firmware_py.estimator.control import Estimator
+from firmware_py.estimator.params import ACC_MAX, GYRO_MAX, REORDER_WINDOW_US
 from firmware_py.estimator.state import FilterConfig
 
 RATE_WINDOW_S = 2.0  # the IMU rate is the median sample interval over this much of the stream

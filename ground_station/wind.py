@@ -63,15 +63,9 @@ def read_records(path: str) -> list[WindRecord]:
                                    *(float(r[k]) for k in CSV_COLUMNS[3:11])) for r in reader]  # fmt: skip
             except (TypeError, ValueError) as exc:
                 raise ValueError(f"{path} line {reader.line_num}: {exc}") from None
-    from balloon_core.wire import LinkStats, raw_messages, tlog_messages
+    from balloon_core.wire import LinkStats, capture_messages
 
-    stats = LinkStats()
-    if path.endswith(".tlog"):
-        msgs = tlog_messages(path, stats)
-    else:
-        fh = open(path, "rb")
-        msgs = raw_messages(fh, stats)
-    return [WindRecord.from_msg(m) for m in msgs if m.get_type() == "WIND_COV"]
+    return [WindRecord.from_msg(m) for m in capture_messages(path, LinkStats()) if m.get_type() == "WIND_COV"]
 
 
 def as_arrays(records: list[WindRecord]) -> dict[str, np.ndarray]:

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from balloon_core.samples import BaroSample, ImuSample, MavlinkSampler, Sample
-from balloon_core.wire import LinkStats, raw_messages, tlog_messages
+from balloon_core.wire import LinkStats, capture_messages
 from firmware_py.streams import RATE_WINDOW_S, measure_rate_hz
 
 KIND_IMU, KIND_BARO = 0, 1
@@ -409,13 +409,8 @@ def read_mavlink(path: str) -> Flight:
     vals = array.array("d")
     utc = None
     fmt = "tlog" if path.endswith(".tlog") else "raw"
-    fh = None
+    msgs = capture_messages(path, stats)
     try:
-        if fmt == "tlog":
-            msgs = tlog_messages(path, stats)
-        else:
-            fh = open(path, "rb")
-            msgs = raw_messages(fh, stats)
         for m in msgs:
             out = sampler.convert(m)
             if out is None:
@@ -431,8 +426,7 @@ def read_mavlink(path: str) -> Flight:
                     vals.extend((s.pressure_hpa, s.temperature_c) + (math.nan,) * (N_VALUES - 2))
                 times.append(s.t_us)
     finally:
-        if fh is not None:
-            fh.close()
+        msgs.close()
     if stats.frames == 0:
         raise ValueError(f"{path}: no MAVLink in this file")
     kind = np.frombuffer(kinds, np.int8).copy() if len(kinds) else np.zeros(0, np.int8)

@@ -34,10 +34,10 @@ UNKNOWN_SIGMA_MPS = 1.0  # a horizontal 1-sigma above max(this, half the speed):
 
 
 def _signature(est: Estimator) -> tuple:
-    """Everything that changes when the control logic re-places the state instead of fusing."""
-    c = est.counters
-    return (est.initialised, est.ekf.mode, c.time_resets, c.numeric_resets, c.taut_resets, c.baro_resets,
-            c.false_releases)  # fmt: skip
+    """Where the smoother's chain is cut: the filter's own reset counter (every re-placement of the
+    state goes through ``WindEkf.reset``), the mode (the model's equations change with it: held, free,
+    taut) and whether the estimator is initialised at all (a reboot forgets everything)."""
+    return est.initialised, est.ekf.mode, est.ekf.reset_count
 
 
 def reprocess(

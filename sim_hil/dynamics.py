@@ -368,7 +368,7 @@ def _offset_accelerations(
 
     with determinant M I_x - s^2 > 0. The total energy 1/2 M |v|^2 + s v.R(w x e_z) + 1/2 w.I_C w
     - (m - rho V) g p_d - s g (e_z . down) + rope and spring terms is conserved without drag and
-    damping (tests/test_scenarios.py)."""
+    damping (tests/system/test_scenarios.py)."""
     rad = ph.radius_m
     sm = ph.static_moment_kgm
     ix, iz = ph.inertia_kgm2, ph.inertia_z_kgm2

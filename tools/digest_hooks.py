@@ -19,15 +19,10 @@ def _messages(fw, path: Path):
         for s in read_flight(str(path)).samples():
             fw.push(s)
         return
-    from balloon_core.wire import raw_messages, tlog_messages
+    from balloon_core.wire import capture_messages
 
-    if path.suffix == ".tlog":
-        for m in tlog_messages(str(path), fw.stats):
-            fw.handle(m)
-        return
-    with open(path, "rb") as fh:
-        for m in raw_messages(fh, fw.stats):
-            fw.handle(m)
+    for m in capture_messages(str(path), fw.stats):
+        fw.handle(m)
 
 
 def run_digest(path: Path) -> str:

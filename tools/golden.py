@@ -14,6 +14,7 @@ from __future__ import annotations
 import gzip
 import hashlib
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -79,6 +80,14 @@ def make_inputs() -> None:
         (GOLDEN / "hostile.raw.gz").write_bytes(gzip.compress(hostile, mtime=0))
 
 
+# the programs of this checkout (not of whatever is installed): python -m with the checkout first on the path
+_ENV = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+
+
+def _program(package: str, *args: str) -> list[str]:
+    return [sys.executable, "-m", package, *args]
+
+
 def _unpack(name: str, tmp: Path) -> Path:
     src = GOLDEN / f"{name}.gz" if (GOLDEN / f"{name}.gz").exists() else DATA / name
     dst = tmp / name
@@ -91,7 +100,8 @@ def _unpack(name: str, tmp: Path) -> Path:
 
 def _fw_output(path: Path, tmp: Path) -> str:
     out = tmp / (path.name + ".out.tlog")
-    subprocess.run([BIN / "balloon-fw", "--in", str(path), "--out", str(out)], check=True, capture_output=True)
+    subprocess.run(_program("firmware_py", "--in", str(path), "--out", str(out)), check=True, capture_output=True,
+                   env=_ENV)  # fmt: skip
     return hashlib.sha256(out.read_bytes()).hexdigest()
 
 
@@ -106,15 +116,15 @@ def _reprocess(path: Path, tmp: Path) -> dict[str, str]:
     import netCDF4  # noqa: PLC0415
 
     out = tmp / (path.name + ".nc")
-    subprocess.run([BIN / "balloon-gs", "reprocess", str(path), "--out", str(out), "--quiet"], check=True,
-                   capture_output=True)  # fmt: skip
+    subprocess.run(_program("ground_station", "reprocess", str(path), "--out", str(out), "--quiet"), check=True,
+                   capture_output=True, env=_ENV)  # fmt: skip
     with netCDF4.Dataset(out) as ds:
         ds.set_auto_mask(False)
         return {k: hashlib.sha256(np.ascontiguousarray(v[:]).tobytes()).hexdigest() for k, v in ds.variables.items()}
 
 
 def compute() -> dict:
-    sys.path.insert(0, str(ROOT / "tools"))
+    sys.path[:0] = [str(ROOT), str(ROOT / "tools")]
     res: dict = {"firmware": {}, "digest": {}, "reprocess": {}}
     with tempfile.TemporaryDirectory() as t:
         tmp = Path(t)

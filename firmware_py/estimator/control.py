@@ -20,6 +20,30 @@ from firmware_py.estimator.measurements import (
     reset_height,
 )
 from firmware_py.estimator.model import BalloonModel, Forces, accelerations
+from firmware_py.estimator.params import (
+    ACC_MAX,
+    ACCEL_INNOV_S,
+    BARO_MODEL_M,
+    BARO_ZERO_S,
+    CONFIRM_EXPLAINED,
+    CONFIRM_MOTION_MPS2,
+    CONFIRM_S,
+    CONFIRM_WINDOW_S,
+    FALSE_RELEASE_S,
+    GYRO_MAX,
+    JOIN_IN_FLIGHT_US,
+    LEARN_DRAG_AFTER_S,
+    MAG_MAX,
+    MAG_MODEL_GAUSS,
+    MEAN_WIND_S,
+    P_MAX_HPA,
+    P_MIN_HPA,
+    REORDER_WINDOW_US,
+    T_MAX_C,
+    T_MIN_C,
+    TAUT_PULL_S,
+    Schedule,
+)
 from firmware_py.estimator.state import (
     MODE_FREE,
     MODE_GROUND,
@@ -31,38 +55,6 @@ from firmware_py.estimator.state import (
     WIND_N,
     FilterConfig,
 )
-
-ACC_MAX = 160.0  # m/s^2 (16 g)
-GYRO_MAX = 35.0  # rad/s (2000 deg/s)
-MAG_MAX = 4.0  # gauss
-P_MIN_HPA, P_MAX_HPA = 300.0, 1100.0
-T_MIN_C, T_MAX_C = -60.0, 85.0
-BARO_ZERO_S = 1.0
-REORDER_WINDOW_US = 1_000_000
-MAG_EVERY = 1  # magnetometer fusion at every IMU sample
-TAUT_EVERY = 5  # taut constraints at 20 Hz
-ALIGN_RESET_COUNT = 40  # 2 s of rejected alignment at 20 Hz
-JOIN_IN_FLIGHT_US = 10_000_000  # a first sample this long after the sender's boot: we restarted in flight
-# After a join in flight the balloon hypothesis is unconfirmed: the wind read from the tilt through the
-# static balance is only as good as the assumption that this is a balloon on its tether. The motion
-# confirms it: a tethered balloon in a real (turbulent) wind accelerates, and the force model explains
-# that acceleration. Until then the reported accuracy (``wind_accuracy``) is at least the wind's own
-# magnitude (and 1 m/s): the estimate cannot be told from calm. The filter itself runs on unchanged.
-CONFIRM_MOTION_MPS2 = 0.03  # RMS of the measured acceleration's fluctuation (a resting sensor: noise only)
-CONFIRM_EXPLAINED = 0.5  # the model's innovations below this share of that fluctuation's variance
-CONFIRM_S = 20.0  # both, for this long without a break (turbulent forcing persists; a bump dies away)
-CONFIRM_WINDOW_S = 10.0  # time constant of the measured acceleration's running mean
-BARO_RESET_COUNT = 40  # 2 s of rejected barometer at 20 Hz: reset the height to it
-FALSE_RELEASE_S = 3.0  # free ascent that stays below the release height this long was a bump
-BARO_MODEL_M = 0.3  # hypsometric conversion error (temperature profile, lag) added to the sensor's noise
-LEARN_DRAG_AFTER_S = 2.0  # after the release, once the ascent is established
-FIELD_FLIGHT_SAMPLES = 6000  # 60 s of magnetometer averaged in flight when there was no rest on the ground
-ACCEL_INNOV_S = 2.0  # averaging time of the accelerometer's innovations that set its noise floor
-TAUT_PULL_S = 1.0  # after a slack spell the rope must pull this long before the filter is taut again
-MEAN_WIND_S = 60.0  # averaging time of the mean wind that scales the wind's process noise
-WIND_NOISE_EVERY = 100  # steps between updates of that noise
-FIELD_LEARN_SAMPLES = 100  # at least 1 s of magnetometer on the ground (all of the ground time is used)
-MAG_MODEL_GAUSS = 0.004  # field direction model error (~0.5 deg of a 0.5 G field: soft iron, anomalies)
 
 
 class Counters:
@@ -119,10 +111,10 @@ class Estimator:
         self.counters = Counters()
         self._probe = Forces()  # scratch for the taut-entry check
         self.accel_status = [FusionStatus(f"accel_{a}") for a in "xyz"]
-        rec = self.cfg.recover_after_s
-        self.baro_status = FusionStatus("baro", max(1, int(rec * 20)))  # at the nominal 20 Hz
-        self.heading_status = FusionStatus("heading", max(1, int(rec * 10)))
-        self.mag_status = [FusionStatus(f"mag_{a}", max(1, int(rec * 10))) for a in "xyz"]
+        self.schedule = sched = Schedule.at(self.cfg.imu_rate_hz, self.cfg.recover_after_s)
+        self.baro_status = FusionStatus("baro", sched.baro_recover)
+        self.heading_status = FusionStatus("heading", sched.mag_recover)
+        self.mag_status = [FusionStatus(f"mag_{a}", sched.mag_recover) for a in "xyz"]
         # the magnetometer's model error: the field's direction is known to ~0.5 deg after the boot
         self.mag_var = self.mag_sigma**2 + MAG_MODEL_GAUSS**2
         self.taut_status = [FusionStatus(n) for n in ("radius", "radial_rate", "align_n", "align_e")]
@@ -166,7 +158,7 @@ class Estimator:
         for i, v in enumerate((ax, ay, az, mx, my, mz)):
             s[i] += v
         self._field_n += 1
-        if self._field_n < FIELD_LEARN_SAMPLES:
+        if self._field_n < self.schedule.field_learn:
             return
         fx, fy, fz, bx, by, bz = s
         fnorm = math.sqrt(fx * fx + fy * fy + fz * fz)
@@ -303,25 +295,25 @@ class Estimator:
         if self._baro_pending and not math.isnan(self.height_baro):
             fuse_baro(ekf, self.height_baro, self.ref_pos_d, self.baro_var, self.baro_status)
             self._baro_pending = False
-            if self.baro_status.consecutive_rejects >= BARO_RESET_COUNT:
+            if self.baro_status.consecutive_rejects >= self.schedule.baro_reset:
                 # the barometer has disagreed for 2 s: the height model is off, the sensor wins
                 c.baro_resets += 1
                 self.baro_status.consecutive_rejects = 0
                 reset_height(ekf, self.ref_pos_d - self.height_baro, self.baro_var)
-        if mag_ok and self.step % MAG_EVERY == 0:
-            if ekf.mode == MODE_GROUND or (self._joined and self._field_n < FIELD_FLIGHT_SAMPLES):
+        if mag_ok:
+            if ekf.mode == MODE_GROUND or (self._joined and self._field_n < self.schedule.field_flight):
                 # the field from rotation-invariant averages (|m| and m . f): at rest on the ground,
                 # or, after a restart in flight, on the quasi-static balloon (its mean acceleration is 0)
                 self._learn_field(ax, ay, az, mx, my, mz)
-            if self._field_n >= FIELD_LEARN_SAMPLES and ekf.mode != MODE_GROUND:
+            if self._field_n >= self.schedule.field_learn and ekf.mode != MODE_GROUND:
                 fuse_mag_field(ekf, mx, my, mz, self.field_ned, self.mag_var, self.mag_status)
             else:
                 fuse_heading(ekf, mx, my, mz, self.declination, self.mag_sigma, self.heading_status)
-        if ekf.mode == MODE_TAUT and self.step % TAUT_EVERY == 0:
+        if ekf.mode == MODE_TAUT and self.step % self.schedule.taut_every == 0:
             cfg = self.cfg
             fuse_taut(ekf, cfg.radial_m**2, cfg.radial_rate_mps**2, cfg.align_rad**2, self.taut_status)
             align_n, align_e = self.taut_status[2], self.taut_status[3]
-            if max(align_n.consecutive_rejects, align_e.consecutive_rejects) >= ALIGN_RESET_COUNT:
+            if max(align_n.consecutive_rejects, align_e.consecutive_rejects) >= self.schedule.align_reset:
                 # the tilt contradicts the taut state for 2 s: start the taut state again from the tilt
                 self.counters.taut_resets += 1
                 align_n.consecutive_rejects = align_e.consecutive_rejects = 0
@@ -334,7 +326,7 @@ class Estimator:
         if ekf.mode == MODE_TAUT:
             wn, we = self.wind()
             self._mean_speed += self._speed_alpha * (math.sqrt(wn * wn + we * we) - self._mean_speed)
-            if self.step % WIND_NOISE_EVERY == 0:
+            if self.step % self.schedule.wind_noise_every == 0:
                 misfit = max(1.0, self._accel_innov2 / self.accel_taut_var)
                 ekf.adapt_wind_noise(self._mean_speed, misfit)
         return True
@@ -456,7 +448,8 @@ class Estimator:
             self._release_count = self._release_count + 1 if lifted else 0
             high = math.isfinite(self.height_baro) and self.height_baro > cfg.release_height_m
             self._height_above = self._height_above + 1 if high else 0
-            if self._release_count >= 3 or self._height_above >= 50:
+            sched = self.schedule
+            if self._release_count >= sched.release_confirm or self._height_above >= sched.release_height:
                 self._switch(MODE_FREE)
             return
         x = ekf.x

@@ -2,7 +2,7 @@
 
 Everything the filter touches per sample is allocated here, once. The per-sample path uses numpy
 only with ``out=`` arguments and plain Python floats, so a steady-state step creates no numpy array
-(tests/test_allocation.py counts numpy's tracemalloc domain). A C port maps each array to a static
+(tests/unit/test_allocation.py counts numpy's tracemalloc domain). A C port maps each array to a static
 buffer and each ``np.*(..., out=)`` call to a loop.
 """
 
@@ -14,6 +14,18 @@ import numpy as np
 
 from balloon_core.rotation import rotation
 from firmware_py.estimator.model import BalloonModel, Forces, accelerations
+from firmware_py.estimator.params import (
+    ATT_VAR_MAX_RAD2,
+    DRAG_SCALE_MIN,
+    DRAG_VAR_MAX,
+    GROUND_PROCESS_VAR,
+    GYRO_BIAS_SIGMA_MAX_DEG_S,
+    POS_VAR_MAX_M2,
+    VAR_MIN,
+    VEL_VAR_MAX_M2S2,
+    WIND_VAR_MAX_M2S2,
+    WRATE_VAR_MAX_M2S4,
+)
 from firmware_py.estimator.state import (
     ATT_D,
     ATT_E,
@@ -57,6 +69,11 @@ class FusionStatus:
         self.consecutive_rejects = 0
 
 
+# the kinds of state reset: the control logic re-places the state instead of fusing a measurement
+RESET_INITIALISE, RESET_TAUT, RESET_HEIGHT = 0, 1, 2
+RESET_NAMES = ("initialise", "taut_placement", "height")
+
+
 class WindEkf:
     def __init__(self, model: BalloonModel, cfg: FilterConfig, sensors) -> None:
         self.model = model
@@ -93,10 +110,12 @@ class WindEkf:
         self._s = np.zeros((), z)  # 0-d operands/results: a Python scalar in a ufunc allocates a 0-d array
         self._r = np.zeros((), z)
         self._make_views()
-        self.var_min = np.full(N, 1e-9, z)
+        self.var_min = np.full(N, VAR_MIN, z)
         self.var_max = np.array(
-            [1e4] * 3 + [400.0] * 3 + [0.3] * 3 + [math.radians(5.0) ** 2] * 3 + [100.0] * 2 + [4.0] * 2 + [1.0], z
-        )
+            [POS_VAR_MAX_M2] * 3 + [VEL_VAR_MAX_M2S2] * 3 + [ATT_VAR_MAX_RAD2] * 3
+            + [math.radians(GYRO_BIAS_SIGMA_MAX_DEG_S) ** 2] * 3 + [WIND_VAR_MAX_M2S2] * 2 + [WRATE_VAR_MAX_M2S4] * 2
+            + [DRAG_VAR_MAX], z
+        )  # fmt: skip
         self.forces = Forces()
         # process noise per step (diagonal): white acceleration, gyro noise, the wind's rate, random walks
         g = math.radians(sensors.gyro_dps)
@@ -107,7 +126,7 @@ class WindEkf:
         self._q_flight = [0.25 * qv * dt * dt] * 3 + [qv] * 3 + [g * g * dt * dt] * 3 + [
             (math.radians(cfg.gyro_bias_walk_dps_rt_s)) ** 2 * dt
         ] * 3 + [0.0] * 2 + [qr] * 2 + [cfg.drag_walk_rt_s**2 * dt]
-        self._q_ground = [1e-8] * 6 + self._q_flight[6:16] + [0.0]
+        self._q_ground = [GROUND_PROCESS_VAR] * 6 + self._q_flight[6:16] + [0.0]
         self._qd_flight = np.array(self._q_flight, z)
         self._q_rate0 = qr  # at the expected mean wind; scaled with the wind the filter sees (adapt_wind_noise)
         self._u0 = max(cfg.expected_wind_mps, 0.5)
@@ -120,6 +139,9 @@ class WindEkf:
         self._drag_correlated = True
         self.recover_after = int(cfg.recover_after_s * cfg.imu_rate_hz)
         self.recorder = None  # post-flight only: postflight.smoother.SmootherRecorder sees every event
+        # the one reset API (``reset``): counters per kind and in all, which outputs and the smoother read
+        self.reset_counts = [0] * len(RESET_NAMES)
+        self.reset_count = 0
 
     _VIEWS = ("_scale_col", "_scale_row",
               "P_diag", "_k_col", "_ph_row", "_P_rows", "_P_cols", "_H3T", "_phtT", "H3_rows", "_F_vel_rows",
@@ -169,6 +191,14 @@ class WindEkf:
         for i, v in enumerate(init):
             self.P[i, i] = v
         self.mode = MODE_GROUND
+        self.reset(RESET_INITIALISE)
+
+    def reset(self, kind: int) -> None:
+        """Every re-placement of the state (not a fusion) is told here, after x and P were written:
+        initialisation, a taut placement, a height reset. Counted per kind and in all; the post-flight
+        smoother cuts its chain where ``reset_count`` changes (postflight/reprocess.py)."""
+        self.reset_counts[kind] += 1
+        self.reset_count += 1
 
     # ------------------------------------------------------------------ prediction
 
@@ -422,8 +452,8 @@ class WindEkf:
             n = 1.0 / math.sqrt(a0 * a0 + a1 * a1 + a2 * a2 + a3 * a3)
             self.q[0], self.q[1], self.q[2], self.q[3] = a0 * n, a1 * n, a2 * n, a3 * n
             x[ATT_N] = x[ATT_E] = x[ATT_D] = 0.0
-        if x[DRAG] < 0.2:
-            x[DRAG] = 0.2
+        if x[DRAG] < DRAG_SCALE_MIN:
+            x[DRAG] = DRAG_SCALE_MIN
         self.fix_covariance()
         # a NaN/inf anywhere in P reaches its diagonal within one prediction
         np.add.reduce(self.x, out=self._r)

@@ -16,8 +16,16 @@ import numpy as np
 
 from balloon_core.atmosphere import G0
 from balloon_core.rotation import rotation
-from firmware_py.estimator.ekf import FusionStatus, WindEkf
+from firmware_py.estimator.ekf import RESET_HEIGHT, RESET_TAUT, FusionStatus, WindEkf
 from firmware_py.estimator.generated import rope_direction, rope_direction_plain
+from firmware_py.estimator.params import (
+    TAUT_AZIMUTH_MIN_M,
+    TAUT_LEAN_MIN_SIN,
+    TAUT_POS_SIGMA_M,
+    TAUT_VEL_SIGMA_MPS,
+    TAUT_WIND_SIGMA_MPS,
+    UNGATED,
+)
 from firmware_py.estimator.state import (
     ATT_D,
     ATT_E,
@@ -36,13 +44,6 @@ from firmware_py.estimator.state import (
     WRATE_E,
     WRATE_N,
 )
-
-UNGATED = 1e6
-TAUT_AZIMUTH_MIN_M = 3.0  # horizontal offset of the ascent that fixes the azimuth at the taut switch
-TAUT_LEAN_MIN = math.sin(math.radians(3.0))  # a lean this large gives the azimuth to a few degrees
-TAUT_POS_SIGMA_M = 5.0  # after a placement: wide enough for the alignment row to move it where the tilt says
-TAUT_VEL_SIGMA_MPS = 1.0  # the balloon still swings after the snap
-TAUT_WIND_SIGMA_MPS = 1.5  # the static balance's wind at the snap (the balloon is not yet in balance)
 
 
 def fuse_accel(ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status: list[FusionStatus]) -> None:
@@ -98,6 +99,7 @@ def reset_height(ekf: WindEkf, pos_d: float, var: float) -> None:
         P[:, i] = 0.0
     P[POS_D, POS_D] = var
     P[VEL_D, VEL_D] = 1.0
+    ekf.reset(RESET_HEIGHT)
 
 
 def fuse_heading(
@@ -172,7 +174,7 @@ def enter_taut(ekf: WindEkf, height_m: float, rho: float, from_tilt: bool = Fals
     zn, ze = r[2], r[5]  # horizontal part of the body's down axis: it leans towards the anchor
     lean = math.hypot(zn, ze)
     wind = math.hypot(wn, we)
-    if from_tilt and lean > TAUT_LEAN_MIN:
+    if from_tilt and lean > TAUT_LEAN_MIN_SIN:
         an, ae = -zn / lean, -ze / lean
     elif horiz > TAUT_AZIMUTH_MIN_M:
         an, ae = pn / horiz, pe / horiz
@@ -202,6 +204,7 @@ def enter_taut(ekf: WindEkf, height_m: float, rho: float, from_tilt: bool = Fals
         P[i, i] = TAUT_VEL_SIGMA_MPS**2
     P[WIND_N, WIND_N] = P[WIND_E, WIND_E] = TAUT_WIND_SIGMA_MPS**2
     P[WRATE_N, WRATE_N] = P[WRATE_E, WRATE_E] = ekf.wind_process.sigma_rate_mps2**2
+    ekf.reset(RESET_TAUT)
 
 
 def fuse_taut(

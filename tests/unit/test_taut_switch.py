@@ -7,7 +7,7 @@ import pytest
 from balloon_core.config import Design
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.state import DRAG, MODE_FREE, MODE_TAUT, POS_D, VEL_D
-from tests.flights import feed, stream
+from tests.helpers.flights import feed, stream
 
 
 @pytest.mark.parametrize("seed", [1, 2])

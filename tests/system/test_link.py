@@ -17,7 +17,9 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from balloon_core.wire import Decoder, LinkStats
 from ground_station.report import report
-from tests.relay import LossyRelay
+from tests.helpers.relay import LossyRelay
+
+pytestmark = [pytest.mark.network]
 
 PY = sys.executable
 

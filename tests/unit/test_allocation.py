@@ -10,8 +10,8 @@ from balloon_core.config import Design
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.outputs import WindCovOutput
 from firmware_py.estimator.state import MODE_TAUT, FilterConfig
-from tests.flights import feed, stream
-from tests.numpy_alloc import count_allocations
+from tests.helpers.flights import feed, stream
+from tests.helpers.numpy_alloc import count_allocations
 
 
 def numpy_allocations(fn) -> tuple[int, int]:

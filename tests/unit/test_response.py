@@ -13,7 +13,7 @@ from firmware_py.app import Firmware
 from firmware_py.estimator.control import Estimator
 from sim_hil.packets import SensorPacketEncoder
 from sim_hil.scenarios import SCENARIOS
-from tests.flights import feed, stream
+from tests.helpers.flights import feed, stream
 
 LINES_HZ = SCENARIOS["multisine-2d"].wind.multisine_hz
 

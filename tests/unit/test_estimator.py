@@ -11,7 +11,7 @@ from balloon_core.config import Design
 from balloon_core.score import score
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.state import MODE_TAUT, WIND_E, WIND_N, FilterConfig
-from tests.flights import feed, stream
+from tests.helpers.flights import feed, stream
 
 
 def check_covariance(P):

@@ -4,7 +4,7 @@ also those inside functions), has no cycle, and no package imports one above it 
 import ast
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2] if (Path(__file__).parents[1].name == "tests") else Path(__file__).parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("balloon_core", "firmware_py", "sim_hil", "ground_station", "postflight", "sil", "study")
 # what each package may import of the others
 ALLOWED = {

@@ -36,9 +36,9 @@ from firmware_py.streams import (
     measure_rate_hz,
 )
 from postflight.logs import read_flight
-from tests.flights import stream
+from tests.helpers.flights import stream
 
-DATA = Path(__file__).parent / "data"
+DATA = Path(__file__).parents[1] / "data"
 PY = sys.executable
 G0 = 9.80665
 

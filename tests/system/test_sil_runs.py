@@ -11,7 +11,11 @@ import subprocess
 import sys
 import time
 
+import pytest
+
 from sil.cli import MIN_SCORED_S, last_lines, score_start
+
+pytestmark = [pytest.mark.network, pytest.mark.slow]
 
 PY = sys.executable
 

@@ -12,10 +12,12 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tools"))
 
 import golden  # noqa: E402
+
+pytestmark = [pytest.mark.slow]
 
 EXPECTED = json.loads((golden.GOLDEN / "expected.json").read_text())
 

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from balloon_core.config import Design
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.state import MODE_FREE, MODE_TAUT, WIND_E, WIND_N, FilterConfig
-from tests.flights import feed, stream
+from tests.helpers.flights import feed, stream
 
 SETTINGS = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 

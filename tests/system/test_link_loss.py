@@ -19,6 +19,8 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from balloon_core.wire import Decoder, LinkStats, SenderSeq, pack
 
+pytestmark = [pytest.mark.network]
+
 PY = sys.executable
 
 

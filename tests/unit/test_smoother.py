@@ -12,7 +12,7 @@ from balloon_core.samples import BaroSample, ImuSample
 from balloon_core.score import response, score
 from postflight.reprocess import reprocess
 from postflight.smoother import SmootherRecorder
-from tests.flights import stream
+from tests.helpers.flights import stream
 
 
 def _random_system(rng, n, steps):

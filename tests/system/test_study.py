@@ -24,7 +24,9 @@ from study.case import run_case
 from study.cli import main, paper_spec_text
 from study.spec import parse_spec
 
-ROOT = Path(__file__).resolve().parents[1]
+pytestmark = [pytest.mark.dask, pytest.mark.slow]
+
+ROOT = Path(__file__).resolve().parents[2]
 TINY = """
 [study]
 base = "paper-reference"

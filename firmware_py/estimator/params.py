@@ -1,0 +1,96 @@
+"""The estimator's internal tunables, each named once with its unit: input limits, schedules and
+timeouts (in seconds, so any IMU rate behaves the same in time), model errors. What a user may set is
+the ``[filter]`` section (``state.FilterConfig``); these are the design choices behind it, explained
+in docs/estimator.md and docs/decisions.md."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+ACC_MAX = 160.0  # m/s^2 (16 g)
+GYRO_MAX = 35.0  # rad/s (2000 deg/s)
+MAG_MAX = 4.0  # gauss
+P_MIN_HPA, P_MAX_HPA = 300.0, 1100.0
+T_MIN_C, T_MAX_C = -60.0, 85.0
+BARO_ZERO_S = 1.0
+REORDER_WINDOW_US = 1_000_000
+TAUT_PERIOD_S = 0.05  # the taut constraints at 20 Hz
+ALIGN_RESET_S = 2.0  # rejected alignment this long re-places the taut state
+JOIN_IN_FLIGHT_US = 10_000_000  # a first sample this long after the sender's boot: we restarted in flight
+# After a join in flight the balloon hypothesis is unconfirmed: the wind read from the tilt through the
+# static balance is only as good as the assumption that this is a balloon on its tether. The motion
+# confirms it: a tethered balloon in a real (turbulent) wind accelerates, and the force model explains
+# that acceleration. Until then the reported accuracy (``wind_accuracy``) is at least the wind's own
+# magnitude (and 1 m/s): the estimate cannot be told from calm. The filter itself runs on unchanged.
+CONFIRM_MOTION_MPS2 = 0.03  # RMS of the measured acceleration's fluctuation (a resting sensor: noise only)
+CONFIRM_EXPLAINED = 0.5  # the model's innovations below this share of that fluctuation's variance
+CONFIRM_S = 20.0  # both, for this long without a break (turbulent forcing persists; a bump dies away)
+CONFIRM_WINDOW_S = 10.0  # time constant of the measured acceleration's running mean
+BARO_RESET_S = 2.0  # rejected barometer this long: reset the height to it
+BARO_NOMINAL_HZ = 20.0  # the barometer's rate its counts are taken at (its samples are fused as they come)
+FALSE_RELEASE_S = 3.0  # free ascent that stays below the release height this long was a bump
+BARO_MODEL_M = 0.3  # hypsometric conversion error (temperature profile, lag) added to the sensor's noise
+LEARN_DRAG_AFTER_S = 2.0  # after the release, once the ascent is established
+FIELD_FLIGHT_S = 60.0  # magnetometer averaged this long in flight when there was no rest on the ground
+ACCEL_INNOV_S = 2.0  # averaging time of the accelerometer's innovations that set its noise floor
+TAUT_PULL_S = 1.0  # after a slack spell the rope must pull this long before the filter is taut again
+MEAN_WIND_S = 60.0  # averaging time of the mean wind that scales the wind's process noise
+WIND_NOISE_PERIOD_S = 1.0  # time between updates of that noise
+FIELD_LEARN_S = 1.0  # at least this much magnetometer on the ground (all of the ground time is used)
+MAG_MODEL_GAUSS = 0.004  # field direction model error (~0.5 deg of a 0.5 G field: soft iron, anomalies)
+
+MAG_RECOVER_S = 0.1  # the magnetometer and heading: rejected this long, fused again with inflated noise
+RELEASE_CONFIRM_S = 0.03  # | |f| - g | above the release threshold this long (3 samples at 100 Hz)
+RELEASE_HEIGHT_S = 0.5  # barometric height above the release height this long
+# measurement placement after a taut switch (measurements.enter_taut)
+UNGATED = 1e6  # a gate in sigmas that never rejects (the radius and radial-rate rows)
+TAUT_AZIMUTH_MIN_M = 3.0  # horizontal offset of the ascent that fixes the azimuth at the taut switch
+TAUT_LEAN_MIN_SIN = math.sin(math.radians(3.0))  # a lean this large gives the azimuth to a few degrees
+TAUT_POS_SIGMA_M = 5.0  # after a placement: wide enough for the alignment row to move it where the tilt says
+TAUT_VEL_SIGMA_MPS = 1.0  # the balloon still swings after the snap
+TAUT_WIND_SIGMA_MPS = 1.5  # the static balance's wind at the snap (the balloon is not yet in balance)
+# covariance hygiene (ekf.fix_covariance) and the held balloon
+VAR_MIN = 1e-9  # floor of every variance
+POS_VAR_MAX_M2 = 1e4
+VEL_VAR_MAX_M2S2 = 400.0
+ATT_VAR_MAX_RAD2 = 0.3
+GYRO_BIAS_SIGMA_MAX_DEG_S = 5.0
+WIND_VAR_MAX_M2S2 = 100.0
+WRATE_VAR_MAX_M2S4 = 4.0
+DRAG_VAR_MAX = 1.0
+GROUND_PROCESS_VAR = 1e-8  # position and velocity process noise per step while held on the ground station
+DRAG_SCALE_MIN = 0.2  # the drag scale is held above this (a balloon always has drag)
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """The times above as counts of the steps (or samples) they are checked at, for one IMU rate."""
+
+    taut_every: int  # steps between taut fusions
+    align_reset: int  # rejected alignment fusions before a taut re-placement
+    baro_reset: int  # rejected barometer samples before a height reset
+    baro_recover: int
+    mag_recover: int
+    field_learn: int  # magnetometer samples
+    field_flight: int
+    wind_noise_every: int  # steps
+    release_confirm: int
+    release_height: int
+
+    @classmethod
+    def at(cls, imu_rate_hz: float, recover_after_s: float) -> Schedule:
+        taut_every = max(1, round(TAUT_PERIOD_S * imu_rate_hz))
+        taut_hz = imu_rate_hz / taut_every
+        return cls(
+            taut_every=taut_every,
+            align_reset=max(1, round(ALIGN_RESET_S * taut_hz)),
+            baro_reset=max(1, round(BARO_RESET_S * BARO_NOMINAL_HZ)),
+            baro_recover=max(1, int(recover_after_s * BARO_NOMINAL_HZ)),
+            mag_recover=max(1, round(MAG_RECOVER_S * imu_rate_hz)),
+            field_learn=max(1, round(FIELD_LEARN_S * imu_rate_hz)),
+            field_flight=max(1, round(FIELD_FLIGHT_S * imu_rate_hz)),
+            wind_noise_every=max(1, round(WIND_NOISE_PERIOD_S * imu_rate_hz)),
+            release_confirm=max(1, round(RELEASE_CONFIRM_S * imu_rate_hz)),
+            release_height=max(1, round(RELEASE_HEIGHT_S * imu_rate_hz)),
+        )
