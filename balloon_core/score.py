@@ -166,3 +166,9 @@ def psd(x: np.ndarray, fs: float, segment_s: float = 200.0) -> tuple[np.ndarray,
         acc = p if acc is None else acc + p
         k += 1
     return np.fft.rfftfreq(n, 1.0 / fs), acc / max(k, 1)
+
+
+def direction_from_deg(wind_n, wind_e):
+    """Meteorological direction the wind blows FROM, degrees clockwise from north, in [0, 360)
+    (scalars or arrays). The one definition every program, product and plot uses."""
+    return np.degrees(np.arctan2(-np.asarray(wind_e, float), -np.asarray(wind_n, float))) % 360.0

@@ -14,6 +14,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from balloon_core.config import Design
 from balloon_core.samples import BaroSample, MavlinkSampler, Sample
+from balloon_core.score import direction_from_deg
 from balloon_core.wire import LinkStats, pack
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.outputs import WindCovOutput
@@ -206,7 +207,7 @@ class Firmware:
         if not est.initialised:
             return f"waiting for the sensors, {self.stats.lost} lost"
         wn, we = est.wind()
-        frm = math.degrees(math.atan2(-we, -wn)) % 360.0
+        frm = direction_from_deg(wn, we)
         return (f"{self.stats.lost} lost ({100 * self.stats.lost_fraction():.1f} %), {self.imu_missing} IMU missing, "
                 f"{est.counters.long_gaps} long gaps, mode {est.mode_name}, wind {math.hypot(wn, we):.1f} m/s "
                 f"from {frm:03.0f} deg \u00b1{est.wind_accuracy():.2f}")  # fmt: skip

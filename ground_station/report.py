@@ -7,7 +7,7 @@ import os
 
 import numpy as np
 
-from balloon_core.score import Score, lowpass, psd, score
+from balloon_core.score import Score, direction_from_deg, lowpass, psd, score
 from ground_station.wind import as_arrays, read_records
 
 TRUTH_NEEDED = ("time_s", "wind_n", "wind_e")
@@ -60,7 +60,7 @@ def report(wind_path: str, truth_path: str, plot_path: str | None = None, start_
 def direction_from(wind_n: np.ndarray, wind_e: np.ndarray, centre_deg: float) -> np.ndarray:
     """Meteorological direction (where the wind comes FROM, deg clockwise from north), wrapped into
     centre +- 180 deg so that a wind around north does not jump between 0 and 360 on the plot."""
-    d = np.degrees(np.arctan2(-np.asarray(wind_e), -np.asarray(wind_n)))
+    d = direction_from_deg(wind_n, wind_e)
     return (d - centre_deg + 180.0) % 360.0 - 180.0 + centre_deg
 
 

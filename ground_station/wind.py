@@ -8,13 +8,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from balloon_core.score import direction_from_deg
+
 CSV_COLUMNS = ("time_usec", "sysid", "compid", "wind_x", "wind_y", "wind_z", "var_horiz", "var_vert",
                "wind_alt", "horiz_accuracy", "vert_accuracy", "speed_mps", "from_deg")  # fmt: skip
-
-
-def direction_from_deg(wind_n: float, wind_e: float) -> float:
-    """Meteorological direction the wind blows FROM, degrees clockwise from north."""
-    return math.degrees(math.atan2(-wind_e, -wind_n)) % 360.0
 
 
 @dataclass(frozen=True)
@@ -42,7 +39,7 @@ class WindRecord:
 
     @property
     def from_deg(self) -> float:
-        return direction_from_deg(self.wind_x, self.wind_y)
+        return float(direction_from_deg(self.wind_x, self.wind_y))
 
     def csv_row(self) -> list:
         return [self.time_usec, self.sysid, self.compid, *(f"{v:.5g}" for v in (

@@ -20,15 +20,11 @@ import math
 
 import numpy as np
 
+from balloon_core.score import direction_from_deg
 from postflight.product import FLAG_WIND_UNKNOWN, WindProduct
 
 GUST_WINDOW_S = 3.0  # WMO: gusts are 3-s running means
 YAMARTINO_K = 2.0 / math.sqrt(3.0) - 1.0  # 0.1547
-
-
-def direction_from_deg(wind_n: np.ndarray, wind_e: np.ndarray) -> np.ndarray:
-    """Meteorological direction the wind blows FROM, degrees clockwise from north, in [0, 360)."""
-    return np.degrees(np.arctan2(-np.asarray(wind_e, float), -np.asarray(wind_n, float))) % 360.0
 
 
 def speed_direction_sigma(wind_n: np.ndarray, wind_e: np.ndarray, sigma_n: np.ndarray,

@@ -17,7 +17,8 @@ import re
 
 import numpy as np
 
-from postflight.averages import AVERAGE_FIELDS, direction_from_deg, product_averages, speed_direction_sigma
+from balloon_core.score import direction_from_deg
+from postflight.averages import AVERAGE_FIELDS, product_averages, speed_direction_sigma
 from postflight.product import (
     FLAG_NO_BARO,
     FLAG_SEGMENT_START,

@@ -10,8 +10,8 @@ import os
 
 import numpy as np
 
-from balloon_core.score import psd
-from postflight.averages import direction_from_deg, product_averages, speed_direction_sigma
+from balloon_core.score import direction_from_deg, psd
+from postflight.averages import product_averages, speed_direction_sigma
 from postflight.product import FLAG_WIND_UNKNOWN, WindProduct
 
 MODE_STYLE = ((0, "ground", "#d8c3a5"), (1, "free ascent", "#c6dbef"), (2, "taut", "#d9f0d3"))

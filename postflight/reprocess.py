@@ -17,6 +17,7 @@ import numpy as np
 
 from balloon_core.config import Design
 from balloon_core.samples import BaroSample, Sample
+from balloon_core.score import direction_from_deg
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.state import MODE_GROUND, N_STATES, POS_D, POS_E, POS_N, WIND_E, WIND_N, FilterConfig
 from firmware_py.streams import InputPipeline, feed
@@ -243,7 +244,7 @@ def _summary(p: WindProduct, meta, wall_s: float) -> str:
     if np.any(known):
         sp = float(np.hypot(np.mean(p.wind_n[known]), np.mean(p.wind_e[known])))
         acc = float(np.median(np.hypot(p.sigma_n[known], p.sigma_e[known])))
-        frm = math.degrees(math.atan2(-np.mean(p.wind_e[known]), -np.mean(p.wind_n[known]))) % 360.0
+        frm = direction_from_deg(np.mean(p.wind_n[known]), np.mean(p.wind_e[known]))
         wind = f"mean wind {sp:.2f} m/s from {frm:03.0f} deg, median accuracy {acc:.2f} m/s over {known.mean():.0%}"
     else:
         wind = "the wind is NOT known anywhere in this flight (accuracy too poor: not a tethered balloon?)"

@@ -6,9 +6,10 @@ import math
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from balloon_core.score import direction_from_deg
 from balloon_core.wire import pack
 from ground_station.listen import GroundStation
-from ground_station.wind import direction_from_deg, read_records
+from ground_station.wind import read_records
 
 
 def px4_wind(seq_mav, t_us, n, e):

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import xarray as xr
 
+from balloon_core.score import direction_from_deg
 from postflight.averages import (
     YAMARTINO_K,
-    direction_from_deg,
     speed_direction_sigma,
     wind_averages,
 )
