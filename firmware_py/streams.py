@@ -27,8 +27,8 @@ from balloon_core.samples import (
     Sample,
 )
 from balloon_core.wire import pack
-from firmware_py.estimator.control import Estimator
-from firmware_py.estimator.params import ACC_MAX, GYRO_MAX, REORDER_WINDOW_US
+from firmware_py.estimator.control import Estimator, valid_imu
+from firmware_py.estimator.params import REORDER_WINDOW_US
 from firmware_py.estimator.state import FilterConfig
 
 RATE_WINDOW_S = 2.0  # the IMU rate is the median sample interval over this much of the stream
@@ -89,9 +89,7 @@ def decide_rate(stream_hz: float | None, cfg_hz: float, explicit: bool) -> RateD
 
 
 def _valid_imu(s: ImuSample) -> bool:
-    return all(math.isfinite(v) and abs(v) <= ACC_MAX for v in (s.ax, s.ay, s.az)) and all(
-        math.isfinite(v) and abs(v) <= GYRO_MAX for v in (s.gx, s.gy, s.gz)
-    )
+    return valid_imu(s.ax, s.ay, s.az, s.gx, s.gy, s.gz)
 
 
 class Resampler:

@@ -79,6 +79,11 @@ def _finite3(a: float, b: float, c: float, limit: float) -> bool:
     )  # fmt: skip
 
 
+def valid_imu(ax: float, ay: float, az: float, gx: float, gy: float, gz: float) -> bool:
+    """The one IMU validity check (the estimator's and the input stage's): finite and within range."""
+    return _finite3(ax, ay, az, ACC_MAX) and _finite3(gx, gy, gz, GYRO_MAX)
+
+
 def quat_from_accel_mag(ax: float, ay: float, az: float, mx: float, my: float, mz: float, dec: float):
     """Attitude of a resting body from gravity (specific force = -g) and the magnetic heading."""
     roll = math.atan2(-ay, -az)
@@ -231,7 +236,7 @@ class Estimator:
         """One IMU sample: specific force (FRD, m/s^2), rates (rad/s), field (gauss, NaN if none).
         Returns True when the filter advanced."""
         c = self.counters
-        if not (_finite3(ax, ay, az, ACC_MAX) and _finite3(gx, gy, gz, GYRO_MAX)):
+        if not valid_imu(ax, ay, az, gx, gy, gz):
             c.rejected += 1
             return False
         mag_ok = _finite3(mx, my, mz, MAG_MAX) and (mx != 0.0 or my != 0.0 or mz != 0.0)
