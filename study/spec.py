@@ -356,14 +356,15 @@ def validate_designs(spec: Spec) -> None:
 def code_fingerprint() -> str:
     """Hash of the code that computes a case (simulator, estimator, scoring, the case runner): results
     stored by other code are not reused as this code's. Plots, tables and I/O are not part of it."""
+    import balloon_core
     import firmware_py
-    import ground_station
     import sim_hil
 
     here = Path(__file__).parent
-    files = [*sorted(Path(firmware_py.__file__).parent.glob("*.py")),
+    files = [*sorted(Path(balloon_core.__file__).parent.glob("*.py")),
+             *sorted(Path(firmware_py.__file__).parent.rglob("*.py")),
              *sorted(Path(sim_hil.__file__).parent.glob("*.py")),
-             Path(ground_station.__file__).parent / "score.py", here / "case.py", here / "metrics.py", here / "spec.py"]
+             here / "case.py", here / "metrics.py", here / "spec.py"]  # fmt: skip
     h = hashlib.sha256()
     for f in files:
         h.update(f.name.encode())
