@@ -6,7 +6,7 @@ import copy
 
 import numpy as np
 import pytest
-from tests.test_model import rotate_ned
+from tests.unit.test_model import rotate_ned
 
 from balloon_core.config import Design
 from firmware_py.estimator.control import Estimator
