@@ -6,7 +6,6 @@ import copy
 
 import numpy as np
 import pytest
-from tests.unit.test_model import rotate_ned
 
 from balloon_core.config import Design
 from firmware_py.estimator.control import Estimator
@@ -14,6 +13,7 @@ from firmware_py.estimator.ekf import FusionStatus
 from firmware_py.estimator.measurements import fuse_accel, fuse_baro, fuse_mag_field, fuse_taut
 from firmware_py.estimator.model import accelerations
 from firmware_py.estimator.state import ATT_N, DRAG, MODE_TAUT, N_STATES, STATE_NAMES
+from tests.unit.test_model import rotate_ned
 
 
 @pytest.fixture
