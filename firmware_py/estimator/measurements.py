@@ -18,6 +18,7 @@ from balloon_core.atmosphere import G0
 from balloon_core.rotation import rotation
 from firmware_py.estimator.ekf import RESET_HEIGHT, RESET_TAUT, FusionStatus, WindEkf
 from firmware_py.estimator.generated import rope_direction, rope_direction_plain
+from firmware_py.estimator.model import N_COLUMNS, ROPE_JAC
 from firmware_py.estimator.params import (
     TAUT_AZIMUTH_MIN_M,
     TAUT_LEAN_MIN_SIN,
@@ -249,5 +250,5 @@ def fuse_taut(
         h.fill(0.0)
         h[ATT_N], h[ATT_E], h[ATT_D] = dz_datt[c]
         for j in range(ncol):
-            h[MODEL_COLUMNS[j]] = -n[2 + 11 * c + j]  # residual z - n(x)
+            h[MODEL_COLUMNS[j]] = -n[ROPE_JAC + N_COLUMNS * c + j]  # residual z - n(x)
         ekf.fuse(n[c] - z[c], align_var, status[2 + c], recover=False)

@@ -16,7 +16,15 @@ from dataclasses import dataclass
 
 from balloon_core.atmosphere import G0
 from balloon_core.config import Design
-from firmware_py.estimator.generated import free_model, taut_model, taut_model_plain
+from firmware_py.estimator.generated import COLUMNS, free_model, taut_model, taut_model_plain
+
+# what the generated functions return, by name (tools/derive_model.py): n = len(COLUMNS) model columns
+N_COLUMNS = len(COLUMNS)
+FREE_JA = slice(3, 3 + 3 * N_COLUMNS)  # free_model: a (3), then d a / d x (3 x n)
+TAUT_PULL = 3  # taut_model: a (3), tension / m_eff, d a / d x (3 x n), d(tension / m_eff) / d x (n)
+TAUT_JA = slice(TAUT_PULL + 1, TAUT_PULL + 1 + 3 * N_COLUMNS)
+TAUT_JPULL = slice(TAUT_JA.stop, TAUT_JA.stop + N_COLUMNS)
+ROPE_JAC = 2  # rope_direction: n_N, n_E, then d n_N / d x (n), d n_E / d x (n)
 
 ADDED_MASS_COEFFICIENT = 0.5
 
@@ -128,16 +136,16 @@ def accelerations(
     if taut:
         fn = taut_model if m.rope_drag_m2 > 0.0 else taut_model_plain
         r = fn(pn, pe, pd, vn, ve, vd, wn, we, rn, re, k, *par)
-        if r[3] > 0.0:
+        if r[TAUT_PULL] > 0.0:
             out.an, out.ae, out.ad = r[0], r[1], r[2]
-            out.tension_n = r[3] * par[0]
-            out.ja = r[4:37]
-            out.jpull = r[37:48]
+            out.tension_n = r[TAUT_PULL] * par[0]
+            out.ja = r[TAUT_JA]
+            out.jpull = r[TAUT_JPULL]
             out.taut = True
             return out
     r = free_model(pn, pe, pd, vn, ve, vd, wn, we, rn, re, k, *par)
     out.an, out.ae, out.ad = r[0], r[1], r[2]
-    out.ja = r[3:36]
+    out.ja = r[FREE_JA]
     out.tension_n = 0.0
     out.taut = False
     return out

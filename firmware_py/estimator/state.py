@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from balloon_core.config import build_section
+from firmware_py.estimator.generated import COLUMNS
 
 POS_N, POS_E, POS_D = 0, 1, 2  # m, NED from the anchor, the balloon's centre
 VEL_N, VEL_E, VEL_D = 3, 4, 5  # m/s NED (body velocity U^B of paper Eq. 8 is R^T v)
@@ -19,12 +20,12 @@ WIND_N, WIND_E = 12, 13  # m/s air velocity, horizontal (the paper's wind is hor
 WRATE_N, WRATE_E = 14, 15  # m/s^2 rate of change of the wind (its push on the balloon: Froude-Krylov)
 DRAG = 16  # drag scale: multiplies 1/2 rho Cd pi r^2 (Cd is uncertain in the drag crisis)
 N_STATES = 17
-# the states the balloon model's Jacobians are taken over, in the order of generated.COLUMNS
-MODEL_COLUMNS = (POS_N, POS_E, POS_D, VEL_N, VEL_E, VEL_D, WIND_N, WIND_E, WRATE_N, WRATE_E, DRAG)
 STATE_NAMES = (
     "pos_n", "pos_e", "pos_d", "vel_n", "vel_e", "vel_d", "att_n", "att_e", "att_d",
     "gbias_x", "gbias_y", "gbias_z", "wind_n", "wind_e", "wrate_n", "wrate_e", "drag_scale",
 )  # fmt: skip
+# the states the balloon model's Jacobians are taken over, in the generator's order (generated.COLUMNS)
+MODEL_COLUMNS = tuple(STATE_NAMES.index(name) for name in COLUMNS)
 
 # operating modes
 MODE_GROUND, MODE_FREE, MODE_TAUT = 0, 1, 2
