@@ -6,25 +6,19 @@ from __future__ import annotations
 
 import math
 
-from balloon_core.atmosphere import G0, LAPSE_K_M, R_AIR, air_density, hypsometric_height_m
+from balloon_core.atmosphere import G0, air_density
 from balloon_core.config import Design
 from balloon_core.rotation import quat_from_euler, rotation
+from firmware_py.estimator.aid_sources.accel import control_accel
+from firmware_py.estimator.aid_sources.baro import baro_sample, control_baro, reset_height
+from firmware_py.estimator.aid_sources.magnetometer import control_mag
+from firmware_py.estimator.aid_sources.tether import control_tether, enter_taut
 from firmware_py.estimator.ekf import FusionStatus, WindEkf
-from firmware_py.estimator.measurements import (
-    enter_taut,
-    fuse_accel,
-    fuse_baro,
-    fuse_heading,
-    fuse_mag_field,
-    fuse_taut,
-    reset_height,
-)
 from firmware_py.estimator.model import BalloonModel, Forces, accelerations
 from firmware_py.estimator.params import (
     ACC_MAX,
     ACCEL_INNOV_S,
     BARO_MODEL_M,
-    BARO_ZERO_S,
     CONFIRM_EXPLAINED,
     CONFIRM_MOTION_MPS2,
     CONFIRM_S,
@@ -36,11 +30,7 @@ from firmware_py.estimator.params import (
     MAG_MAX,
     MAG_MODEL_GAUSS,
     MEAN_WIND_S,
-    P_MAX_HPA,
-    P_MIN_HPA,
     REORDER_WINDOW_US,
-    T_MAX_C,
-    T_MIN_C,
     TAUT_PULL_S,
     Schedule,
 )
@@ -154,23 +144,6 @@ class Estimator:
         self._was_slack = False
         self._height_above = 0
 
-    def _learn_field(self, ax: float, ay: float, az: float, mx: float, my: float, mz: float) -> None:
-        """The earth field in NED from the body-frame averages of the field and of gravity while the
-        balloon rests on the ground station: its down component is the field along gravity, the rest is
-        horizontal and points to the declination. No assumed strength or inclination; no dependence on
-        the filter's own attitude (whose heading is still settling at boot)."""
-        s = self._field_sum
-        for i, v in enumerate((ax, ay, az, mx, my, mz)):
-            s[i] += v
-        self._field_n += 1
-        if self._field_n < self.schedule.field_learn:
-            return
-        fx, fy, fz, bx, by, bz = s
-        fnorm = math.sqrt(fx * fx + fy * fy + fz * fz)
-        n = self._field_n
-        down = -(fx * bx + fy * by + fz * bz) / (fnorm * n)  # at rest the specific force points up
-        horiz = math.sqrt(max(0.0, (bx * bx + by * by + bz * bz) / (n * n) - down * down))
-        self.field_ned = (horiz * math.cos(self.declination), horiz * math.sin(self.declination), down)
 
     def _init_baro(self) -> None:
         gp = self.design.site.ground_pressure_hpa
@@ -194,40 +167,9 @@ class Estimator:
     # ------------------------------------------------------------------ inputs
 
     def on_baro(self, t_us: int, pressure_hpa: float, temperature_c: float) -> bool:
-        """A barometer + thermometer sample. Zeroes the height during the first second unless the
-        config gives the ground pressure; the sample is fused at the next IMU step."""
-        if not (
-            math.isfinite(pressure_hpa) and math.isfinite(temperature_c)
-            and P_MIN_HPA <= pressure_hpa <= P_MAX_HPA and T_MIN_C <= temperature_c <= T_MAX_C
-        ):  # fmt: skip
-            self.counters.rejected += 1
-            return False
-        p = pressure_hpa * 100.0
-        tk = temperature_c + 273.15
-        self.counters.baro_samples += 1
-        self.rho = air_density(p, tk)
-        if math.isnan(self.t_ref_k):
-            self.t_ref_k = tk
-        if self._zeroing:
-            if not self.initialised:
-                return True
-            if math.isfinite(self._join_height):
-                # joined in flight: the zero that makes this sample read the height from the tilt
-                t_ground = tk + LAPSE_K_M * self._join_height
-                self.t_ref_k = t_ground
-                self.p_ref_pa = p * math.exp(G0 * self._join_height / (R_AIR * 0.5 * (t_ground + tk)))
-                self._zeroing = False
-                self._join_height = math.nan
-            elif t_us - self.t_boot_us < BARO_ZERO_S * 1e6 or self._zero_n == 0:
-                self._zero_sum += p
-                self._zero_n += 1
-                return True
-            else:
-                self.p_ref_pa = self._zero_sum / self._zero_n
-                self._zeroing = False
-        self.height_baro = hypsometric_height_m(p, self.p_ref_pa, 0.5 * (self.t_ref_k + tk))
-        self._baro_pending = True
-        return True
+        """A barometer + thermometer sample (aid_sources/baro.py): zeroed during the first second unless
+        the config gives the ground pressure; fused at the next IMU step."""
+        return baro_sample(self, t_us, pressure_hpa, temperature_c)
 
     def on_imu(
         self, t_us: int, ax: float, ay: float, az: float, gx: float, gy: float, gz: float,
@@ -285,44 +227,13 @@ class Estimator:
             self.step += 1
         self._last_gyro = (gx, gy, gz)
         ekf.begin_update()
-        var = (self.accel_static_var, self.accel_var, self.accel_taut_var)[ekf.mode]
-        # the force model's own error grows when the state is far from the truth (after a placement)
-        # or the physics departs from the model (a drag crisis, a gust the rate state cannot follow):
-        # the accelerometer's noise follows its recent innovations, so that a model that is off
-        # does not drag the attitude with it (the magnetometer and the gyro keep it)
-        var = max(var, self._accel_innov2)
-        fuse_accel(ekf, ax, ay, az, var, self.accel_status)
-        st = self.accel_status
-        i2 = (st[0].innov**2 + st[1].innov**2 + st[2].innov**2) / 3.0
-        self._accel_innov2 += self._innov_alpha * (i2 - self._accel_innov2)
+        control_accel(self, ax, ay, az)
         if self.unconfirmed:
             self._confirm(ax, ay, az)
-        if self._baro_pending and not math.isnan(self.height_baro):
-            fuse_baro(ekf, self.height_baro, self.ref_pos_d, self.baro_var, self.baro_status)
-            self._baro_pending = False
-            if self.baro_status.consecutive_rejects >= self.schedule.baro_reset:
-                # the barometer has disagreed for 2 s: the height model is off, the sensor wins
-                c.baro_resets += 1
-                self.baro_status.consecutive_rejects = 0
-                reset_height(ekf, self.ref_pos_d - self.height_baro, self.baro_var)
+        control_baro(self)
         if mag_ok:
-            if ekf.mode == MODE_GROUND or (self._joined and self._field_n < self.schedule.field_flight):
-                # the field from rotation-invariant averages (|m| and m . f): at rest on the ground,
-                # or, after a restart in flight, on the quasi-static balloon (its mean acceleration is 0)
-                self._learn_field(ax, ay, az, mx, my, mz)
-            if self._field_n >= self.schedule.field_learn and ekf.mode != MODE_GROUND:
-                fuse_mag_field(ekf, mx, my, mz, self.field_ned, self.mag_var, self.mag_status)
-            else:
-                fuse_heading(ekf, mx, my, mz, self.declination, self.mag_sigma, self.heading_status)
-        if ekf.mode == MODE_TAUT and self.step % self.schedule.taut_every == 0:
-            cfg = self.cfg
-            fuse_taut(ekf, cfg.radial_m**2, cfg.radial_rate_mps**2, cfg.align_rad**2, self.taut_status)
-            align_n, align_e = self.taut_status[2], self.taut_status[3]
-            if max(align_n.consecutive_rejects, align_e.consecutive_rejects) >= self.schedule.align_reset:
-                # the tilt contradicts the taut state for 2 s: start the taut state again from the tilt
-                self.counters.taut_resets += 1
-                align_n.consecutive_rejects = align_e.consecutive_rejects = 0
-                enter_taut(ekf, self._height_for_taut(), self.rho, from_tilt=True)
+            control_mag(self, ax, ay, az, mx, my, mz)
+        control_tether(self)
         if not ekf.end_update():
             c.numeric_resets += 1
             self._reinitialise_in_flight(ax, ay, az, mx, my, mz, mag_ok)

@@ -43,7 +43,7 @@ MAG_MODEL_GAUSS = 0.004  # field direction model error (~0.5 deg of a 0.5 G fiel
 MAG_RECOVER_S = 0.1  # the magnetometer and heading: rejected this long, fused again with inflated noise
 RELEASE_CONFIRM_S = 0.03  # | |f| - g | above the release threshold this long (3 samples at 100 Hz)
 RELEASE_HEIGHT_S = 0.5  # barometric height above the release height this long
-# measurement placement after a taut switch (measurements.enter_taut)
+# the placement after a taut switch (aid_sources.tether.enter_taut)
 UNGATED = 1e6  # a gate in sigmas that never rejects (the radius and radial-rate rows)
 TAUT_AZIMUTH_MIN_M = 3.0  # horizontal offset of the ascent that fixes the azimuth at the taut switch
 TAUT_LEAN_MIN_SIN = math.sin(math.radians(3.0))  # a lean this large gives the azimuth to a few degrees

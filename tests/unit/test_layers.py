@@ -18,7 +18,7 @@ ALLOWED = {
 }
 # the estimator: the portable unit (what a C port covers)
 ESTIMATOR = "firmware_py.estimator"
-ESTIMATOR_MAY_IMPORT = {"math", "numpy", "dataclasses", "__future__", "balloon_core.atmosphere",
+ESTIMATOR_MAY_IMPORT = {"math", "numpy", "dataclasses", "typing", "__future__", "balloon_core.atmosphere",
                         "balloon_core.rotation", "balloon_core.config"}  # fmt: skip
 
 
@@ -30,7 +30,11 @@ def modules() -> dict[str, set[str]]:
             rel = path.relative_to(ROOT).with_suffix("")
             name = ".".join(p for p in rel.parts if p != "__init__")
             deps = set()
-            for node in ast.walk(ast.parse(path.read_text())):
+            tree = ast.parse(path.read_text())
+            for node in ast.walk(tree):  # type-only imports (under ``if TYPE_CHECKING``) are no dependency
+                if isinstance(node, ast.If) and getattr(node.test, "id", "") == "TYPE_CHECKING":
+                    node.body = []
+            for node in ast.walk(tree):
                 if isinstance(node, ast.Import):
                     deps |= {a.name for a in node.names}
                 elif isinstance(node, ast.ImportFrom) and node.module:

@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 
 from balloon_core.config import Design
+from firmware_py.estimator.aid_sources.accel import fuse_accel
+from firmware_py.estimator.aid_sources.magnetometer import fuse_heading
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.ekf import FusionStatus
-from firmware_py.estimator.measurements import fuse_accel, fuse_heading
 from firmware_py.estimator.model import BalloonModel, Forces, accelerations
 from firmware_py.estimator.state import ATT_D, ATT_N, MODE_FREE, N_STATES
 

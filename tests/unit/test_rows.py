@@ -8,9 +8,12 @@ import numpy as np
 import pytest
 
 from balloon_core.config import Design
+from firmware_py.estimator.aid_sources.accel import fuse_accel
+from firmware_py.estimator.aid_sources.baro import fuse_baro
+from firmware_py.estimator.aid_sources.magnetometer import fuse_mag_field
+from firmware_py.estimator.aid_sources.tether import fuse_taut
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.ekf import FusionStatus
-from firmware_py.estimator.measurements import fuse_accel, fuse_baro, fuse_mag_field, fuse_taut
 from firmware_py.estimator.model import accelerations
 from firmware_py.estimator.state import ATT_N, DRAG, MODE_TAUT, N_STATES, STATE_NAMES
 from tests.unit.test_model import rotate_ned

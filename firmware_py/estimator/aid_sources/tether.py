@@ -1,22 +1,17 @@
-"""Measurement models (paper Eq. 9) and their fusion, one function per kind. Each sets the row
-``ekf.h`` and calls ``ekf.fuse`` with the innovation and its noise; innovations, test ratios and
-counts land in the ``FusionStatus`` it is given.
+"""The tether when taut: its placement, the radius, radial-rate and alignment rows, and the taut re-placement.
 
-- specific force (accelerometer, 3 scalars): f = R^T (a(x) - g)
-- barometric height: -p_d - h_ref
-- heading (magnetometer + declination): yaw about NED down
-- taut constraints: |p| = L + r, radial velocity 0, body down axis along the rope force (2 scalars)
+Control (when to fuse, what to reset) beside fusion (the rows), as PX4 EKF2's aid sources; each
+fusion keeps a ``FusionStatus`` (innovation, its variance, test ratio, fused and rejected counts).
 """
 
 from __future__ import annotations
 
 import math
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from balloon_core.atmosphere import G0
 from balloon_core.rotation import rotation
-from firmware_py.estimator.ekf import RESET_HEIGHT, RESET_TAUT, FusionStatus, WindEkf
+from firmware_py.estimator.ekf import RESET_TAUT, FusionStatus, WindEkf
 from firmware_py.estimator.generated import rope_direction, rope_direction_plain
 from firmware_py.estimator.model import N_COLUMNS, ROPE_JAC
 from firmware_py.estimator.params import (
@@ -32,7 +27,7 @@ from firmware_py.estimator.state import (
     ATT_E,
     ATT_N,
     DRAG,
-    MODE_GROUND,
+    MODE_TAUT,
     MODEL_COLUMNS,
     POS_D,
     POS_E,
@@ -46,109 +41,8 @@ from firmware_py.estimator.state import (
     WRATE_N,
 )
 
-
-def fuse_accel(ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status: list[FusionStatus]) -> None:
-    """Specific force in FRD against the force model, f = R^T (a(x) - g): tilt (through g) and the
-    balloon's dynamics (drag of the wind, the air's push, the rope) through a(x). On the ground the
-    balloon is held (a = 0): a gravity reference. The three axes are fused as one vector."""
-    r = rotation(*ekf.q.tolist())
-    f = ekf.forces
-    ground = ekf.mode == MODE_GROUND
-    if ground:
-        yn, ye, yd = 0.0, 0.0, -G0
-    else:
-        yn, ye, yd = f.an, f.ae, f.ad - G0
-    H = ekf.H3
-    H.fill(0.0)
-    pred = [0.0, 0.0, 0.0]
-    rt = ekf.rt
-    for i in range(3):
-        cn, ce, cd = r[i], r[3 + i], r[6 + i]  # row i of R^T
-        pred[i] = cn * yn + ce * ye + cd * yd
-        h = ekf.H3_rows[i]
-        # d/d att: R^T [y x]
-        h[ATT_N] = ce * yd - cd * ye
-        h[ATT_E] = cd * yn - cn * yd
-        h[ATT_D] = cn * ye - ce * yn
-        rt[i, 0], rt[i, 1], rt[i, 2] = cn, ce, cd
-    if not ground:
-        # d/d (model states): R^T (d a / d x), the two column blocks of the model (ekf.ja, set by predict)
-        np.matmul(rt, ekf.ja, out=ekf.hja)
-        np.copyto(ekf.H3_pv, ekf.hja_pv)
-        np.copyto(ekf.H3_wk, ekf.hja_wk)
-        if not ekf.learn_drag:
-            H[0, DRAG] = H[1, DRAG] = H[2, DRAG] = 0.0
-    ekf.fuse3(fx - pred[0], fy - pred[1], fz - pred[2], var, status)
-
-
-def fuse_baro(ekf: WindEkf, height_m: float, ref_pos_d: float, var: float, status: FusionStatus) -> None:
-    """Barometric height above the reference (hypsometric, computed by the caller)."""
-    ekf.h.fill(0.0)
-    ekf.h[POS_D] = -1.0
-    pred = -(float(ekf.x[POS_D]) - ref_pos_d)
-    ekf.fuse(height_m - pred, var, status)
-
-
-def reset_height(ekf: WindEkf, pos_d: float, var: float) -> None:
-    """Put the height where the barometer says (PX4's height reset): the model that contradicted it
-    persistently (a bump taken for a release, a climb that did not happen) gives way to the sensor."""
-    ekf.x[POS_D] = pos_d
-    ekf.x[VEL_D] = 0.0
-    P = ekf.P
-    for i in (POS_D, VEL_D):
-        P[i, :] = 0.0
-        P[:, i] = 0.0
-    P[POS_D, POS_D] = var
-    P[VEL_D, VEL_D] = 1.0
-    ekf.reset(RESET_HEIGHT)
-
-
-def fuse_heading(
-    ekf: WindEkf, mx: float, my: float, mz: float, declination_rad: float, sigma_gauss: float, status: FusionStatus
-) -> None:
-    """Tilt-compensated magnetic heading against the declination. The azimuth of R m depends on the
-    tilt too (by tan(inclination) per radian: 2.25 for a 66 deg field), so the row carries the tilt
-    terms, taken from the measured field itself (no assumed strength or inclination)."""
-    r = rotation(*ekf.q.tolist())
-    mn = r[0] * mx + r[1] * my + r[2] * mz
-    me = r[3] * mx + r[4] * my + r[5] * mz
-    md = r[6] * mx + r[7] * my + r[8] * mz
-    h2 = mn * mn + me * me
-    horiz = math.sqrt(h2)
-    if horiz < 1e-3:
-        status.rejected += 1
-        return
-    innov = declination_rad - math.atan2(me, mn)
-    innov = (innov + math.pi) % (2.0 * math.pi) - math.pi
-    ekf.h.fill(0.0)
-    ekf.h[ATT_N] = -mn * md / h2
-    ekf.h[ATT_E] = -me * md / h2
-    ekf.h[ATT_D] = 1.0
-    var = (sigma_gauss / horiz) ** 2 + math.radians(0.5) ** 2
-    ekf.fuse(innov, var, status)
-
-
-def fuse_mag_field(
-    ekf: WindEkf, mx: float, my: float, mz: float, field_ned: tuple[float, float, float], var: float,
-    status: list[FusionStatus],
-) -> None:
-    """The whole magnetic field vector (FRD) against the earth field learnt on the ground at boot:
-    m = R^T B. Unlike the heading, it also measures the tilt about the axes across the field (about
-    East for a field in the North-Down plane), independently of the balloon's acceleration: the
-    accelerometer is then free to measure the dynamics. Rows: d(R^T B)/d att = R^T [B x]."""
-    r = rotation(*ekf.q.tolist())
-    bn, be, bd = field_ned
-    H = ekf.H3
-    H.fill(0.0)
-    pred = [0.0, 0.0, 0.0]
-    for i in range(3):
-        cn, ce, cd = r[i], r[3 + i], r[6 + i]  # row i of R^T
-        h = ekf.H3_rows[i]
-        h[ATT_N] = ce * bd - cd * be
-        h[ATT_E] = cd * bn - cn * bd
-        h[ATT_D] = cn * be - ce * bn
-        pred[i] = cn * bn + ce * be + cd * bd
-    ekf.fuse3(mx - pred[0], my - pred[1], mz - pred[2], var, status)
+if TYPE_CHECKING:
+    from firmware_py.estimator.control import Estimator
 
 
 def enter_taut(ekf: WindEkf, height_m: float, rho: float, from_tilt: bool = False) -> None:
@@ -252,3 +146,17 @@ def fuse_taut(
         for j in range(ncol):
             h[MODEL_COLUMNS[j]] = -n[ROPE_JAC + N_COLUMNS * c + j]  # residual z - n(x)
         ekf.fuse(n[c] - z[c], align_var, status[2 + c], recover=False)
+
+
+def control_tether(est: Estimator) -> None:
+    """Taut: the radius, radial-rate and alignment rows every ``TAUT_PERIOD_S``; alignment rejected for
+    ``ALIGN_RESET_S`` (the tilt contradicts the taut state) re-places the taut state from the tilt."""
+    ekf = est.ekf
+    if ekf.mode == MODE_TAUT and est.step % est.schedule.taut_every == 0:
+        cfg = est.cfg
+        fuse_taut(ekf, cfg.radial_m**2, cfg.radial_rate_mps**2, cfg.align_rad**2, est.taut_status)
+        align_n, align_e = est.taut_status[2], est.taut_status[3]
+        if max(align_n.consecutive_rejects, align_e.consecutive_rejects) >= est.schedule.align_reset:
+            est.counters.taut_resets += 1
+            align_n.consecutive_rejects = align_e.consecutive_rejects = 0
+            enter_taut(ekf, est._height_for_taut(), est.rho, from_tilt=True)

@@ -1,0 +1,73 @@
+"""The accelerometer: its specific-force rows (paper Eq. 9) and when and how loud to fuse them.
+
+Control (when to fuse, what to reset) beside fusion (the rows), as PX4 EKF2's aid sources; each
+fusion keeps a ``FusionStatus`` (innovation, its variance, test ratio, fused and rejected counts).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from balloon_core.atmosphere import G0
+from balloon_core.rotation import rotation
+from firmware_py.estimator.ekf import FusionStatus, WindEkf
+from firmware_py.estimator.state import (
+    ATT_D,
+    ATT_E,
+    ATT_N,
+    DRAG,
+    MODE_GROUND,
+)
+
+if TYPE_CHECKING:
+    from firmware_py.estimator.control import Estimator
+
+
+def fuse_accel(ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status: list[FusionStatus]) -> None:
+    """Specific force in FRD against the force model, f = R^T (a(x) - g): tilt (through g) and the
+    balloon's dynamics (drag of the wind, the air's push, the rope) through a(x). On the ground the
+    balloon is held (a = 0): a gravity reference. The three axes are fused as one vector."""
+    r = rotation(*ekf.q.tolist())
+    f = ekf.forces
+    ground = ekf.mode == MODE_GROUND
+    if ground:
+        yn, ye, yd = 0.0, 0.0, -G0
+    else:
+        yn, ye, yd = f.an, f.ae, f.ad - G0
+    H = ekf.H3
+    H.fill(0.0)
+    pred = [0.0, 0.0, 0.0]
+    rt = ekf.rt
+    for i in range(3):
+        cn, ce, cd = r[i], r[3 + i], r[6 + i]  # row i of R^T
+        pred[i] = cn * yn + ce * ye + cd * yd
+        h = ekf.H3_rows[i]
+        # d/d att: R^T [y x]
+        h[ATT_N] = ce * yd - cd * ye
+        h[ATT_E] = cd * yn - cn * yd
+        h[ATT_D] = cn * ye - ce * yn
+        rt[i, 0], rt[i, 1], rt[i, 2] = cn, ce, cd
+    if not ground:
+        # d/d (model states): R^T (d a / d x), the two column blocks of the model (ekf.ja, set by predict)
+        np.matmul(rt, ekf.ja, out=ekf.hja)
+        np.copyto(ekf.H3_pv, ekf.hja_pv)
+        np.copyto(ekf.H3_wk, ekf.hja_wk)
+        if not ekf.learn_drag:
+            H[0, DRAG] = H[1, DRAG] = H[2, DRAG] = 0.0
+    ekf.fuse3(fx - pred[0], fy - pred[1], fz - pred[2], var, status)
+
+
+def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
+    """Fuse the specific force every step; its noise follows its recent innovations (the force model's
+    own error grows when the state is far from the truth, after a placement, or the physics departs from
+    the model: a drag crisis, a gust the rate state cannot follow), so that a model that is off does not
+    drag the attitude with it (the magnetometer and the gyro keep it)."""
+    ekf = est.ekf
+    var = (est.accel_static_var, est.accel_var, est.accel_taut_var)[ekf.mode]
+    var = max(var, est._accel_innov2)
+    fuse_accel(ekf, ax, ay, az, var, est.accel_status)
+    st = est.accel_status
+    i2 = (st[0].innov**2 + st[1].innov**2 + st[2].innov**2) / 3.0
+    est._accel_innov2 += est._innov_alpha * (i2 - est._accel_innov2)
