@@ -226,6 +226,7 @@ class Estimator:
             self.t_filter_us += self.dt_us
             self.step += 1
         self._last_gyro = (gx, gy, gz)
+        ekf.time_us = self.t_filter_us
         ekf.begin_update()
         control_accel(self, ax, ay, az)
         if self.unconfirmed:

@@ -56,7 +56,7 @@ class FusionStatus:
     """Per-fusion bookkeeping, as PX4's estimator_innovations / test ratios."""
 
     __slots__ = ("name", "innov", "innov_var", "test_ratio", "fused", "rejected", "consecutive_rejects",
-                 "recover_after")  # fmt: skip
+                 "recover_after", "time_last_fuse_us")  # fmt: skip
 
     def __init__(self, name: str, recover_after: int = 0) -> None:
         self.name = name
@@ -67,6 +67,7 @@ class FusionStatus:
         self.fused = 0
         self.rejected = 0
         self.consecutive_rejects = 0
+        self.time_last_fuse_us = -1  # the filter time of the last fusion (-1: never), as PX4's time_last_fuse
 
 
 # the kinds of state reset: the control logic re-places the state instead of fusing a measurement
@@ -138,6 +139,7 @@ class WindEkf:
         self.learn_drag = False  # set by the control logic: only in established free ascent
         self._drag_correlated = True
         self.recover_after = int(cfg.recover_after_s * cfg.imu_rate_hz)
+        self.time_us = 0  # the filter's time, set by the control logic each step (the statuses' time of fusion)
         self.recorder = None  # post-flight only: postflight.smoother.SmootherRecorder sees every event
         # the one reset API (``reset``): counters per kind and in all, which outputs and the smoother read
         self.reset_counts = [0] * len(RESET_NAMES)
@@ -361,6 +363,7 @@ class WindEkf:
         np.subtract(self.P, self._t1, out=self.P)
         status.fused += 1
         status.consecutive_rejects = 0
+        status.time_last_fuse_us = self.time_us
         return True
 
     def fuse3(self, i0: float, i1: float, i2: float, r: float, status: list[FusionStatus]) -> bool:
@@ -427,9 +430,11 @@ class WindEkf:
         np.add(self.dx, self._v, out=self.dx)
         np.matmul(self._k3, self._phtT, out=self._t1)
         np.subtract(self.P, self._t1, out=self.P)
+        t = self.time_us
         for st in status:
             st.fused += 1
             st.consecutive_rejects = 0
+            st.time_last_fuse_us = t
         return True
 
     def end_update(self) -> bool:

@@ -59,3 +59,16 @@ def test_an_untold_reset_would_be_seen():
     n = est.ekf.reset_count
     est.ekf.reset(RESET_TAUT)
     assert est.ekf.reset_count == n + 1 and est.ekf.reset_counts[RESET_TAUT] == 1
+
+
+def test_statuses_say_when_they_last_fused():
+    samples, _ = stream("reduced-balloon", 120.0, 5)
+    est = Estimator(_reduced())
+    for s in samples[:6000]:
+        if s.baro:
+            est.on_baro(s.time_usec, *s.baro)
+        est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
+    now = est.t_filter_us
+    assert 0 <= now - est.accel_status[0].time_last_fuse_us <= est.dt_us * 10  # fused every step
+    assert 0 <= now - est.baro_status.time_last_fuse_us <= 200_000  # 20 Hz
+    assert all(st.time_last_fuse_us <= now for st in (*est.mag_status, *est.taut_status))
