@@ -39,6 +39,7 @@ def read(tlog, kind):
     return out
 
 
+@pytest.mark.slow
 def test_tlog_replay_emits_wind_cov_and_heartbeat(flight):
     d, tlog = flight
     out = d / "fw.tlog"
@@ -67,6 +68,7 @@ def frames(tlog):
     return [bytes(m.get_msgbuf()) for m in tlog_messages(str(tlog), stats)]
 
 
+@pytest.mark.slow
 def test_raw_capture_with_garbage_and_corrupt_frames(flight):
     d, tlog = flight
     rng = random.Random(3)
@@ -93,6 +95,7 @@ def test_raw_capture_with_garbage_and_corrupt_frames(flight):
     assert math.hypot(last.wind_x, last.wind_y) == pytest.approx(3.0, abs=1.0)
 
 
+@pytest.mark.slow
 def test_hil_sensor_input(flight):
     d, tlog = flight
     mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)

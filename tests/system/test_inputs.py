@@ -493,6 +493,7 @@ def run_live_fw(ack: int | None, seconds: float, until_s: float):
     return peer, wind, fw.stderr.read(), fw.returncode
 
 
+@pytest.mark.network
 def test_live_ardupilot_link_is_asked_for_its_streams():
     peer, wind, summary, rc = run_live_fw(mavlink.MAV_RESULT_ACCEPTED, 25.0, 60.0)
     assert rc == 0, summary
@@ -514,6 +515,7 @@ def test_live_ardupilot_link_is_asked_for_its_streams():
     assert 0.0 < last.horiz_accuracy < 2.0
 
 
+@pytest.mark.network
 def test_live_link_falls_back_to_request_data_stream_when_never_acknowledged():
     peer, wind, summary, rc = run_live_fw(None, 20.0, 20.0)
     assert rc == 0, summary

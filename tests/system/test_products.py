@@ -275,6 +275,7 @@ def test_write_products_writes_the_averages_as_csv_and_cf_netcdf(tmp_path):
 # ---------------------------------------------------------------- plot
 
 
+@pytest.mark.slow
 def test_plot_writes_a_png(tmp_path):
     from postflight.plot import plot_product
 

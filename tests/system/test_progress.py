@@ -1,3 +1,4 @@
+
 """Progress and status: a bar on a terminal, periodic lines in a pipe, nothing with --quiet; the
 programs' use of it (balloon-sim, balloon-fw replay and live)."""
 
@@ -11,6 +12,8 @@ import socket
 import subprocess
 import sys
 import time
+
+import pytest
 
 from balloon_core.progress import INTERVAL_ENV, Progress, RateMeter, fmt_duration
 
@@ -67,6 +70,7 @@ def test_helpers():
     assert abs(r.rate(2.0, 200) - 100.0) < 1e-9
 
 
+@pytest.mark.slow
 def test_sim_status_lines_and_quiet(tmp_path):
     env = {**os.environ, INTERVAL_ENV: "0.3"}
     out = tmp_path / "s.tlog"
@@ -85,6 +89,7 @@ def test_sim_status_lines_and_quiet(tmp_path):
     assert "12000 IMU samples" in flines[-1] and "input packets 0 lost" in flines[-1]
 
 
+@pytest.mark.network
 def test_firmware_live_status_line(tmp_path):
     cap = tmp_path / "s.tlog"
     subprocess.run([PY, "-m", "sim_hil", "--duration", "40", "--out", str(cap), "--quiet"], check=True)

@@ -30,6 +30,7 @@ def flight(tmp_path_factory):
     return d, tlog, truth
 
 
+@pytest.mark.slow
 def test_reprocess_writes_a_product_that_scores_against_the_truth(flight):
     d, tlog, truth = flight
     nc, png = d / "wind.nc", d / "wind.png"
@@ -53,6 +54,7 @@ def test_reprocess_writes_a_product_that_scores_against_the_truth(flight):
 
 @pytest.mark.parametrize("name", ["pyulog-sample.ulg", "pyulog-sample_px4_events.ulg", "pyulog-sample_log_small.ulg",
                                   "balloon-sim.bin"])  # fmt: skip
+@pytest.mark.slow
 def test_real_logs_reprocess_without_crashing_and_say_what_they_lack(tmp_path, name):
     nc = tmp_path / "w.nc"
     r = gs("reprocess", f"{DATA}/{name}", "--out", nc, "--quiet")
@@ -101,6 +103,7 @@ def test_the_product_must_be_netcdf_and_the_plot_a_picture(flight, tmp_path):
     assert list(tmp_path.iterdir()) == []  # checked before any work: nothing written
 
 
+@pytest.mark.slow
 def test_a_raw_capture_named_bin_is_read_as_raw_mavlink(tmp_path):
     raw = tmp_path / "capture.bin"  # a serial capture's usual name; not a DataFlash log
     subprocess.run([PY, "-m", "sim_hil", "--duration", "60", "--seed", "2", "--out", str(raw), "--quiet"], check=True,

@@ -252,6 +252,7 @@ def test_random_arguments_and_config_never_crash(files, capsys, duration, seed, 
         assert len(err_sim.strip().splitlines()) == 1 and len(err_fw.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 @settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(value=ANY_NUMBER_TEXT, which=st.sampled_from(["replay --speed", "gs --start", "gs --duration", "sil"]))
 def test_random_numbers_to_the_other_programs(files, capsys, value, which):

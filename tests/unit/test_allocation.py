@@ -29,6 +29,7 @@ def numpy_allocations(fn) -> tuple[int, int]:
     return sum(s.count_diff for s in stats if s.count_diff > 0), peak
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("float32", [False, True])
 def test_steady_state_steps_allocate_no_numpy_arrays(float32):
     samples, _ = stream("paper-reference", 300.0, 11)

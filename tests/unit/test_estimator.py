@@ -44,6 +44,7 @@ def test_band_lag_measures_a_delay():
     assert band_lag_s(rows, truth) == pytest.approx(4.0, abs=0.3)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [11, 12])
 def test_paper_reference_accuracy(seed):
     samples, truth = stream("paper-reference", 300.0, seed)
@@ -63,6 +64,7 @@ def test_paper_reference_accuracy(seed):
     check_covariance(est.ekf.P)
 
 
+@pytest.mark.slow
 def test_float32_mode_is_stable_on_the_same_data():
     samples, truth = stream("paper-reference", 300.0, 11)
     est = Estimator(Design(), FilterConfig(float32=True))
@@ -141,6 +143,7 @@ def perturb_wind(est, dn, de):
         ekf.P[i, i] = est.cfg.init_wind_mps**2
 
 
+@pytest.mark.slow
 def test_converges_from_large_initial_wind_errors(flying):
     for dn, de in ((10.0, -10.0), (-8.0, 6.0), (0.0, 9.0)):
         est = copy.deepcopy(flying[0])
@@ -162,6 +165,7 @@ def test_sensor_silence_grows_the_reported_accuracy(flying):
     check_covariance(est.ekf.P)
 
 
+@pytest.mark.slow
 def test_configured_ground_pressure_replaces_zeroing():
     from balloon_core.config import SiteConfig
 

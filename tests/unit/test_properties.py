@@ -96,6 +96,7 @@ def test_invalid_inputs_leave_the_state_unchanged_and_are_counted(field, value, 
     assert np.array_equal(est.ekf.x, x) and np.array_equal(est.ekf.P, P) and np.array_equal(est.ekf.q, q)
 
 
+@pytest.mark.slow
 @settings(max_examples=6, deadline=None)
 @given(st.floats(-10.0, 10.0), st.floats(-10.0, 10.0))
 def test_converges_on_simulated_data_from_any_initial_wind_error(dn, de):

@@ -26,6 +26,7 @@ def multisine_2d():
     return rows, truth
 
 
+@pytest.mark.slow
 def test_two_axis_multisine_gain_and_phase_along_and_across(multisine_2d):
     """|H - 1| <= 0.35 at 0.02 and 0.05 Hz on both axes (0.4 at 0.1 Hz along): a delayed copy of
     the truth by the old filter's 4 s would score 0.49 and 1.18 at 0.02 and 0.05 Hz; a constant 1."""
@@ -40,6 +41,7 @@ def test_two_axis_multisine_gain_and_phase_along_and_across(multisine_2d):
     assert describe(h[0.1]["along"])[2] <= 0.45
 
 
+@pytest.mark.slow
 def test_skill_against_the_constant_true_mean_and_honest_accuracy(multisine_2d):
     rows, truth = multisine_2d
     s = score(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], truth["time_s"], truth["wind_n"], truth["wind_e"],
@@ -83,6 +85,7 @@ def test_hil_sensor_gives_the_same_estimate_bit_for_bit():
     assert np.isfinite(last.wind_x) and last.horiz_accuracy < 2.0  # a real estimate by 30 s
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [11, 12])
 def test_launch_is_honest(seed):
     """From the release to the first minute on the tether the reported accuracy covers the error:

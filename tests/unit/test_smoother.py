@@ -1,3 +1,4 @@
+
 """The post-flight smoother (postflight/smoother.py): exact against a textbook RTS smoother on random
 linear systems, with segments; symmetric positive definite covariance; on simulated flights it removes
 the causal filter's lag."""
@@ -5,6 +6,7 @@ the causal filter's lag."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -127,6 +129,7 @@ def _samples(name, duration_s, seed):
     return out, truth
 
 
+@pytest.mark.slow
 def test_smoother_removes_the_lag_on_a_two_axis_multisine():
     from sim_hil.scenarios import SCENARIOS
 
