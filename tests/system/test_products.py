@@ -288,6 +288,7 @@ def test_plot_writes_a_png(tmp_path):
 # ---------------------------------------------------------------- report
 
 
+@pytest.mark.slow
 def test_report_scores_a_netcdf_like_the_csv_of_the_same_wind(tmp_path, capsys):
     from ground_station.cli import main
     from ground_station.report import report

@@ -233,6 +233,7 @@ def toml_literal(v) -> str:
 @settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(duration=ANY_NUMBER_TEXT, seed=ANY_NUMBER_TEXT,
        entries=st.lists(st.tuples(st.sampled_from(KEYS), TOML_VALUES), max_size=3))  # fmt: skip
+@pytest.mark.slow
 def test_random_arguments_and_config_never_crash(files, capsys, duration, seed, entries):
     sections: dict[str, dict[str, object]] = {}
     for (sec, key), val in entries:
@@ -292,6 +293,7 @@ IN_RANGE = st.sampled_from(KEYS).flatmap(lambda sk: st.tuples(st.just(sk), in_ra
 @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(entries=st.lists(IN_RANGE, min_size=1, max_size=8),
        scenario=st.sampled_from(["steady", "paper-reference", "multisine-2d", "com-offset", "drag-crisis"]))
+@pytest.mark.slow
 def test_values_anywhere_in_their_ranges_run_or_are_refused_clearly(files, capsys, entries, scenario):
     """The ranges hold what the programs can run: a flight past the release (6 s) and the firmware on a
     capture, or a one-line refusal (a balloon that cannot lift, a design too stiff for the physics step)."""

@@ -27,6 +27,7 @@ def test_schedules_are_the_same_in_seconds_at_any_rate(rate_hz):
     assert s.field_learn * step == pytest.approx(FIELD_LEARN_S)
 
 
+@pytest.mark.slow
 def test_every_reset_is_told_and_counted():
     """On a flight with taut entries, taut re-placements and height resets, the filter's counters per
     kind equal what the control logic did."""

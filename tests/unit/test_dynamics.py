@@ -275,6 +275,7 @@ def test_energy_conserved_with_avionics_below_the_centre():
     assert abs(energies[-1] - e0) < 1e-6
 
 
+@pytest.mark.slow
 def test_low_centre_of_mass_rights_the_balloon_in_wind():
     """Moments about the centre in equilibrium: r e_z x F_rope + s e_z x g = 0, so the body's down axis
     lies along r F_rope + s g: tan(tilt) = r drag / (r (rho V - m) g + s g), less than without."""
@@ -290,6 +291,7 @@ def test_low_centre_of_mass_rights_the_balloon_in_wind():
     assert expected < math.degrees(math.atan2(drag, net_lift_n(ph, h, 0.0))) - 0.8
 
 
+@pytest.mark.slow
 def test_avionics_below_the_centre_hang_vertical_and_read_minus_g_in_calm():
     sim = Simulation(Design(), WindConfig(kind="steady", mean_mps=0.0), OFFSET, 150.0, seed=2)
     acc = np.array([smp.accel for smp in sim.samples()])

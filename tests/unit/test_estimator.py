@@ -37,6 +37,7 @@ def band_lag_s(rows, truth, start_s: float = 120.0, max_lag_s: float = 10.0) -> 
     return float(lags[int(np.argmax(corr))] / GRID_HZ)
 
 
+@pytest.mark.slow
 def test_band_lag_measures_a_delay():
     _, truth = stream("paper-reference", 300.0, 11)
     t = truth["time_s"]
@@ -178,6 +179,7 @@ def test_configured_ground_pressure_replaces_zeroing():
     assert est.height_m() == pytest.approx(truth["height_m"][-1], abs=2.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [11, 12])
 def test_firmware_restarted_in_flight_finds_the_wind(seed):
     """A firmware that boots while the balloon is up (first sample 150 s after the sender's boot)
