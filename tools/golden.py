@@ -26,7 +26,6 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 GOLDEN = ROOT / "tests" / "data" / "golden"
 DATA = ROOT / "tests" / "data"
-BIN = Path(sys.executable).parent
 # flights the firmware reads directly (tlog or raw capture), frozen as gzip files
 FW_FLIGHTS = ("paper-reference.tlog", "reduced-balloon.tlog", "join-in-flight.tlog", "hostile.raw")
 # logs read through the post-flight readers (the estimator digest only)
@@ -51,8 +50,9 @@ def make_inputs() -> None:
         for name, scenario, duration, seed in (("paper-reference", "paper-reference", 120, 3),
                                                ("reduced-balloon", "reduced-balloon", 120, 5)):  # fmt: skip
             out = Path(tmp) / f"{name}.tlog"
-            subprocess.run([BIN / "balloon-sim", "--scenario", scenario, "--duration", str(duration), "--seed",
-                            str(seed), "--out", str(out), "--truth", str(Path(tmp) / "t.csv")], check=True)  # fmt: skip
+            args = ["--scenario", scenario, "--duration", str(duration), "--seed", str(seed), "--out", str(out),
+                    "--truth", str(Path(tmp) / "t.csv")]  # fmt: skip
+            subprocess.run(_program("sim_hil", *args), check=True, env=_ENV)
             (GOLDEN / f"{name}.tlog.gz").write_bytes(gzip.compress(out.read_bytes(), mtime=0))
         frames = _frames_tlog(gzip.decompress((GOLDEN / "reduced-balloon.tlog.gz").read_bytes()))
         # a restart in flight: the log starts 40 s after the sensor's boot
@@ -105,11 +105,43 @@ def _fw_output(path: Path, tmp: Path) -> str:
     return hashlib.sha256(out.read_bytes()).hexdigest()
 
 
-def _digest(path: Path) -> str:
-    """sha256 over the estimator's float64 state after every sample of the flight, in process."""
-    from digest_hooks import run_digest  # noqa: PLC0415 (tools/digest_hooks.py: follows the code's names)
+def _messages(fw, path: Path):
+    """Every sample of the flight, into ``fw`` as the firmware program takes it."""
+    if path.suffix in (".ulg", ".bin"):
+        from postflight.logs import read_flight
 
-    return run_digest(path)
+        for s in read_flight(str(path)).samples():
+            fw.push(s)
+        return
+    from balloon_core.wire import capture_messages
+
+    for m in capture_messages(str(path), fw.stats):
+        fw.handle(m)
+
+
+def _digest(path: Path) -> str:
+    """sha256 over the estimator's float64 state (x, P, q, mode, counters) after every sample the
+    firmware takes, in process: the one place here that follows the code's names."""
+    from balloon_core.config import Design
+    from firmware_py.app import Firmware
+
+    fw = Firmware(Design(), sink=None)
+    fw.sinks = [type("S", (), {"send_at": lambda self, f, t: None})()]
+    h = hashlib.sha256()
+    orig = fw._step
+
+    def step(s):
+        orig(s)
+        e = fw.est
+        h.update(np.asarray(e.ekf.x, np.float64).tobytes())
+        h.update(np.asarray(e.ekf.P, np.float64).tobytes())
+        h.update(np.asarray(e.ekf.q, np.float64).tobytes())
+        h.update(repr((e.ekf.mode, sorted(e.counters.as_dict().items()), e.unconfirmed)).encode())
+
+    fw._step = step
+    _messages(fw, path)
+    fw.flush()
+    return h.hexdigest()
 
 
 def _reprocess(path: Path, tmp: Path) -> dict[str, str]:
@@ -124,7 +156,7 @@ def _reprocess(path: Path, tmp: Path) -> dict[str, str]:
 
 
 def compute() -> dict:
-    sys.path[:0] = [str(ROOT), str(ROOT / "tools")]
+    sys.path.insert(0, str(ROOT))
     res: dict = {"firmware": {}, "digest": {}, "reprocess": {}}
     with tempfile.TemporaryDirectory() as t:
         tmp = Path(t)

@@ -1,8 +1,4 @@
-"""The accelerometer: its specific-force rows (paper Eq. 9) and when and how loud to fuse them.
-
-Control (when to fuse, what to reset) beside fusion (the rows), as PX4 EKF2's aid sources; each
-fusion keeps a ``FusionStatus`` (innovation, its variance, test ratio, fused and rejected counts).
-"""
+"""The accelerometer: its specific-force rows (paper Eq. 9) and when and how loud to fuse them."""
 
 from __future__ import annotations
 

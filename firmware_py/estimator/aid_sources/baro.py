@@ -1,8 +1,4 @@
-"""The barometer: zeroing, the barometric height, its row and the height reset.
-
-Control (when to fuse, what to reset) beside fusion (the rows), as PX4 EKF2's aid sources; each
-fusion keeps a ``FusionStatus`` (innovation, its variance, test ratio, fused and rejected counts).
-"""
+"""The barometer: zeroing, the barometric height, its row and the height reset."""
 
 from __future__ import annotations
 

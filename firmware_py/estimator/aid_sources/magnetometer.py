@@ -1,8 +1,4 @@
-"""The magnetometer: the earth field learnt on the ground, the field-vector and heading rows.
-
-Control (when to fuse, what to reset) beside fusion (the rows), as PX4 EKF2's aid sources; each
-fusion keeps a ``FusionStatus`` (innovation, its variance, test ratio, fused and rejected counts).
-"""
+"""The magnetometer: the earth field learnt on the ground, the field-vector and heading rows."""
 
 from __future__ import annotations
 

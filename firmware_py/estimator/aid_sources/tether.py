@@ -1,8 +1,4 @@
-"""The tether when taut: its placement, the radius, radial-rate and alignment rows, and the taut re-placement.
-
-Control (when to fuse, what to reset) beside fusion (the rows), as PX4 EKF2's aid sources; each
-fusion keeps a ``FusionStatus`` (innovation, its variance, test ratio, fused and rejected counts).
-"""
+"""The tether when taut: its placement, the radius, radial-rate and alignment rows, and the taut re-placement."""
 
 from __future__ import annotations
 
