@@ -167,6 +167,10 @@ SCHEMA: dict[str, dict[str, Rule]] = {
         "sample_hz": num(1.0, 1000.0),
     },
     "truth": {
+        "rope_model": one_of("lumped", "paper"),
+        "rope_segments": Rule("integer", 2, 200),
+        "rope_damping_ratio": num(0.0, 10.0),
+        "shear_exponent": num(0.0, 1.0),
         "added_mass_coefficient": num(0.0, 2.0),
         "tether_ea_n": num(100.0, 1e9),
         "tether_damping_ratio": num(0.0, 10.0),
@@ -260,6 +264,12 @@ def check_value(section: str, key: str, val: Any) -> Any:
             n = f"{rule.length} " if rule.length else ""
             raise ConfigError(f"{where} must be a list of {n}numbers, got {_literal(val)}")
         return tuple(_number(where, x, rule) for x in val)
+    if rule.kind == "integer":
+        if isinstance(val, bool) or not isinstance(val, int):
+            raise ConfigError(f"{where} must be an integer, got {_literal(val)}")
+        if not rule.lo <= val <= rule.hi:
+            raise ConfigError(f"{where} must be an integer in [{rule.lo:g}, {rule.hi:g}], got {val}")
+        return val
     return _number(where, val, rule)
 
 

@@ -26,16 +26,22 @@ def build_parser() -> userargs.Parser:
     p.add_argument("--truth", type=userargs.output_path, help="truth CSV, one row per IMU sample")
     p.add_argument("--config", type=userargs.input_file, help="TOML design file (overrides the scenario)")
     p.add_argument("--wind", choices=sorted(WIND_CHOICES), help="override the scenario's wind model")
-    p.add_argument("--speed", type=userargs.speed, default=1.0,
-                   help="UDP/serial output: N x real time (0: as fast as possible)")
-    p.add_argument("--lockstep", action="store_true",
-                   help="do not run ahead of the firmware's WIND_COV time (lossless fast runs)")
-    p.add_argument("--lockstep-window", type=userargs.positive_float, default=0.5,
-                   help="seconds the simulator may lead")
+    p.add_argument(
+        "--speed", type=userargs.speed, default=1.0, help="UDP/serial output: N x real time (0: as fast as possible)"
+    )
+    p.add_argument(
+        "--lockstep", action="store_true", help="do not run ahead of the firmware's WIND_COV time (lossless fast runs)"
+    )
+    p.add_argument(
+        "--lockstep-window", type=userargs.positive_float, default=0.5, help="seconds the simulator may lead"
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar / status lines (the final line stays)")
     p.add_argument("--list-scenarios", action="store_true")
-    p.add_argument("--print-config", action="store_true",
-                   help="print the scenario (with --config applied) as a design TOML and exit")
+    p.add_argument(
+        "--print-config",
+        action="store_true",
+        help="print the scenario (with --config applied) as a design TOML and exit",
+    )
     return p
 
 

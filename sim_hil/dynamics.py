@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from balloon_core.atmosphere import G0, ISA_EXP, LAPSE_K_M, R_AIR
 from balloon_core.config import ConfigError, Design, build_section
 from balloon_core.rotation import quat_from_euler, rotation
+from sim_hil.rope import LumpedRope, initial_nodes, rope_derivative, shear_factor
 
 SUTHERLAND_MU0_PAS = 1.716e-5  # dynamic viscosity of air at 273.15 K (White, Viscous Fluid Flow)
 SUTHERLAND_T0_K = 273.15
@@ -38,11 +39,18 @@ SUTHERLAND_S_K = 110.4
 class TruthConfig:
     """Truth-model options beyond the shared design (the [truth] section)."""
 
+    # the rope: "lumped" = the real rope (rope.py: elastic lumped-mass line, its weight shared with the
+    # anchor, its own drag, lying on the ground until lifted); "paper" = Eq. (5), straight, massless
+    # but its whole weight at the balloon
+    rope_model: str = "lumped"
+    rope_segments: int = 12
+    rope_damping_ratio: float = 0.5  # of one segment's axial mode (lumped)
     added_mass_coefficient: float = 0.5  # Ca of a sphere
     tether_ea_n: float = 20000.0  # axial stiffness EA of the rope (docs/model.md: 5-30 kN)
-    tether_damping_ratio: float = 0.2  # of the axial rope mode
-    rope_drag: bool = False  # Hoerner cross-flow drag on the rope (paper neglects it)
+    tether_damping_ratio: float = 0.2  # of the axial rope mode (paper rope)
+    rope_drag: bool = True  # Hoerner cross-flow drag on the rope (the paper neglects it)
     rope_normal_cd: float = 1.1
+    shear_exponent: float = 0.0  # power-law wind profile (z / tether length)^alpha; 0 = uniform
     rot_damping_nms: float = 0.5  # rotational air damping torque per rad/s
     release_s: float = 5.0  # boot resting on the ground station, released after this time
     initial_yaw_deg: float = 30.0
@@ -72,6 +80,10 @@ class TruthConfig:
     avionics_kg: float = 0.5
 
     def __post_init__(self) -> None:
+        if self.rope_model not in ("lumped", "paper"):
+            raise ConfigError(f"truth.rope_model must be lumped or paper, got {self.rope_model!r}")
+        if not (isinstance(self.rope_segments, int) and 2 <= self.rope_segments <= 200):
+            raise ConfigError(f"truth.rope_segments must be an integer in [2, 200], got {self.rope_segments!r}")
         if self.drag_model not in ("constant", "reynolds"):
             raise ConfigError(f"truth.drag_model must be constant or reynolds, got {self.drag_model!r}")
         if not (self.drag_crisis_reynolds > 0.0 and self.drag_crisis_exponent > 0.0):
@@ -127,6 +139,8 @@ class BalloonPhysics:
     static_moment_kgm: float = 0.0
     imu_offset_m: float = 0.0
     inertia_z_kgm2: float = 0.0
+    rope: LumpedRope | None = None  # the lumped rope (rope_model = "lumped"); None: the paper's rope
+    shear_exponent: float = 0.0
 
     @classmethod
     def from_design(cls, design: Design, truth: TruthConfig) -> BalloonPhysics:
@@ -173,7 +187,12 @@ class BalloonPhysics:
             static_moment_kgm=truth.avionics_kg * d if d > 0.0 else 0.0,
             imu_offset_m=d,
             inertia_z_kgm2=inertia_z,
-        )
+            rope=LumpedRope.build(
+                t.length_m, t.linear_density_kg_m, t.diameter_m, truth.tether_ea_n, truth.rope_segments,
+                truth.rope_damping_ratio, truth.rope_normal_cd, truth.rope_drag, truth.shear_exponent, t.length_m,
+            ) if truth.rope_model == "lumped" else None,
+            shear_exponent=truth.shear_exponent,
+        )  # fmt: skip
 
 
 def offset_inertia_kgm2(
@@ -197,8 +216,10 @@ def offset_inertia_kgm2(
 def sutherland_viscosity_pas(temperature_k: float) -> float:
     """Dynamic viscosity of air, Sutherland's law mu = mu0 (T/T0)^1.5 (T0 + S)/(T + S): 1.81e-5 Pa s at
     20 C. The kinematic viscosity nu = mu / rho is 1.50e-5 m^2/s at the ground, 1.52e-5 at 100 m."""
-    return SUTHERLAND_MU0_PAS * (temperature_k / SUTHERLAND_T0_K) ** 1.5 * (
-        (SUTHERLAND_T0_K + SUTHERLAND_S_K) / (temperature_k + SUTHERLAND_S_K)
+    return (
+        SUTHERLAND_MU0_PAS
+        * (temperature_k / SUTHERLAND_T0_K) ** 1.5
+        * ((SUTHERLAND_T0_K + SUTHERLAND_S_K) / (temperature_k + SUTHERLAND_S_K))
     )
 
 
@@ -268,8 +289,16 @@ def density_at(ph: BalloonPhysics, height_m: float) -> float:
 def derivative(
     s: list[float], wn: float, we: float, wd: float, dwn: float, dwe: float, dwd: float, ph: BalloonPhysics
 ) -> tuple[list[float], float]:
-    """d(state)/dt for the free (not held) balloon and the tether tension [N]."""
-    pn, pe, pd, vn, ve, vd, q0, q1, q2, q3, p, q, r = s
+    """d(state)/dt for the free (not held) balloon (and the lumped rope's nodes after its 13 values) and
+    the tether tension at the balloon [N]. The wind is the reference wind (at the tether length's
+    height); with shear the balloon feels it scaled to its own height."""
+    pn, pe, pd, vn, ve, vd, q0, q1, q2, q3, p, q, r = s[:13]
+    if ph.shear_exponent:
+        sf = shear_factor(ph.shear_exponent, ph.tether_length_m, -pd)
+        wn_ref, we_ref = wn, we
+        wn, we, dwn, dwe = sf * wn, sf * we, sf * dwn, sf * dwe
+    else:
+        wn_ref, we_ref = wn, we
     rad = ph.radius_m
     rho = density_at(ph, -pd)
     rho_v = rho * ph.volume_m3
@@ -288,7 +317,12 @@ def derivative(
     length = ph.tether_length_m
     tension = 0.0
     ftn = fte = ftd = 0.0
-    if dist > length:
+    nodes_dot: list[float] = []
+    if ph.rope is not None:
+        nodes_dot, (ftn, fte, ftd), tension, _ = rope_derivative(
+            ph.rope, s[13:], (an, ae, ad, avn, ave, avd), (wn_ref, we_ref, wd), rho
+        )
+    elif dist > length:
         rate = (an * avn + ae * ave + ad * avd) / dist
         tension = ph.tether_k_n_m * (dist - length) + ph.tether_c_ns_m * rate
         if tension < 0.0:
@@ -299,13 +333,14 @@ def derivative(
         airborne = -ad if ad < 0.0 else 0.0  # slack: the rope hanging below the attachment point
         if airborne > length:
             airborne = length
-    ftd += ph.rope_kg_m * G0 * airborne  # paper Eq. (5), acting at the attachment point
+    if ph.rope is None:
+        ftd += ph.rope_kg_m * G0 * airborne  # paper Eq. (5), acting at the attachment point
     # aerodynamic drag on the sphere's frontal area (paper Eq. 3 corrected)
     un, ue, ud = wn - vn, we - ve, wd - vd
     speed = math.sqrt(un * un + ue * ue + ud * ud)
     kd = drag_per_speed(ph, rho, speed) if ph.reynolds_drag else rho * ph.drag_factor * speed
     fan, fae, fad = kd * un, kd * ue, kd * ud
-    if ph.rope_drag_factor > 0.0 and dist > 0.0:
+    if ph.rope is None and ph.rope_drag_factor > 0.0 and dist > 0.0:
         # cross-flow drag on a straight rope, half of it carried by the balloon; the rope's mean
         # velocity is half the balloon's
         en, ee, ed = an / dist, ae / dist, ad / dist
@@ -324,7 +359,7 @@ def derivative(
             ph, fk * dwn + fan + ftn, fk * dwe + fae + fte, fk * dwd + fad + ftd + (ph.mass_kg - rho_v) * G0,
             ftn, fte, ftd, ph.mass_kg + ca_rho_v, q0, q1, q2, q3, p, q, r,
         )  # fmt: skip
-        return [vn, ve, vd, *acc], tension
+        return [vn, ve, vd, *acc, *nodes_dot], tension
     inv_m = 1.0 / (ph.mass_kg + ca_rho_v)
     an_ = (fk * dwn + fan + ftn) * inv_m
     ae_ = (fk * dwe + fae + fte) * inv_m
@@ -341,7 +376,7 @@ def derivative(
     dq1 = 0.5 * (q0 * p + q2 * r - q3 * q)
     dq2 = 0.5 * (q0 * q - q1 * r + q3 * p)
     dq3 = 0.5 * (q0 * r + q1 * q - q2 * p)
-    return [vn, ve, vd, an_, ae_, ad_, dq0, dq1, dq2, dq3, dp, dq, dr], tension
+    return [vn, ve, vd, an_, ae_, ad_, dq0, dq1, dq2, dq3, dp, dq, dr, *nodes_dot], tension
 
 
 def _offset_accelerations(
@@ -430,8 +465,10 @@ def rk4_step(
 
 
 def resting_state(ph: BalloonPhysics, yaw_rad: float) -> list[float]:
-    """Boot: sitting level on the ground station, the attachment point at the anchor."""
-    return [0.0, 0.0, -ph.radius_m, 0.0, 0.0, 0.0, *quat_from_euler(0.0, 0.0, yaw_rad), 0.0, 0.0, 0.0]
+    """Boot: sitting level on the ground station, the attachment point at the anchor (the lumped
+    rope coiled there)."""
+    nodes = initial_nodes(ph.rope) if ph.rope is not None else []
+    return [0.0, 0.0, -ph.radius_m, 0.0, 0.0, 0.0, *quat_from_euler(0.0, 0.0, yaw_rad), 0.0, 0.0, 0.0, *nodes]
 
 
 def net_lift_n(ph: BalloonPhysics, height_m: float, rope_airborne_m: float) -> float:

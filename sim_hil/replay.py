@@ -188,12 +188,16 @@ def main(argv: list[str] | None = None) -> int:
     ap = userargs.Parser(prog=prog, description=" ".join(__doc__.split("\n\n")[0].replace("``", "").split()))
     ap.add_argument("file", type=userargs.input_file, help=".tlog or raw capture")
     ap.add_argument("--out", required=True, type=userargs.link, help="udpout:HOST:PORT, udpin:..., or a serial port")
-    ap.add_argument("--speed", type=userargs.speed, default=1.0,
-                    help="N x recorded timing; 0 = as fast as possible")
-    ap.add_argument("--lockstep", action=argparse.BooleanOptionalAction, default=None,
-                    help="send only as fast as the firmware's WIND_COV acknowledges (default: on with --speed 0)")
-    ap.add_argument("--lockstep-window", type=userargs.positive_float, default=0.5,
-                    help="seconds the replay may lead the firmware")
+    ap.add_argument("--speed", type=userargs.speed, default=1.0, help="N x recorded timing; 0 = as fast as possible")
+    ap.add_argument(
+        "--lockstep",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="send only as fast as the firmware's WIND_COV acknowledges (default: on with --speed 0)",
+    )
+    ap.add_argument(
+        "--lockstep-window", type=userargs.positive_float, default=0.5, help="seconds the replay may lead the firmware"
+    )
     ap.add_argument("--quiet", action="store_true", help="no progress bar / status lines (the final line stays)")
     args = ap.parse_args(argv)
     lockstep = args.lockstep if args.lockstep is not None else args.speed == 0

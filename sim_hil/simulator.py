@@ -23,6 +23,7 @@ from sim_hil.dynamics import (
     resting_state,
     rk4_step,
 )
+from sim_hil.rope import rope_airborne, shear_factor
 from sim_hil.sensors import SensorSuite
 from sim_hil.wind import WindConfig, WindSeries, WindStream, wind_source
 
@@ -159,12 +160,14 @@ class Simulation:
                         sensor_height = height
                     baro = self.sensors.baro(sensor_height) if i % baro_every == 0 else None
                     roll, pitch, yaw = euler_from_quat(*s[6:10])
+                    sf = shear_factor(ph.shear_exponent, ph.tether_length_m, height)
+                    taut = tension > 0.0 and (ph.rope is None or rope_airborne(ph.rope, s[13:]))
                     if not keep and i - self._truth_base == chunk_rows:
                         self.flush_truth()
                     truth[i - self._truth_base if not keep else i] = (
-                        step * h, w0[0], w0[1], w0[2], s[0], s[1], s[2], s[3], s[4], s[5],
+                        step * h, sf * w0[0], sf * w0[1], w0[2], s[0], s[1], s[2], s[3], s[4], s[5],
                         math.degrees(roll), math.degrees(pitch), math.degrees(yaw),
-                        1.0 if tension > 0.0 else 0.0, tension, height,
+                        1.0 if taut else 0.0, tension, height,
                     )  # fmt: skip
                     self._truth_rows = i + 1
                     self.samples_done = i + 1

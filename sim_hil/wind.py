@@ -36,7 +36,7 @@ class WindConfig:
     turbulence: str = "kaimal"  # kaimal | none
     turbulence_intensity: float = 0.10  # sigma_u / U (Cabauw 8.5 % at 99 m); ignored if iec_class set
     iec_class: str = ""  # "A" | "B" | "C": sigma_u = I_ref (0.75 U + 5.6)
-    vertical: bool = False  # also a Kaimal w component
+    vertical: bool = True  # also a Kaimal w component (the real world; the paper's scenarios turn it off)
     multisine_hz: tuple[float, ...] = (0.003, 0.01, 0.02, 0.05, 0.1, 0.2)
     multisine_amplitude_mps: float = 0.3
     multisine_axes: str = "along"  # along: u only; both: also the cross-wind v, same lines, own phases
