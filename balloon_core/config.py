@@ -189,6 +189,8 @@ SCHEMA: dict[str, dict[str, Rule]] = {
         "quantize": BOOL,
         "mag_field_h_gauss": num(0.0, 2.0),
         "mag_field_z_gauss": num(-2.0, 2.0),
+        "pressure_drift_hpa_h": num(-50.0, 50.0),
+        "temperature_drift_k_h": num(-20.0, 20.0),
         "drag_model": one_of("constant", "reynolds"),
         "drag_crisis_reynolds": num(1e3, 1e8),
         "drag_crisis_exponent": num(0.1, 10.0),

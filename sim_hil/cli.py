@@ -6,6 +6,7 @@ import sys
 import time
 
 from balloon_core import userargs
+from balloon_core.atmosphere import ground_conditions
 from balloon_core.config import ConfigError
 from balloon_core.progress import Progress
 from balloon_core.wire import TlogWriter
@@ -27,15 +28,15 @@ def build_parser() -> userargs.Parser:
     p.add_argument("--config", type=userargs.input_file, help="TOML design file (overrides the scenario)")
     p.add_argument("--wind", choices=sorted(WIND_CHOICES), help="override the scenario's wind model")
     p.add_argument("--speed", type=userargs.speed, default=1.0,
-                   help="UDP/serial output: N x real time (0: as fast as possible)")
+                   help="UDP/serial output: N x real time (0: as fast as possible)")  # fmt: skip
     p.add_argument("--lockstep", action="store_true",
-                   help="do not run ahead of the firmware's WIND_COV time (lossless fast runs)")
+                   help="do not run ahead of the firmware's WIND_COV time (lossless fast runs)")  # fmt: skip
     p.add_argument("--lockstep-window", type=userargs.positive_float, default=0.5,
-                   help="seconds the simulator may lead")
+                   help="seconds the simulator may lead")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bar / status lines (the final line stays)")
     p.add_argument("--list-scenarios", action="store_true")
     p.add_argument("--print-config", action="store_true",
-                   help="print the scenario (with --config applied) as a design TOML and exit")
+                   help="print the scenario (with --config applied) as a design TOML and exit")  # fmt: skip
     return p
 
 
@@ -52,6 +53,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.print_config:
         print(sc.to_toml(), end="")
         return 0
+    try:  # weather that drifts beyond any site's ground by the end of the flight: refused before it starts
+        site, truth = sc.design.site, sc.truth
+        ground_conditions((site.ground_pressure_hpa or 1013.25) * 100.0, site.ground_temperature_c + 273.15,
+                          truth.pressure_drift_hpa_h, truth.temperature_drift_k_h, args.duration)  # fmt: skip
+    except ValueError as exc:
+        return userargs.fail(PROG, exc)
     try:
         truth_csv = TruthCsvWriter(args.truth) if args.truth else None
         return _run(args, sc, truth_csv)
