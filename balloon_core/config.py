@@ -183,6 +183,7 @@ SCHEMA: dict[str, dict[str, Rule]] = {
         "gyro_bias_dps": num(0.0, 100.0),
         "gyro_bias_walk_dps_rt_s": num(0.0, 10.0),
         "accel_bias_mps2": num(0.0, 10.0),
+        "accel_bias_walk_mps2_rt_s": num(0.0, 1.0),
         "baro_offset_m": num(0.0, 1000.0),
         "mag_bias_gauss": num(0.0, 1.0),
         "mag_hard_iron_gauss": Rule("numbers", -10.0, 10.0, length=3),

@@ -55,6 +55,7 @@ class TruthConfig:
     gyro_bias_dps: float = 0.0  # 1-sigma turn-on bias per axis
     gyro_bias_walk_dps_rt_s: float = 0.0  # bias random walk, deg/s per sqrt(s)
     accel_bias_mps2: float = 0.0  # 1-sigma turn-on bias per axis
+    accel_bias_walk_mps2_rt_s: float = 0.0  # bias random walk, m/s^2 per sqrt(s)
     baro_offset_m: float = 0.0  # 1-sigma constant barometer offset
     mag_bias_gauss: float = 0.0  # 1-sigma hard-iron offset per axis (drawn from the seed)
     mag_hard_iron_gauss: tuple[float, float, float] = (0.0, 0.0, 0.0)  # fixed hard-iron offset, body FRD

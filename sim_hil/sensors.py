@@ -1,12 +1,15 @@
 """Sensor models at the avionics: accelerometer (specific force, FRD), gyroscope, magnetometer,
 barometer and thermometer. Table 2's figures as 1-sigma white noise by default; turn-on biases, bias
-random walk, a fixed hard-iron offset, quantisation and weather (the ground
+random walks (gyro, accelerometer), a fixed hard-iron offset, quantisation and weather (the ground
 pressure and temperature drifting from boot, ``atmosphere.ground_conditions``) as options
 (``TruthConfig``). The avionics sit at the sphere's centre unless ``TruthConfig.avionics_offset_m``
 hangs them below it; the caller passes the accelerometer's lever-arm term then
 (``dynamics.lever_arm_accel_b``).
 
-Noise is drawn in blocks (one numpy call per block of samples), then consumed as plain floats.
+Noise is drawn in blocks (one numpy call per block of samples), then consumed as plain floats. A row's
+columns: 0-2 accelerometer, 3-5 gyro, 6-8 magnetometer, 9-11 gyro bias walk, 12 barometer,
+13 thermometer, 14-16 accelerometer bias walk (only when that walk is on: without it a seed's stream
+is the one it always was).
 """
 
 from __future__ import annotations
@@ -56,6 +59,8 @@ class SensorSuite:
             self.mag_bias = [b + h for b, h in zip(self.mag_bias, truth.mag_hard_iron_gauss)]
         self.baro_offset_m = float(r.normal(0.0, truth.baro_offset_m)) if truth.baro_offset_m else 0.0
         self._walk = math.radians(truth.gyro_bias_walk_dps_rt_s) * math.sqrt(1.0 / imu_hz)
+        self._accel_walk = truth.accel_bias_walk_mps2_rt_s * math.sqrt(1.0 / imu_hz)
+        self._columns = 17 if self._accel_walk else 14
         self.pressure_drift_hpa_h = truth.pressure_drift_hpa_h
         self.temperature_drift_k_h = truth.temperature_drift_k_h
         self._noise: list[list[float]] = []
@@ -63,7 +68,7 @@ class SensorSuite:
 
     def _draw(self) -> list[float]:
         if self._k >= len(self._noise):
-            self._noise = self._rng.standard_normal((BLOCK, 14)).tolist()
+            self._noise = self._rng.standard_normal((BLOCK, self._columns)).tolist()
             self._k = 0
         row = self._noise[self._k]
         self._k += 1
@@ -103,6 +108,9 @@ class SensorSuite:
         if self._walk:
             w = self._walk
             self.gyro_bias = [gb[0] + w * n[9], gb[1] + w * n[10], gb[2] + w * n[11]]
+        if self._accel_walk:
+            w = self._accel_walk
+            self.accel_bias = [ab[0] + w * n[14], ab[1] + w * n[15], ab[2] + w * n[16]]
         if self._quantize:
             acc = (_quant(acc[0], ACC_LSB), _quant(acc[1], ACC_LSB), _quant(acc[2], ACC_LSB))
             gyro = (_quant(gyro[0], GYRO_LSB), _quant(gyro[1], GYRO_LSB), _quant(gyro[2], GYRO_LSB))
