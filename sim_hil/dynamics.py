@@ -63,7 +63,7 @@ class TruthConfig:
     mag_field_h_gauss: float = 0.20  # horizontal earth field
     mag_field_z_gauss: float = 0.45  # vertical earth field (down)
     # weather: the site's ground pressure and temperature change linearly from their [site] values at
-    # boot (t = 0); the barometer, the thermometer and the air density follow (ground_conditions)
+    # boot (t = 0), atmosphere.ground_conditions; the barometer and the thermometer follow (SensorSuite.baro)
     pressure_drift_hpa_h: float = 0.0  # e.g. -2 for a falling barometer
     temperature_drift_k_h: float = 0.0
     # sphere drag: "constant" = the design's drag_coefficient; "reynolds" = Cd(Re) through the drag
