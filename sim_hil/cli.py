@@ -6,6 +6,7 @@ import sys
 import time
 
 from balloon_core import userargs
+from balloon_core.atmosphere import ground_conditions
 from balloon_core.config import ConfigError
 from balloon_core.progress import Progress
 from balloon_core.wire import TlogWriter
@@ -58,6 +59,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.print_config:
         print(sc.to_toml(), end="")
         return 0
+    try:  # weather that drifts beyond any site's ground by the end of the flight: refused before it starts
+        site, truth = sc.design.site, sc.truth
+        ground_conditions((site.ground_pressure_hpa or 1013.25) * 100.0, site.ground_temperature_c + 273.15,
+                          truth.pressure_drift_hpa_h, truth.temperature_drift_k_h, args.duration)  # fmt: skip
+    except ValueError as exc:
+        return userargs.fail(PROG, exc)
     try:
         truth_csv = TruthCsvWriter(args.truth) if args.truth else None
         return _run(args, sc, truth_csv)

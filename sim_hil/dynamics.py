@@ -63,12 +63,17 @@ class TruthConfig:
     gyro_bias_dps: float = 0.0  # 1-sigma turn-on bias per axis
     gyro_bias_walk_dps_rt_s: float = 0.0  # bias random walk, deg/s per sqrt(s)
     accel_bias_mps2: float = 0.0  # 1-sigma turn-on bias per axis
+    accel_bias_walk_mps2_rt_s: float = 0.0  # bias random walk, m/s^2 per sqrt(s)
     baro_offset_m: float = 0.0  # 1-sigma constant barometer offset
     mag_bias_gauss: float = 0.0  # 1-sigma hard-iron offset per axis (drawn from the seed)
     mag_hard_iron_gauss: tuple[float, float, float] = (0.0, 0.0, 0.0)  # fixed hard-iron offset, body FRD
     quantize: bool = False  # 16-bit LSBs: +-8 g, +-2000 deg/s, +-8 gauss; 0.01 hPa; 0.01 C
     mag_field_h_gauss: float = 0.20  # horizontal earth field
     mag_field_z_gauss: float = 0.45  # vertical earth field (down)
+    # weather: the site's ground pressure and temperature change linearly from their [site] values at
+    # boot (t = 0), atmosphere.ground_conditions; the barometer and the thermometer follow (SensorSuite.baro)
+    pressure_drift_hpa_h: float = 0.0  # e.g. -2 for a falling barometer
+    temperature_drift_k_h: float = 0.0
     # sphere drag: "constant" = the design's drag_coefficient; "reynolds" = Cd(Re) through the drag
     # crisis (sphere_drag_coefficient), the design's Cd is then the firmware's belief only
     drag_model: str = "constant"

@@ -1,10 +1,15 @@
 """Sensor models at the avionics: accelerometer (specific force, FRD), gyroscope, magnetometer,
 barometer and thermometer. Table 2's figures as 1-sigma white noise by default; turn-on biases, bias
-random walk, a fixed hard-iron offset and quantisation as options (``TruthConfig``). The avionics sit
-at the sphere's centre unless ``TruthConfig.avionics_offset_m`` hangs them below it; the caller
-passes the accelerometer's lever-arm term then (``dynamics.lever_arm_accel_b``).
+random walks (gyro, accelerometer), a fixed hard-iron offset, quantisation and weather (the ground
+pressure and temperature drifting from boot, ``atmosphere.ground_conditions``) as options
+(``TruthConfig``). The avionics sit at the sphere's centre unless ``TruthConfig.avionics_offset_m``
+hangs them below it; the caller passes the accelerometer's lever-arm term then
+(``dynamics.lever_arm_accel_b``).
 
-Noise is drawn in blocks (one numpy call per block of samples), then consumed as plain floats.
+Noise is drawn in blocks (one numpy call per block of samples), then consumed as plain floats. A row's
+columns: 0-2 accelerometer, 3-5 gyro, 6-8 magnetometer, 9-11 gyro bias walk, 12 barometer,
+13 thermometer, 14-16 accelerometer bias walk (only when that walk is on: without it a seed's stream
+is the one it always was).
 """
 
 from __future__ import annotations
@@ -13,7 +18,7 @@ import math
 
 import numpy as np
 
-from balloon_core.atmosphere import G0, isa_pressure_pa, isa_temperature_k
+from balloon_core.atmosphere import G0, ground_conditions, isa_pressure_pa, isa_temperature_k
 from balloon_core.config import Design
 from balloon_core.rotation import rotation
 from sim_hil.dynamics import TruthConfig
@@ -54,12 +59,16 @@ class SensorSuite:
             self.mag_bias = [b + h for b, h in zip(self.mag_bias, truth.mag_hard_iron_gauss)]
         self.baro_offset_m = float(r.normal(0.0, truth.baro_offset_m)) if truth.baro_offset_m else 0.0
         self._walk = math.radians(truth.gyro_bias_walk_dps_rt_s) * math.sqrt(1.0 / imu_hz)
+        self._accel_walk = truth.accel_bias_walk_mps2_rt_s * math.sqrt(1.0 / imu_hz)
+        self._columns = 17 if self._accel_walk else 14
+        self.pressure_drift_hpa_h = truth.pressure_drift_hpa_h
+        self.temperature_drift_k_h = truth.temperature_drift_k_h
         self._noise: list[list[float]] = []
         self._k = BLOCK
 
     def _draw(self) -> list[float]:
         if self._k >= len(self._noise):
-            self._noise = self._rng.standard_normal((BLOCK, 14)).tolist()
+            self._noise = self._rng.standard_normal((BLOCK, self._columns)).tolist()
             self._k = 0
         row = self._noise[self._k]
         self._k += 1
@@ -99,18 +108,29 @@ class SensorSuite:
         if self._walk:
             w = self._walk
             self.gyro_bias = [gb[0] + w * n[9], gb[1] + w * n[10], gb[2] + w * n[11]]
+        if self._accel_walk:
+            w = self._accel_walk
+            self.accel_bias = [ab[0] + w * n[14], ab[1] + w * n[15], ab[2] + w * n[16]]
         if self._quantize:
             acc = (_quant(acc[0], ACC_LSB), _quant(acc[1], ACC_LSB), _quant(acc[2], ACC_LSB))
             gyro = (_quant(gyro[0], GYRO_LSB), _quant(gyro[1], GYRO_LSB), _quant(gyro[2], GYRO_LSB))
             mag = (_quant(mag[0], MAG_LSB), _quant(mag[1], MAG_LSB), _quant(mag[2], MAG_LSB))
         return acc, gyro, mag
 
-    def baro(self, height_m: float) -> tuple[float, float]:
-        """(absolute pressure hPa, temperature C) at the balloon's height above the site (ISA)."""
+    def ground(self, time_s: float) -> tuple[float, float]:
+        """(pressure Pa, temperature K) at the site's ground ``time_s`` after boot (the weather)."""
+        p0, t0 = self.ground_pressure_pa, self.ground_temperature_k
+        if self.pressure_drift_hpa_h or self.temperature_drift_k_h:
+            return ground_conditions(p0, t0, self.pressure_drift_hpa_h, self.temperature_drift_k_h, time_s)
+        return p0, t0
+
+    def baro(self, height_m: float, time_s: float = 0.0) -> tuple[float, float]:
+        """(absolute pressure hPa, temperature C) at the balloon's height above the site (ISA from the
+        ground pressure and temperature ``time_s`` after boot: the weather may have changed them)."""
         n = self._draw()
-        t0 = self.ground_temperature_k
+        p0, t0 = self.ground(time_s)
         temp_k = isa_temperature_k(height_m, t0)
-        p = isa_pressure_pa(height_m + self.baro_offset_m, self.ground_pressure_pa, t0)
+        p = isa_pressure_pa(height_m + self.baro_offset_m, p0, t0)
         rho = p / (287.05 * temp_k)
         p += rho * G0 * self._baro_m * n[12]
         hpa = p / 100.0
