@@ -53,8 +53,8 @@ _MS2D = WindConfig(kind="multisine", multisine_axes="both")
 
 _MS2D_FIELD = WindConfig(kind="multisine", multisine_axes="both")
 _BIASES = {"gyro_bias_dps": 0.3, "gyro_bias_walk_dps_rt_s": 0.002, "accel_bias_mps2": 0.02,
-           }  # TODO-merge "accel_bias_walk_mps2_rt_s": 0.001}  # fmt: skip
-_WEATHER = {}  # TODO-merge {"pressure_drift_hpa_h": -2.0, "temperature_drift_k_h": 1.0}
+           "accel_bias_walk_mps2_rt_s": 0.001}  # fmt: skip
+_WEATHER = {"pressure_drift_hpa_h": -2.0, "temperature_drift_k_h": 1.0}
 
 
 def _paper(sc: Scenario, rope_drag: bool = False) -> Scenario:

@@ -158,7 +158,7 @@ class Simulation:
                     else:
                         acc, gyro, mag = self.sensors.imu(f_ned, (s[10], s[11], s[12]), s[6:10])
                         sensor_height = height
-                    baro = self.sensors.baro(sensor_height) if i % baro_every == 0 else None
+                    baro = self.sensors.baro(sensor_height, step * h) if i % baro_every == 0 else None
                     roll, pitch, yaw = euler_from_quat(*s[6:10])
                     sf = shear_factor(ph.shear_exponent, ph.tether_length_m, height)
                     taut = tension > 0.0 and (ph.rope is None or rope_airborne(ph.rope, s[13:]))
