@@ -216,6 +216,7 @@ SCHEMA: dict[str, dict[str, Rule]] = {
         "align_rad": num(0.0, 1.0),
         "radial_m": num(1e-3, 100.0),
         "radial_rate_mps": num(1e-3, 100.0),
+        "rope_model": one_of("catenary", "paper"),
         "rope_normal_cd": num(0.0, 5.0),
         "gate_sigma": num(1.0, 100.0),
         "recover_after_s": num(0.0, 3600.0),

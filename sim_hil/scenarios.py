@@ -58,9 +58,11 @@ _WEATHER = {"pressure_drift_hpa_h": -2.0, "temperature_drift_k_h": 1.0}
 
 
 def _paper(sc: Scenario, rope_drag: bool = False) -> Scenario:
-    """A scenario of the paper's world: its rope (Eq. 5), without rope drag unless asked, no vertical wind."""
+    """A scenario of the paper's world: its rope (Eq. 5), without rope drag unless asked, no vertical wind;
+    the design file says so (the firmware's rope is the paper's too: the paper's Figs. 6-12)."""
     truth = replace(sc.truth, rope_model="paper", rope_drag=rope_drag)
-    return replace(sc, truth=truth, wind=replace(sc.wind, vertical=False))
+    told = replace(sc.filter, rope_model="paper", rope_normal_cd=sc.filter.rope_normal_cd if rope_drag else 0.0)
+    return replace(sc, truth=truth, wind=replace(sc.wind, vertical=False), filter=told)
 
 
 _PAPER_SCENARIOS = tuple(

@@ -31,6 +31,8 @@ from firmware_py.estimator.params import (
     MAG_MODEL_GAUSS,
     MEAN_WIND_S,
     REORDER_WINDOW_US,
+    ROPE_WAVE_ACCEL_MPS2,
+    ROPE_WAVE_ALIGN_RAD,
     TAUT_PULL_S,
     Schedule,
 )
@@ -93,11 +95,17 @@ class Estimator:
         self.design = design
         self.cfg = cfg or FilterConfig()
         self.model = BalloonModel.from_design(design, self.cfg.rope_normal_cd)
+        self.catenary = self.cfg.rope_model == "catenary"
         self.ekf = WindEkf(self.model, self.cfg, design.sensors)
         s = design.sensors
         self.accel_var = s.accel_mps2**2 + self.cfg.accel_model_mps2**2
         self.accel_static_var = s.accel_mps2**2 + self.cfg.accel_static_mps2**2
-        self.accel_taut_var = s.accel_mps2**2 + self.cfg.accel_taut_mps2**2
+        # a rope with mass moves on its own (waves, its swing) and moves the balloon with it: the rod
+        # model's errors grow with the rope's share of the moving mass (docs/estimator.md)
+        rope_share = self.model.rope_kg_m * self.model.tether_length_m / (self.model.mass_kg + 1e-9)
+        rope_share = rope_share if self.catenary else 0.0
+        self.accel_taut_var = s.accel_mps2**2 + self.cfg.accel_taut_mps2**2 + (ROPE_WAVE_ACCEL_MPS2 * rope_share) ** 2
+        self.align_var = self.cfg.align_rad**2 + (ROPE_WAVE_ALIGN_RAD * rope_share) ** 2
         self.baro_var = s.baro_m**2 + BARO_MODEL_M**2
         self.mag_sigma = s.mag_gauss
         self.declination = math.radians(design.site.mag_declination_deg)
@@ -220,6 +228,8 @@ class Estimator:
         r = rotation(*ekf.q.tolist())
         rad = self.model.radius_m
         ekf.forces.attach_ned = self._probe.attach_ned = (rad * r[2], rad * r[5], rad * r[8])
+        if self.catenary:
+            ekf.forces.rope_weight_n = self._probe.rope_weight_n = ekf.rope.weight_n
         for i in range(steps):
             g = (gx, gy, gz) if i == steps - 1 else self._last_gyro
             ekf.predict(g[0], g[1], g[2], self.rho)
@@ -276,9 +286,9 @@ class Estimator:
         zd = q[0] * q[0] - q[1] * q[1] - q[2] * q[2] + q[3] * q[3]  # cos(tilt)
         tan_tilt = math.sqrt(max(0.0, 1.0 - zd * zd)) / max(zd, 0.1)
         lift = (self.rho * m.volume_m3 - m.mass_kg) * G0
-        spare = lift - m.rope_kg_m * G0 * m.tether_length_m
+        spare = lift - (ekf.rope.weight_n if self.catenary else m.rope_weight_n)
         tan_chord = tan_tilt * lift / spare if spare > 0.1 * lift else tan_tilt
-        height = m.taut_radius_m / math.sqrt(1.0 + tan_chord * tan_chord)
+        height = (ekf.rope.chord_m + m.radius_m) / math.sqrt(1.0 + tan_chord * tan_chord)
         ekf.mode = MODE_TAUT
         self._joined = True
         self.unconfirmed = True
@@ -372,7 +382,7 @@ class Estimator:
         x = ekf.x
         pn, pe, pd = float(x[0]), float(x[1]), float(x[2])
         dist = math.sqrt(pn * pn + pe * pe + pd * pd)
-        length = self.model.taut_radius_m
+        length = ekf.rope.chord_m + self.model.radius_m
         if ekf.mode == MODE_FREE:
             low = math.isfinite(self.height_baro) and self.height_baro < cfg.release_height_m
             if low and self._dwell >= FALSE_RELEASE_S * cfg.imu_rate_hz:

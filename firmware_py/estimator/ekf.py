@@ -12,7 +12,9 @@ import math
 
 import numpy as np
 
+from balloon_core.atmosphere import G0, air_density
 from balloon_core.rotation import rotation
+from firmware_py.estimator.catenary import RopeShape, calm_weight_share
 from firmware_py.estimator.model import BalloonModel, Forces, accelerations
 from firmware_py.estimator.params import (
     ATT_VAR_MAX_RAD2,
@@ -118,6 +120,12 @@ class WindEkf:
             + [DRAG_VAR_MAX], z
         )  # fmt: skip
         self.forces = Forces()
+        rho0 = air_density(101325.0, 293.15)
+        lift0 = (rho0 * model.volume_m3 - model.mass_kg) * G0
+        self.rope = RopeShape(  # the paper's rope: the whole weight on a rod of the rope's length
+            model.tether_length_m,
+            calm_weight_share(lift0, model.rope_weight_n) if cfg.rope_model == "catenary" else model.rope_weight_n,
+        )
         # process noise per step (diagonal): white acceleration, gyro noise, the wind's rate, random walks
         g = math.radians(sensors.gyro_dps)
         qv = cfg.accel_process_mps2**2 * dt

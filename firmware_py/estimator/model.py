@@ -38,6 +38,7 @@ class BalloonModel:
     tether_length_m: float  # anchor to the attachment point
     rope_kg_m: float
     rope_drag_m2: float = 0.0  # the balloon's share of the taut rope's cross-flow drag: 1/4 Cn d L
+    rope_cn_d_m: float = 0.0  # Cn d: the rope's cross-flow drag per metre is 1/2 rho Cn d |u_n| u_n
 
     @classmethod
     def from_design(cls, d: Design, rope_normal_cd: float = 0.0) -> BalloonModel:
@@ -50,7 +51,12 @@ class BalloonModel:
             tether_length_m=d.tether.length_m,
             rope_kg_m=d.tether.linear_density_kg_m,
             rope_drag_m2=0.25 * rope_normal_cd * d.tether.diameter_m * d.tether.length_m,
+            rope_cn_d_m=rope_normal_cd * d.tether.diameter_m,
         )
+
+    @property
+    def rope_weight_n(self) -> float:
+        return self.rope_kg_m * G0 * self.tether_length_m
 
     @property
     def taut_radius_m(self) -> float:
@@ -77,23 +83,29 @@ class Forces:
     # input: the tether's attachment point relative to the centre, NED (radius times the body down axis),
     # set by the caller from the attitude; (0, 0, 0) puts it on the line anchor -> centre
     attach_ned: tuple = (0.0, 0.0, 0.0)
+    # input: the rope weight the taut rod carries at the balloon (catenary.py: W_eff), N; NaN: the
+    # paper's whole rope (Eq. 5)
+    rope_weight_n: float = float("nan")
 
 
 def parameters(
-    m: BalloonModel, rho: float, pd: float, taut: bool, attach_ned: tuple = (0.0, 0.0, 0.0)
-) -> tuple[float, ...]:
+    m: BalloonModel, rho: float, pd: float, taut: bool, attach_ned: tuple = (0.0, 0.0, 0.0),
+    rope_weight_n: float = float("nan"),
+) -> tuple[float, ...]:  # fmt: skip
     """(m_eff, push, c, lift, rope_w, rope_slope, kr, att_n, att_e, att_d) of the generated model, for
     air density ``rho``.
 
     push = (1 + Ca) rho V: the accelerating air's push per m/s^2 (Froude-Krylov + added mass);
     c = rho Cd pi r^2 / 2; lift = (rho V - m) g, the balloon's own net lift (Eq. 4 minus its weight);
-    rope weight of paper Eq. (5): the whole rope when taut, the airborne part in free ascent;
+    rope weight: taut, the share the rod carries (``rope_weight_n``, catenary.py; the whole rope of the
+    paper's Eq. 5 if NaN); in free ascent the airborne part hanging below the balloon;
     att = the attachment point relative to the centre (taut: the rope pulls from there)."""
     rho_v = rho * m.volume_m3
     m_eff = m.mass_kg + ADDED_MASS_COEFFICIENT * rho_v
     lam_g = m.rope_kg_m * G0
     if taut:
-        rope_w, slope = lam_g * m.tether_length_m, 0.0
+        rope_w = lam_g * m.tether_length_m if rope_weight_n != rope_weight_n else rope_weight_n
+        slope = 0.0
     else:
         height = -pd - m.radius_m
         if height <= 0.0:
@@ -130,7 +142,7 @@ def accelerations(
     with the whole rope hanging from the balloon. Taut, the rope pulls from ``out.attach_ned`` (the
     attitude enters as a parameter: no Jacobian column, its effect is r / L ~ 1 % of the tension's
     direction). Fills ``out``."""
-    par = parameters(m, rho, pd, taut, out.attach_ned)
+    par = parameters(m, rho, pd, taut, out.attach_ned, out.rope_weight_n)
     out.params = par
     out.m_eff_kg = par[0]
     if taut:

@@ -16,6 +16,11 @@ T_MIN_C, T_MAX_C = -60.0, 85.0
 BARO_ZERO_S = 1.0
 REORDER_WINDOW_US = 1_000_000
 TAUT_PERIOD_S = 0.05  # the taut constraints at 20 Hz
+# the taut rod's model errors from the rope's own motion, per unit of rope mass / balloon mass (the
+# reference: 2 kg of rope on a 1.84 kg balloon): accelerations and the lean the rod does not predict
+ROPE_WAVE_ACCEL_MPS2 = 0.26
+ROPE_WAVE_ALIGN_RAD = 0.016
+ROPE_SHAPE_S = 60.0  # time constant of the rope shape's parameters (chord, weight on the rod): slow, the mean wind's shape
 ALIGN_RESET_S = 2.0  # rejected alignment this long re-places the taut state
 JOIN_IN_FLIGHT_US = 10_000_000  # a first sample this long after the sender's boot: we restarted in flight
 # After a join in flight the balloon hypothesis is unconfirmed: the wind read from the tilt through the
@@ -77,6 +82,7 @@ class Schedule:
     wind_noise_every: int  # steps
     release_confirm: int
     release_height: int
+    rope_shape_alpha: float  # low-pass weight per taut step of the rope shape (ROPE_SHAPE_S)
 
     @classmethod
     def at(cls, imu_rate_hz: float, recover_after_s: float) -> Schedule:
@@ -93,4 +99,5 @@ class Schedule:
             wind_noise_every=max(1, round(WIND_NOISE_PERIOD_S * imu_rate_hz)),
             release_confirm=max(1, round(RELEASE_CONFIRM_S * imu_rate_hz)),
             release_height=max(1, round(RELEASE_HEIGHT_S * imu_rate_hz)),
+            rope_shape_alpha=min(1.0, 1.0 / (ROPE_SHAPE_S * taut_hz)),
         )

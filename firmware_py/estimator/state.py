@@ -52,8 +52,11 @@ class FilterConfig:
     align_rad: float = 0.01  # balloon-to-rope-force alignment error (rotational oscillation)
     radial_m: float = 0.3  # tether length + stretch uncertainty when taut
     radial_rate_mps: float = 0.15
-    # rope cross-flow drag coefficient (Hoerner: 1.1 for a round rope); 0 = the paper's model, no rope drag
-    rope_normal_cd: float = 0.0
+    # the taut rope: "catenary" = its real shape (catenary.py: sag, its weight shared with the anchor,
+    # its drag); "paper" = Eq. (5), straight with its whole weight on the balloon
+    rope_model: str = "catenary"
+    # rope cross-flow drag coefficient (Hoerner: 1.1 for a round rope); 0 = no rope drag (the paper)
+    rope_normal_cd: float = 1.1
     # gates (innovation test in sigmas)
     gate_sigma: float = 5.0
     recover_after_s: float = 1.0  # a fusion rejected this long is taken again, noise inflated to the gate

@@ -7,10 +7,12 @@ from typing import TYPE_CHECKING
 
 from balloon_core.atmosphere import G0
 from balloon_core.rotation import rotation
+from firmware_py.estimator.catenary import effective_rod, rope_chord
 from firmware_py.estimator.ekf import RESET_TAUT, FusionStatus, WindEkf
 from firmware_py.estimator.generated import rope_direction, rope_direction_plain
 from firmware_py.estimator.model import N_COLUMNS, ROPE_JAC
 from firmware_py.estimator.params import (
+    ROPE_SHAPE_S,
     TAUT_AZIMUTH_MIN_M,
     TAUT_LEAN_MIN_SIN,
     TAUT_POS_SIGMA_M,
@@ -42,7 +44,7 @@ if TYPE_CHECKING:
 
 
 def enter_taut(ekf: WindEkf, height_m: float, rho: float, from_tilt: bool = False) -> None:
-    """Put the state on the taut configuration's sphere |p| = L + r.
+    """Put the state on the taut configuration's sphere |p| = L_c + r (L_c the rope's chord).
     - the chord's polar angle from the barometric height, cos(theta) = h / (L + r);
     - its azimuth: at the end of the free ascent (``from_tilt`` False) from the ascent's horizontal
       position (the balloon drifted downwind): at the moment the rope snaps taut the balloon swings
@@ -50,12 +52,13 @@ def enter_taut(ekf: WindEkf, height_m: float, rho: float, from_tilt: bool = Fals
       (``from_tilt``: a restart in flight, or 2 s of alignment rejected) from the balloon's lean if it
       leans more than 3 deg (its tilt is good to a few tenths of a degree; in a lighter wind the lean
       is tilt noise and the state's azimuth is kept);
-    - the wind from the static balance drag = (N_b - W) tan(theta) along it, velocity zero;
+    - the wind from the static balance drag = (N_b - W_eff) tan(theta) along it (W_eff the rope's
+      weight on the rod, catenary.py), velocity zero;
     - position, velocity and wind covariances reset (decorrelated), wide enough for the alignment
       row and the accelerometer to move them where the tilt and the dynamics say."""
     m = ekf.model
     x = ekf.x
-    ell = m.taut_radius_m
+    ell = ekf.rope.chord_m + m.radius_m
     cos_t = min(max(height_m / ell, 0.05), 1.0)
     sin_t = math.sqrt(1.0 - cos_t * cos_t)
     pn, pe = float(x[POS_N]), float(x[POS_E])
@@ -75,7 +78,7 @@ def enter_taut(ekf: WindEkf, height_m: float, rho: float, from_tilt: bool = Fals
         an = ae = 0.0
     # the wind's speed from the static balance along that azimuth, drag = (N_b - W) tan(theta): the
     # ascent's horizontal speed is observed only weakly (through the release and |u| in the climb)
-    lift = (rho * m.volume_m3 - m.mass_kg - m.rope_kg_m * m.tether_length_m) * G0
+    lift = (rho * m.volume_m3 - m.mass_kg) * G0 - ekf.rope.weight_n
     drag = max(lift, 0.0) * sin_t / cos_t
     k = max(float(x[DRAG]), 0.2)
     speed = math.sqrt(drag / (k * rho * m.half_cd_area_m2)) if drag > 0.0 else 0.0
@@ -102,7 +105,7 @@ def fuse_taut(
     ekf: WindEkf, radial_var: float, radial_rate_var: float, align_var: float, status: list[FusionStatus]
 ) -> None:
     """Restricted radial motion (paper Sec. 2.3): the attachment point at the bottom of the sphere
-    (Eq. 7; ``ekf.forces.attach_ned`` from the attitude) at |p_a| = L from the anchor, no radial
+    (Eq. 7; ``ekf.forces.attach_ned`` from the attitude) at |p_a| = L_c (the rope's chord) from the anchor, no radial
     velocity, and the balloon's down axis along the rope force (tension towards the anchor + the rope's
     weight, Eq. 5, + the rope's cross-flow drag if modelled). The attitude enters the first two as a
     parameter (no attitude column: r / L ~ 1 %)."""
@@ -118,7 +121,7 @@ def fuse_taut(
     h.fill(0.0)
     for i in range(3):
         h[POS_N + i] = e[i]
-    ekf.fuse(ekf.model.tether_length_m - dist, radial_var, status[0], UNGATED)
+    ekf.fuse(ekf.rope.chord_m - dist, radial_var, status[0], UNGATED)
     h.fill(0.0)
     vr = vn * e[0] + ve * e[1] + vd * e[2]
     v = (vn, ve, vd)
@@ -144,13 +147,47 @@ def fuse_taut(
         ekf.fuse(n[c] - z[c], align_var, status[2 + c], recover=False)
 
 
+def update_rope_shape(ekf: WindEkf, rho: float, alpha: float) -> None:
+    """Follow the rope's real shape (catenary.py): its pull on the balloon from the static balance at
+    the current state, F = -(drag + N_b up); the chord of the design's rope under that pull; the weight
+    the rod must carry for its pull to be the rope's. Low-passed with ``alpha`` (model parameters)."""
+    m = ekf.model
+    x = ekf.x
+    vn, ve, vd = float(x[VEL_N]), float(x[VEL_E]), float(x[VEL_D])
+    wn, we, k = float(x[WIND_N]), float(x[WIND_E]), float(x[DRAG])
+    un, ue, ud = wn - vn, we - ve, -vd
+    kd = k * rho * m.half_cd_area_m2 * math.sqrt(un * un + ue * ue + ud * ud)
+    lift = (rho * m.volume_m3 - m.mass_kg) * G0
+    fn, fe, fd = -kd * un, -kd * ue, -kd * ud + lift
+    w = m.rope_kg_m * G0
+    cn, ce, cd = rope_chord(fn, fe, fd, m.tether_length_m, w, 0.5 * rho * m.rope_cn_d_m, wn, we)
+    chord = math.sqrt(cn * cn + ce * ce + cd * cd)
+    if not chord > 0.5 * m.tether_length_m:
+        return  # no rope shape under this pull (lift gone): keep the last
+    # the model's own rope-drag term at this chord (tools/derive_model.py: kr |u_n| u_n)
+    rn = re = rd = 0.0
+    if m.rope_drag_m2 > 0.0:
+        en, ee, ed = cn / chord, ce / chord, cd / chord
+        along = un * en + ue * ee + ud * ed
+        pn_, pe_, pd_ = un - along * en, ue - along * ee, ud - along * ed
+        kr = rho * m.rope_drag_m2 * math.sqrt(pn_ * pn_ + pe_ * pe_ + pd_ * pd_)
+        rn, re, rd = kr * pn_, kr * pe_, kr * pd_
+    weight = effective_rod(fn, fe, fd, rn, re, rd, cn, ce, cd, m.rope_weight_n)
+    rope = ekf.rope
+    rope.chord_m += alpha * (chord - rope.chord_m)
+    if weight == weight:  # NaN: a vertical chord tells no share, keep the last
+        rope.weight_n += alpha * (weight - rope.weight_n)
+
+
 def control_tether(est: Estimator) -> None:
     """Taut: the radius, radial-rate and alignment rows every ``TAUT_PERIOD_S``; alignment rejected for
     ``ALIGN_RESET_S`` (the tilt contradicts the taut state) re-places the taut state from the tilt."""
     ekf = est.ekf
     if ekf.mode == MODE_TAUT and est.step % est.schedule.taut_every == 0:
         cfg = est.cfg
-        fuse_taut(ekf, cfg.radial_m**2, cfg.radial_rate_mps**2, cfg.align_rad**2, est.taut_status)
+        if est.catenary:
+            update_rope_shape(ekf, est.rho, est.schedule.rope_shape_alpha)
+        fuse_taut(ekf, cfg.radial_m**2, cfg.radial_rate_mps**2, est.align_var, est.taut_status)
         align_n, align_e = est.taut_status[2], est.taut_status[3]
         if max(align_n.consecutive_rejects, align_e.consecutive_rejects) >= est.schedule.align_reset:
             est.counters.taut_resets += 1
