@@ -209,6 +209,7 @@ SCHEMA: dict[str, dict[str, Rule]] = {
         "expected_wind_mps": num(0.0, 50.0),
         "turbulence_intensity": num(0.01, 1.0),
         "drag_walk_rt_s": num(0.0, 1.0),
+        "baro_walk_m_rt_s": num(0.0, 10.0),
         "gyro_bias_walk_dps_rt_s": num(0.0, 10.0),
         "accel_model_mps2": num(0.0, 100.0),
         "accel_taut_mps2": num(0.0, 100.0),

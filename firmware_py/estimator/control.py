@@ -13,12 +13,23 @@ from firmware_py.estimator.aid_sources.accel import control_accel
 from firmware_py.estimator.aid_sources.baro import baro_sample, control_baro, reset_height
 from firmware_py.estimator.aid_sources.magnetometer import control_mag
 from firmware_py.estimator.aid_sources.tether import control_tether, enter_taut
+from firmware_py.estimator.consistency import (
+    ACCEL,
+    ALIGN,
+    BARO,
+    CONSISTENCY_S,
+    MAG,
+    RADIUS,
+    Consistency,
+    systematic_variance,
+)
 from firmware_py.estimator.ekf import FusionStatus, WindEkf
 from firmware_py.estimator.model import BalloonModel, Forces, accelerations
 from firmware_py.estimator.params import (
     ACC_MAX,
     ACCEL_INNOV_S,
     BARO_MODEL_M,
+    BARO_NOMINAL_HZ,
     CONFIRM_EXPLAINED,
     CONFIRM_MOTION_MPS2,
     CONFIRM_S,
@@ -37,6 +48,8 @@ from firmware_py.estimator.params import (
     Schedule,
 )
 from firmware_py.estimator.state import (
+    BARO_OFF,
+    DRAG,
     MODE_FREE,
     MODE_GROUND,
     MODE_NAMES,
@@ -121,6 +134,9 @@ class Estimator:
         # the magnetometer's model error: the field's direction is known to ~0.5 deg after the boot
         self.mag_var = self.mag_sigma**2 + MAG_MODEL_GAUSS**2
         self.taut_status = [FusionStatus(n) for n in ("radius", "radial_rate", "align_n", "align_e")]
+        self.consistency = Consistency()
+        m = self.model
+        self.rope_drag_share = m.rope_drag_m2 / (m.half_cd_area_m2 + m.rope_drag_m2)
         self._init_clock()
         self._init_baro()
 
@@ -151,6 +167,9 @@ class Estimator:
         self._pulling = 0
         self._was_slack = False
         self._height_above = 0
+        self._accel_var_excess = 0.0
+        if hasattr(self, "consistency"):
+            self.consistency.reset()
 
 
     def _init_baro(self) -> None:
@@ -250,6 +269,8 @@ class Estimator:
             self._reinitialise_in_flight(ax, ay, az, mx, my, mz, mag_ok)
             return True
         self._update_mode(ax, ay, az)
+        if ekf.mode != MODE_GROUND:
+            self._monitor()
         if ekf.mode == MODE_TAUT:
             wn, we = self.wind()
             self._mean_speed += self._speed_alpha * (math.sqrt(wn * wn + we * we) - self._mean_speed)
@@ -257,6 +278,33 @@ class Estimator:
                 misfit = max(1.0, self._accel_innov2 / self.accel_taut_var)
                 ekf.adapt_wind_noise(self._mean_speed, misfit)
         return True
+
+    def _monitor(self) -> None:
+        """Feed the consistency monitor (consistency.py) with this step's innovations, each source
+        weighted by its own interval over the window."""
+        mon = self.consistency
+        t = self.ekf.time_us
+        rate = self.cfg.imu_rate_hz
+        # the accelerometer's noise follows its innovations (control_accel): judged against the nominal one
+        st = self.accel_status
+        if st[0].time_test_us == t:
+            ex = self._accel_var_excess
+            nis = sum(s.innov**2 / max(s.innov_var - ex, 1e-12) for s in st) / 3.0
+            mon.add(ACCEL, nis, 1.0 / (CONSISTENCY_S * rate))
+        taut_alpha = self.schedule.taut_every / (CONSISTENCY_S * rate)
+        radius, _, an, ae = self.taut_status
+        if an.time_test_us == t and an.innov_var > 0.0 and ae.innov_var > 0.0:
+            mon.add(ALIGN, 0.5 * (an.innov**2 / an.innov_var + ae.innov**2 / ae.innov_var), taut_alpha)
+        if radius.time_test_us == t and radius.innov_var > 0.0:
+            mon.add(RADIUS, radius.innov**2 / radius.innov_var, taut_alpha)
+        b = self.baro_status
+        if b.time_test_us == t and b.innov_var > 0.0:
+            mon.add(BARO, b.innov**2 / b.innov_var, 1.0 / (CONSISTENCY_S * BARO_NOMINAL_HZ))
+        mg = self.mag_status
+        if mg[0].time_test_us == t and mg[0].innov_var > 0.0:
+            nis = sum(s.innov**2 / s.innov_var for s in mg if s.innov_var > 0.0) / 3.0
+            mon.add(MAG, nis, 1.0 / (CONSISTENCY_S * rate))
+        mon.evaluate()
 
     def coast(self, seconds: float) -> None:
         """No sensor data arrived for a while: grow the covariance by the process noise of the
@@ -340,7 +388,7 @@ class Estimator:
     def _height_for_taut(self) -> float:
         """Height of the balloon's centre above the anchor: barometer if it has one, else the state."""
         if math.isfinite(self.height_baro):
-            return self.height_baro - self.ref_pos_d
+            return self.height_baro - float(self.ekf.x[BARO_OFF]) - self.ref_pos_d
         return -float(self.ekf.x[POS_D])
 
     def _rope_would_pull(self) -> bool:
@@ -413,10 +461,16 @@ class Estimator:
 
     def wind_accuracy(self) -> float:
         """The horizontal wind's 1-sigma accuracy to report (WIND_COV horiz_accuracy): the filter's
-        sqrt(P_NN + P_EE), but while a join in flight is unconfirmed at least sqrt(|w|^2 + 1)."""
-        acc = self.ekf.wind_accuracy()
+        P_NN + P_EE with what P does not hold (consistency.systematic_variance), times the consistency
+        monitor's factor (>= 1: the model does not explain the data); while a join in flight is
+        unconfirmed at least sqrt(|w|^2 + 1)."""
+        ekf = self.ekf
+        wn, we = self.wind()
+        sys_var = systematic_variance(
+            math.sqrt(wn * wn + we * we), float(ekf.x[DRAG]), float(ekf.P[DRAG, DRAG]), self.rope_drag_share
+        ) if ekf.mode != MODE_GROUND else 0.0  # fmt: skip
+        acc = math.sqrt(ekf.wind_accuracy() ** 2 + sys_var) * self.consistency.inflation
         if self.unconfirmed:
-            wn, we = self.wind()
             acc = max(acc, math.sqrt(wn * wn + we * we + 1.0))
         return acc
 

@@ -58,7 +58,7 @@ class FusionStatus:
     """Per-fusion bookkeeping, as PX4's estimator_innovations / test ratios."""
 
     __slots__ = ("name", "innov", "innov_var", "test_ratio", "fused", "rejected", "consecutive_rejects",
-                 "recover_after", "time_last_fuse_us")  # fmt: skip
+                 "recover_after", "time_last_fuse_us", "time_test_us")  # fmt: skip
 
     def __init__(self, name: str, recover_after: int = 0) -> None:
         self.name = name
@@ -70,6 +70,7 @@ class FusionStatus:
         self.rejected = 0
         self.consecutive_rejects = 0
         self.time_last_fuse_us = -1  # the filter time of the last fusion (-1: never), as PX4's time_last_fuse
+        self.time_test_us = -1  # the filter time of the last innovation test (fused or rejected)
 
 
 # the kinds of state reset: the control logic re-places the state instead of fusing a measurement
@@ -117,7 +118,7 @@ class WindEkf:
         self.var_max = np.array(
             [POS_VAR_MAX_M2] * 3 + [VEL_VAR_MAX_M2S2] * 3 + [ATT_VAR_MAX_RAD2] * 3
             + [math.radians(GYRO_BIAS_SIGMA_MAX_DEG_S) ** 2] * 3 + [WIND_VAR_MAX_M2S2] * 2 + [WRATE_VAR_MAX_M2S4] * 2
-            + [DRAG_VAR_MAX], z
+            + [DRAG_VAR_MAX] + [POS_VAR_MAX_M2], z
         )  # fmt: skip
         self.forces = Forces()
         rho0 = air_density(101325.0, 293.15)
@@ -134,8 +135,8 @@ class WindEkf:
         qr = wp.q_rate * dt
         self._q_flight = [0.25 * qv * dt * dt] * 3 + [qv] * 3 + [g * g * dt * dt] * 3 + [
             (math.radians(cfg.gyro_bias_walk_dps_rt_s)) ** 2 * dt
-        ] * 3 + [0.0] * 2 + [qr] * 2 + [cfg.drag_walk_rt_s**2 * dt]
-        self._q_ground = [GROUND_PROCESS_VAR] * 6 + self._q_flight[6:16] + [0.0]
+        ] * 3 + [0.0] * 2 + [qr] * 2 + [cfg.drag_walk_rt_s**2 * dt] + [cfg.baro_walk_m_rt_s**2 * dt]
+        self._q_ground = [GROUND_PROCESS_VAR] * 6 + self._q_flight[6:16] + [0.0] + self._q_flight[17:18]
         self._qd_flight = np.array(self._q_flight, z)
         self._q_rate0 = qr  # at the expected mean wind; scaled with the wind the filter sees (adapt_wind_noise)
         self._u0 = max(cfg.expected_wind_mps, 0.5)
@@ -197,7 +198,7 @@ class WindEkf:
         tilt = math.radians(c.init_tilt_deg) ** 2
         init = [0.01] * 3 + [1e-4] * 3 + [tilt, tilt, math.radians(c.init_yaw_deg) ** 2]
         init += [math.radians(c.init_gyro_bias_dps) ** 2] * 3 + [c.init_wind_mps**2] * 2
-        init += [self.wind_process.sigma_rate_mps2**2] * 2 + [c.init_drag**2]
+        init += [self.wind_process.sigma_rate_mps2**2] * 2 + [c.init_drag**2] + [VAR_MIN]
         for i, v in enumerate(init):
             self.P[i, i] = v
         self.mode = MODE_GROUND
@@ -216,7 +217,7 @@ class WindEkf:
         """One fixed step: attitude from the bias-corrected gyro, translation from the mode's model."""
         dt = self.dt
         x = self.x
-        pn, pe, pd, vn, ve, vd, _, _, _, bx, by, bz, wn, we, rn, re, k = x.tolist()
+        pn, pe, pd, vn, ve, vd, _, _, _, bx, by, bz, wn, we, rn, re, k, _ = x.tolist()
         q0, q1, q2, q3 = self.q.tolist()
         # attitude: q <- q (x) exp(omega dt / 2), omega = gyro - bias (paper's Omega)
         wx, wy, wz = gx - bx, gy - by, gz - bz
@@ -344,6 +345,7 @@ class WindEkf:
         gate = self.cfg.gate_sigma if gate_sigma is None else gate_sigma
         status.innov = innov
         status.innov_var = s
+        status.time_test_us = self.time_us
         if not (s > 0.0 and math.isfinite(innov)):
             status.rejected += 1
             status.consecutive_rejects += 1
@@ -397,6 +399,7 @@ class WindEkf:
         ok = True
         for st, inn, var in ((status[0], i0, s00), (status[1], i1, s11), (status[2], i2, s22)):
             st.innov, st.innov_var = inn, var
+            st.time_test_us = self.time_us
             if not (var > 0.0 and math.isfinite(inn)):
                 ok = False
                 continue

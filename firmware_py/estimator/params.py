@@ -20,7 +20,9 @@ TAUT_PERIOD_S = 0.05  # the taut constraints at 20 Hz
 # reference: 2 kg of rope on a 1.84 kg balloon): accelerations and the lean the rod does not predict
 ROPE_WAVE_ACCEL_MPS2 = 0.26
 ROPE_WAVE_ALIGN_RAD = 0.016
-ROPE_SHAPE_S = 60.0  # time constant of the rope shape's parameters (chord, weight on the rod): slow, the mean wind's shape
+# the rope shape (chord, weight on the rod) follows the mean wind, slowly: a fast one feeds the
+# wind estimate back into the model (a 0.05 Hz resonance, gain 4 on the real rope)
+ROPE_SHAPE_S = 60.0
 ALIGN_RESET_S = 2.0  # rejected alignment this long re-places the taut state
 JOIN_IN_FLIGHT_US = 10_000_000  # a first sample this long after the sender's boot: we restarted in flight
 # After a join in flight the balloon hypothesis is unconfirmed: the wind read from the tilt through the

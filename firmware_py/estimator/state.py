@@ -19,10 +19,11 @@ GB_X, GB_Y, GB_Z = 9, 10, 11  # rad/s gyro bias, body FRD (angular rate Omega = 
 WIND_N, WIND_E = 12, 13  # m/s air velocity, horizontal (the paper's wind is horizontal)
 WRATE_N, WRATE_E = 14, 15  # m/s^2 rate of change of the wind (its push on the balloon: Froude-Krylov)
 DRAG = 16  # drag scale: multiplies 1/2 rho Cd pi r^2 (Cd is uncertain in the drag crisis)
-N_STATES = 17
+BARO_OFF = 17  # m: barometric height minus true height (the weather moves the barometer, metres an hour)
+N_STATES = 18
 STATE_NAMES = (
     "pos_n", "pos_e", "pos_d", "vel_n", "vel_e", "vel_d", "att_n", "att_e", "att_d",
-    "gbias_x", "gbias_y", "gbias_z", "wind_n", "wind_e", "wrate_n", "wrate_e", "drag_scale",
+    "gbias_x", "gbias_y", "gbias_z", "wind_n", "wind_e", "wrate_n", "wrate_e", "drag_scale", "baro_offset",
 )  # fmt: skip
 # the states the balloon model's Jacobians are taken over, in the generator's order (generated.COLUMNS)
 MODEL_COLUMNS = tuple(STATE_NAMES.index(name) for name in COLUMNS)
@@ -44,6 +45,9 @@ class FilterConfig:
     expected_wind_mps: float = 3.0
     turbulence_intensity: float = 0.2  # sigma_u / U the filter expects (docs/estimator.md: chosen by NEES)
     drag_walk_rt_s: float = 0.002  # drag-scale random walk
+    # the barometer's offset walk: the weather moves the ground pressure 1-3 hPa in 3 h (8 m per hPa);
+    # 0.1 m/sqrt(s) is 6 m in an hour as a random walk and follows a 2 hPa/h front within metres
+    baro_walk_m_rt_s: float = 0.1
     gyro_bias_walk_dps_rt_s: float = 0.005
     # measurement model errors added to the sensor noise of [sensors]
     accel_model_mps2: float = 0.15  # specific-force model error in free ascent

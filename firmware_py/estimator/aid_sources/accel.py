@@ -62,7 +62,9 @@ def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
     drag the attitude with it (the magnetometer and the gyro keep it)."""
     ekf = est.ekf
     var = (est.accel_static_var, est.accel_var, est.accel_taut_var)[ekf.mode]
+    nominal = var
     var = max(var, est._accel_innov2)
+    est._accel_var_excess = var - nominal  # what the consistency monitor takes back out (control._monitor)
     fuse_accel(ekf, ax, ay, az, var, est.accel_status)
     st = est.accel_status
     i2 = (st[0].innov**2 + st[1].innov**2 + st[2].innov**2) / 3.0

@@ -9,6 +9,7 @@ from balloon_core.atmosphere import G0, LAPSE_K_M, R_AIR, air_density, hypsometr
 from firmware_py.estimator.ekf import RESET_HEIGHT, FusionStatus, WindEkf
 from firmware_py.estimator.params import BARO_ZERO_S, P_MAX_HPA, P_MIN_HPA, T_MAX_C, T_MIN_C
 from firmware_py.estimator.state import (
+    BARO_OFF,
     POS_D,
     VEL_D,
 )
@@ -18,17 +19,19 @@ if TYPE_CHECKING:
 
 
 def fuse_baro(ekf: WindEkf, height_m: float, ref_pos_d: float, var: float, status: FusionStatus) -> None:
-    """Barometric height above the reference (hypsometric, computed by the caller)."""
+    """Barometric height above the reference (hypsometric, computed by the caller): the true height
+    plus the barometer's offset (the weather since the zero)."""
     ekf.h.fill(0.0)
     ekf.h[POS_D] = -1.0
-    pred = -(float(ekf.x[POS_D]) - ref_pos_d)
+    ekf.h[BARO_OFF] = 1.0
+    pred = -(float(ekf.x[POS_D]) - ref_pos_d) + float(ekf.x[BARO_OFF])
     ekf.fuse(height_m - pred, var, status)
 
 
 def reset_height(ekf: WindEkf, pos_d: float, var: float) -> None:
     """Put the height where the barometer says (PX4's height reset): the model that contradicted it
     persistently (a bump taken for a release, a climb that did not happen) gives way to the sensor."""
-    ekf.x[POS_D] = pos_d
+    ekf.x[POS_D] = pos_d + float(ekf.x[BARO_OFF])
     ekf.x[VEL_D] = 0.0
     P = ekf.P
     for i in (POS_D, VEL_D):

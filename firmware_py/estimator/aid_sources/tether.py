@@ -12,7 +12,6 @@ from firmware_py.estimator.ekf import RESET_TAUT, FusionStatus, WindEkf
 from firmware_py.estimator.generated import rope_direction, rope_direction_plain
 from firmware_py.estimator.model import N_COLUMNS, ROPE_JAC
 from firmware_py.estimator.params import (
-    ROPE_SHAPE_S,
     TAUT_AZIMUTH_MIN_M,
     TAUT_LEAN_MIN_SIN,
     TAUT_POS_SIGMA_M,

@@ -1,0 +1,83 @@
+"""Is the model explaining the data? The consistency monitor (docs/estimator.md, "Honest accuracy").
+
+A filter whose model is wrong does not see it in its covariance: P shrinks with every fusion whatever
+the data say. What does see it is the innovation sequence. PX4 tests each innovation against its
+variance (the test ratio) and rejects the outliers; a model that is slightly but persistently wrong
+passes every single test. So here each aid source's normalised innovation squared,
+NIS = innovation^2 / innovation variance, is averaged over a window of ``CONSISTENCY_S``: in a
+consistent filter its mean is 1 or less; a mean of 3 says the source's innovations are sqrt(3) times
+what the filter expects, for tens of seconds, and the model does not explain that source.
+
+What the monitor does with it:
+- ``flags``: one bit per source whose windowed NIS is above ``FLAG_NIS``; the firmware reports them
+  (SYS_STATUS, a STATUSTEXT when they change, the summary) and the products carry them;
+- ``inflation``: the factor on the reported wind accuracy, the square root of the largest windowed
+  NIS (>= 1): innovations sqrt(NIS) times larger than the filter expects say its errors are too.
+
+The accuracy itself also carries what the covariance cannot know (``systematic_variance``): the
+drag scale's uncertainty (inhibited on the taut tether, so decorrelated from the wind in P) and the
+rope's drag coefficient, which the design gives only as a typical value.
+
+Plain floats, fixed memory: a C port is a struct of five floats.
+"""
+
+from __future__ import annotations
+
+SOURCES = ("accel", "align", "radius", "baro", "mag")
+ACCEL, ALIGN, RADIUS, BARO, MAG = range(len(SOURCES))
+CONSISTENCY_S = 20.0  # averaging time of each source's NIS
+NIS_CLIP = 25.0  # one innovation counts at most as a 5-sigma one: a transient does not rule the window
+FLAG_NIS = 2.0  # a windowed NIS above this flags the source: its innovations are 1.4x their expectation
+ROPE_CD_REL_SIGMA = 0.3  # 1-sigma of the rope's cross-flow drag coefficient, relative (1.0-1.3 round ropes)
+
+
+class Consistency:
+    """Windowed NIS per aid source, the status bits and the accuracy factor."""
+
+    __slots__ = ("nis", "flags", "inflation", "flag_changes")
+
+    def __init__(self) -> None:
+        self.nis = [0.0] * len(SOURCES)
+        self.flags = 0
+        self.inflation = 1.0
+        self.flag_changes = 0
+
+    def reset(self) -> None:
+        for i in range(len(SOURCES)):
+            self.nis[i] = 0.0
+        self.flags = 0
+        self.inflation = 1.0
+
+    def add(self, source: int, nis: float, alpha: float) -> None:
+        """One normalised innovation squared of ``source``, weight ``alpha`` (its interval / window)."""
+        if nis == nis:  # NaN: not evaluated
+            self.nis[source] += alpha * (min(nis, NIS_CLIP) - self.nis[source])
+
+    def evaluate(self) -> None:
+        """The flags and the accuracy factor from the windowed NIS."""
+        flags = 0
+        worst = 1.0
+        for i, v in enumerate(self.nis):
+            if v > FLAG_NIS:
+                flags |= 1 << i
+            if v > worst:
+                worst = v
+        if flags != self.flags:
+            self.flag_changes += 1
+        self.flags = flags
+        self.inflation = worst**0.5
+
+    def names(self) -> list[str]:
+        return [name for i, name in enumerate(SOURCES) if self.flags >> i & 1]
+
+
+def systematic_variance(
+    speed_mps: float, drag_scale: float, drag_scale_var: float, rope_drag_share: float
+) -> float:
+    """Variance of the horizontal wind from what the filter's P does not hold, (m/s)^2: the drag
+    scale's uncertainty (F ~ k |w|^2: dw / w = dk / 2k) and the rope's drag coefficient (the rope's
+    share of the horizontal drag, times its relative uncertainty, halved for the square law)."""
+    k = max(drag_scale, 1e-3)
+    rel_k = 0.5 * (drag_scale_var**0.5) / k
+    rel_rope = 0.5 * rope_drag_share * ROPE_CD_REL_SIGMA
+    return speed_mps * speed_mps * (rel_k * rel_k + rel_rope * rel_rope)
