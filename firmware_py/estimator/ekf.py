@@ -17,6 +17,7 @@ from balloon_core.rotation import rotation
 from firmware_py.estimator.catenary import RopeShape, calm_weight_share
 from firmware_py.estimator.model import BalloonModel, Forces, accelerations
 from firmware_py.estimator.params import (
+    ABIAS_VAR_MAX_M2S4,
     ATT_VAR_MAX_RAD2,
     DRAG_SCALE_MIN,
     DRAG_VAR_MAX,
@@ -118,7 +119,7 @@ class WindEkf:
         self.var_max = np.array(
             [POS_VAR_MAX_M2] * 3 + [VEL_VAR_MAX_M2S2] * 3 + [ATT_VAR_MAX_RAD2] * 3
             + [math.radians(GYRO_BIAS_SIGMA_MAX_DEG_S) ** 2] * 3 + [WIND_VAR_MAX_M2S2] * 2 + [WRATE_VAR_MAX_M2S4] * 2
-            + [DRAG_VAR_MAX] + [POS_VAR_MAX_M2], z
+            + [DRAG_VAR_MAX] + [POS_VAR_MAX_M2] + [ABIAS_VAR_MAX_M2S4], z
         )  # fmt: skip
         self.forces = Forces()
         rho0 = air_density(101325.0, 293.15)
@@ -135,8 +136,10 @@ class WindEkf:
         qr = wp.q_rate * dt
         self._q_flight = [0.25 * qv * dt * dt] * 3 + [qv] * 3 + [g * g * dt * dt] * 3 + [
             (math.radians(cfg.gyro_bias_walk_dps_rt_s)) ** 2 * dt
-        ] * 3 + [0.0] * 2 + [qr] * 2 + [cfg.drag_walk_rt_s**2 * dt] + [cfg.baro_walk_m_rt_s**2 * dt]
-        self._q_ground = [GROUND_PROCESS_VAR] * 6 + self._q_flight[6:16] + [0.0] + self._q_flight[17:18]
+        ] * 3 + [0.0] * 2 + [qr] * 2 + [cfg.drag_walk_rt_s**2 * dt] + [cfg.baro_walk_m_rt_s**2 * dt] + [
+            cfg.accel_bias_walk_mps2_rt_s**2 * dt
+        ]
+        self._q_ground = [GROUND_PROCESS_VAR] * 6 + self._q_flight[6:16] + [0.0] + self._q_flight[17:19]
         self._qd_flight = np.array(self._q_flight, z)
         self._q_rate0 = qr  # at the expected mean wind; scaled with the wind the filter sees (adapt_wind_noise)
         self._u0 = max(cfg.expected_wind_mps, 0.5)
@@ -198,7 +201,7 @@ class WindEkf:
         tilt = math.radians(c.init_tilt_deg) ** 2
         init = [0.01] * 3 + [1e-4] * 3 + [tilt, tilt, math.radians(c.init_yaw_deg) ** 2]
         init += [math.radians(c.init_gyro_bias_dps) ** 2] * 3 + [c.init_wind_mps**2] * 2
-        init += [self.wind_process.sigma_rate_mps2**2] * 2 + [c.init_drag**2] + [VAR_MIN]
+        init += [self.wind_process.sigma_rate_mps2**2] * 2 + [c.init_drag**2] + [VAR_MIN] + [c.init_accel_bias_mps2**2]
         for i, v in enumerate(init):
             self.P[i, i] = v
         self.mode = MODE_GROUND
@@ -217,7 +220,7 @@ class WindEkf:
         """One fixed step: attitude from the bias-corrected gyro, translation from the mode's model."""
         dt = self.dt
         x = self.x
-        pn, pe, pd, vn, ve, vd, _, _, _, bx, by, bz, wn, we, rn, re, k, _ = x.tolist()
+        pn, pe, pd, vn, ve, vd, _, _, _, bx, by, bz, wn, we, rn, re, k, _, _ = x.tolist()
         q0, q1, q2, q3 = self.q.tolist()
         # attitude: q <- q (x) exp(omega dt / 2), omega = gyro - bias (paper's Omega)
         wx, wy, wz = gx - bx, gy - by, gz - bz

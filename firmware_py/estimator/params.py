@@ -66,6 +66,7 @@ GYRO_BIAS_SIGMA_MAX_DEG_S = 5.0
 WIND_VAR_MAX_M2S2 = 100.0
 WRATE_VAR_MAX_M2S4 = 4.0
 DRAG_VAR_MAX = 1.0
+ABIAS_VAR_MAX_M2S4 = 1.0
 GROUND_PROCESS_VAR = 1e-8  # position and velocity process noise per step while held on the ground station
 DRAG_SCALE_MIN = 0.2  # the drag scale is held above this (a balloon always has drag)
 

@@ -20,10 +20,12 @@ WIND_N, WIND_E = 12, 13  # m/s air velocity, horizontal (the paper's wind is hor
 WRATE_N, WRATE_E = 14, 15  # m/s^2 rate of change of the wind (its push on the balloon: Froude-Krylov)
 DRAG = 16  # drag scale: multiplies 1/2 rho Cd pi r^2 (Cd is uncertain in the drag crisis)
 BARO_OFF = 17  # m: barometric height minus true height (the weather moves the barometer, metres an hour)
-N_STATES = 18
+ABIAS_Z = 18  # m/s^2: accelerometer bias along body z (with the local gravity's departure from G0)
+N_STATES = 19
 STATE_NAMES = (
     "pos_n", "pos_e", "pos_d", "vel_n", "vel_e", "vel_d", "att_n", "att_e", "att_d",
     "gbias_x", "gbias_y", "gbias_z", "wind_n", "wind_e", "wrate_n", "wrate_e", "drag_scale", "baro_offset",
+    "abias_z",
 )  # fmt: skip
 # the states the balloon model's Jacobians are taken over, in the generator's order (generated.COLUMNS)
 MODEL_COLUMNS = tuple(STATE_NAMES.index(name) for name in COLUMNS)
@@ -48,6 +50,7 @@ class FilterConfig:
     # the barometer's offset walk: the weather moves the ground pressure 1-3 hPa in 3 h (8 m per hPa);
     # 0.1 m/sqrt(s) is 6 m in an hour as a random walk and follows a 2 hPa/h front within metres
     baro_walk_m_rt_s: float = 0.1
+    accel_bias_walk_mps2_rt_s: float = 0.001  # body-z accelerometer bias random walk (MEMS: 0.0005-0.002)
     gyro_bias_walk_dps_rt_s: float = 0.005
     # measurement model errors added to the sensor noise of [sensors]
     accel_model_mps2: float = 0.15  # specific-force model error in free ascent
@@ -67,6 +70,7 @@ class FilterConfig:
     # initial uncertainty
     init_wind_mps: float = 6.0
     init_drag: float = 0.1
+    init_accel_bias_mps2: float = 0.05  # body z: turn-on bias and the local gravity (9.78-9.83 m/s^2)
     init_gyro_bias_dps: float = 0.5
     init_tilt_deg: float = 3.0
     init_yaw_deg: float = 10.0

@@ -10,6 +10,7 @@ from balloon_core.atmosphere import G0
 from balloon_core.rotation import rotation
 from firmware_py.estimator.ekf import FusionStatus, WindEkf
 from firmware_py.estimator.state import (
+    ABIAS_Z,
     ATT_D,
     ATT_E,
     ATT_N,
@@ -22,9 +23,10 @@ if TYPE_CHECKING:
 
 
 def fuse_accel(ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status: list[FusionStatus]) -> None:
-    """Specific force in FRD against the force model, f = R^T (a(x) - g): tilt (through g) and the
-    balloon's dynamics (drag of the wind, the air's push, the rope) through a(x). On the ground the
-    balloon is held (a = 0): a gravity reference. The three axes are fused as one vector."""
+    """Specific force in FRD against the force model, f = R^T (a(x) - g) + (0, 0, b_z): tilt (through
+    g) and the balloon's dynamics (drag of the wind, the air's push, the rope) through a(x), with the
+    body-z bias b_z (a persistent vertical misfit would otherwise be read as a lean of the wind). On
+    the ground the balloon is held (a = 0): a gravity reference. The three axes are fused as one vector."""
     r = rotation(*ekf.q.tolist())
     f = ekf.forces
     ground = ekf.mode == MODE_GROUND
@@ -52,6 +54,8 @@ def fuse_accel(ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status
         np.copyto(ekf.H3_wk, ekf.hja_wk)
         if not ekf.learn_drag:
             H[0, DRAG] = H[1, DRAG] = H[2, DRAG] = 0.0
+    H[2, ABIAS_Z] = 1.0
+    pred[2] += float(ekf.x[ABIAS_Z])
     ekf.fuse3(fx - pred[0], fy - pred[1], fz - pred[2], var, status)
 
 
