@@ -239,4 +239,6 @@ def _toml_value(v) -> str:
         return f'"{v}"'
     if isinstance(v, (tuple, list)):
         return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, int):
+        return repr(v)
     return repr(float(v))

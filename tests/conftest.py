@@ -6,4 +6,4 @@ from sim_hil.dynamics import BalloonPhysics, TruthConfig
 
 @pytest.fixture
 def ref_physics() -> BalloonPhysics:
-    return BalloonPhysics.from_design(Design(), TruthConfig())
+    return BalloonPhysics.from_design(Design(), TruthConfig(rope_model="paper", rope_drag=False))

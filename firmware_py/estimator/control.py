@@ -117,7 +117,9 @@ class Estimator:
         # model's errors grow with the rope's share of the moving mass (docs/estimator.md)
         rope_share = self.model.rope_kg_m * self.model.tether_length_m / (self.model.mass_kg + 1e-9)
         rope_share = rope_share if self.catenary else 0.0
-        self.accel_taut_var = s.accel_mps2**2 + self.cfg.accel_taut_mps2**2 + (ROPE_WAVE_ACCEL_MPS2 * rope_share) ** 2
+        # what a join in flight must explain to be confirmed: the rod's own allowance, not the rope's motion
+        self.accel_confirm_var = s.accel_mps2**2 + self.cfg.accel_taut_mps2**2
+        self.accel_taut_var = self.accel_confirm_var + (ROPE_WAVE_ACCEL_MPS2 * rope_share) ** 2
         self.align_var = self.cfg.align_rad**2 + (ROPE_WAVE_ALIGN_RAD * rope_share) ** 2
         self.baro_var = s.baro_m**2 + BARO_MODEL_M**2
         self.mag_sigma = s.mag_gauss
@@ -363,7 +365,7 @@ class Estimator:
         self._acc_var += self._innov_alpha * ((dx * dx + dy * dy + dz * dz) / 3.0 - self._acc_var)
         moving = self._acc_var > CONFIRM_MOTION_MPS2**2
         explained = (self._accel_innov2 < CONFIRM_EXPLAINED * self._acc_var
-                     and self._accel_innov2 <= self.accel_taut_var)  # fmt: skip
+                     and self._accel_innov2 <= self.accel_confirm_var)  # fmt: skip
         self._confirm_count = self._confirm_count + 1 if moving and explained else 0
         if self._confirm_count >= CONFIRM_S * self.cfg.imu_rate_hz:
             self.unconfirmed = False

@@ -94,3 +94,72 @@ def test_live_view_fits_the_width_and_marks_stale(width):
     plain = gs.status_lines(103.0)
     assert len(plain) == 2 and all("STALE" in ln and "resets 2" in ln for ln in plain)
     assert not any("STALE" in ln for ln in gs.status_lines(100.5))
+
+
+def _balloon_says(gs, dec, mav, now, health, text=None, severity=mavlink.MAV_SEVERITY_WARNING):
+    """One second of a balloon-fw: HEARTBEAT, SYS_STATUS with these health bits, a WIND_COV, a STATUSTEXT."""
+    present = 15 | mavlink.MAV_SYS_STATUS_AHRS
+    frames = [pack(mav, mav.heartbeat_encode(mavlink.MAV_TYPE_FREE_BALLOON, mavlink.MAV_AUTOPILOT_GENERIC, 0, 2, 4)),
+              pack(mav, mav.sys_status_encode(present, present, health, 0, 0xFFFF, -1, -1, 0, 0, 0, 0, 0, 0)),
+              px4_wind(mav, 5_000_000, 2.0, 1.0)]  # fmt: skip
+    if text is not None:
+        frames.append(pack(mav, mav.statustext_encode(severity, text.encode())))
+    for f in frames:
+        for m in dec.feed(f):
+            gs.handle(m, now)
+
+
+@pytest.mark.parametrize("width", [80, 120, 200])
+def test_live_view_shows_the_balloons_misfit_and_its_message(width):
+    from rich.console import Console
+
+    from balloon_core.wire import Decoder
+
+    def view(now):
+        con = Console(width=width, record=True, file=io.StringIO(), force_terminal=True)
+        con.print(gs.view(now, width))
+        lines = con.export_text().splitlines()
+        assert all(len(ln) <= width for ln in lines) and len(lines) <= 24
+        rows = [ln for ln in lines if ln.split() and ln.split()[0] == "3"]
+        assert len(rows) == 1
+        return rows[0], [ln for ln in lines if ln.startswith("sys 3: ")]
+
+    gs = GroundStation(out=io.StringIO())
+    dec, mav = Decoder(gs.stats), mavlink.MAVLink(None, srcSystem=3, srcComponent=1)
+    healthy = 15 | mavlink.MAV_SYS_STATUS_AHRS
+    _balloon_says(gs, dec, mav, 100.0, healthy)
+    row, said = view(100.5)
+    assert "OK" in row and "MISFIT" not in row and said == []
+    # accelerometer and tether model flagged: health bits 3D_ACCEL and AHRS cleared, and the warning
+    text = "wind uncertain: misfit accel,align (acc x2.8)"
+    flagged = healthy & ~(mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL | mavlink.MAV_SYS_STATUS_AHRS)
+    _balloon_says(gs, dec, mav, 101.0, flagged, text)
+    v = gs.vehicles[3]
+    assert v.misfit() == ["accel", "tether"] and v.warning_active()
+    row, said = view(101.5)
+    assert "MISFIT" in row and "OK" not in row
+    assert said == [f"sys 3: {text} (WARNING, 0 s ago)"]  # 72 characters: fits 80
+    plain = gs.status_lines(101.5)[0]
+    assert "MISFIT accel,tether" in plain and f"said: {text} (WARNING, 0 s ago)" in plain
+    # the wind stops: STALE says more than MISFIT; the message stays, with its age
+    row, said = view(105.0)
+    assert "STALE" in row and said == [f"sys 3: {text} (WARNING, 4 s ago)"]
+    # cleared: healthy again, the all-clear is the last message, no warning active
+    _balloon_says(gs, dec, mav, 110.0, healthy, "wind model consistent again", mavlink.MAV_SEVERITY_INFO)
+    row, said = view(110.5)
+    assert "OK" in row and "MISFIT" not in row and not gs.vehicles[3].warning_active()
+    assert said == ["sys 3: wind model consistent again (INFO, 0 s ago)"]
+
+
+def test_an_unhealthy_sensor_of_another_vehicle_is_not_a_misfit():
+    from balloon_core.wire import Decoder
+
+    gs = GroundStation(out=io.StringIO())
+    px4 = mavlink.MAVLink(None, srcSystem=42, srcComponent=1)
+    dec = Decoder(gs.stats)
+    for f in (pack(px4, px4.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 0, 0, 4)),
+              pack(px4, px4.sys_status_encode(15, 15, 13, 0, 0xFFFF, -1, -1, 0, 0, 0, 0, 0, 0)),
+              px4_wind(px4, 1_000_000, 1.0, 1.0)):  # fmt: skip
+        for m in dec.feed(f):
+            gs.handle(m, 0.0)
+    assert gs.vehicles[42].misfit() == [] and "MISFIT" not in gs.status_line(0.5)

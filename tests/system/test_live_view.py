@@ -24,6 +24,7 @@ from balloon_core.wire import pack
 PY = sys.executable
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 TMUX = shutil.which("tmux")
+TEXT = "wind uncertain: model misfit accel (accuracy x1.4)"  # balloon-fw's STATUSTEXT, 50 characters
 pytestmark = [pytest.mark.terminal, pytest.mark.skipif(TMUX is None, reason="tmux is not installed")]
 
 
@@ -34,8 +35,9 @@ def free_port() -> int:
 
 
 class Feed(threading.Thread):
-    """Two balloons, sysid 1 (taut, 1 reset, 0.5 % input loss) and sysid 7 (free), 10 Hz WIND_COV with
-    1 Hz HEARTBEAT + SYS_STATUS; sysid 7 drops one WIND_COV in 20 on the way (the ground station counts it)."""
+    """Two balloons, sysid 1 (taut, 1 reset, 0.5 % input loss, its accelerometer flagged by the consistency
+    monitor: health bit cleared and a STATUSTEXT) and sysid 7 (free), 10 Hz WIND_COV with 1 Hz HEARTBEAT +
+    SYS_STATUS; sysid 7 drops one WIND_COV in 20 on the way (the ground station counts it)."""
 
     def __init__(self, port: int) -> None:
         super().__init__(daemon=True)
@@ -55,8 +57,13 @@ class Feed(threading.Thread):
                     mode = 2 if sysid == 1 else 1
                     hb = mav.heartbeat_encode(mavlink.MAV_TYPE_FREE_BALLOON, mavlink.MAV_AUTOPILOT_GENERIC, 0, mode, 4)
                     one = sysid == 1
-                    st = mav.sys_status_encode(15, 15, 15, 0, 0xFFFF, -1, -1, 50 if one else 0, 0, 3, int(one), 0, 0)
+                    sensors = 15 | mavlink.MAV_SYS_STATUS_AHRS
+                    health = sensors & ~mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL if one else sensors
+                    st = mav.sys_status_encode(sensors, sensors, health, 0, 0xFFFF, -1, -1, 50 if one else 0, 0, 3,
+                                               int(one), 0, 0)  # fmt: skip
                     frames += [pack(mav, hb), pack(mav, st)]
+                    if one and k == 0:
+                        frames.append(pack(mav, mav.statustext_encode(mavlink.MAV_SEVERITY_WARNING, TEXT.encode())))
                 n, e = (3.0 + 0.3 * math.sin(k / 20), -1.0) if sysid == 1 else (-2.0, 4.0 + 0.5 * math.cos(k / 15))
                 frames.append(pack(mav, mav.wind_cov_encode(t_us, n, e, math.nan, 0.42, 0.0, 112.0, 0.31, 0.0)))
                 if sysid == 7 and k % 20 == 5:
@@ -107,7 +114,10 @@ def test_listen_view_fits_and_marks_stale(width, height):
     assert len(live) <= height
     rows = {int(ln.split()[0]): ln for ln in live if ln.split() and ln.split()[0] in ("1", "7")}
     assert set(rows) == {1, 7}, text
-    assert "taut" in rows[1] and "free" in rows[7] and "OK" in rows[1] and "OK" in rows[7]
+    assert "taut" in rows[1] and "free" in rows[7] and "MISFIT" in rows[1] and "OK" in rows[7]
+    said = [ln for ln in live if ln.startswith("sys 1: ")]
+    assert len(said) == 1 and said[0].startswith(f"sys 1: {TEXT} (WARNING, "), text  # the balloon's message
+    assert not any(ln.startswith("sys 7: ") for ln in live)
     assert 3.1 < float(rows[1].split()[1 if width < 110 else 2]) < 3.5  # |(3 + 0.3 sin, -1)| m/s
     assert "0.31" in rows[1]  # accuracy
     assert "0.5" in rows[1]  # the balloon's own input loss, %
@@ -117,6 +127,7 @@ def test_listen_view_fits_and_marks_stale(width, height):
     assert int(words[words.index("OK") - 1].rstrip("s")) <= 2  # heartbeat age
     srows = [ln for ln in stale if ln.split() and ln.split()[0] in ("1", "7")]
     assert len(srows) == 2 and all("STALE" in ln for ln in srows), "\n".join(stale)
+    assert any(ln.startswith(f"sys 1: {TEXT}") for ln in stale)  # the message stays
     if width >= 200:
         assert 2.6 < float(rows[1].split()[4]) < 3.4 and "0.42" in rows[1]  # N component, variability: wide only
         assert any(c in rows[1] for c in "▁▂▃▄▅▆▇█")  # the sparkline

@@ -34,11 +34,15 @@ def make_product(n: int = 6000, utc: float | None = UTC0, seed: int = 0) -> Wind
     h = np.where(mode == 0, 0.0, np.minimum(t * 5, 90.0))
     wn[:3] = np.nan  # before the filter started
     we[:3] = np.nan
+    # the consistency monitor: the accelerometer flagged from 30 s, the tether alignment too from 40 s to 50 s
+    cons = np.where(t >= 30, 1, 0) | np.where((t >= 40) & (t < 50), 2, 0)
+    inflation = np.where(cons != 0, 1.5 + 0.5 * (cons == 3), 1.0 + 0.1 * (t >= 20))
     return WindProduct(
         time_s=t, wind_n=wn, wind_e=we, sigma_n=np.full(n, 0.3), sigma_e=np.full(n, 0.4),
         causal_n=wn + 0.1, causal_e=we - 0.1, causal_sigma_n=np.full(n, 0.5), causal_sigma_e=np.full(n, 0.6),
         height_m=h, pos_n=-0.3 * h, pos_e=-0.1 * h, air_pressure_pa=101325.0 - 12.0 * h,
-        air_temperature_k=288.15 - 0.0065 * h, mode=mode, flags=flags, utc_start_s=utc,
+        air_temperature_k=288.15 - 0.0065 * h, mode=mode, flags=flags, consistency_flags=cons.astype(np.int8),
+        accuracy_inflation=inflation, utc_start_s=utc,
         attrs={"design_toml": "[balloon]\nradius_m = 1.0\n", "source_log": "flight.ulg",
                "source_log_sha256": "ab" * 32},
     )  # fmt: skip
@@ -115,6 +119,15 @@ def test_netcdf_round_trip_and_cf_check(tmp_path, utc):
         assert ds["mode"].attrs["flag_meanings"].split() == ["ground", "free_ascent", "taut"]
         assert list(ds["flags"].attrs["flag_masks"]) == [1, 2, 4, 8]
         assert len(ds["flags"].attrs["flag_meanings"].split()) == 4
+        # the causal filter's consistency monitor: its flags (CF flag masks) and its accuracy factor
+        cf = ds["consistency_flags_causal"]
+        assert cf.dtype == np.int8 and (cf.values == p.consistency_flags).all()
+        assert cf.attrs["standard_name"] == "status_flag"
+        assert list(cf.attrs["flag_masks"]) == [1, 2, 4, 8, 16]
+        assert cf.attrs["flag_meanings"] == "accel_misfit align_misfit radius_misfit baro_misfit mag_misfit"
+        assert int(np.count_nonzero(cf.values & 2)) == 100  # 40-50 s at 10 Hz
+        np.testing.assert_allclose(ds["accuracy_inflation_causal"].values, p.accuracy_inflation, rtol=1e-6)
+        assert ds["accuracy_inflation_causal"].attrs["units"] == "1"
         # global attributes
         a = ds.attrs
         assert a["Conventions"] == "CF-1.8"
@@ -125,6 +138,16 @@ def test_netcdf_round_trip_and_cf_check(tmp_path, utc):
             assert a[k]
     bad = cf_failures(path)
     assert not bad, bad  # no failure at any priority (high, medium or low)
+
+
+def test_a_product_without_the_consistency_monitor_has_no_such_variables(tmp_path):
+    p = make_product(n=300)
+    p.consistency_flags = p.accuracy_inflation = None  # a product built elsewhere
+    path = str(tmp_path / "wind.nc")
+    write_netcdf(p, path)
+    with xr.open_dataset(path) as ds:
+        assert "consistency_flags_causal" not in ds and "accuracy_inflation_causal" not in ds
+        assert (ds["flags"].values == p.flags).all()
 
 
 def test_speed_and_direction_uncertainty_by_linear_propagation():

@@ -15,6 +15,11 @@ from sim_hil.scenarios import SCENARIOS, resolve
 from sim_hil.simulator import Simulation
 from sim_hil.wind import WindConfig
 
+PAPER_FILTER = FilterConfig(rope_model="paper", rope_normal_cd=0.0)  # the paper's world: its rope, told
+PAPER_TRUTH = TruthConfig(rope_model="paper", rope_drag=False)
+PAPER_WIND = WindConfig(vertical=False)
+FIELD = ("field-rope", "field-rope-multisine", "field-catenary", "field-shear", "field-weather", "field-biases",
+         "field-reduced", "field-gusty-6", "field-all")  # fmt: skip
 NEW = (
     "multisine-2d", "multisine-2d-ne", "multisine-2d-s", "reduced-multisine", "steady-1", "steady-8", "gusty-6",
     "com-offset", "hard-iron", "drag-crisis",
@@ -24,8 +29,12 @@ NEW = (
 def test_new_scenarios_hold_their_truth_case_and_the_firmware_is_not_told():
     s = SCENARIOS
     for name in NEW:
+        assert s[name].filter == PAPER_FILTER, name
+    for name in FIELD:  # the real world: the firmware knows the design and nothing else
         assert s[name].filter == FilterConfig(), name
-    assert s["multisine"].wind == WindConfig(kind="multisine")  # the along-only case is unchanged
+        assert s[name].truth.rope_model == "lumped" and s[name].wind.vertical, name
+    assert s["field-catenary"].truth.rope_drag is False and s["field-rope"].truth.rope_drag is True
+    assert s["multisine"].wind == replace(PAPER_WIND, kind="multisine")  # the along-only case is unchanged
     for name, from_deg in (("multisine-2d", 270.0), ("multisine-2d-ne", 45.0), ("multisine-2d-s", 170.0)):
         w = s[name].wind
         assert (w.kind, w.multisine_axes, w.mean_mps, w.from_deg) == ("multisine", "both", 3.0, from_deg)
@@ -36,11 +45,11 @@ def test_new_scenarios_hold_their_truth_case_and_the_firmware_is_not_told():
     assert (s["steady-8"].wind.kind, s["steady-8"].wind.mean_mps) == ("steady", 8.0)
     g = s["gusty-6"].wind
     assert (g.kind, g.mean_mps, g.iec_class, g.turbulence) == ("vdh", 6.0, "B", "kaimal")
-    assert s["com-offset"].truth == TruthConfig(avionics_offset_m=0.8)
-    assert s["drag-crisis"].truth == TruthConfig(drag_model="reynolds")
+    assert s["com-offset"].truth == replace(PAPER_TRUTH, avionics_offset_m=0.8)
+    assert s["drag-crisis"].truth == replace(PAPER_TRUTH, drag_model="reynolds")
     assert s["hard-iron"].truth.mag_hard_iron_gauss == (0.03, -0.02, 0.015)
     for name in ("com-offset", "drag-crisis", "hard-iron"):
-        assert s[name].wind == WindConfig() and s[name].design == s["paper-reference"].design
+        assert s[name].wind == PAPER_WIND and s[name].design == s["paper-reference"].design
 
 
 @pytest.mark.parametrize("name", NEW)

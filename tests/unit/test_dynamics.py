@@ -26,8 +26,14 @@ from sim_hil.simulator import Simulation
 from sim_hil.wind import WindConfig
 
 
+def PaperTruth(**kw) -> TruthConfig:  # noqa: N802 - reads as the config it builds
+    """These tests check the paper's balloon model (Eq. 5's straight rope); tests/unit/test_rope.py the
+    lumped rope."""
+    return TruthConfig(rope_model="paper", rope_drag=False, **kw)
+
+
 def run(design=None, wind=None, truth=None, duration=200.0):
-    sim = Simulation(design or Design(), wind or WindConfig(kind="steady"), truth or TruthConfig(), duration, seed=1)
+    sim = Simulation(design or Design(), wind or WindConfig(kind="steady"), truth or PaperTruth(), duration, seed=1)
     sim.run()
     return sim
 
@@ -99,7 +105,7 @@ def energy(s, ph):
 
 
 def test_energy_conserved_without_drag_and_damping():
-    truth = TruthConfig(drag=False, rot_damping_nms=0.0, tether_damping_ratio=0.0, isa_density=False)
+    truth = PaperTruth(drag=False, rot_damping_nms=0.0, tether_damping_ratio=0.0, isa_density=False)
     ph = BalloonPhysics.from_design(Design(), truth)
     ell = ph.tether_length_m + 0.1 + ph.radius_m
     th = math.radians(10.0)
@@ -122,7 +128,7 @@ def test_energy_conserved_without_drag_and_damping():
 
 
 def test_energy_decays_with_damping():
-    truth = TruthConfig(drag=True, isa_density=False)
+    truth = PaperTruth(drag=True, isa_density=False)
     ph = BalloonPhysics.from_design(Design(), truth)
     ell = ph.tether_length_m + 0.1 + ph.radius_m
     th = math.radians(20.0)
@@ -182,7 +188,7 @@ def test_drag_crisis_curve_is_continuous_in_range_and_shaped_like_the_data():
     assert np.all((cd > 0.1) & (cd < 0.5))
     assert np.max(np.abs(np.diff(cd))) < 1e-3  # continuous: no step between neighbours 0.02 % apart
     assert np.all(np.diff(cd * re**2) > 0)  # the drag force still rises with speed through the crisis
-    ph = BalloonPhysics.from_design(Design(), TruthConfig(drag_model="reynolds"))
+    ph = BalloonPhysics.from_design(Design(), PaperTruth(drag_model="reynolds"))
     assert ph.air_viscosity_pas / density_at(ph, 0.0) == pytest.approx(1.50e-5, rel=0.01)  # nu at 20 C
     re3 = reynolds_at(ph, 3.0)
     assert re3 == pytest.approx(4.0e5, rel=0.03)  # NOTES.md
@@ -204,7 +210,7 @@ def test_drag_crisis_curve_is_continuous_in_range_and_shaped_like_the_data():
 
 @pytest.mark.parametrize("speed", [2.0, 5.0])
 def test_steady_blowdown_under_reynolds_drag_uses_cd_at_that_speed(speed):
-    truth = TruthConfig(drag_model="reynolds")
+    truth = PaperTruth(drag_model="reynolds")
     sim = run(wind=WindConfig(kind="steady", mean_mps=speed), truth=truth, duration=200.0)
     last = sim.truth[-1]
     pn, pe, pd = last[4:7]
@@ -216,17 +222,17 @@ def test_steady_blowdown_under_reynolds_drag_uses_cd_at_that_speed(speed):
     analytic = math.degrees(math.atan2(drag, net_lift_n(ph, -pd, ph.tether_length_m)))
     assert angle == pytest.approx(analytic, abs=1.0)
     assert steady_blowdown_deg(ph, speed, -pd) == pytest.approx(analytic, abs=1e-9)
-    constant = steady_blowdown_deg(BalloonPhysics.from_design(Design(), TruthConfig()), speed, -pd)
+    constant = steady_blowdown_deg(BalloonPhysics.from_design(Design(), PaperTruth()), speed, -pd)
     assert abs(angle - constant) > 3.0  # Cd = 0.3 would be far off: 2 m/s Cd 0.40, 5 m/s Cd 0.16
 
 
 # ---------------------------------------------------------------- avionics below the centre
 
-OFFSET = TruthConfig(avionics_offset_m=0.8)
+OFFSET = PaperTruth(avionics_offset_m=0.8)
 
 
 def test_avionics_offset_physics_and_validation():
-    ph0 = BalloonPhysics.from_design(Design(), TruthConfig())
+    ph0 = BalloonPhysics.from_design(Design(), PaperTruth())
     ph = BalloonPhysics.from_design(Design(), OFFSET)
     assert ph0.static_moment_kgm == 0.0 and ph0.imu_offset_m == 0.0 and ph0.inertia_z_kgm2 == ph0.inertia_kgm2
     assert ph.static_moment_kgm == pytest.approx(0.5 * 0.8)
@@ -235,13 +241,13 @@ def test_avionics_offset_physics_and_validation():
     assert ph.inertia_z_kgm2 == pytest.approx(skin)
     assert ph.inertia_kgm2 == pytest.approx(skin + 0.5 * 0.8**2)  # parallel axis
     with pytest.raises(ConfigError):
-        BalloonPhysics.from_design(Design(), TruthConfig(avionics_offset_m=1.0))  # outside the sphere
+        BalloonPhysics.from_design(Design(), PaperTruth(avionics_offset_m=1.0))  # outside the sphere
     with pytest.raises(ConfigError):
-        BalloonPhysics.from_design(Design(), TruthConfig(avionics_offset_m=0.5, avionics_kg=2.0))
+        BalloonPhysics.from_design(Design(), PaperTruth(avionics_offset_m=0.5, avionics_kg=2.0))
     with pytest.raises(ConfigError):
-        TruthConfig(avionics_offset_m=-0.1)
+        PaperTruth(avionics_offset_m=-0.1)
     with pytest.raises(ConfigError):
-        TruthConfig(drag_model="stokes")
+        PaperTruth(drag_model="stokes")
 
 
 def test_energy_conserved_with_avionics_below_the_centre():

@@ -132,7 +132,7 @@ def test_accel_and_heading_rows_match_finite_differences(tilted):
             for (i0, h0), (i1, _) in zip(base, moved, strict=True):
                 # innovation = z - h(x): d(innov)/d(att) = -h row
                 assert (i1 - i0) / 1e-6 == pytest.approx(-h0[ATT_N + k], abs=2e-3 * max(1.0, abs(h0[ATT_N + k])))
-    assert ATT_D == ATT_N + 2 and N_STATES == 17
+    assert ATT_D == ATT_N + 2 and N_STATES == 19
     assert math.isfinite(base[0][0])
 
 

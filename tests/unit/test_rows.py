@@ -26,7 +26,7 @@ def taut_ekf():
     ekf = est.ekf
     ekf.mode = MODE_TAUT
     ekf.learn_drag = True  # every column, the drag scale's included
-    ekf.x[:] = [3.0, 40.0, -92.3, 0.2, 0.3, -0.1, 0, 0, 0, 0, 0, 0, 0.5, 3.0, 0.05, -0.03, 1.0]
+    ekf.x[:] = [3.0, 40.0, -92.3, 0.2, 0.3, -0.1, 0, 0, 0, 0, 0, 0, 0.5, 3.0, 0.05, -0.03, 1.0, 0.7, 0.03]
     return ekf
 
 
@@ -86,4 +86,4 @@ def test_rows_match_finite_differences(taut_ekf, name):
         for (_, h0), (ip, _), (im, _) in zip(base, _innovations(p, fn), _innovations(m, fn), strict=True):
             num = -(ip - im) / (2 * eps)  # innovation = z - h(x)
             assert h0[j] == pytest.approx(num, rel=1e-4, abs=1e-6), (name, STATE_NAMES[j])
-    assert DRAG == N_STATES - 1
+    assert STATE_NAMES[DRAG] == "drag_scale" and len(STATE_NAMES) == N_STATES
