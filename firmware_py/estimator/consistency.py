@@ -71,9 +71,7 @@ class Consistency:
         return [name for i, name in enumerate(SOURCES) if self.flags >> i & 1]
 
 
-def systematic_variance(
-    speed_mps: float, drag_scale: float, drag_scale_var: float, rope_drag_share: float
-) -> float:
+def systematic_variance(speed_mps: float, drag_scale: float, drag_scale_var: float, rope_drag_share: float) -> float:
     """Variance of the horizontal wind from what the filter's P does not hold, (m/s)^2: the drag
     scale's uncertainty (F ~ k |w|^2: dw / w = dk / 2k) and the rope's drag coefficient (the rope's
     share of the horizontal drag, times its relative uncertainty, halved for the square law)."""

@@ -24,7 +24,7 @@ from firmware_py.estimator.consistency import (
     systematic_variance,
 )
 from firmware_py.estimator.ekf import FusionStatus, WindEkf
-from firmware_py.estimator.model import BalloonModel, Forces, accelerations
+from firmware_py.estimator.model import ADDED_MASS_COEFFICIENT, BalloonModel, Forces, accelerations
 from firmware_py.estimator.params import (
     ACC_MAX,
     ACCEL_INNOV_S,
@@ -45,6 +45,7 @@ from firmware_py.estimator.params import (
     ROPE_WAVE_ACCEL_MPS2,
     ROPE_WAVE_ALIGN_RAD,
     TAUT_PULL_S,
+    VERTICAL_TURBULENCE_RATIO,
     Schedule,
 )
 from firmware_py.estimator.state import (
@@ -119,7 +120,9 @@ class Estimator:
         rope_share = rope_share if self.catenary else 0.0
         # what a join in flight must explain to be confirmed: the rod's own allowance, not the rope's motion
         self.accel_confirm_var = s.accel_mps2**2 + self.cfg.accel_taut_mps2**2
-        self.accel_taut_var = self.accel_confirm_var + (ROPE_WAVE_ACCEL_MPS2 * rope_share) ** 2
+        self.accel_taut_base_var = self.accel_confirm_var + (ROPE_WAVE_ACCEL_MPS2 * rope_share) ** 2
+        self.accel_taut_var = self.accel_taut_base_var
+        self.vertical_gust_var = self._vertical_gust_var(self.cfg.expected_wind_mps, air_density(101325.0, 293.15))
         self.align_var = self.cfg.align_rad**2 + (ROPE_WAVE_ALIGN_RAD * rope_share) ** 2
         self.baro_var = s.baro_m**2 + BARO_MODEL_M**2
         self.mag_sigma = s.mag_gauss
@@ -172,7 +175,6 @@ class Estimator:
         self._accel_var_excess = 0.0
         if hasattr(self, "consistency"):
             self.consistency.reset()
-
 
     def _init_baro(self) -> None:
         gp = self.design.site.ground_pressure_hpa
@@ -277,9 +279,22 @@ class Estimator:
             wn, we = self.wind()
             self._mean_speed += self._speed_alpha * (math.sqrt(wn * wn + we * we) - self._mean_speed)
             if self.step % self.schedule.wind_noise_every == 0:
+                self.vertical_gust_var = self._vertical_gust_var(self._mean_speed, self.rho)
                 misfit = max(1.0, self._accel_innov2 / self.accel_taut_var)
                 ekf.adapt_wind_noise(self._mean_speed, misfit)
         return True
+
+    def _vertical_gust_var(self, mean_speed_mps: float, rho: float) -> float:
+        """The vertical air the model leaves out (its wind is horizontal), as the acceleration it puts
+        into the drag: k c U w' / m_eff, with w' of the turbulence the filter expects at the IEC
+        proportion sigma_w = 0.5 sigma_u. A vertical gust is then noise on the specific force, not a
+        horizontal wind the state must move to explain."""
+        m = self.model
+        m_eff = m.mass_kg + ADDED_MASS_COEFFICIENT * rho * m.volume_m3
+        u = max(mean_speed_mps, 0.5)
+        sigma_w = VERTICAL_TURBULENCE_RATIO * self.cfg.turbulence_intensity * u
+        a = rho * m.half_cd_area_m2 * u * sigma_w / m_eff
+        return a * a
 
     def _monitor(self) -> None:
         """Feed the consistency monitor (consistency.py) with this step's innovations, each source

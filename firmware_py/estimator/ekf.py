@@ -134,11 +134,17 @@ class WindEkf:
         self.wind_process = wp = wind_process(cfg.expected_wind_mps, cfg.turbulence_intensity, 2.0 * model.radius_m)
         self.rate_decay = math.exp(-dt / wp.tau_s)
         qr = wp.q_rate * dt
-        self._q_flight = [0.25 * qv * dt * dt] * 3 + [qv] * 3 + [g * g * dt * dt] * 3 + [
-            (math.radians(cfg.gyro_bias_walk_dps_rt_s)) ** 2 * dt
-        ] * 3 + [0.0] * 2 + [qr] * 2 + [cfg.drag_walk_rt_s**2 * dt] + [cfg.baro_walk_m_rt_s**2 * dt] + [
-            cfg.accel_bias_walk_mps2_rt_s**2 * dt
-        ]
+        self._q_flight = (
+            [0.25 * qv * dt * dt] * 3
+            + [qv] * 3
+            + [g * g * dt * dt] * 3
+            + [(math.radians(cfg.gyro_bias_walk_dps_rt_s)) ** 2 * dt] * 3
+            + [0.0] * 2
+            + [qr] * 2
+            + [cfg.drag_walk_rt_s**2 * dt]
+            + [cfg.baro_walk_m_rt_s**2 * dt]
+            + [cfg.accel_bias_walk_mps2_rt_s**2 * dt]
+        )
         self._q_ground = [GROUND_PROCESS_VAR] * 6 + self._q_flight[6:16] + [0.0] + self._q_flight[17:19]
         self._qd_flight = np.array(self._q_flight, z)
         self._q_rate0 = qr  # at the expected mean wind; scaled with the wind the filter sees (adapt_wind_noise)
@@ -157,9 +163,28 @@ class WindEkf:
         self.reset_counts = [0] * len(RESET_NAMES)
         self.reset_count = 0
 
-    _VIEWS = ("_scale_col", "_scale_row",
-              "P_diag", "_k_col", "_ph_row", "_P_rows", "_P_cols", "_H3T", "_phtT", "H3_rows", "_F_vel_rows",
-              "ja_flat", "_ja_pv", "_ja_wk", "_F_pv", "_F_wk", "H3_pv", "H3_wk", "hja_pv", "hja_wk")
+    _VIEWS = (
+        "_scale_col",
+        "_scale_row",
+        "P_diag",
+        "_k_col",
+        "_ph_row",
+        "_P_rows",
+        "_P_cols",
+        "_H3T",
+        "_phtT",
+        "H3_rows",
+        "_F_vel_rows",
+        "ja_flat",
+        "_ja_pv",
+        "_ja_wk",
+        "_F_pv",
+        "_F_wk",
+        "H3_pv",
+        "H3_wk",
+        "hja_pv",
+        "hja_wk",
+    )
 
     def _make_views(self) -> None:
         self.P_diag = np.einsum("ii->i", self.P)  # writable view of the diagonal
@@ -379,7 +404,9 @@ class WindEkf:
         status.time_last_fuse_us = self.time_us
         return True
 
-    def fuse3(self, i0: float, i1: float, i2: float, r: float, status: list[FusionStatus]) -> bool:
+    def fuse3(
+        self, i0: float, i1: float, i2: float, r: float, status: list[FusionStatus], r2_extra: float = 0.0
+    ) -> bool:
         """One sensor's three axes at once with the rows in ``self.H3`` and noise ``r`` per axis (a
         3x3 innovation covariance instead of three scalar updates: a third of the array operations).
         Each axis keeps its status (innovation, its variance, test ratio); the vector is rejected if
@@ -393,7 +420,7 @@ class WindEkf:
         (s00, s01, s02), (s10, s11, s12), (s20, s21, s22) = self._s3.tolist()
         s00 += r
         s11 += r
-        s22 += r
+        s22 += r + r2_extra
         s01 = s10 = 0.5 * (s01 + s10)
         s02 = s20 = 0.5 * (s02 + s20)
         s12 = s21 = 0.5 * (s12 + s21)

@@ -19,6 +19,7 @@ TAUT_PERIOD_S = 0.05  # the taut constraints at 20 Hz
 # the taut rod's model errors from the rope's own motion, per unit of rope mass / balloon mass (the
 # reference: 2 kg of rope on a 1.84 kg balloon): accelerations and the lean the rod does not predict
 ROPE_WAVE_ACCEL_MPS2 = 0.26
+VERTICAL_TURBULENCE_RATIO = 0.5  # sigma_w / sigma_u (IEC 61400-1): the vertical air the model leaves out
 ROPE_WAVE_ALIGN_RAD = 0.016
 # the rope shape (chord, weight on the rod) follows the mean wind, slowly: a fast one feeds the
 # wind estimate back into the model (a 0.05 Hz resonance, gain 4 on the real rope)

@@ -22,7 +22,9 @@ if TYPE_CHECKING:
     from firmware_py.estimator.control import Estimator
 
 
-def fuse_accel(ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status: list[FusionStatus]) -> None:
+def fuse_accel(
+    ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status: list[FusionStatus], var_z_extra: float = 0.0
+) -> None:
     """Specific force in FRD against the force model, f = R^T (a(x) - g) + (0, 0, b_z): tilt (through
     g) and the balloon's dynamics (drag of the wind, the air's push, the rope) through a(x), with the
     body-z bias b_z (a persistent vertical misfit would otherwise be read as a lean of the wind). On
@@ -56,7 +58,7 @@ def fuse_accel(ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status
             H[0, DRAG] = H[1, DRAG] = H[2, DRAG] = 0.0
     H[2, ABIAS_Z] = 1.0
     pred[2] += float(ekf.x[ABIAS_Z])
-    ekf.fuse3(fx - pred[0], fy - pred[1], fz - pred[2], var, status)
+    ekf.fuse3(fx - pred[0], fy - pred[1], fz - pred[2], var, status, var_z_extra)
 
 
 def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
@@ -69,7 +71,8 @@ def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
     nominal = var
     var = max(var, est._accel_innov2)
     est._accel_var_excess = var - nominal  # what the consistency monitor takes back out (control._monitor)
-    fuse_accel(ekf, ax, ay, az, var, est.accel_status)
+    # the vertical air the model leaves out moves the balloon along its body z (control._vertical_gust_var)
+    fuse_accel(ekf, ax, ay, az, var, est.accel_status, est.vertical_gust_var if ekf.mode != MODE_GROUND else 0.0)
     st = est.accel_status
-    i2 = (st[0].innov**2 + st[1].innov**2 + st[2].innov**2) / 3.0
+    i2 = (st[0].innov ** 2 + st[1].innov ** 2 + st[2].innov ** 2) / 3.0
     est._accel_innov2 += est._innov_alpha * (i2 - est._accel_innov2)
