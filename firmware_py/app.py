@@ -4,6 +4,11 @@ Every message goes through the one sample interface (``balloon_core.samples``: H
 with their ``fields_updated`` bits, ArduPilot's SCALED_IMU/2/3, SCALED_PRESSURE/2/3) and the input
 pipeline (``firmware_py.streams``: the IMU rate measured from the stream, a faster stream averaged to the
 filter's step), exactly as post-flight reprocessing does. Everything else is counted and ignored.
+
+When the estimator's consistency monitor (``firmware_py.estimator.consistency``) says the model does not
+explain an aid source's data, the reported ``horiz_accuracy`` already grows (``Estimator.wind_accuracy``);
+this module says why: a STATUSTEXT when the flags change, the health bits of SYS_STATUS, the live status
+line and the summary (docs/protocol.md, "Model misfit").
 """
 
 from __future__ import annotations
@@ -16,15 +21,53 @@ from balloon_core.config import Design
 from balloon_core.samples import BaroSample, MavlinkSampler, Sample
 from balloon_core.score import direction_from_deg
 from balloon_core.wire import LinkStats, pack
+from firmware_py.estimator.consistency import SOURCES
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.outputs import WindCovOutput
-from firmware_py.estimator.state import FilterConfig
+from firmware_py.estimator.state import MODE_GROUND, FilterConfig
 from firmware_py.streams import InputPipeline, feed, print_warning
 
 FW_SYSID = 1
 FW_COMPID = mavlink.MAV_COMP_ID_AUTOPILOT1
 SENSOR_BITS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
-               | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE)  # fmt: skip
+               | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+               | mavlink.MAV_SYS_STATUS_AHRS)  # fmt: skip
+# the SYS_STATUS health bit a flagged aid source clears, in consistency.SOURCES order: the accelerometer,
+# the barometer and the magnetometer their own sensor's; the tether model's two (align: the rope's
+# direction, radius: its length) the AHRS bit, the estimator's own model
+MISFIT_HEALTH_BITS = {
+    "accel": mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL, "align": mavlink.MAV_SYS_STATUS_AHRS,
+    "radius": mavlink.MAV_SYS_STATUS_AHRS, "baro": mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE,
+    "mag": mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG,
+}  # fmt: skip
+assert tuple(MISFIT_HEALTH_BITS) == SOURCES
+TEXT_MAX = 50  # STATUSTEXT's text field, characters
+TEXT_INTERVAL_US = 1_000_000  # at most one consistency STATUSTEXT a second (sensor clock)
+CONSISTENT_TEXT = "wind model consistent again"
+RESTARTED_TEXT = "wind model check restarted (filter reset)"
+
+
+def misfit_health(flags: int) -> int:
+    """The SYS_STATUS health bits the consistency flags clear (``MISFIT_HEALTH_BITS``)."""
+    bits = 0
+    for i, bit in enumerate(MISFIT_HEALTH_BITS.values()):
+        if flags >> i & 1:
+            bits |= bit
+    return bits
+
+
+def misfit_text(names: list[str], inflation: float) -> str:
+    """The STATUSTEXT of a model misfit, at most ``TEXT_MAX`` characters: the flagged sources and the
+    factor on the reported accuracy, in the longest form that fits."""
+    who = ",".join(names)
+    forms = (f"wind uncertain: model misfit {who} (accuracy x{inflation:.1f})",
+             f"wind uncertain: misfit {who} (acc x{inflation:.1f})",
+             f"wind uncertain: misfit {who} x{inflation:.1f}",
+             f"misfit {who} acc x{inflation:.1f}")  # fmt: skip
+    for text in forms:
+        if len(text) <= TEXT_MAX:
+            return text
+    return forms[-1][:TEXT_MAX]
 
 
 class Firmware:
@@ -49,6 +92,13 @@ class Firmware:
         self._next_hb_us = 0
         self.imu_missing = 0  # IMU samples missing by their time stamps (what 8-bit sequences cannot count)
         self._prev_imu_us = -1
+        # the consistency monitor's verdicts: filter steps in flight (where it judges), with each source flagged
+        self.flight_steps = 0
+        self.misfit_steps = [0] * len(SOURCES)
+        self.texts_sent = 0
+        self._last_step = 0
+        self._told_flags = 0  # the flags the last STATUSTEXT told (0 before any: consistent)
+        self._next_text_us = 0
 
     # ----------------------------------------------------------------- input
 
@@ -107,11 +157,38 @@ class Firmware:
             return
         resets = est.counters.time_resets
         if feed(est, s):
+            self._judge(s.t_us)
             self.out.update(est, s.t_us)
             self.emit_due(s.t_us)
         if est.counters.time_resets != resets:
             self.out.reset()
-            self._next_wind_us = self._next_hb_us = 0
+            self._next_wind_us = self._next_hb_us = self._next_text_us = 0
+            self._last_step = est.step
+            if self._told_flags and not est.consistency.flags:  # the reboot forgot the misfit: say so
+                self.statustext(mavlink.MAV_SEVERITY_INFO, RESTARTED_TEXT, s.t_us)
+                self._told_flags = 0
+
+    def _judge(self, t_us: int) -> None:
+        """After a filter step: count the steps in flight with each source flagged, and tell a change of
+        the flags (STATUSTEXT, at most one a second: a change within the second is told after it)."""
+        est = self.est
+        steps = max(0, est.step - self._last_step)
+        self._last_step = est.step
+        flags = est.consistency.flags
+        if est.ekf.mode != MODE_GROUND:  # the monitor judges in flight only
+            self.flight_steps += steps
+            for i in range(len(SOURCES)):
+                if flags >> i & 1:
+                    self.misfit_steps[i] += steps
+        if flags == self._told_flags or t_us < self._next_text_us:
+            return
+        self._told_flags = flags
+        self._next_text_us = t_us + TEXT_INTERVAL_US
+        c = est.consistency
+        if flags:
+            self.statustext(mavlink.MAV_SEVERITY_WARNING, misfit_text(c.names(), c.inflation), t_us)
+        else:
+            self.statustext(mavlink.MAV_SEVERITY_INFO, CONSISTENT_TEXT, t_us)
 
     def _track_imu_time(self, t_us: int) -> None:
         """Count IMU samples missing between this one and the previous (at the filter's IMU rate). Late
@@ -146,16 +223,28 @@ class Firmware:
         ``drop_rate_comm`` = input packets lost (c%), ``errors_comm`` = corrupt input frames,
         ``errors_count1`` = input packets lost, ``errors_count2`` = filter resets (reboot + numeric +
         taut + baro), ``errors_count3`` = long input gaps, ``errors_count4`` = IMU samples missing by
-        their time stamps."""
+        their time stamps.
+
+        Sensors present and enabled: gyro, accelerometer, magnetometer, absolute pressure and AHRS (the
+        estimator). Healthy: all of them unless the consistency monitor flags a source, whose bit is then
+        cleared (``MISFIT_HEALTH_BITS``): accel -> 3D_ACCEL, baro -> ABSOLUTE_PRESSURE, mag -> 3D_MAG,
+        align and radius (the tether model) -> AHRS. The gyro has no innovation and stays healthy."""
         c, st = self.est.counters, self.stats
         sensors = SENSOR_BITS
+        health = sensors & ~misfit_health(self.est.consistency.flags)
         resets = c.time_resets + c.numeric_resets + c.taut_resets + c.baro_resets
         frame = pack(self.mav, self.mav.sys_status_encode(
-            sensors, sensors, sensors, 0, 0xFFFF, -1, -1, min(round(10000 * st.lost_fraction()), 10000),
+            sensors, sensors, health, 0, 0xFFFF, -1, -1, min(round(10000 * st.lost_fraction()), 10000),
             min(st.bad_frames, 0xFFFF), min(st.lost, 0xFFFF), min(resets, 0xFFFF), min(c.long_gaps, 0xFFFF),
             min(self.imu_missing, 0xFFFF),
         ))  # fmt: skip
         self._send(frame, t_us)
+
+    def statustext(self, severity: int, text: str, t_us: int) -> None:
+        """A STATUSTEXT (one chunk: ``id`` 0), ASCII, at most ``TEXT_MAX`` characters."""
+        data = text.encode("ascii", "replace")[:TEXT_MAX]
+        self._send(pack(self.mav, self.mav.statustext_encode(severity, data)), t_us)
+        self.texts_sent += 1
 
     def wind_cov(self, t_us: int) -> None:
         self._send(pack(self.mav, self.mav.wind_cov_encode(*self.out.fields(self.est))), t_us)
@@ -191,8 +280,23 @@ class Firmware:
             f"{self.wind_cov_sent} WIND_COV sent, final mode {self.est.mode_name}, "
             f"filter at {self.est.cfg.imu_rate_hz:g} Hz{self._rate_note()}, "
             f"input packets {self.stats.loss_summary()}, {self.imu_missing} IMU samples missing by time"
-            + (self.streams.summary() if self.streams is not None else "")
+            f"{self._consistency_note()}" + (self.streams.summary() if self.streams is not None else "")
         )
+
+    def _consistency_note(self) -> str:
+        """``, model misfit: accel 12 % of flight time, align 3 %`` (each flagged source's share of the
+        filter steps in flight), ``, model consistent`` if none was ever flagged in flight."""
+        if self.flight_steps == 0:
+            return ", model not judged (never in flight)"
+        parts = []
+        for name, steps in zip(SOURCES, self.misfit_steps):
+            if steps:
+                pct = 100.0 * steps / self.flight_steps
+                parts.append(f"{name} {pct:.0f} %" if pct >= 1.0 else f"{name} <1 %")
+        if not parts:
+            return ", model consistent"
+        parts[0] += " of flight time"
+        return ", model misfit: " + ", ".join(parts)
 
     def _rate_note(self) -> str:
         d = self.pipe.decision
@@ -210,4 +314,5 @@ class Firmware:
         frm = direction_from_deg(wn, we)
         return (f"{self.stats.lost} lost ({100 * self.stats.lost_fraction():.1f} %), {self.imu_missing} IMU missing, "
                 f"{est.counters.long_gaps} long gaps, mode {est.mode_name}, wind {math.hypot(wn, we):.1f} m/s "
-                f"from {frm:03.0f} deg \u00b1{est.wind_accuracy():.2f}")  # fmt: skip
+                f"from {frm:03.0f} deg \u00b1{est.wind_accuracy():.2f}"
+                + (f", misfit {','.join(est.consistency.names())}" if est.consistency.flags else ""))  # fmt: skip

@@ -4,7 +4,11 @@ statistics, CSV and tlog logging; stops cleanly on SIGINT/SIGTERM (or after --du
 On a terminal: a table redrawn in place (rich Live), one row per balloon (system id), that fits 80x24
 and shows more columns (N/E components, variability, altitude, a sparkline of the last minutes) on a
 wide screen. A row whose WIND_COV stopped more than ``STALE_S`` ago is marked STALE. Not on a
-terminal (piped, logged): one plain line per balloon every second."""
+terminal (piped, logged): one plain line per balloon every second.
+
+A balloon-fw's model misfit (docs/protocol.md, "Model misfit") shows twice: the state ``MISFIT`` while
+its SYS_STATUS clears a health bit (what is flagged now), and below the table the latest STATUSTEXT of
+each system (what the balloon last said, and how long ago)."""
 
 from __future__ import annotations
 
@@ -27,6 +31,12 @@ from balloon_core.wire import Decoder, LinkStats, TlogSink, open_link, pack
 from ground_station.wind import CSV_COLUMNS, WindRecord
 
 MODE_NAMES = {0: "ground", 1: "free", 2: "taut"}  # balloon-fw's HEARTBEAT custom_mode
+# balloon-fw's SYS_STATUS health bits that its consistency monitor clears (docs/protocol.md, "Model misfit")
+MISFIT_BITS = (
+    (mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL, "accel"), (mavlink.MAV_SYS_STATUS_AHRS, "tether"),
+    (mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE, "baro"), (mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG, "mag"),
+)  # fmt: skip
+SEVERITY_NAMES = {v: e.name.removeprefix("MAV_SEVERITY_") for v, e in mavlink.enums["MAV_SEVERITY"].items()}
 STALE_S = 2.0  # no WIND_COV for this long: the row's wind is old
 HB_LATE_S = 3.0  # no HEARTBEAT for this long: shown in red
 RATE_WINDOW_S = 2.0
@@ -69,7 +79,10 @@ class Vehicle:
     hb_at: float | None = None  # ... of the last HEARTBEAT
     mode: str = "?"
     vehicle_type: int | None = None
-    status: object | None = None  # the last SYS_STATUS (balloon-fw: resets, input loss)
+    status: object | None = None  # the last SYS_STATUS (balloon-fw: resets, input loss, model misfit)
+    text: str | None = None  # the last STATUSTEXT
+    text_severity: int = mavlink.MAV_SEVERITY_INFO
+    text_at: float | None = None  # monotonic time of the last STATUSTEXT
     wind_count: int = 0
     times: deque = field(default_factory=deque)  # WIND_COV arrival times within RATE_WINDOW_S
     history: deque = field(default_factory=lambda: deque(maxlen=240))  # (arrival time, speed) each second
@@ -96,6 +109,32 @@ class Vehicle:
     def input_lost_pct(self) -> float | None:
         """Sensor packets the balloon's firmware lost, % (SYS_STATUS drop_rate_comm)."""
         return self.status.drop_rate_comm / 100.0 if self.status is not None else None
+
+    def misfit(self) -> list[str]:
+        """What the balloon's model does not explain now: the health bits its SYS_STATUS clears among
+        the present and enabled ones (``MISFIT_BITS``; balloon-fw only)."""
+        st = self.status
+        if st is None or not self.ours:
+            return []
+        bad = st.onboard_control_sensors_present & st.onboard_control_sensors_enabled
+        bad &= ~st.onboard_control_sensors_health
+        return [name for bit, name in MISFIT_BITS if bad & bit]
+
+    def said(self, now: float) -> str | None:
+        """The last STATUSTEXT with its severity and age: ``<text> (WARNING, 5 s ago)``."""
+        if self.text is None:
+            return None
+        sev = SEVERITY_NAMES.get(self.text_severity, str(self.text_severity))
+        return f"{self.text} ({sev}, {now - self.text_at:.0f} s ago)"
+
+    def text_line(self, now: float) -> str | None:
+        """The last STATUSTEXT as the view shows it, below the table: ``sys 3: <text> (WARNING, 5 s ago)``."""
+        said = self.said(now)
+        return None if said is None else f"sys {self.sysid}: {said}"
+
+    def warning_active(self) -> bool:
+        """The last STATUSTEXT is a warning (or worse) and the balloon still reports a misfit."""
+        return self.text is not None and self.text_severity <= mavlink.MAV_SEVERITY_WARNING and bool(self.misfit())
 
 
 class GroundStation:
@@ -144,6 +183,9 @@ class GroundStation:
                 v.mode = MODE_NAMES.get(m.custom_mode, str(m.custom_mode))
         elif t == "SYS_STATUS":
             self.vehicle(m.get_srcSystem()).status = m
+        elif t == "STATUSTEXT":
+            v = self.vehicle(m.get_srcSystem())
+            v.text, v.text_severity, v.text_at = m.text, m.severity, now
 
     def heartbeat(self) -> bytes:
         return pack(self.mav, self.mav.heartbeat_encode(
@@ -175,12 +217,15 @@ class GroundStation:
             stale = f" STALE {v.age(now):.0f} s" if v.stale(now) else ""
             resets = v.resets()
             health = f"resets {resets}, " if resets is not None else ""
+            misfit = v.misfit()
+            health += f"MISFIT {','.join(misfit)}, " if misfit else ""
             hb = "-" if v.hb_at is None else f"{now - v.hb_at:.0f} s"
+            said = v.said(now)
             lines.append(
                 f"sys {v.sysid}: t={r.time_usec * 1e-6:7.1f}s wind {r.speed_mps:5.2f} m/s from {r.from_deg:5.1f} deg "
                 f"(N {r.wind_x:+5.2f} E {r.wind_y:+5.2f}) ±{r.horiz_accuracy:4.2f} var {var} "
                 f"alt {r.wind_alt:6.1f} m mode {v.mode}{stale} | {v.rate(now):4.1f} msg/s, {health}"
-                f"heartbeat {hb} ago, {link}"
+                f"heartbeat {hb} ago, {link}" + (f" | said: {said}" if said else "")
             )
         return lines
 
@@ -216,16 +261,28 @@ class GroundStation:
         if "t" in keys and spark_w >= 10:
             table = self._table(now, keys, spark_w)
         logs = ", ".join(p for p in (self.csv_path, self.tlog_path) if p)
-        notes = [f"STALE: no WIND_COV for {STALE_S:g} s.  rst: the balloon's filter resets.  lost: packets lost on "
-                 "the way here.  in%: sensor packets the balloon lost.  hb: heartbeat age.  Ctrl-C stops."]
+        notes = [f"STALE: no WIND_COV for {STALE_S:g} s.  MISFIT: data unexplained.  rst: the balloon's filter "
+                 "resets.  lost: packets lost on the way here.  in%: sensor packets the balloon lost.  hb: heartbeat "
+                 "age.  Ctrl-C stops."]  # fmt: skip
         if len(notes[0]) > width:
             notes = ["wind, ±acc: m/s; from: deg; rst: filter resets; lost: lost on the way here;",
                      f"in%: sensor packets the balloon lost; hb: heartbeat age; STALE: no WIND_COV {STALE_S:g} s",
-                     "Ctrl-C stops."]  # fmt: skip
+                     "MISFIT: the model does not explain the data (±acc grown). Ctrl-C stops."]  # fmt: skip
         if logs:
             notes[-1] += f" Logging to {logs}."
         foot = [Text(n, no_wrap=True, overflow="ellipsis", style="dim") for n in notes]
-        return Group(*lines, table, *foot)
+        return Group(*lines, table, *self._text_lines(now), *foot)
+
+    def _text_lines(self, now: float) -> list[Text]:
+        """The latest STATUSTEXT of each system, below the table: yellow while its misfit warning is
+        active, dim once cleared or for any other message."""
+        out = []
+        for v in sorted(self.vehicles.values(), key=lambda v: v.sysid):
+            line = v.text_line(now)
+            if line is not None:
+                style = "bold yellow" if v.warning_active() else "dim"
+                out.append(Text(line, no_wrap=True, overflow="ellipsis", style=style))
+        return out
 
     def _table(self, now: float, keys: tuple[str, ...], spark_w: int):
         t = Table(box=box.SIMPLE_HEAD, pad_edge=False, expand=False, padding=(0, 1), show_edge=False)
@@ -277,6 +334,8 @@ class GroundStation:
             c["state"] = Text("WAIT", style="yellow")
         elif v.stale(now):
             c["state"] = Text(f"STALE {v.age(now):.0f}s", style="bold white on red")
+        elif v.misfit():
+            c["state"] = Text("MISFIT", style="bold yellow")
         else:
             c["state"] = Text("OK", style="green")
         return c

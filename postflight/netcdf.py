@@ -18,8 +18,11 @@ import re
 import numpy as np
 
 from balloon_core.score import direction_from_deg
+from firmware_py.estimator.consistency import CONSISTENCY_S, FLAG_NIS
 from postflight.averages import AVERAGE_FIELDS, product_averages, speed_direction_sigma
 from postflight.product import (
+    CONSISTENCY_MASKS,
+    CONSISTENCY_MEANINGS,
     FLAG_NO_BARO,
     FLAG_SEGMENT_START,
     FLAG_SMOOTHED,
@@ -143,10 +146,34 @@ def to_dataset(product: WindProduct, history: str | None = None):
     vars_["flags"] = (np.asarray(p.flags, np.int8), {
         "standard_name": "status_flag", "long_name": "estimator health flags (bit field)",
         "flag_masks": np.array(FLAG_MASKS, np.int8), "flag_meanings": FLAG_MEANINGS})  # fmt: skip
+    vars_.update(_consistency_vars(p))
     ds = xr.Dataset({k: (("time",), v, a) for k, (v, a) in vars_.items()},
                     coords={"time": ("time", t, _time_attrs(p.utc_start_s))})  # fmt: skip
     ds.attrs.update(global_attrs(p, history))
     return ds
+
+
+def _consistency_vars(p: WindProduct) -> dict:
+    """The real-time filter's consistency monitor (firmware_py/estimator/consistency.py), when the product
+    has it: which aid sources its model did not explain, and the factor it put on the reported accuracy."""
+    out: dict = {}
+    if p.consistency_flags is not None:
+        out["consistency_flags_causal"] = (np.asarray(p.consistency_flags, np.int8), {
+            "standard_name": "status_flag",
+            "long_name": "aid sources the real-time (causal) filter's model does not explain (bit field)",
+            "flag_masks": np.array(CONSISTENCY_MASKS, np.int8), "flag_meanings": CONSISTENCY_MEANINGS,
+            "comment": f"A source is flagged while its normalised innovation squared, averaged over "
+                       f"{CONSISTENCY_S:g} s, is above {FLAG_NIS:g}: its innovations are {FLAG_NIS**0.5:.1f} times "
+                       "or more what the filter expects. The firmware said the same in flight (SYS_STATUS health, "
+                       "STATUSTEXT)."})  # fmt: skip
+    if p.accuracy_inflation is not None:
+        out["accuracy_inflation_causal"] = (np.asarray(p.accuracy_inflation, float), {
+            "long_name": "factor on the real-time (causal) filter's horizontal accuracy from its consistency "
+                         "monitor", "units": "1",
+            "comment": "sqrt of the largest windowed normalised innovation squared, at least 1. WIND_COV's "
+                       "horiz_accuracy included it; the *_causal_uncertainty variables do "
+                       "not."})  # fmt: skip
+    return out
 
 
 def global_attrs(p: WindProduct, history: str | None = None) -> dict[str, str]:
@@ -189,8 +216,9 @@ def write_netcdf(product: WindProduct, path: str, history: str | None = None) ->
     ``source_log_sha256``; any other key is copied too; ``history`` is put before this program's line)."""
     ds = to_dataset(product, history)
     enc = _float_encoding(ds, "time_since_boot")
-    for k in ("mode", "flags"):
-        enc[k] = {"dtype": "int8", "zlib": True}
+    for k in ("mode", "flags", "consistency_flags_causal"):
+        if k in ds:
+            enc[k] = {"dtype": "int8", "zlib": True}
     os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
     ds.to_netcdf(path, engine="netcdf4", format="NETCDF4", encoding=enc)
 

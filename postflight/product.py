@@ -9,11 +9,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from firmware_py.estimator.consistency import SOURCES
+
 # bits of ``flags`` (CF flag_masks)
 FLAG_SMOOTHED = 1  # the smoothed value differs from the causal one (the segment had later data)
 FLAG_SEGMENT_START = 2  # first sample after a filter reset / re-placement (a smoother segment starts)
 FLAG_NO_BARO = 4  # the log has no barometer: height and air data are unknown
 FLAG_WIND_UNKNOWN = 8  # horizontal accuracy worse than the wind itself could be (not a balloon, on the ground)
+# bits of ``consistency_flags``: the causal filter's consistency monitor (firmware_py/estimator/consistency.py),
+# bit i = aid source SOURCES[i] whose windowed normalised innovation squared says the model does not explain it
+CONSISTENCY_MASKS = tuple(1 << i for i in range(len(SOURCES)))
+CONSISTENCY_MEANINGS = " ".join(f"{name}_misfit" for name in SOURCES)
 
 
 @dataclass
@@ -34,5 +40,8 @@ class WindProduct:
     air_temperature_k: np.ndarray
     mode: np.ndarray  # int8: 0 ground, 1 free ascent, 2 taut (firmware_py.estimator.state MODE_*)
     flags: np.ndarray  # int8 bit field, FLAG_* above
+    # the causal filter's consistency monitor at each time (None: not known, e.g. a product built elsewhere):
+    consistency_flags: np.ndarray | None = None  # int8 bit field, CONSISTENCY_MASKS (what SYS_STATUS said in flight)
+    accuracy_inflation: np.ndarray | None = None  # its factor (>= 1) on the accuracy WIND_COV reported
     utc_start_s: float | None = None  # UNIX time of time_s == 0 when the log knows it (GPS time), else None
     attrs: dict[str, str] = field(default_factory=dict)  # design TOML, software version, source name, sha256

@@ -68,8 +68,11 @@ def reprocess(
     for t in pipe.flush():
         run.feed(pipe, t, warn)
     sm = rec.smooth()
-    return _product(sm, np.array(run.modes, np.int8), np.array(run.air).reshape(-1, 2), run.baro_seen,
-                    np.array(run.unconfirmed, bool))  # fmt: skip
+    product = _product(sm, np.array(run.modes, np.int8), np.array(run.air).reshape(-1, 2), run.baro_seen,
+                       np.array(run.unconfirmed, bool))  # fmt: skip
+    product.consistency_flags = np.array(run.consistency, np.int8)
+    product.accuracy_inflation = np.array(run.inflation, float)
+    return product
 
 
 class _Run:
@@ -87,6 +90,8 @@ class _Run:
         self.modes: list[int] = []
         self.unconfirmed: list[bool] = []
         self.air: list[tuple[float, float]] = []
+        self.consistency: list[int] = []  # the consistency monitor's flags and accuracy factor (the causal run's)
+        self.inflation: list[float] = []
 
     def feed(self, pipe: InputPipeline, s: Sample, warn) -> None:
         est = self.est
@@ -116,6 +121,8 @@ class _Run:
             self.modes.append(ekf.mode)
             self.unconfirmed.append(est.unconfirmed)
             self.air.append((self.press, self.temp))
+            self.consistency.append(est.consistency.flags)
+            self.inflation.append(est.consistency.inflation)
 
 
 def _unconfirmed_segments(segment_start: np.ndarray, unconfirmed: np.ndarray) -> np.ndarray:
