@@ -37,6 +37,8 @@ DEFAULT_SCENARIOS = (
     "better-orientation", "realistic-mems", "rope-drag", "multisine", "multisine-2d", "multisine-2d-ne",
     "multisine-2d-s", "steady-1", "steady-8", "gusty-6", "com-offset", "hard-iron", "drag-crisis",
     "reduced-multisine",
+    "field-rope", "field-rope-multisine", "field-catenary", "field-shear", "field-weather", "field-biases",
+    "field-reduced", "field-gusty-6", "field-all",
 )  # fmt: skip
 START_S = 120.0
 FREQS_HZ = (0.01, 0.02, 0.05, 0.1)
@@ -58,7 +60,8 @@ TARGETS = (
 
 def variants() -> dict:
     """Mismatch checks beside the scenarios, by name only (not in the default list): the firmware not
-    told about the rope's drag, and told about a drag the rope does not have."""
+    told about the rope's drag, told about a drag the rope does not have, the paper's world flown by
+    the default (real-rope) firmware, and the real rope flown by a firmware with the paper's rope."""
     from dataclasses import replace
 
     from firmware_py.estimator.state import FilterConfig
@@ -69,7 +72,12 @@ def variants() -> dict:
         out["rope-drag-fw-not-told"] = replace(SCENARIOS["rope-drag"], filter=FilterConfig())
     if "paper-reference" in SCENARIOS:
         out["paper-reference-fw-told-rope"] = replace(
-            SCENARIOS["paper-reference"], filter=FilterConfig(rope_normal_cd=1.1)
+            SCENARIOS["paper-reference"], filter=FilterConfig(rope_model="paper", rope_normal_cd=1.1)
+        )
+        out["paper-reference-fw-default"] = replace(SCENARIOS["paper-reference"], filter=FilterConfig())
+    if "field-rope" in SCENARIOS:
+        out["field-rope-fw-paper-rope"] = replace(
+            SCENARIOS["field-rope"], filter=FilterConfig(rope_model="paper", rope_normal_cd=0.0)
         )
     return out
 

@@ -69,7 +69,8 @@ def reprocess(
         run.feed(pipe, t, warn)
     sm = rec.smooth()
     product = _product(sm, np.array(run.modes, np.int8), np.array(run.air).reshape(-1, 2), run.baro_seen,
-                       np.array(run.unconfirmed, bool))  # fmt: skip
+                       np.array(run.unconfirmed, bool), np.array(run.accuracy, float),
+                       np.array(run.inflation, float))  # fmt: skip
     product.consistency_flags = np.array(run.consistency, np.int8)
     product.accuracy_inflation = np.array(run.inflation, float)
     return product
@@ -92,6 +93,7 @@ class _Run:
         self.air: list[tuple[float, float]] = []
         self.consistency: list[int] = []  # the consistency monitor's flags and accuracy factor (the causal run's)
         self.inflation: list[float] = []
+        self.accuracy: list[float] = []  # what the firmware reports (WIND_COV horiz_accuracy)
 
     def feed(self, pipe: InputPipeline, s: Sample, warn) -> None:
         est = self.est
@@ -123,6 +125,7 @@ class _Run:
             self.air.append((self.press, self.temp))
             self.consistency.append(est.consistency.flags)
             self.inflation.append(est.consistency.inflation)
+            self.accuracy.append(est.wind_accuracy())
 
 
 def _unconfirmed_segments(segment_start: np.ndarray, unconfirmed: np.ndarray) -> np.ndarray:
@@ -136,12 +139,26 @@ def _unconfirmed_segments(segment_start: np.ndarray, unconfirmed: np.ndarray) ->
     return out
 
 
-def _product(sm, modes: np.ndarray, air: np.ndarray, baro_seen: bool, unconfirmed: np.ndarray) -> WindProduct:
+def _product(
+    sm, modes: np.ndarray, air: np.ndarray, baro_seen: bool, unconfirmed: np.ndarray,
+    accuracy: np.ndarray | None = None, inflation: np.ndarray | None = None,
+) -> WindProduct:  # fmt: skip
     n = len(sm.t_us)
     var_n = np.maximum(sm.Ps[:, WIND_N, WIND_N], 0.0)
     var_e = np.maximum(sm.Ps[:, WIND_E, WIND_E], 0.0)
     cvar_n = np.maximum(sm.P[:, WIND_N, WIND_N], 0.0)
     cvar_e = np.maximum(sm.P[:, WIND_E, WIND_E], 0.0)
+    if accuracy is not None and len(accuracy) == n and inflation is not None and len(inflation) == n:
+        # the firmware's accuracy holds more than P (Estimator.wind_accuracy): what P cannot know (the
+        # drag scale, the rope's Cd; a bias the smoother cannot average away, added) and the consistency
+        # monitor's factor (the smoother's model is the filter's: a misfit the filter saw is its too)
+        f2 = np.maximum(inflation, 1.0) ** 2
+        sys_half = 0.5 * np.maximum(accuracy**2 / f2 - (cvar_n + cvar_e), 0.0)
+        keep = unconfirmed  # the join's floor: below, its own rule
+        cvar_n = np.where(keep, cvar_n, (cvar_n + sys_half) * f2)
+        cvar_e = np.where(keep, cvar_e, (cvar_e + sys_half) * f2)
+        var_n = np.where(keep, var_n, (var_n + sys_half) * f2)
+        var_e = np.where(keep, var_e, (var_e + sys_half) * f2)
     wn, we = sm.xs[:, WIND_N], sm.xs[:, WIND_E]
     # an unconfirmed join in flight: the reported accuracy is at least sqrt(|w|^2 + 1) (Estimator.wind_accuracy)
     floor_c = 0.5 * (sm.x[:, WIND_N] ** 2 + sm.x[:, WIND_E] ** 2 + 1.0)

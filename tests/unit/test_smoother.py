@@ -153,7 +153,8 @@ def test_smoother_removes_the_lag_on_a_two_axis_multisine():
     c = score(p.time_s, p.causal_n, p.causal_e, np.hypot(p.causal_sigma_n, p.causal_sigma_e), *args, start_s=120.0)
     assert s.band_rmse_mps < 0.92 * c.band_rmse_mps and s.band_skill > c.band_skill
     assert s.band_skill >= 0.9
-    # honest within what one 180 s window can tell (the 5-seed 600 s benchmark: 0.72-1.1)
-    assert 0.5 <= s.error_ratio <= 1.5
+    # honest within what one 180 s window can tell; the stated accuracy also carries the drag scale's
+    # uncertainty (a bias over balloons, which this flight's balloon, Cd as designed, does not have)
+    assert 0.35 <= s.error_ratio <= 1.5
     # the smoothed covariance of the real filter: symmetric, positive, never above the causal one
     assert np.all(p.sigma_n <= p.causal_sigma_n + 1e-9) and np.all(p.sigma_e <= p.causal_sigma_e + 1e-9)
