@@ -72,7 +72,8 @@ def taut_parts(x, par):
 
 
 def emit(name: str, doc: str, outputs: list[sp.Expr], args: list[sp.Symbol]) -> str:
-    reps, reduced = sp.cse(outputs, symbols=sp.numbered_symbols("t"), optimizations="basic")
+    # no "basic" optimisations: they cost 10 minutes on the taut model and the code is as fast without
+    reps, reduced = sp.cse(outputs, symbols=sp.numbered_symbols("t"))
     lines = [f"def {name}(", "    " + ", ".join(str(a) for a in args) + ",", ") -> tuple[float, ...]:"]
     lines.append(f'    """{doc}"""')
     printer = PythonCodePrinter({"standard": "python3"})
