@@ -108,8 +108,11 @@ class Estimator:
     def __init__(self, design: Design, cfg: FilterConfig | None = None) -> None:
         self.design = design
         self.cfg = cfg or FilterConfig()
-        self.model = BalloonModel.from_design(design, self.cfg.rope_normal_cd)
         self.catenary = self.cfg.rope_model == "catenary"
+        # a flexible rope carries its own drag to the anchor along its tension: none of it acts at the
+        # balloon (the balloon's pull is its own drag and lift); it bows the rope instead, which the
+        # catenary shape holds. The paper's rigid rod shares it half and half (Eq. 5 with drag).
+        self.model = BalloonModel.from_design(design, self.cfg.rope_normal_cd, rope_drag_at_balloon=not self.catenary)
         self.ekf = WindEkf(self.model, self.cfg, design.sensors)
         s = design.sensors
         self.accel_var = s.accel_mps2**2 + self.cfg.accel_model_mps2**2
@@ -141,7 +144,8 @@ class Estimator:
         self.taut_status = [FusionStatus(n) for n in ("radius", "radial_rate", "align_n", "align_e")]
         self.consistency = Consistency()
         m = self.model
-        self.rope_drag_share = m.rope_drag_m2 / (m.half_cd_area_m2 + m.rope_drag_m2)
+        rope_half = 0.25 * self.cfg.rope_normal_cd * design.tether.diameter_m * design.tether.length_m
+        self.rope_drag_share = rope_half / (m.half_cd_area_m2 + rope_half)
         self._init_clock()
         self._init_baro()
 

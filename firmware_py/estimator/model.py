@@ -41,7 +41,7 @@ class BalloonModel:
     rope_cn_d_m: float = 0.0  # Cn d: the rope's cross-flow drag per metre is 1/2 rho Cn d |u_n| u_n
 
     @classmethod
-    def from_design(cls, d: Design, rope_normal_cd: float = 0.0) -> BalloonModel:
+    def from_design(cls, d: Design, rope_normal_cd: float = 0.0, rope_drag_at_balloon: bool = True) -> BalloonModel:
         b = d.balloon
         return cls(
             radius_m=b.radius_m,
@@ -50,7 +50,7 @@ class BalloonModel:
             half_cd_area_m2=0.5 * b.drag_coefficient * b.frontal_area_m2,
             tether_length_m=d.tether.length_m,
             rope_kg_m=d.tether.linear_density_kg_m,
-            rope_drag_m2=0.25 * rope_normal_cd * d.tether.diameter_m * d.tether.length_m,
+            rope_drag_m2=0.25 * rope_normal_cd * d.tether.diameter_m * d.tether.length_m * rope_drag_at_balloon,
             rope_cn_d_m=rope_normal_cd * d.tether.diameter_m,
         )
 

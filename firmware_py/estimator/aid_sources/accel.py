@@ -28,7 +28,8 @@ def fuse_accel(
     """Specific force in FRD against the force model, f = R^T (a(x) - g) + (0, 0, b_z): tilt (through
     g) and the balloon's dynamics (drag of the wind, the air's push, the rope) through a(x), with the
     body-z bias b_z (a persistent vertical misfit would otherwise be read as a lean of the wind). On
-    the ground the balloon is held (a = 0): a gravity reference. The three axes are fused as one vector."""
+    the ground the balloon is held (a = 0): a gravity reference, where b_z is learnt (in flight a
+    model's misfit would pass for a bias). The three axes are fused as one vector."""
     r = rotation(*ekf.q.tolist())
     f = ekf.forces
     ground = ekf.mode == MODE_GROUND
@@ -56,7 +57,8 @@ def fuse_accel(
         np.copyto(ekf.H3_wk, ekf.hja_wk)
         if not ekf.learn_drag:
             H[0, DRAG] = H[1, DRAG] = H[2, DRAG] = 0.0
-    H[2, ABIAS_Z] = 1.0
+    if ground:  # learnt at rest, where g is the only force; in flight its value only (a misfit is not a bias)
+        H[2, ABIAS_Z] = 1.0
     pred[2] += float(ekf.x[ABIAS_Z])
     ekf.fuse3(fx - pred[0], fy - pred[1], fz - pred[2], var, status, var_z_extra)
 
