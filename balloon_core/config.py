@@ -272,6 +272,8 @@ def check_value(section: str, key: str, val: Any) -> Any:
             raise ConfigError(f"{where} must be a list of {n}numbers, got {_literal(val)}")
         return tuple(_number(where, x, rule) for x in val)
     if rule.kind == "integer":
+        if isinstance(val, float) and val.is_integer():  # 12.0 from a program that wrote numbers as floats
+            val = int(val)
         if isinstance(val, bool) or not isinstance(val, int):
             raise ConfigError(f"{where} must be an integer, got {_literal(val)}")
         if not rule.lo <= val <= rule.hi:

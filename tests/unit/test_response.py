@@ -92,7 +92,7 @@ def test_launch_is_honest(seed):
     at most 5 % of the estimates off by more than 3 sigma (the previous filter: 20-37 %), and the
     first 5 s (on the ground station, nothing known of the wind) never claim to know it."""
     samples, truth = stream("paper-reference", 300.0, seed)
-    rows = feed(Estimator(Design()), samples[:9000], record=True)
+    rows = feed(Estimator(Design(), SCENARIOS["paper-reference"].filter), samples[:9000], record=True)
     t = rows[:, 0]
     err = np.hypot(rows[:, 1] - truth["wind_n"][:9000], rows[:, 2] - truth["wind_e"][:9000])
     launch = (t >= 5.0) & (t < 60.0)

@@ -15,7 +15,7 @@ from firmware_py.estimator.aid_sources.tether import fuse_taut
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.ekf import FusionStatus
 from firmware_py.estimator.model import accelerations
-from firmware_py.estimator.state import ATT_N, DRAG, MODE_TAUT, N_STATES, STATE_NAMES
+from firmware_py.estimator.state import ABIAS_Z, ATT_N, DRAG, MODE_TAUT, N_STATES, STATE_NAMES
 from tests.unit.test_model import rotate_ned
 
 
@@ -83,6 +83,8 @@ def test_rows_match_finite_differences(taut_ekf, name):
             p, m = copy.deepcopy(taut_ekf), copy.deepcopy(taut_ekf)
             p.x[j] += eps
             m.x[j] -= eps
+        if name == "accel" and j == ABIAS_Z:
+            continue  # learnt at rest only: in flight the row uses its value, not its column (accel.py)
         for (_, h0), (ip, _), (im, _) in zip(base, _innovations(p, fn), _innovations(m, fn), strict=True):
             num = -(ip - im) / (2 * eps)  # innovation = z - h(x)
             assert h0[j] == pytest.approx(num, rel=1e-4, abs=1e-6), (name, STATE_NAMES[j])
