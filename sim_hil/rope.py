@@ -174,11 +174,3 @@ def rope_derivative(
 def rope_airborne(rope: LumpedRope, nodes: list[float]) -> bool:
     """Every node off the ground."""
     return all(z < AIRBORNE_BELOW_M for z in nodes[2 : 3 * rope.n_nodes : 3])
-
-
-def rope_shape(
-    rope: LumpedRope, nodes: list[float], top: tuple[float, float, float]
-) -> list[tuple[float, float, float]]:
-    """Node positions from the anchor to the attachment point (NED), for tests and plots."""
-    n = rope.n_nodes
-    return [(0.0, 0.0, 0.0)] + [tuple(nodes[3 * i : 3 * i + 3]) for i in range(n)] + [top]

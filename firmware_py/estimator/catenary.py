@@ -12,8 +12,9 @@ tools/derive_model.py) and takes two of its parameters from the rope's real shap
 
 - the chord length ``L_c`` (< L: the sag and the bow shorten it), the rod's length;
 - the weight the rod carries at the balloon, ``W_eff``: with the rod's tension along the chord,
-  ``F_top - R = -T_c e + W_eff down`` (R the model's rope-drag term), the share of the rope's weight
-  (and drag) that makes the rod's pull equal the real rope's. Half the weight for a shallow sag
+  ``F_top = -T_c e + W_eff down``, the share of the rope's weight (and, through its bow, its drag)
+  that makes the rod's pull equal the real rope's. (A flexible rope's drag acts on the rope, not at
+  the balloon: the rod carries no drag term of its own.) Half the weight for a shallow sag
   (the parabola), more for a deep one, ``V_top - W / ln(V_top / V_bottom)`` in calm air.
 
 The shape is integrated from the top down (``rope_chord``): the rope's force on what is above a cut
@@ -78,20 +79,16 @@ def calm_weight_share(lift_n: float, rope_weight_n: float) -> float:
     return v_top - rope_weight_n / math.log(v_top / v_bottom)
 
 
-def effective_rod(
-    fn: float, fe: float, fd: float, rn: float, re: float, rd: float, cn: float, ce: float, cd: float,
-    rope_weight_n: float,
-) -> float:  # fmt: skip
-    """W_eff: the weight the rod model must carry at the balloon so that its pull, -T_c e + W_eff down
-    + R, equals the rope's real pull F (e = the chord (cn, ce, cd) / |chord|, R the model's rope-drag
-    term). Bounded to [0, 1.5 W]: outside, the shape is not a rope's (a transient)."""
-    gn, ge, gd = fn - rn, fe - re, fd - rd
+def effective_rod(fn: float, fe: float, fd: float, cn: float, ce: float, cd: float, rope_weight_n: float) -> float:
+    """W_eff: the weight the rod model must carry at the balloon so that its pull, -T_c e + W_eff down,
+    equals the rope's real pull F (e = the chord (cn, ce, cd) / |chord|). Bounded to [0, 1.5 W]:
+    outside, the shape is not a rope's (a transient)."""
     ch = math.sqrt(cn * cn + ce * ce)
     if ch < 1e-6:
         return math.nan
-    # the horizontal part of F - R along the chord's azimuth is the rod's: T_c e_h = -(F - R)_h
-    t_over_c = -(gn * cn + ge * ce) / (ch * ch)  # T_c / |chord|
-    w = gd + t_over_c * cd
+    # the horizontal part of F along the chord's azimuth is the rod's: T_c e_h = -F_h
+    t_over_c = -(fn * cn + fe * ce) / (ch * ch)  # T_c / |chord|
+    w = fd + t_over_c * cd
     return min(max(w, 0.0), 1.5 * rope_weight_n)
 
 
@@ -105,7 +102,3 @@ class RopeShape:
         self.calm_weight_n = calm_weight_n
         self.chord_m = length_m
         self.weight_n = calm_weight_n
-
-    def reset(self, length_m: float) -> None:
-        self.chord_m = length_m
-        self.weight_n = self.calm_weight_n

@@ -123,8 +123,7 @@ class Estimator:
         rope_share = rope_share if self.catenary else 0.0
         # what a join in flight must explain to be confirmed: the rod's own allowance, not the rope's motion
         self.accel_confirm_var = s.accel_mps2**2 + self.cfg.accel_taut_mps2**2
-        self.accel_taut_base_var = self.accel_confirm_var + (ROPE_WAVE_ACCEL_MPS2 * rope_share) ** 2
-        self.accel_taut_var = self.accel_taut_base_var
+        self.accel_taut_var = self.accel_confirm_var + (ROPE_WAVE_ACCEL_MPS2 * rope_share) ** 2
         self.vertical_gust_var = self._vertical_gust_var(self.cfg.expected_wind_mps, air_density(101325.0, 293.15))
         self.align_var = self.cfg.align_rad**2 + (ROPE_WAVE_ALIGN_RAD * rope_share) ** 2
         self.baro_var = s.baro_m**2 + BARO_MODEL_M**2
@@ -144,7 +143,7 @@ class Estimator:
         self.taut_status = [FusionStatus(n) for n in ("radius", "radial_rate", "align_n", "align_e")]
         self.consistency = Consistency()
         m = self.model
-        rope_half = 0.25 * self.cfg.rope_normal_cd * design.tether.diameter_m * design.tether.length_m
+        rope_half = 0.25 * m.rope_cn_d_m * m.tether_length_m  # a straight rope's half of its drag
         self.rope_drag_share = rope_half / (m.half_cd_area_m2 + rope_half)
         self._init_clock()
         self._init_baro()
@@ -177,8 +176,7 @@ class Estimator:
         self._was_slack = False
         self._height_above = 0
         self._accel_var_excess = 0.0
-        if hasattr(self, "consistency"):
-            self.consistency.reset()
+        self.consistency.reset()
 
     def _init_baro(self) -> None:
         gp = self.design.site.ground_pressure_hpa

@@ -142,7 +142,7 @@ def test_estimator_rope_shape_is_the_inextensible_catenary(h):
     x, z = closed_catenary_chord(h, v_top, LENGTH)
     assert cn == pytest.approx(x, abs=0.01) and ce == 0.0 and -cd == pytest.approx(z, abs=0.01)
     # the rod that carries W_eff at the top pulls as the rope does, along the real chord
-    w_eff = effective_rod(-h, 0.0, v_top, 0.0, 0.0, 0.0, cn, ce, cd, W * LENGTH)
+    w_eff = effective_rod(-h, 0.0, v_top, cn, ce, cd, W * LENGTH)
     t_c = h / (cn / math.hypot(cn, cd))
     assert v_top - w_eff == pytest.approx(t_c * (-cd) / math.hypot(cn, cd), rel=1e-9)
     assert 0.5 * W * LENGTH < w_eff < W * LENGTH  # more than the parabola's half: a deep sag
@@ -153,7 +153,7 @@ def test_weight_share_limits():
     assert calm_weight_share(19.7, 19.6) == pytest.approx(19.6, rel=0.3)  # no spare lift: all of it
     # the calm limit is the catenary's as the pull vanishes
     cn, ce, cd = rope_chord(-0.05, 0.0, 31.3, LENGTH, W, 0.0, 0.0, 0.0)
-    assert effective_rod(-0.05, 0.0, 31.3, 0.0, 0.0, 0.0, cn, ce, cd, W * LENGTH) == pytest.approx(
+    assert effective_rod(-0.05, 0.0, 31.3, cn, ce, cd, W * LENGTH) == pytest.approx(
         calm_weight_share(31.3, W * LENGTH), abs=0.05
     )
 

@@ -163,15 +163,7 @@ def update_rope_shape(ekf: WindEkf, rho: float, alpha: float) -> None:
     chord = math.sqrt(cn * cn + ce * ce + cd * cd)
     if not chord > 0.5 * m.tether_length_m:
         return  # no rope shape under this pull (lift gone): keep the last
-    # the model's own rope-drag term at this chord (tools/derive_model.py: kr |u_n| u_n)
-    rn = re = rd = 0.0
-    if m.rope_drag_m2 > 0.0:
-        en, ee, ed = cn / chord, ce / chord, cd / chord
-        along = un * en + ue * ee + ud * ed
-        pn_, pe_, pd_ = un - along * en, ue - along * ee, ud - along * ed
-        kr = rho * m.rope_drag_m2 * math.sqrt(pn_ * pn_ + pe_ * pe_ + pd_ * pd_)
-        rn, re, rd = kr * pn_, kr * pe_, kr * pd_
-    weight = effective_rod(fn, fe, fd, rn, re, rd, cn, ce, cd, m.rope_weight_n)
+    weight = effective_rod(fn, fe, fd, cn, ce, cd, m.rope_weight_n)
     rope = ekf.rope
     rope.chord_m += alpha * (chord - rope.chord_m)
     if weight == weight:  # NaN: a vertical chord tells no share, keep the last
