@@ -1,0 +1,90 @@
+"""Compile the C core for this host: a shared library per real type (``float``, the firmware as
+flown; ``double``, the reference the lockstep harness holds against the Python core's float64), with the
+C compiler the machine has (``cc``; no Python headers). The library's name carries a hash of the
+sources and flags, so a stale build is never loaded; it is built at install (``make``) and else at
+first use, into ``firmware_c/build/`` (or the user's cache if the package is read-only).
+
+    python -m firmware_c.build            # both libraries, prints their paths
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+SOURCES = sorted((HERE / "src").glob("*.c"))
+HEADERS = sorted((HERE / "src").glob("*.h")) + sorted((HERE / "include").glob("*.h"))
+FLAGS = ("-std=c99", "-O2", "-fPIC", "-shared", "-Wall", "-Wextra", "-Werror", "-Wshadow")
+REALS = {"float": ("-Wdouble-promotion",), "double": ("-DBW_DOUBLE",)}
+
+
+class BuildError(RuntimeError):
+    """The C core could not be built (no compiler, or it failed): a one-line reason."""
+
+
+def _digest(real: str, extra: tuple[str, ...]) -> str:
+    h = hashlib.sha256(" ".join(FLAGS + REALS[real] + extra).encode())
+    for p in SOURCES + HEADERS:
+        h.update(p.name.encode())
+        h.update(p.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _build_dirs() -> list[Path]:
+    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "balloon-wind"
+    return [HERE / "build", cache]
+
+
+def library(real: str = "float", extra: tuple[str, ...] = ()) -> Path:
+    """The path of the host library for ``real`` ("float" or "double"), compiled if not yet built."""
+    if real not in REALS:
+        raise ValueError(f"real type {real!r}: 'float' or 'double'")
+    name = f"libbwcore_{real}-{_digest(real, extra)}.so"
+    for d in _build_dirs():
+        if (d / name).exists():
+            return d / name
+    cc = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        raise BuildError("the C core needs a C compiler (cc or gcc) to build; or use the Python core (--core py)")
+    last = ""
+    for d in _build_dirs():
+        try:
+            d.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(suffix=".so", dir=d)
+            os.close(fd)
+        except OSError as e:
+            last = str(e)
+            continue
+        cmd = [cc, *FLAGS, *REALS[real], *extra, f"-I{HERE / 'include'}", f"-I{HERE / 'src'}", "-o", tmp,
+               *map(str, SOURCES), "-lm"]  # fmt: skip
+        r = subprocess.run(cmd, capture_output=True, text=True)
+        if r.returncode != 0:
+            os.unlink(tmp)
+            first = (r.stderr.strip().splitlines() or ["no message"])[0]
+            raise BuildError(f"the C core did not compile ({cc}): {first}")
+        os.replace(tmp, d / name)  # atomic: a parallel build of the same sources writes the same file
+        for old in d.glob(f"libbwcore_{real}-*.so"):
+            if old.name != name:
+                old.unlink(missing_ok=True)
+        return d / name
+    raise BuildError(f"no writable place for the C core's build: {last}")
+
+
+def main() -> int:
+    try:
+        for real in REALS:
+            print(library(real))
+    except BuildError as e:
+        print(f"firmware_c.build: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,196 @@
+/* balloon-wind: the wind estimator's C99 core (docs/porting.md).
+ *
+ * The same filter as firmware_py/estimator (the readable reference), line for line: input checks, the
+ * fixed-step clock, modes, every aid source with its status, resets, the consistency monitor and the
+ * WIND_COV fields. Static memory only (the caller owns one bw_estimator_t), no recursion, bounded work
+ * per sample, libm's sqrt/sin/cos/atan2/exp/log only. No MAVLink: the caller decodes HIGHRES_IMU and
+ * SCALED_PRESSURE and encodes WIND_COV.
+ *
+ * Units: SI unless the name says otherwise; time in microseconds of the sensor's clock (time_usec);
+ * frames NED (origin at the anchor) and body FRD.
+ *
+ *   bw_config_t cfg; bw_config_default(&cfg);  (then set the design's values)
+ *   static bw_estimator_t est; bw_init(&est, &cfg);
+ *   per IMU sample:   bw_on_imu(&est, t_us, ax, ay, az, gx, gy, gz, mx, my, mz);  (NAN field: no magnetometer)
+ *   per baro sample:  bw_on_baro(&est, t_us, pressure_hpa, temperature_c);
+ *   when a WIND_COV is due: bw_wind_cov(&est, &fields);
+ */
+#ifndef BW_CORE_H
+#define BW_CORE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "bw_real.h"
+
+#define BW_N 19       /* states: pos (3), vel (3), attitude error (3), gyro bias (3), wind (2), wind rate (2), drag scale, baro offset, z accel bias */
+#define BW_NCOL 11    /* the balloon model's Jacobian columns: pos, vel, wind, wind rate, drag scale */
+
+/* The design and the [filter] tuning, as numbers (the Python binding fills it from the design file). */
+typedef struct {
+    /* the balloon model (firmware_py/estimator/model.py BalloonModel) */
+    double radius_m, volume_m3, mass_kg;
+    double half_cd_area_m2;      /* 1/2 Cd pi r^2 */
+    double tether_length_m;      /* anchor to the attachment point */
+    double rope_kg_m;            /* rope mass per metre */
+    double rope_drag_m2;         /* the balloon's share of a straight rope's drag, 1/4 Cn d L (paper's rod; 0 for the catenary) */
+    double rope_cn_d_m;          /* Cn d of the rope */
+    /* [sensors], 1-sigma */
+    double accel_mps2, baro_m, gyro_dps, mag_gauss;
+    /* [site] */
+    double mag_declination_deg;
+    double ground_pressure_hpa;  /* NAN: the barometer is zeroed at boot */
+    double altitude_amsl_m;
+    /* [filter] (firmware_py/estimator/state.py FilterConfig) */
+    double imu_rate_hz;
+    double accel_process_mps2, expected_wind_mps, turbulence_intensity, drag_walk_rt_s, baro_walk_m_rt_s;
+    double accel_bias_walk_mps2_rt_s, gyro_bias_walk_dps_rt_s;
+    double accel_model_mps2, accel_taut_mps2, accel_static_mps2, align_rad, radial_m, radial_rate_mps;
+    int32_t rope_catenary;       /* 1: rope_model "catenary" (the rope's real shape); 0: "paper" (Eq. 5) */
+    double gate_sigma, recover_after_s;
+    double init_wind_mps, init_drag, init_accel_bias_mps2, init_gyro_bias_dps, init_tilt_deg, init_yaw_deg;
+    double taut_margin_m, mode_dwell_s, release_accel_mps2, release_height_m, max_gap_s;
+} bw_config_t;
+
+/* One aid source's last test (PX4's estimator_aid_source status). */
+typedef struct {
+    bw_real innov, innov_var, test_ratio;
+    int32_t fused, rejected, consecutive_rejects;
+    int32_t recover_after;        /* consecutive rejections before a forced fusion (0: the filter's) */
+    int64_t time_last_fuse_us;    /* filter time of the last fusion, -1 never */
+    int64_t time_test_us;         /* filter time of the last innovation test */
+} bw_status_t;
+
+typedef struct {
+    int64_t imu_samples, baro_samples, rejected, duplicates, reordered, jitter, gaps, long_gaps, time_resets,
+        numeric_resets, taut_resets, mode_switches, baro_resets, false_releases;
+} bw_counters_t;
+
+/* the balloon model at one state (model.py Forces) */
+typedef struct {
+    bw_real an, ae, ad;           /* model acceleration, NED, m/s^2 */
+    bw_real ja[3 * BW_NCOL];      /* d a / d x, row-major */
+    bw_real jpull[BW_NCOL];       /* d (tension / m_eff) / d x (taut) */
+    bw_real tension_n, m_eff_kg;
+    int32_t taut;
+    bw_real params[10];           /* the generated functions' parameters at this step */
+    bw_real attach_ned[3];        /* input: attachment point relative to the centre, NED */
+    bw_real rope_weight_n;        /* input: weight the taut rod carries (catenary.py W_eff), NAN: Eq. 5 */
+} bw_forces_t;
+
+typedef struct {
+    /* the filter (ekf.py WindEkf) */
+    bw_real x[BW_N];
+    bw_real q[4];                 /* nominal attitude, body FRD -> NED, scalar first */
+    bw_real P[BW_N][BW_N];
+    bw_real F[BW_N][BW_N];
+    bw_real T[BW_N][BW_N];        /* scratch: F P */
+    bw_real h[BW_N], dx[BW_N], ph[BW_N];
+    bw_real H3[3][BW_N], pht[BW_N][3];
+    bw_real var_max[BW_N];
+    bw_real q_flight[BW_N];      /* process noise per step in flight (diagonal) */
+    bw_real q_ground[BW_N], qd_ground[BW_N];  /* on the ground: for a gap (inflate), per step (predict, follows the wind) */
+    bw_real dt, rate_decay, q_rate0, u0, q_walk_step;
+    bw_real wp_tau_s, wp_q_rate, wp_q_walk, sigma_rate;
+    bw_forces_t forces;
+    bw_real rope_chord_m, rope_weight_n;      /* catenary.py RopeShape */
+    int32_t mode, f_ground, learn_drag, drag_correlated, recover_after;
+    int64_t time_us;
+    int32_t reset_counts[3];
+    int32_t reset_count;
+} bw_ekf_t;
+
+typedef struct {
+    bw_real nis[5];
+    int32_t flags;
+    bw_real inflation;
+    int32_t flag_changes;
+} bw_consistency_t;
+
+typedef struct {
+    int32_t taut_every, align_reset, baro_reset, baro_recover, mag_recover, field_learn, field_flight,
+        wind_noise_every, release_confirm, release_height;
+    bw_real rope_shape_alpha;
+} bw_schedule_t;
+
+/* WIND_COV's fields (outputs.py), MAVLink units; NAN for unknown */
+typedef struct {
+    int64_t time_usec;
+    float wind_x, wind_y, wind_z, var_horiz, var_vert, wind_alt, horiz_accuracy, vert_accuracy;
+} bw_wind_cov_t;
+
+typedef struct {
+    double alpha;                 /* 1 Hz low-pass weight per step */
+    bw_real ln, le;
+    int32_t primed;
+    bw_real ring_n[60], ring_e[60];
+    int64_t count, next_slot_us;
+    double site_altitude_m;
+} bw_windcov_out_t;
+
+typedef struct {
+    bw_config_t cfg;
+    bw_ekf_t ekf;
+    bw_forces_t probe;
+    bw_schedule_t sched;
+    bw_counters_t counters;
+    bw_consistency_t consistency;
+    bw_status_t accel_status[3], baro_status, heading_status, mag_status[3], taut_status[4];
+    bw_windcov_out_t out;
+    /* noise */
+    bw_real accel_var, accel_static_var, accel_confirm_var, accel_taut_var, vertical_gust_var, align_var, baro_var,
+        mag_sigma, mag_var, declination, rope_drag_share;
+    int32_t catenary;
+    /* the times of control.py as step counts (n >= ceil(t * rate)) and the monitor's weights, set at init */
+    int64_t n_dwell, n_learn_drag, n_false_release, n_taut_pull, n_confirm;
+    bw_real a_accel, a_taut, a_baro, a_confirm;
+    int64_t dt_us;
+    int32_t max_gap_steps;
+    /* clock and control (control.py _init_clock) */
+    int32_t initialised;
+    int64_t t_filter_us, t_last_us, t_boot_us, step;
+    bw_real last_gyro[3];
+    int32_t release_count, field_n;
+    bw_real field_sum[6];
+    int32_t joined, unconfirmed;
+    bw_real acc_mean[3], acc_var;
+    int64_t confirm_count;
+    bw_real field_ned[3];
+    int64_t dwell;
+    bw_real accel_innov2, innov_alpha, mean_speed, speed_alpha;
+    int64_t slack, pulling;
+    int32_t was_slack;
+    int64_t height_above;
+    bw_real accel_var_excess;
+    /* barometer (control.py _init_baro) */
+    bw_real p_ref_pa;
+    int32_t zeroing;
+    bw_real ref_pos_d, t_ref_k, zero_sum;
+    int32_t zero_n;
+    bw_real join_height, rho, height_baro;
+    int32_t baro_pending;
+} bw_estimator_t;
+
+/* the defaults of the design file and of [filter] (the paper's reference balloon) */
+void bw_config_default(bw_config_t *cfg);
+/* 0 on success, -1 if the configuration cannot describe a balloon (non-positive rate, radius, mass) */
+int bw_init(bw_estimator_t *est, const bw_config_t *cfg);
+/* one IMU sample: specific force FRD m/s^2, rates rad/s, field gauss (NAN if none); 1 when the filter advanced */
+int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real az, bw_real gx, bw_real gy,
+              bw_real gz, bw_real mx, bw_real my, bw_real mz);
+/* one barometer + thermometer sample, hPa and degrees C; 1 if accepted */
+int bw_on_baro(bw_estimator_t *est, int64_t t_us, bw_real pressure_hpa, bw_real temperature_c);
+/* no sensor data for this long: grow the covariance (the state stays) */
+void bw_coast(bw_estimator_t *est, bw_real seconds);
+/* forget everything (the sender rebooted) */
+void bw_reset(bw_estimator_t *est);
+/* per filter step, for WIND_COV's variability (the caller calls it after bw_on_imu returned 1) */
+void bw_output_update(bw_estimator_t *est, int64_t t_us);
+void bw_output_reset(bw_estimator_t *est);
+/* WIND_COV's fields now */
+void bw_wind_cov(const bw_estimator_t *est, bw_wind_cov_t *out);
+/* the reported horizontal wind accuracy, m/s (P, what P cannot hold, the consistency factor) */
+bw_real bw_wind_accuracy(const bw_estimator_t *est);
+size_t bw_sizeof_estimator(void);
+
+#endif

@@ -1,0 +1,52 @@
+/* The accelerometer: its specific-force rows (paper Eq. 9) and when and how loud to fuse them
+ * (firmware_py/estimator/aid_sources/accel.py). */
+#include <string.h>
+
+#include "internal.h"
+
+static const int MODEL_COLS[BW_NCOL] = {0, 1, 2, 3, 4, 5, 12, 13, 14, 15, 16};
+
+static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, bw_real var, bw_real var_z_extra)
+{
+    bw_ekf_t *e = &est->ekf;
+    const bw_forces_t *f = &e->forces;
+    int ground = e->mode == BW_MODE_GROUND, i, j;
+    bw_real r[9], yn, ye, yd, pred[3];
+    bw_rotation(e->q, r);
+    if (ground)
+        yn = BW_R(0.0), ye = BW_R(0.0), yd = -(bw_real)BW_G0;
+    else
+        yn = f->an, ye = f->ae, yd = f->ad - (bw_real)BW_G0;
+    memset(e->H3, 0, sizeof e->H3);
+    for (i = 0; i < 3; i++) {
+        bw_real cn = r[i], ce = r[3 + i], cd = r[6 + i]; /* row i of R^T */
+        pred[i] = cn * yn + ce * ye + cd * yd;
+        /* d/d att: R^T [y x] */
+        e->H3[i][BW_ATT_N] = ce * yd - cd * ye;
+        e->H3[i][BW_ATT_E] = cd * yn - cn * yd;
+        e->H3[i][BW_ATT_D] = cn * ye - ce * yn;
+        if (!ground) /* d/d (model states): R^T (d a / d x) */
+            for (j = 0; j < BW_NCOL; j++)
+                e->H3[i][MODEL_COLS[j]] = cn * f->ja[j] + ce * f->ja[BW_NCOL + j] + cd * f->ja[2 * BW_NCOL + j];
+    }
+    if (!ground && !e->learn_drag)
+        e->H3[0][BW_DRAG] = e->H3[1][BW_DRAG] = e->H3[2][BW_DRAG] = BW_R(0.0);
+    if (ground) /* learnt at rest, where g is the only force */
+        e->H3[2][BW_ABIAS_Z] = BW_R(1.0);
+    pred[2] += e->x[BW_ABIAS_Z];
+    bw_ekf_fuse3(e, &est->cfg, fx - pred[0], fy - pred[1], fz - pred[2], var, est->accel_status, var_z_extra);
+}
+
+void bw_control_accel(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
+{
+    const bw_ekf_t *e = &est->ekf;
+    bw_real var = e->mode == BW_MODE_GROUND ? est->accel_static_var : e->mode == BW_MODE_FREE ? est->accel_var
+                                                                                              : est->accel_taut_var;
+    bw_real nominal = var, i2;
+    const bw_status_t *st = est->accel_status;
+    var = BW_MAX(var, est->accel_innov2);
+    est->accel_var_excess = var - nominal;
+    fuse_accel(est, ax, ay, az, var, e->mode != BW_MODE_GROUND ? est->vertical_gust_var : BW_R(0.0));
+    i2 = (st[0].innov * st[0].innov + st[1].innov * st[1].innov + st[2].innov * st[2].innov) / BW_R(3.0);
+    est->accel_innov2 += est->innov_alpha * (i2 - est->accel_innov2);
+}

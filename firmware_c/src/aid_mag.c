@@ -1,0 +1,79 @@
+/* The magnetometer: the earth field learnt on the ground, the field-vector and heading rows
+ * (firmware_py/estimator/aid_sources/magnetometer.py). */
+#include <string.h>
+
+#include "internal.h"
+
+static void fuse_heading(bw_estimator_t *est, bw_real mx, bw_real my, bw_real mz)
+{
+    bw_ekf_t *e = &est->ekf;
+    bw_status_t *st = &est->heading_status;
+    bw_real r[9], mn, me, md, h2, horiz, innov, var, a;
+    bw_rotation(e->q, r);
+    mn = r[0] * mx + r[1] * my + r[2] * mz;
+    me = r[3] * mx + r[4] * my + r[5] * mz;
+    md = r[6] * mx + r[7] * my + r[8] * mz;
+    h2 = mn * mn + me * me;
+    horiz = BW_SQRT(h2);
+    if (horiz < BW_R(1e-3)) {
+        st->rejected += 1;
+        return;
+    }
+    innov = est->declination - BW_ATAN2(me, mn);
+    a = BW_FMOD(innov + BW_PI, BW_R(2.0) * BW_PI); /* Python's %: the result takes the divisor's sign */
+    if (a < BW_R(0.0))
+        a += BW_R(2.0) * BW_PI;
+    innov = a - BW_PI;
+    memset(e->h, 0, sizeof e->h);
+    e->h[BW_ATT_N] = -mn * md / h2;
+    e->h[BW_ATT_E] = -me * md / h2;
+    e->h[BW_ATT_D] = BW_R(1.0);
+    var = (est->mag_sigma / horiz) * (est->mag_sigma / horiz) + (BW_R(0.5) * BW_DEG) * (BW_R(0.5) * BW_DEG);
+    bw_ekf_fuse(e, &est->cfg, innov, var, st, BW_R(0.0), 1);
+}
+
+static void fuse_mag_field(bw_estimator_t *est, bw_real mx, bw_real my, bw_real mz)
+{
+    bw_ekf_t *e = &est->ekf;
+    bw_real r[9], pred[3];
+    const bw_real bn = est->field_ned[0], be = est->field_ned[1], bd = est->field_ned[2];
+    int i;
+    bw_rotation(e->q, r);
+    memset(e->H3, 0, sizeof e->H3);
+    for (i = 0; i < 3; i++) {
+        bw_real cn = r[i], ce = r[3 + i], cd = r[6 + i];
+        e->H3[i][BW_ATT_N] = ce * bd - cd * be;
+        e->H3[i][BW_ATT_E] = cd * bn - cn * bd;
+        e->H3[i][BW_ATT_D] = cn * be - ce * bn;
+        pred[i] = cn * bn + ce * be + cd * bd;
+    }
+    bw_ekf_fuse3(e, &est->cfg, mx - pred[0], my - pred[1], mz - pred[2], est->mag_var, est->mag_status, BW_R(0.0));
+}
+
+static void learn_field(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az, bw_real mx, bw_real my, bw_real mz)
+{
+    bw_real *s = est->field_sum, fnorm, n, down, horiz, v;
+    s[0] += ax, s[1] += ay, s[2] += az, s[3] += mx, s[4] += my, s[5] += mz;
+    est->field_n += 1;
+    if (est->field_n < est->sched.field_learn)
+        return;
+    fnorm = BW_SQRT(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]);
+    n = (bw_real)est->field_n;
+    down = -(s[0] * s[3] + s[1] * s[4] + s[2] * s[5]) / (fnorm * n); /* at rest the specific force points up */
+    v = (s[3] * s[3] + s[4] * s[4] + s[5] * s[5]) / (n * n) - down * down;
+    horiz = BW_SQRT(BW_MAX(BW_R(0.0), v));
+    est->field_ned[0] = horiz * BW_COS(est->declination);
+    est->field_ned[1] = horiz * BW_SIN(est->declination);
+    est->field_ned[2] = down;
+}
+
+void bw_control_mag(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az, bw_real mx, bw_real my, bw_real mz)
+{
+    const bw_ekf_t *e = &est->ekf;
+    if (e->mode == BW_MODE_GROUND || (est->joined && est->field_n < est->sched.field_flight))
+        learn_field(est, ax, ay, az, mx, my, mz);
+    if (est->field_n >= est->sched.field_learn && e->mode != BW_MODE_GROUND)
+        fuse_mag_field(est, mx, my, mz);
+    else
+        fuse_heading(est, mx, my, mz);
+}

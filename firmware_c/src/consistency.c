@@ -1,0 +1,42 @@
+/* Is the model explaining the data? (firmware_py/estimator/consistency.py) */
+#include "internal.h"
+
+void bw_consistency_reset(bw_consistency_t *m)
+{
+    int i;
+    for (i = 0; i < BW_N_SOURCES; i++)
+        m->nis[i] = BW_R(0.0);
+    m->flags = 0;
+    m->inflation = BW_R(1.0);
+}
+
+void bw_consistency_add(bw_consistency_t *m, int source, bw_real nis, bw_real alpha)
+{
+    if (nis == nis)
+        m->nis[source] += alpha * (BW_MIN(nis, (bw_real)BW_NIS_CLIP) - m->nis[source]);
+}
+
+void bw_consistency_evaluate(bw_consistency_t *m)
+{
+    int32_t flags = 0;
+    bw_real worst = BW_R(1.0);
+    int i;
+    for (i = 0; i < BW_N_SOURCES; i++) {
+        if (m->nis[i] > (bw_real)BW_FLAG_NIS)
+            flags |= 1 << i;
+        if (m->nis[i] > worst)
+            worst = m->nis[i];
+    }
+    if (flags != m->flags)
+        m->flag_changes += 1;
+    m->flags = flags;
+    m->inflation = BW_SQRT(worst);
+}
+
+bw_real bw_systematic_variance(bw_real speed_mps, bw_real drag_scale, bw_real drag_scale_var, bw_real rope_drag_share)
+{
+    bw_real k = BW_MAX(drag_scale, BW_R(1e-3));
+    bw_real rel_k = BW_R(0.5) * BW_SQRT(drag_scale_var) / k;
+    bw_real rel_rope = BW_R(0.5) * rope_drag_share * (bw_real)BW_ROPE_CD_REL_SIGMA;
+    return speed_mps * speed_mps * (rel_k * rel_k + rel_rope * rel_rope);
+}

@@ -1,0 +1,531 @@
+/* What to fuse and when (firmware_py/estimator/control.py): input validation, the fixed-step clock
+ * with jitter/gap/duplicate/reorder/backwards handling, barometer zeroing, mode switching with
+ * hysteresis, resets, the consistency monitor's feed and the reported accuracy. */
+#include <string.h>
+
+#include "internal.h"
+
+static int finite3(bw_real a, bw_real b, bw_real c, bw_real limit)
+{
+    /* NaN and inf fail the bounds */
+    return BW_FABS(a) <= limit && BW_FABS(b) <= limit && BW_FABS(c) <= limit;
+}
+
+static int32_t round_count(double v) /* max(1, round(v)), Python's round (half to even) */
+{
+    double r = bw_round_half_even(v);
+    return r < 1.0 ? 1 : (int32_t)r;
+}
+
+static int64_t steps_for(double v) /* the least step count n with n >= v */
+{
+    return (int64_t)ceil(v);
+}
+
+static void schedule_at(bw_schedule_t *s, double rate, double recover_after_s)
+{
+    double taut_hz, a;
+    s->taut_every = round_count(BW_TAUT_PERIOD_S * rate);
+    taut_hz = rate / s->taut_every;
+    s->align_reset = round_count(BW_ALIGN_RESET_S * taut_hz);
+    s->baro_reset = round_count(BW_BARO_RESET_S * BW_BARO_NOMINAL_HZ);
+    s->baro_recover = (int32_t)(recover_after_s * BW_BARO_NOMINAL_HZ);
+    if (s->baro_recover < 1)
+        s->baro_recover = 1;
+    s->mag_recover = round_count(BW_MAG_RECOVER_S * rate);
+    s->field_learn = round_count(BW_FIELD_LEARN_S * rate);
+    s->field_flight = round_count(BW_FIELD_FLIGHT_S * rate);
+    s->wind_noise_every = round_count(BW_WIND_NOISE_PERIOD_S * rate);
+    s->release_confirm = round_count(BW_RELEASE_CONFIRM_S * rate);
+    s->release_height = round_count(BW_RELEASE_HEIGHT_S * rate);
+    a = 1.0 / (BW_ROPE_SHAPE_S * taut_hz);
+    s->rope_shape_alpha = (bw_real)(a < 1.0 ? a : 1.0);
+}
+
+static bw_real vertical_gust_var(const bw_estimator_t *est, bw_real mean_speed_mps, bw_real rho)
+{
+    const bw_config_t *m = &est->cfg;
+    bw_real m_eff = (bw_real)m->mass_kg + (bw_real)BW_ADDED_MASS_COEFFICIENT * rho * (bw_real)m->volume_m3;
+    bw_real u = BW_MAX(mean_speed_mps, BW_R(0.5));
+    bw_real sigma_w = (bw_real)BW_VERTICAL_TURBULENCE_RATIO * (bw_real)m->turbulence_intensity * u;
+    bw_real a = rho * (bw_real)m->half_cd_area_m2 * u * sigma_w / m_eff;
+    return a * a;
+}
+
+static void init_clock(bw_estimator_t *est)
+{
+    est->initialised = 0;
+    est->t_filter_us = 0;
+    est->t_last_us = -1;
+    est->t_boot_us = 0;
+    est->step = 0;
+    est->last_gyro[0] = est->last_gyro[1] = est->last_gyro[2] = BW_R(0.0);
+    est->release_count = 0;
+    est->field_n = 0;
+    memset(est->field_sum, 0, sizeof est->field_sum);
+    est->joined = 0;
+    est->unconfirmed = 0;
+    est->acc_mean[0] = est->acc_mean[1] = est->acc_mean[2] = BW_R(0.0);
+    est->acc_var = BW_R(0.0);
+    est->confirm_count = 0;
+    est->field_ned[0] = est->field_ned[1] = est->field_ned[2] = BW_R(NAN);
+    est->dwell = 0;
+    est->accel_innov2 = BW_R(0.0);
+    est->innov_alpha = (bw_real)(1.0 / (BW_ACCEL_INNOV_S * est->cfg.imu_rate_hz));
+    est->mean_speed = (bw_real)est->cfg.expected_wind_mps;
+    est->speed_alpha = (bw_real)(1.0 / (BW_MEAN_WIND_S * est->cfg.imu_rate_hz));
+    est->slack = 0;
+    est->pulling = 0;
+    est->was_slack = 0;
+    est->height_above = 0;
+    est->accel_var_excess = BW_R(0.0);
+    bw_consistency_reset(&est->consistency);
+}
+
+static void init_baro(bw_estimator_t *est)
+{
+    double gp = est->cfg.ground_pressure_hpa;
+    int known = gp == gp;
+    est->p_ref_pa = known ? (bw_real)(gp * 100.0) : BW_R(NAN);
+    est->zeroing = !known;
+    est->ref_pos_d = known ? BW_R(0.0) : (bw_real)-est->cfg.radius_m;
+    est->t_ref_k = BW_R(NAN);
+    est->zero_sum = BW_R(0.0);
+    est->zero_n = 0;
+    est->join_height = BW_R(NAN);
+    est->rho = (bw_real)(101325.0 / (BW_R_AIR * 293.15));
+    est->height_baro = BW_R(NAN);
+    est->baro_pending = 0;
+}
+
+size_t bw_sizeof_estimator(void)
+{
+    return sizeof(bw_estimator_t);
+}
+
+void bw_config_default(bw_config_t *c)
+{
+    const double r = 1.0, volume = 4.0 / 3.0 * 3.141592653589793 * r * r * r;
+    memset(c, 0, sizeof *c);
+    c->radius_m = r;
+    c->volume_m3 = volume;
+    c->mass_kg = 1.0 + 0.2 * volume;
+    c->half_cd_area_m2 = 0.5 * 0.3 * 3.141592653589793 * r * r;
+    c->tether_length_m = 100.0;
+    c->rope_kg_m = 0.02;
+    c->rope_drag_m2 = 0.0;
+    c->rope_cn_d_m = 1.1 * 0.003;
+    c->accel_mps2 = 0.01, c->baro_m = 1.0, c->gyro_dps = 1.0, c->mag_gauss = 0.005;
+    c->mag_declination_deg = 0.0, c->ground_pressure_hpa = NAN, c->altitude_amsl_m = 0.0;
+    c->imu_rate_hz = 100.0, c->accel_process_mps2 = 0.05, c->expected_wind_mps = 3.0, c->turbulence_intensity = 0.2;
+    c->drag_walk_rt_s = 0.002, c->baro_walk_m_rt_s = 0.1, c->accel_bias_walk_mps2_rt_s = 0.001;
+    c->gyro_bias_walk_dps_rt_s = 0.005;
+    c->accel_model_mps2 = 0.15, c->accel_taut_mps2 = 0.1, c->accel_static_mps2 = 0.3, c->align_rad = 0.01;
+    c->radial_m = 0.3, c->radial_rate_mps = 0.15, c->rope_catenary = 1;
+    c->gate_sigma = 5.0, c->recover_after_s = 1.0;
+    c->init_wind_mps = 6.0, c->init_drag = 0.1, c->init_accel_bias_mps2 = 0.05, c->init_gyro_bias_dps = 0.5;
+    c->init_tilt_deg = 3.0, c->init_yaw_deg = 10.0;
+    c->taut_margin_m = 1.5, c->mode_dwell_s = 1.0, c->release_accel_mps2 = 1.5, c->release_height_m = 3.0;
+    c->max_gap_s = 0.5;
+}
+
+int bw_init(bw_estimator_t *est, const bw_config_t *cfg)
+{
+    double share, s_acc, rope_half, dt_us, gap;
+    int i;
+    if (!(cfg->imu_rate_hz > 0.0 && cfg->radius_m > 0.0 && cfg->mass_kg > 0.0 && cfg->volume_m3 > 0.0))
+        return -1;
+    memset(est, 0, sizeof *est);
+    est->cfg = *cfg;
+    est->catenary = cfg->rope_catenary != 0;
+    bw_ekf_init(&est->ekf, cfg);
+    s_acc = cfg->accel_mps2 * cfg->accel_mps2;
+    est->accel_var = (bw_real)(s_acc + cfg->accel_model_mps2 * cfg->accel_model_mps2);
+    est->accel_static_var = (bw_real)(s_acc + cfg->accel_static_mps2 * cfg->accel_static_mps2);
+    /* a rope with mass moves on its own and moves the balloon with it: the rod model's errors grow with it */
+    share = est->catenary ? cfg->rope_kg_m * cfg->tether_length_m / (cfg->mass_kg + 1e-9) : 0.0;
+    est->accel_confirm_var = (bw_real)(s_acc + cfg->accel_taut_mps2 * cfg->accel_taut_mps2);
+    est->accel_taut_var = (bw_real)((double)est->accel_confirm_var + (BW_ROPE_WAVE_ACCEL_MPS2 * share) * (BW_ROPE_WAVE_ACCEL_MPS2 * share));
+    est->vertical_gust_var = vertical_gust_var(est, (bw_real)cfg->expected_wind_mps, (bw_real)(101325.0 / (BW_R_AIR * 293.15)));
+    est->align_var = (bw_real)(cfg->align_rad * cfg->align_rad + (BW_ROPE_WAVE_ALIGN_RAD * share) * (BW_ROPE_WAVE_ALIGN_RAD * share));
+    est->baro_var = (bw_real)(cfg->baro_m * cfg->baro_m + BW_BARO_MODEL_M * BW_BARO_MODEL_M);
+    est->mag_sigma = (bw_real)cfg->mag_gauss;
+    est->declination = (bw_real)(cfg->mag_declination_deg * 0.017453292519943295);
+    dt_us = bw_round_half_even(1e6 / cfg->imu_rate_hz);
+    est->dt_us = (int64_t)dt_us;
+    gap = bw_round_half_even(cfg->max_gap_s * cfg->imu_rate_hz);
+    est->max_gap_steps = gap < 1.0 ? 1 : (int32_t)gap;
+    schedule_at(&est->sched, cfg->imu_rate_hz, cfg->recover_after_s);
+    est->n_dwell = steps_for(cfg->mode_dwell_s * cfg->imu_rate_hz);
+    est->n_learn_drag = steps_for(BW_LEARN_DRAG_AFTER_S * cfg->imu_rate_hz);
+    est->n_false_release = steps_for(BW_FALSE_RELEASE_S * cfg->imu_rate_hz);
+    est->n_taut_pull = steps_for(BW_TAUT_PULL_S * cfg->imu_rate_hz);
+    est->n_confirm = steps_for(BW_CONFIRM_S * cfg->imu_rate_hz);
+    est->a_accel = (bw_real)(1.0 / (BW_CONSISTENCY_S * cfg->imu_rate_hz));
+    est->a_taut = (bw_real)(est->sched.taut_every / (BW_CONSISTENCY_S * cfg->imu_rate_hz));
+    est->a_baro = (bw_real)(1.0 / (BW_CONSISTENCY_S * BW_BARO_NOMINAL_HZ));
+    est->a_confirm = (bw_real)(1.0 / (BW_CONFIRM_WINDOW_S * cfg->imu_rate_hz));
+    for (i = 0; i < 3; i++)
+        bw_status_init(&est->accel_status[i], 0);
+    bw_status_init(&est->baro_status, est->sched.baro_recover);
+    bw_status_init(&est->heading_status, est->sched.mag_recover);
+    for (i = 0; i < 3; i++)
+        bw_status_init(&est->mag_status[i], est->sched.mag_recover);
+    est->mag_var = (bw_real)(cfg->mag_gauss * cfg->mag_gauss + BW_MAG_MODEL_GAUSS * BW_MAG_MODEL_GAUSS);
+    for (i = 0; i < 4; i++)
+        bw_status_init(&est->taut_status[i], 0);
+    bw_consistency_reset(&est->consistency);
+    rope_half = 0.25 * cfg->rope_cn_d_m * cfg->tether_length_m; /* a straight rope's half of its drag */
+    est->rope_drag_share = (bw_real)(rope_half / (cfg->half_cd_area_m2 + rope_half));
+    est->probe.rope_weight_n = BW_R(NAN);
+    est->probe.m_eff_kg = BW_R(1.0);
+    {
+        double dt = 1.0 / cfg->imu_rate_hz;
+        est->out.alpha = dt / (dt + 1.0 / (2.0 * 3.141592653589793 * 1.0));
+        est->out.site_altitude_m = cfg->altitude_amsl_m;
+    }
+    init_clock(est);
+    init_baro(est);
+    return 0;
+}
+
+void bw_reset(bw_estimator_t *est)
+{
+    init_clock(est);
+    init_baro(est);
+    est->ekf.mode = BW_MODE_GROUND;
+}
+
+/* attitude of a resting body from gravity (specific force = -g) and the magnetic heading */
+static void quat_from_accel_mag(bw_real ax, bw_real ay, bw_real az, bw_real mx, bw_real my, bw_real mz, bw_real dec,
+                                bw_real q[4])
+{
+    bw_real roll = BW_ATAN2(-ay, -az), pitch = BW_ATAN2(ax, BW_HYPOT(ay, az));
+    bw_real cr = BW_COS(roll), sr = BW_SIN(roll), cp = BW_COS(pitch), sp = BW_SIN(pitch);
+    bw_real bx = mx * cp + my * sr * sp + mz * cr * sp, by = my * cr - mz * sr;
+    bw_real yaw = (bx != BW_R(0.0) || by != BW_R(0.0)) ? BW_ATAN2(-by, bx) + dec : BW_R(0.0);
+    bw_real c1 = BW_COS(roll / 2), s1 = BW_SIN(roll / 2), c2 = BW_COS(pitch / 2), s2 = BW_SIN(pitch / 2);
+    bw_real c3 = BW_COS(yaw / 2), s3 = BW_SIN(yaw / 2);
+    q[0] = c1 * c2 * c3 + s1 * s2 * s3;
+    q[1] = s1 * c2 * c3 - c1 * s2 * s3;
+    q[2] = c1 * s2 * c3 + s1 * c2 * s3;
+    q[3] = c1 * c2 * s3 - s1 * s2 * c3;
+}
+
+static void join_in_flight(bw_estimator_t *est, const bw_real q[4])
+{
+    const bw_config_t *m = &est->cfg;
+    bw_ekf_t *e = &est->ekf;
+    bw_real zd = q[0] * q[0] - q[1] * q[1] - q[2] * q[2] + q[3] * q[3]; /* cos(tilt) */
+    bw_real tan_tilt = BW_SQRT(BW_MAX(BW_R(0.0), BW_R(1.0) - zd * zd)) / BW_MAX(zd, BW_R(0.1));
+    bw_real lift = (est->rho * (bw_real)m->volume_m3 - (bw_real)m->mass_kg) * (bw_real)BW_G0;
+    bw_real spare = lift - (est->catenary ? e->rope_weight_n : bw_rope_weight_n(m));
+    bw_real tan_chord = spare > BW_R(0.1) * lift ? tan_tilt * lift / spare : tan_tilt;
+    bw_real height = (e->rope_chord_m + (bw_real)m->radius_m) / BW_SQRT(BW_R(1.0) + tan_chord * tan_chord);
+    e->mode = BW_MODE_TAUT;
+    est->joined = 1;
+    est->unconfirmed = 1;
+    est->confirm_count = 0;
+    est->acc_var = BW_R(-1.0);
+    est->counters.mode_switches += 1;
+    bw_enter_taut(e, m, height, est->rho, 1);
+    if (est->zeroing)
+        est->join_height = height - (bw_real)m->radius_m;
+}
+
+static void initialise(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real az, bw_real mx, bw_real my,
+                       bw_real mz)
+{
+    bw_real q[4];
+    quat_from_accel_mag(ax, ay, az, mx, my, mz, est->declination, q);
+    bw_ekf_initialise(&est->ekf, &est->cfg, q, (bw_real)-est->cfg.radius_m);
+    est->initialised = 1;
+    est->t_boot_us = est->t_last_us = est->t_filter_us = t_us;
+    if (t_us > BW_JOIN_IN_FLIGHT_US)
+        join_in_flight(est, q);
+}
+
+static void confirm(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
+{
+    bw_real *m = est->acc_mean, a, dx, dy, dz;
+    int moving, explained;
+    if (est->acc_var < BW_R(0.0))
+        m[0] = ax, m[1] = ay, m[2] = az, est->acc_var = BW_R(0.0);
+    a = est->a_confirm;
+    dx = ax - m[0], dy = ay - m[1], dz = az - m[2];
+    m[0] += a * dx;
+    m[1] += a * dy;
+    m[2] += a * dz;
+    est->acc_var += est->innov_alpha * ((dx * dx + dy * dy + dz * dz) / BW_R(3.0) - est->acc_var);
+    moving = est->acc_var > (bw_real)(BW_CONFIRM_MOTION_MPS2 * BW_CONFIRM_MOTION_MPS2);
+    explained = est->accel_innov2 < (bw_real)BW_CONFIRM_EXPLAINED * est->acc_var &&
+                est->accel_innov2 <= est->accel_confirm_var;
+    est->confirm_count = moving && explained ? est->confirm_count + 1 : 0;
+    if (est->confirm_count >= est->n_confirm)
+        est->unconfirmed = 0;
+}
+
+static void reinitialise_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az, bw_real mx, bw_real my,
+                                   bw_real mz, int mag_ok)
+{
+    bw_ekf_t *e = &est->ekf;
+    bw_real h = est->height_baro == est->height_baro && est->height_baro - est->height_baro == BW_R(0.0)
+                    ? est->height_baro : BW_R(0.0);
+    bw_real q[4];
+    if (mag_ok) {
+        quat_from_accel_mag(ax, ay, az, mx, my, mz, est->declination, q);
+    } else { /* keep the heading we had if it is still a rotation, else level */
+        bw_real n = BW_SQRT(e->q[0] * e->q[0] + e->q[1] * e->q[1] + e->q[2] * e->q[2] + e->q[3] * e->q[3]);
+        int i;
+        if (n == n && n - n == BW_R(0.0) && n > BW_R(0.5))
+            for (i = 0; i < 4; i++)
+                q[i] = e->q[i] / n;
+        else
+            q[0] = BW_R(1.0), q[1] = q[2] = q[3] = BW_R(0.0);
+    }
+    bw_ekf_initialise(e, &est->cfg, q, est->ref_pos_d - h);
+    e->P[0][0] = e->P[1][1] = BW_R(100.0) * BW_R(100.0);
+    e->mode = h > (bw_real)est->cfg.release_height_m ? BW_MODE_FREE : BW_MODE_GROUND;
+}
+
+bw_real bw_height_for_taut(const bw_estimator_t *est)
+{
+    bw_real hb = est->height_baro;
+    if (hb == hb && hb - hb == BW_R(0.0))
+        return hb - est->ekf.x[BW_BARO_OFF] - est->ref_pos_d;
+    return -est->ekf.x[BW_POS_D];
+}
+
+static int rope_would_pull(bw_estimator_t *est)
+{
+    const bw_real *x = est->ekf.x;
+    bw_real pn = x[0], pe = x[1], pd = x[2], vn = x[3], ve = x[4], vd = x[5];
+    bw_real dist = BW_SQRT(pn * pn + pe * pe + pd * pd);
+    if (dist > BW_R(0.0)) {
+        bw_real vr = (vn * pn + ve * pe + vd * pd) / (dist * dist);
+        vn = vn - vr * pn, ve = ve - vr * pe, vd = vd - vr * pd;
+    }
+    {
+        const bw_real s[BW_NCOL] = {pn, pe, pd, vn, ve, vd, x[12], x[13], x[14], x[15], x[16]};
+        bw_accelerations(&est->cfg, est->rho, s, 1, &est->probe);
+    }
+    return est->probe.taut;
+}
+
+static void switch_mode(bw_estimator_t *est, int mode)
+{
+    est->ekf.mode = mode;
+    est->counters.mode_switches += 1;
+    est->dwell = 0;
+}
+
+static void update_mode(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
+{
+    bw_ekf_t *e = &est->ekf;
+    const bw_config_t *cfg = &est->cfg;
+    int dwell_ok;
+    bw_real pn, pe, pd, dist, length;
+    est->dwell += 1;
+    dwell_ok = est->dwell >= est->n_dwell;
+    e->learn_drag = e->mode == BW_MODE_FREE && est->dwell >= est->n_learn_drag;
+    if (e->mode == BW_MODE_GROUND) {
+        int lifted = BW_FABS(BW_SQRT(ax * ax + ay * ay + az * az) - (bw_real)BW_G0) > (bw_real)cfg->release_accel_mps2;
+        bw_real hb = est->height_baro;
+        int high = hb == hb && hb - hb == BW_R(0.0) && hb > (bw_real)cfg->release_height_m;
+        est->release_count = lifted ? est->release_count + 1 : 0;
+        est->height_above = high ? est->height_above + 1 : 0;
+        if (est->release_count >= est->sched.release_confirm || est->height_above >= est->sched.release_height)
+            switch_mode(est, BW_MODE_FREE);
+        return;
+    }
+    pn = e->x[0], pe = e->x[1], pd = e->x[2];
+    dist = BW_SQRT(pn * pn + pe * pe + pd * pd);
+    length = e->rope_chord_m + (bw_real)cfg->radius_m;
+    if (e->mode == BW_MODE_FREE) {
+        bw_real hb = est->height_baro;
+        int low = hb == hb && hb - hb == BW_R(0.0) && hb < (bw_real)cfg->release_height_m;
+        int stalled, near;
+        int64_t need;
+        if (low && est->dwell >= est->n_false_release) {
+            /* still at the ground station 3 s after the "release": a bump, not a release */
+            est->counters.false_releases += 1;
+            switch_mode(est, BW_MODE_GROUND);
+            bw_reset_height(e, est->ref_pos_d - hb, est->baro_var);
+            return;
+        }
+        stalled = -pd > BW_R(0.5) * length && -e->x[BW_VEL_D] < BW_R(0.3);
+        near = dist >= length - (bw_real)cfg->taut_margin_m || stalled;
+        est->pulling = near && rope_would_pull(est) ? est->pulling + 1 : 0;
+        /* back to taut after the rope went slack: only once it has pulled for a while (no flapping) */
+        need = est->was_slack ? est->n_taut_pull : 1;
+        if (dwell_ok && est->pulling >= need) {
+            switch_mode(est, BW_MODE_TAUT);
+            bw_enter_taut(e, cfg, bw_height_for_taut(est), est->rho, 0);
+        }
+    } else {
+        est->slack = e->forces.taut ? 0 : est->slack + 1;
+        if (dwell_ok && est->slack >= est->n_dwell) {
+            switch_mode(est, BW_MODE_FREE);
+            est->was_slack = 1;
+        }
+    }
+}
+
+static void monitor(bw_estimator_t *est)
+{
+    bw_consistency_t *mon = &est->consistency;
+    const int64_t t = est->ekf.time_us;
+    const bw_status_t *st = est->accel_status, *radius = &est->taut_status[0], *an = &est->taut_status[2],
+                      *ae = &est->taut_status[3], *b = &est->baro_status, *mg = est->mag_status;
+    const bw_real taut_alpha = est->a_taut;
+    int i;
+    if (st[0].time_test_us == t) {
+        /* the accelerometer's noise follows its innovations: judged against the nominal one */
+        bw_real ex = est->accel_var_excess, nis = BW_R(0.0);
+        for (i = 0; i < 3; i++)
+            nis += st[i].innov * st[i].innov / BW_MAX(st[i].innov_var - ex, BW_R(1e-12));
+        bw_consistency_add(mon, BW_ACCEL, nis / BW_R(3.0), est->a_accel);
+    }
+    if (an->time_test_us == t && an->innov_var > BW_R(0.0) && ae->innov_var > BW_R(0.0))
+        bw_consistency_add(mon, BW_ALIGN,
+                           BW_R(0.5) * (an->innov * an->innov / an->innov_var + ae->innov * ae->innov / ae->innov_var),
+                           taut_alpha);
+    if (radius->time_test_us == t && radius->innov_var > BW_R(0.0))
+        bw_consistency_add(mon, BW_RADIUS, radius->innov * radius->innov / radius->innov_var, taut_alpha);
+    if (b->time_test_us == t && b->innov_var > BW_R(0.0))
+        bw_consistency_add(mon, BW_BARO, b->innov * b->innov / b->innov_var,
+                           est->a_baro);
+    if (mg[0].time_test_us == t && mg[0].innov_var > BW_R(0.0)) {
+        bw_real nis = BW_R(0.0);
+        for (i = 0; i < 3; i++)
+            if (mg[i].innov_var > BW_R(0.0))
+                nis += mg[i].innov * mg[i].innov / mg[i].innov_var;
+        bw_consistency_add(mon, BW_MAG, nis / BW_R(3.0), est->a_accel);
+    }
+    bw_consistency_evaluate(mon);
+}
+
+int bw_on_baro(bw_estimator_t *est, int64_t t_us, bw_real pressure_hpa, bw_real temperature_c)
+{
+    return bw_baro_sample(est, t_us, pressure_hpa, temperature_c);
+}
+
+int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real az, bw_real gx, bw_real gy,
+              bw_real gz, bw_real mx, bw_real my, bw_real mz)
+{
+    bw_counters_t *c = &est->counters;
+    bw_ekf_t *e = &est->ekf;
+    int mag_ok;
+    int64_t d, steps, i;
+    bw_real r[9], rad;
+    if (!(finite3(ax, ay, az, (bw_real)BW_ACC_MAX) && finite3(gx, gy, gz, (bw_real)BW_GYRO_MAX))) {
+        c->rejected += 1;
+        return 0;
+    }
+    mag_ok = finite3(mx, my, mz, (bw_real)BW_MAG_MAX) && (mx != BW_R(0.0) || my != BW_R(0.0) || mz != BW_R(0.0));
+    if (!est->initialised) {
+        if (!mag_ok) {
+            c->rejected += 1;
+            return 0;
+        }
+        initialise(est, t_us, ax, ay, az, mx, my, mz);
+        c->imu_samples += 1;
+        return 1;
+    }
+    d = t_us - est->t_last_us;
+    if (d == 0) {
+        c->duplicates += 1;
+        return 0;
+    }
+    if (d < 0) {
+        if (d > -BW_REORDER_WINDOW_US) {
+            c->reordered += 1;
+            return 0;
+        }
+        c->time_resets += 1;
+        bw_reset(est);
+        if (mag_ok)
+            initialise(est, t_us, ax, ay, az, mx, my, mz);
+        return 0;
+    }
+    c->imu_samples += 1;
+    est->t_last_us = t_us;
+    d = t_us - est->t_filter_us + est->dt_us / 2;
+    steps = d >= 0 ? d / est->dt_us : -((-d + est->dt_us - 1) / est->dt_us); /* Python's floor division */
+    if (steps <= 0) {
+        c->jitter += 1;
+    } else if (steps > 1) {
+        c->gaps += 1;
+        if (steps > est->max_gap_steps) {
+            c->long_gaps += 1;
+            /* predict the last max_gap_s; the covariance grows by the process noise of the rest */
+            bw_ekf_inflate(e, (bw_real)(steps - est->max_gap_steps));
+            est->t_filter_us = t_us - est->max_gap_steps * est->dt_us;
+            steps = est->max_gap_steps;
+        }
+    }
+    /* the tether pulls at the bottom of the sphere: where that is depends on the attitude */
+    bw_rotation(e->q, r);
+    rad = (bw_real)est->cfg.radius_m;
+    e->forces.attach_ned[0] = est->probe.attach_ned[0] = rad * r[2];
+    e->forces.attach_ned[1] = est->probe.attach_ned[1] = rad * r[5];
+    e->forces.attach_ned[2] = est->probe.attach_ned[2] = rad * r[8];
+    if (est->catenary)
+        e->forces.rope_weight_n = est->probe.rope_weight_n = e->rope_weight_n;
+    for (i = 0; i < steps; i++) {
+        if (i == steps - 1)
+            bw_ekf_predict(e, &est->cfg, gx, gy, gz, est->rho);
+        else
+            bw_ekf_predict(e, &est->cfg, est->last_gyro[0], est->last_gyro[1], est->last_gyro[2], est->rho);
+        est->t_filter_us += est->dt_us;
+        est->step += 1;
+    }
+    est->last_gyro[0] = gx, est->last_gyro[1] = gy, est->last_gyro[2] = gz;
+    e->time_us = est->t_filter_us;
+    bw_ekf_begin_update(e);
+    bw_control_accel(est, ax, ay, az);
+    if (est->unconfirmed)
+        confirm(est, ax, ay, az);
+    bw_control_baro(est);
+    if (mag_ok)
+        bw_control_mag(est, ax, ay, az, mx, my, mz);
+    bw_control_tether(est);
+    if (!bw_ekf_end_update(e)) {
+        c->numeric_resets += 1;
+        reinitialise_in_flight(est, ax, ay, az, mx, my, mz, mag_ok);
+        return 1;
+    }
+    update_mode(est, ax, ay, az);
+    if (e->mode != BW_MODE_GROUND)
+        monitor(est);
+    if (e->mode == BW_MODE_TAUT) {
+        bw_real wn = e->x[BW_WIND_N], we = e->x[BW_WIND_E];
+        est->mean_speed += est->speed_alpha * (BW_SQRT(wn * wn + we * we) - est->mean_speed);
+        if (est->step % est->sched.wind_noise_every == 0) {
+            bw_real misfit;
+            est->vertical_gust_var = vertical_gust_var(est, est->mean_speed, est->rho);
+            misfit = BW_MAX(BW_R(1.0), est->accel_innov2 / est->accel_taut_var);
+            bw_ekf_adapt_wind_noise(e, est->mean_speed, misfit);
+        }
+    }
+    return 1;
+}
+
+void bw_coast(bw_estimator_t *est, bw_real seconds)
+{
+    if (est->initialised)
+        bw_ekf_inflate(&est->ekf, seconds * (bw_real)est->cfg.imu_rate_hz);
+}
+
+bw_real bw_wind_accuracy(const bw_estimator_t *est)
+{
+    const bw_ekf_t *e = &est->ekf;
+    bw_real wn = e->x[BW_WIND_N], we = e->x[BW_WIND_E], speed = BW_SQRT(wn * wn + we * we), sys_var = BW_R(0.0), acc,
+            w = bw_ekf_wind_accuracy(e);
+    if (e->mode != BW_MODE_GROUND)
+        sys_var = bw_systematic_variance(speed, e->x[BW_DRAG], e->P[BW_DRAG][BW_DRAG], est->rope_drag_share);
+    acc = BW_SQRT(w * w + sys_var) * est->consistency.inflation;
+    if (est->unconfirmed)
+        acc = BW_MAX(acc, BW_SQRT(wn * wn + we * we + BW_R(1.0)));
+    return acc;
+}

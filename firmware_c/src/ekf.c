@@ -1,0 +1,477 @@
+/* The EKF's memory, prediction, sequential fusion and covariance hygiene (firmware_py/estimator/ekf.py).
+ * The products skip F's and H's zeros and keep P exactly symmetric: the same arithmetic as the
+ * reference's dense matrix products up to the order of the sums. */
+#include <string.h>
+
+#include "internal.h"
+
+#define N BW_N
+
+static const int MODEL_COLS[BW_NCOL] = {0, 1, 2, 3, 4, 5, 12, 13, 14, 15, 16};
+
+void bw_status_init(bw_status_t *st, int32_t recover_after)
+{
+    memset(st, 0, sizeof *st);
+    st->recover_after = recover_after;
+    st->time_last_fuse_us = -1;
+    st->time_test_us = -1;
+}
+
+static void set_static_jacobian(bw_ekf_t *e, int ground)
+{
+    int i, j;
+    for (i = 0; i < 6; i++)
+        for (j = 0; j < N; j++)
+            e->F[i][j] = BW_R(0.0);
+    for (i = 0; i < 6; i++)
+        e->F[i][i] = BW_R(1.0);
+    if (!ground)
+        for (i = 0; i < 3; i++)
+            e->F[BW_POS_N + i][BW_VEL_N + i] = e->dt;
+    e->f_ground = ground;
+    if (ground)
+        e->F[3][3] = e->F[4][4] = e->F[5][5] = BW_R(0.0);
+    e->F[BW_WIND_N][BW_WRATE_N] = e->F[BW_WIND_E][BW_WRATE_E] = e->dt;
+    e->F[BW_WRATE_N][BW_WRATE_N] = e->F[BW_WRATE_E][BW_WRATE_E] = e->rate_decay;
+}
+
+void bw_ekf_init(bw_ekf_t *e, const bw_config_t *c)
+{
+    int i;
+    double dt = 1.0 / c->imu_rate_hz, g, qv, qr, tau, q_rate, q_walk, rho0, lift0, rope_w;
+    memset(e, 0, sizeof *e);
+    e->dt = (bw_real)dt;
+    e->q[0] = BW_R(1.0);
+    for (i = 0; i < N; i++)
+        e->F[i][i] = BW_R(1.0);
+    for (i = 0; i < N; i++) {
+        double v = i < 3 ? BW_POS_VAR_MAX_M2 : i < 6 ? BW_VEL_VAR_MAX_M2S2 : i < 9 ? BW_ATT_VAR_MAX_RAD2
+                 : i < 12 ? (BW_GYRO_BIAS_SIGMA_MAX_DEG_S * 0.017453292519943295) * (BW_GYRO_BIAS_SIGMA_MAX_DEG_S * 0.017453292519943295)
+                 : i < 14 ? BW_WIND_VAR_MAX_M2S2 : i < 16 ? BW_WRATE_VAR_MAX_M2S4 : i == BW_DRAG ? BW_DRAG_VAR_MAX
+                 : i == BW_BARO_OFF ? BW_POS_VAR_MAX_M2 : BW_ABIAS_VAR_MAX_M2S4;
+        e->var_max[i] = (bw_real)v;
+    }
+    e->forces.rope_weight_n = BW_R(NAN);
+    e->forces.m_eff_kg = BW_R(1.0);
+    rho0 = 101325.0 / (BW_R_AIR * 293.15);
+    lift0 = (rho0 * c->volume_m3 - c->mass_kg) * BW_G0;
+    rope_w = c->rope_kg_m * BW_G0 * c->tether_length_m;
+    e->rope_chord_m = (bw_real)c->tether_length_m;
+    e->rope_weight_n = (bw_real)(c->rope_catenary ? bw_calm_weight_share(lift0, rope_w) : rope_w);
+    g = c->gyro_dps * 0.017453292519943295;
+    qv = c->accel_process_mps2 * c->accel_process_mps2 * dt;
+    bw_wind_process(c->expected_wind_mps, c->turbulence_intensity, 2.0 * c->radius_m, &tau, &q_rate, &q_walk);
+    e->wp_tau_s = (bw_real)tau;
+    e->wp_q_rate = (bw_real)q_rate;
+    e->wp_q_walk = (bw_real)q_walk;
+    e->sigma_rate = (bw_real)sqrt(0.5 * q_rate * tau);
+    e->rate_decay = (bw_real)exp(-dt / tau);
+    qr = q_rate * dt;
+    for (i = 0; i < 3; i++) {
+        double gb = c->gyro_bias_walk_dps_rt_s * 0.017453292519943295;
+        e->q_flight[i] = (bw_real)(0.25 * qv * dt * dt);
+        e->q_flight[3 + i] = (bw_real)qv;
+        e->q_flight[6 + i] = (bw_real)(g * g * dt * dt);
+        e->q_flight[9 + i] = (bw_real)(gb * gb * dt);
+    }
+    e->q_flight[BW_WIND_N] = e->q_flight[BW_WIND_E] = BW_R(0.0);
+    e->q_flight[BW_WRATE_N] = e->q_flight[BW_WRATE_E] = (bw_real)qr;
+    e->q_flight[BW_DRAG] = (bw_real)(c->drag_walk_rt_s * c->drag_walk_rt_s * dt);
+    e->q_flight[BW_BARO_OFF] = (bw_real)(c->baro_walk_m_rt_s * c->baro_walk_m_rt_s * dt);
+    e->q_flight[BW_ABIAS_Z] = (bw_real)(c->accel_bias_walk_mps2_rt_s * c->accel_bias_walk_mps2_rt_s * dt);
+    for (i = 0; i < N; i++)
+        e->q_ground[i] = i < 6 ? (bw_real)BW_GROUND_PROCESS_VAR : i == BW_DRAG ? BW_R(0.0) : e->q_flight[i];
+    memcpy(e->qd_ground, e->q_ground, sizeof e->q_ground);
+    e->q_rate0 = (bw_real)qr;
+    e->u0 = (bw_real)(c->expected_wind_mps > 0.5 ? c->expected_wind_mps : 0.5);
+    e->q_walk_step = (bw_real)(q_walk * dt);
+    e->f_ground = 0;
+    set_static_jacobian(e, 1);
+    e->mode = BW_MODE_GROUND;
+    e->drag_correlated = 1;
+    e->recover_after = (int32_t)(c->recover_after_s * c->imu_rate_hz);
+}
+
+void bw_ekf_reset(bw_ekf_t *e, int kind)
+{
+    e->reset_counts[kind] += 1;
+    e->reset_count += 1;
+}
+
+void bw_ekf_initialise(bw_ekf_t *e, const bw_config_t *c, const bw_real q[4], bw_real pos_d)
+{
+    int i;
+    double tilt = (c->init_tilt_deg * 0.017453292519943295) * (c->init_tilt_deg * 0.017453292519943295);
+    double yaw = c->init_yaw_deg * 0.017453292519943295, gb = c->init_gyro_bias_dps * 0.017453292519943295;
+    memset(e->x, 0, sizeof e->x);
+    e->x[BW_POS_D] = pos_d;
+    e->x[BW_DRAG] = BW_R(1.0);
+    for (i = 0; i < 4; i++)
+        e->q[i] = q[i];
+    memset(e->P, 0, sizeof e->P);
+    for (i = 0; i < 3; i++) {
+        e->P[i][i] = BW_R(0.01);
+        e->P[3 + i][3 + i] = BW_R(1e-4);
+        e->P[9 + i][9 + i] = (bw_real)(gb * gb);
+    }
+    e->P[6][6] = e->P[7][7] = (bw_real)tilt;
+    e->P[8][8] = (bw_real)(yaw * yaw);
+    e->P[BW_WIND_N][BW_WIND_N] = e->P[BW_WIND_E][BW_WIND_E] = (bw_real)(c->init_wind_mps * c->init_wind_mps);
+    e->P[BW_WRATE_N][BW_WRATE_N] = e->P[BW_WRATE_E][BW_WRATE_E] = e->sigma_rate * e->sigma_rate;
+    e->P[BW_DRAG][BW_DRAG] = (bw_real)(c->init_drag * c->init_drag);
+    e->P[BW_BARO_OFF][BW_BARO_OFF] = (bw_real)BW_VAR_MIN;
+    e->P[BW_ABIAS_Z][BW_ABIAS_Z] = (bw_real)(c->init_accel_bias_mps2 * c->init_accel_bias_mps2);
+    e->mode = BW_MODE_GROUND;
+    bw_ekf_reset(e, BW_RESET_INITIALISE);
+}
+
+/* P <- F P F^T over F's non-zeros; the result written symmetric */
+static void propagate_covariance(bw_ekf_t *e)
+{
+    int nz_col[N][N], nz_n[N];
+    int i, j, k;
+    for (i = 0; i < N; i++) {
+        nz_n[i] = 0;
+        for (j = 0; j < N; j++)
+            if (e->F[i][j] != BW_R(0.0))
+                nz_col[i][nz_n[i]++] = j;
+    }
+    for (i = 0; i < N; i++)
+        for (j = 0; j < N; j++) {
+            bw_real s = BW_R(0.0);
+            for (k = 0; k < nz_n[i]; k++)
+                s += e->F[i][nz_col[i][k]] * e->P[nz_col[i][k]][j];
+            e->T[i][j] = s;
+        }
+    for (i = 0; i < N; i++)
+        for (j = i; j < N; j++) {
+            bw_real s = BW_R(0.0);
+            for (k = 0; k < nz_n[j]; k++)
+                s += e->T[i][nz_col[j][k]] * e->F[j][nz_col[j][k]];
+            e->P[i][j] = e->P[j][i] = s;
+        }
+}
+
+void bw_ekf_predict(bw_ekf_t *e, const bw_config_t *c, bw_real gx, bw_real gy, bw_real gz, bw_real rho)
+{
+    bw_real *x = e->x;
+    const bw_real dt = e->dt;
+    const bw_real pn = x[0], pe = x[1], pd = x[2], vn = x[3], ve = x[4], vd = x[5];
+    const bw_real wn = x[12], we = x[13], rn = x[14], re = x[15], k = x[16];
+    bw_real q0 = e->q[0], q1 = e->q[1], q2 = e->q[2], q3 = e->q[3], n, r[9];
+    bw_real wx = gx - x[BW_GB_X], wy = gy - x[BW_GB_Y], wz = gz - x[BW_GB_Z];
+    bw_real ang = BW_SQRT(wx * wx + wy * wy + wz * wz) * dt;
+    int ground, i, j;
+    (void)c;
+    if (ang > BW_R(1e-12)) {
+        bw_real s = BW_SIN(BW_R(0.5) * ang) / ang * dt, cc = BW_COS(BW_R(0.5) * ang);
+        bw_real ax = wx * s, ay = wy * s, az = wz * s;
+        bw_real a0 = q0 * cc - q1 * ax - q2 * ay - q3 * az;
+        bw_real a1 = q0 * ax + q1 * cc + q2 * az - q3 * ay;
+        bw_real a2 = q0 * ay - q1 * az + q2 * cc + q3 * ax;
+        bw_real a3 = q0 * az + q1 * ay - q2 * ax + q3 * cc;
+        q0 = a0, q1 = a1, q2 = a2, q3 = a3;
+    }
+    n = BW_R(1.0) / BW_SQRT(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3);
+    e->q[0] = q0 * n, e->q[1] = q1 * n, e->q[2] = q2 * n, e->q[3] = q3 * n;
+    bw_rotation(e->q, r);
+    ground = e->mode == BW_MODE_GROUND;
+    if (ground != e->f_ground)
+        set_static_jacobian(e, ground);
+    if (ground) {
+        x[BW_VEL_N] = x[BW_VEL_E] = x[BW_VEL_D] = BW_R(0.0);
+    } else {
+        const bw_real s[BW_NCOL] = {pn, pe, pd, vn, ve, vd, wn, we, rn, re, k};
+        bw_forces_t *f = &e->forces;
+        bw_accelerations(c, rho, s, e->mode == BW_MODE_TAUT, f);
+        x[BW_POS_N] = pn + (vn + BW_R(0.5) * f->an * dt) * dt;
+        x[BW_POS_E] = pe + (ve + BW_R(0.5) * f->ae * dt) * dt;
+        x[BW_POS_D] = pd + (vd + BW_R(0.5) * f->ad * dt) * dt;
+        x[BW_VEL_N] = vn + f->an * dt;
+        x[BW_VEL_E] = ve + f->ae * dt;
+        x[BW_VEL_D] = vd + f->ad * dt;
+        /* d(vel)/d(x) = I + (d a / d x) dt over the model's columns */
+        for (i = 0; i < 3; i++)
+            for (j = 0; j < BW_NCOL; j++)
+                e->F[3 + i][MODEL_COLS[j]] = f->ja[BW_NCOL * i + j] * dt;
+        e->F[BW_VEL_N][BW_VEL_N] += BW_R(1.0);
+        e->F[BW_VEL_E][BW_VEL_E] += BW_R(1.0);
+        e->F[BW_VEL_D][BW_VEL_D] += BW_R(1.0);
+        if (e->learn_drag)
+            e->drag_correlated = 1;
+        else
+            e->F[3][BW_DRAG] = e->F[4][BW_DRAG] = e->F[5][BW_DRAG] = BW_R(0.0);
+    }
+    /* the wind: integrated Ornstein-Uhlenbeck (tuning.py) */
+    x[BW_WIND_N] = wn + rn * dt;
+    x[BW_WIND_E] = we + re * dt;
+    x[BW_WRATE_N] = rn * e->rate_decay;
+    x[BW_WRATE_E] = re * e->rate_decay;
+    /* attitude error driven by the gyro-bias error: d(att)/dt = -R d(bias) */
+    for (i = 0; i < 3; i++)
+        for (j = 0; j < 3; j++)
+            e->F[6 + i][9 + j] = -r[3 * i + j] * dt;
+    propagate_covariance(e);
+    for (i = 0; i < N; i++)
+        e->P[i][i] += ground ? e->qd_ground[i] : e->q_flight[i];
+}
+
+void bw_ekf_adapt_wind_noise(bw_ekf_t *e, bw_real mean_speed_mps, bw_real model_misfit)
+{
+    bw_real u = BW_MIN(BW_MAX(mean_speed_mps, BW_R(0.5)), BW_R(20.0));
+    bw_real ratio = u / e->u0;
+    bw_real q = e->q_rate0 * BW_POW(ratio, BW_R(14.0) / BW_R(3.0)) * model_misfit;
+    bw_real t = e->wp_tau_s / ratio;
+    e->q_flight[BW_WRATE_N] = e->q_flight[BW_WRATE_E] = q;
+    e->qd_ground[BW_WRATE_N] = e->qd_ground[BW_WRATE_E] = q;
+    e->rate_decay = BW_EXP(-e->dt * ratio / e->wp_tau_s);
+    e->q_walk_step = q * (t * t);
+    e->F[BW_WRATE_N][BW_WRATE_N] = e->F[BW_WRATE_E][BW_WRATE_E] = e->rate_decay;
+}
+
+void bw_ekf_inflate(bw_ekf_t *e, bw_real steps)
+{
+    int i;
+    const bw_real *q = e->mode == BW_MODE_GROUND ? e->q_ground : e->q_flight;
+    for (i = 0; i < N; i++) {
+        bw_real d = (i == BW_WIND_N || i == BW_WIND_E) ? e->q_walk_step * steps : q[i] * steps;
+        e->P[i][i] += d;
+    }
+    bw_ekf_fix_covariance(e);
+}
+
+void bw_ekf_begin_update(bw_ekf_t *e)
+{
+    memset(e->dx, 0, sizeof e->dx);
+}
+
+static int finite(bw_real v)
+{
+    return v == v && v - v == BW_R(0.0);
+}
+
+int bw_ekf_fuse(bw_ekf_t *e, const bw_config_t *c, bw_real innov, bw_real r, bw_status_t *st, bw_real gate, int recover)
+{
+    int nz[N], nn = 0, i, j, k;
+    bw_real hdx = BW_R(0.0), s = BW_R(0.0), ratio, kv[N];
+    if (!(gate > BW_R(0.0)))
+        gate = (bw_real)c->gate_sigma;
+    for (i = 0; i < N; i++)
+        if (e->h[i] != BW_R(0.0))
+            nz[nn++] = i;
+    for (k = 0; k < nn; k++)
+        hdx += e->h[nz[k]] * e->dx[nz[k]];
+    innov -= hdx;
+    for (i = 0; i < N; i++) {
+        bw_real v = BW_R(0.0);
+        for (k = 0; k < nn; k++)
+            v += e->P[i][nz[k]] * e->h[nz[k]];
+        e->ph[i] = v;
+    }
+    for (k = 0; k < nn; k++)
+        s += e->h[nz[k]] * e->ph[nz[k]];
+    s += r;
+    st->innov = innov;
+    st->innov_var = s;
+    st->time_test_us = e->time_us;
+    if (!(s > BW_R(0.0) && finite(innov))) {
+        st->rejected += 1;
+        st->consecutive_rejects += 1;
+        return 0;
+    }
+    ratio = innov * innov / (gate * gate * s);
+    st->test_ratio = ratio;
+    if (ratio > BW_R(1.0)) {
+        st->rejected += 1;
+        st->consecutive_rejects += 1;
+        if (!recover || st->consecutive_rejects < (st->recover_after ? st->recover_after : e->recover_after))
+            return 0;
+        /* persistently inconsistent: fuse with the noise inflated to put the innovation on the gate */
+        s = innov * innov / (gate * gate);
+        st->fused -= 1;
+    }
+    {
+        bw_real inv = BW_R(1.0) / s;
+        for (i = 0; i < N; i++) {
+            kv[i] = e->ph[i] * inv;
+            e->dx[i] += kv[i] * innov;
+        }
+    }
+    for (i = 0; i < N; i++)
+        for (j = i; j < N; j++)
+            e->P[i][j] = e->P[j][i] = e->P[i][j] - kv[i] * e->ph[j];
+    st->fused += 1;
+    st->consecutive_rejects = 0;
+    st->time_last_fuse_us = e->time_us;
+    return 1;
+}
+
+int bw_ekf_fuse3(bw_ekf_t *e, const bw_config_t *c, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_status_t st[3],
+                 bw_real r2_extra)
+{
+    int nz[N], nn = 0, i, j, k, a, ok = 1;
+    bw_real s[3][3], si[3][3], k3[N][3], inn[3], var[3], gate2, worst = BW_R(0.0), scale = BW_R(1.0);
+    bw_real a00, a01, a02, det, inv;
+    for (j = 0; j < N; j++)
+        if (e->H3[0][j] != BW_R(0.0) || e->H3[1][j] != BW_R(0.0) || e->H3[2][j] != BW_R(0.0))
+            nz[nn++] = j;
+    for (a = 0; a < 3; a++) {
+        bw_real v = BW_R(0.0);
+        for (k = 0; k < nn; k++)
+            v += e->H3[a][nz[k]] * e->dx[nz[k]];
+        inn[a] = v;
+    }
+    i0 -= inn[0], i1 -= inn[1], i2 -= inn[2];
+    for (i = 0; i < N; i++)
+        for (a = 0; a < 3; a++) {
+            bw_real v = BW_R(0.0);
+            for (k = 0; k < nn; k++)
+                v += e->P[i][nz[k]] * e->H3[a][nz[k]];
+            e->pht[i][a] = v;
+        }
+    for (a = 0; a < 3; a++)
+        for (j = 0; j < 3; j++) {
+            bw_real v = BW_R(0.0);
+            for (k = 0; k < nn; k++)
+                v += e->H3[a][nz[k]] * e->pht[nz[k]][j];
+            s[a][j] = v;
+        }
+    s[0][0] += r;
+    s[1][1] += r;
+    s[2][2] += r + r2_extra;
+    s[0][1] = s[1][0] = BW_R(0.5) * (s[0][1] + s[1][0]);
+    s[0][2] = s[2][0] = BW_R(0.5) * (s[0][2] + s[2][0]);
+    s[1][2] = s[2][1] = BW_R(0.5) * (s[1][2] + s[2][1]);
+    gate2 = (bw_real)(c->gate_sigma * c->gate_sigma);
+    inn[0] = i0, inn[1] = i1, inn[2] = i2;
+    var[0] = s[0][0], var[1] = s[1][1], var[2] = s[2][2];
+    for (a = 0; a < 3; a++) {
+        st[a].innov = inn[a];
+        st[a].innov_var = var[a];
+        st[a].time_test_us = e->time_us;
+        if (!(var[a] > BW_R(0.0) && finite(inn[a]))) {
+            ok = 0;
+            continue;
+        }
+        st[a].test_ratio = inn[a] * inn[a] / (gate2 * var[a]);
+        worst = BW_MAX(worst, st[a].test_ratio);
+    }
+    /* cofactor inverse of the symmetric 3x3 */
+    a00 = s[1][1] * s[2][2] - s[1][2] * s[1][2];
+    a01 = s[0][2] * s[1][2] - s[0][1] * s[2][2];
+    a02 = s[0][1] * s[1][2] - s[0][2] * s[1][1];
+    det = s[0][0] * a00 + s[0][1] * a01 + s[0][2] * a02;
+    if (!ok || !(det > BW_R(0.0) && finite(det))) {
+        for (a = 0; a < 3; a++) {
+            st[a].rejected += 1;
+            st[a].consecutive_rejects += 1;
+        }
+        return 0;
+    }
+    if (worst > BW_R(1.0)) {
+        for (a = 0; a < 3; a++) {
+            st[a].rejected += 1;
+            st[a].consecutive_rejects += 1;
+        }
+        if (st[0].consecutive_rejects < (st[0].recover_after ? st[0].recover_after : e->recover_after))
+            return 0;
+        scale = BW_R(1.0) / worst; /* persistently off: the model, not the sensor; walk back, no jump */
+        for (a = 0; a < 3; a++)
+            st[a].fused -= 1;
+    }
+    inv = scale / det;
+    si[0][0] = a00 * inv;
+    si[0][1] = si[1][0] = a01 * inv;
+    si[0][2] = si[2][0] = a02 * inv;
+    si[1][1] = (s[0][0] * s[2][2] - s[0][2] * s[0][2]) * inv;
+    si[1][2] = si[2][1] = (s[0][1] * s[0][2] - s[0][0] * s[1][2]) * inv;
+    si[2][2] = (s[0][0] * s[1][1] - s[0][1] * s[0][1]) * inv;
+    for (i = 0; i < N; i++) {
+        for (a = 0; a < 3; a++)
+            k3[i][a] = e->pht[i][0] * si[0][a] + e->pht[i][1] * si[1][a] + e->pht[i][2] * si[2][a];
+        e->dx[i] += k3[i][0] * inn[0] + k3[i][1] * inn[1] + k3[i][2] * inn[2];
+    }
+    for (i = 0; i < N; i++)
+        for (j = i; j < N; j++)
+            e->P[i][j] = e->P[j][i] =
+                e->P[i][j] - (k3[i][0] * e->pht[j][0] + k3[i][1] * e->pht[j][1] + k3[i][2] * e->pht[j][2]);
+    for (a = 0; a < 3; a++) {
+        st[a].fused += 1;
+        st[a].consecutive_rejects = 0;
+        st[a].time_last_fuse_us = e->time_us;
+    }
+    return 1;
+}
+
+static void inhibit(bw_ekf_t *e, int i)
+{
+    int j;
+    bw_real v = e->P[i][i];
+    e->dx[i] = BW_R(0.0);
+    for (j = 0; j < N; j++)
+        e->P[i][j] = e->P[j][i] = BW_R(0.0);
+    e->P[i][i] = v;
+}
+
+int bw_ekf_end_update(bw_ekf_t *e)
+{
+    int i;
+    bw_real *x = e->x, sx = BW_R(0.0), sp = BW_R(0.0);
+    if (!e->learn_drag && e->drag_correlated) {
+        inhibit(e, BW_DRAG);
+        e->drag_correlated = 0;
+    }
+    for (i = 0; i < N; i++)
+        x[i] += e->dx[i];
+    if (x[BW_ATT_N] != BW_R(0.0) || x[BW_ATT_E] != BW_R(0.0) || x[BW_ATT_D] != BW_R(0.0)) {
+        bw_real q0 = e->q[0], q1 = e->q[1], q2 = e->q[2], q3 = e->q[3];
+        bw_real hn = BW_R(0.5) * x[BW_ATT_N], he = BW_R(0.5) * x[BW_ATT_E], hd = BW_R(0.5) * x[BW_ATT_D];
+        /* q <- dq (x) q with dq = (1, d/2) in NED */
+        bw_real a0 = q0 - hn * q1 - he * q2 - hd * q3;
+        bw_real a1 = q1 + hn * q0 + he * q3 - hd * q2;
+        bw_real a2 = q2 - hn * q3 + he * q0 + hd * q1;
+        bw_real a3 = q3 + hn * q2 - he * q1 + hd * q0;
+        bw_real n = BW_R(1.0) / BW_SQRT(a0 * a0 + a1 * a1 + a2 * a2 + a3 * a3);
+        e->q[0] = a0 * n, e->q[1] = a1 * n, e->q[2] = a2 * n, e->q[3] = a3 * n;
+        x[BW_ATT_N] = x[BW_ATT_E] = x[BW_ATT_D] = BW_R(0.0);
+    }
+    if (x[BW_DRAG] < (bw_real)BW_DRAG_SCALE_MIN)
+        x[BW_DRAG] = (bw_real)BW_DRAG_SCALE_MIN;
+    bw_ekf_fix_covariance(e);
+    /* a NaN/inf anywhere in P reaches its diagonal within one prediction */
+    for (i = 0; i < N; i++) {
+        sx += x[i];
+        sp += e->P[i][i];
+    }
+    return finite(sx) && finite(sp);
+}
+
+void bw_ekf_fix_covariance(bw_ekf_t *e)
+{
+    int i, j;
+    bw_real scale[N], mn;
+    for (i = 0; i < N; i++)
+        for (j = i + 1; j < N; j++)
+            e->P[i][j] = e->P[j][i] = (e->P[i][j] + e->P[j][i]) * BW_R(0.5);
+    for (i = 0; i < N; i++)
+        scale[i] = e->var_max[i] / e->P[i][i];
+    mn = scale[0];
+    for (i = 1; i < N; i++)
+        if (scale[i] < mn || scale[i] != scale[i])
+            mn = mn != mn ? mn : scale[i];
+    if (mn < BW_R(1.0)) {
+        for (i = 0; i < N; i++)
+            scale[i] = BW_SQRT(BW_MIN(scale[i], BW_R(1.0)));
+        for (i = 0; i < N; i++)
+            for (j = 0; j < N; j++)
+                e->P[i][j] = e->P[i][j] * scale[i] * scale[j];
+    }
+    for (i = 0; i < N; i++)
+        if (e->P[i][i] < (bw_real)BW_VAR_MIN)
+            e->P[i][i] = (bw_real)BW_VAR_MIN;
+}
+
+bw_real bw_ekf_wind_accuracy(const bw_ekf_t *e)
+{
+    return BW_SQRT(BW_MAX(BW_R(0.0), e->P[BW_WIND_N][BW_WIND_N] + e->P[BW_WIND_E][BW_WIND_E]));
+}

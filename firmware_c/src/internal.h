@@ -1,0 +1,71 @@
+/* The core's internal interface: one header for the modules of src/ (each the C twin of the
+ * firmware_py/estimator module of the same name). */
+#ifndef BW_INTERNAL_H
+#define BW_INTERNAL_H
+
+#include "bw_core.h"
+#include "generated.h"
+#include "params.h"
+
+/* Python's max(a, b) / min(a, b): the first unless the second is strictly larger / smaller (NaN-exact) */
+#define BW_MAX(a, b) ((b) > (a) ? (b) : (a))
+#define BW_MIN(a, b) ((b) < (a) ? (b) : (a))
+#define BW_PI BW_R(3.14159265358979323846)
+#define BW_DEG BW_R(0.017453292519943295)
+#define BW_G0 9.80665
+#define BW_R_AIR 287.05
+#define BW_LAPSE_K_M 0.0065
+
+/* balloon_core: rotation.py, atmosphere.py */
+void bw_rotation(const bw_real q[4], bw_real r[9]);
+bw_real bw_air_density(bw_real pressure_pa, bw_real temperature_k);
+double bw_round_half_even(double v);
+
+/* tuning.py */
+void bw_wind_process(double mean_mps, double ti, double diameter_m, double *tau_s, double *q_rate, double *q_walk);
+
+/* model.py */
+void bw_accelerations(const bw_config_t *m, bw_real rho, const bw_real s[BW_NCOL], int taut, bw_forces_t *out);
+bw_real bw_rope_weight_n(const bw_config_t *m);
+
+/* catenary.py */
+void bw_rope_chord(bw_real fn, bw_real fe, bw_real fd, bw_real length_m, bw_real weight_n_m, bw_real drag_kg_m2,
+                   bw_real wn, bw_real we, bw_real chord[3]);
+double bw_calm_weight_share(double lift_n, double rope_weight_n);
+bw_real bw_effective_rod(bw_real fn, bw_real fe, bw_real fd, bw_real cn, bw_real ce, bw_real cd, bw_real rope_weight_n);
+
+/* ekf.py */
+void bw_ekf_init(bw_ekf_t *e, const bw_config_t *c);
+void bw_ekf_initialise(bw_ekf_t *e, const bw_config_t *c, const bw_real q[4], bw_real pos_d);
+void bw_ekf_reset(bw_ekf_t *e, int kind);
+void bw_ekf_predict(bw_ekf_t *e, const bw_config_t *c, bw_real gx, bw_real gy, bw_real gz, bw_real rho);
+void bw_ekf_adapt_wind_noise(bw_ekf_t *e, bw_real mean_speed_mps, bw_real model_misfit);
+void bw_ekf_inflate(bw_ekf_t *e, bw_real steps);
+void bw_ekf_begin_update(bw_ekf_t *e);
+int bw_ekf_fuse(bw_ekf_t *e, const bw_config_t *c, bw_real innov, bw_real r, bw_status_t *st, bw_real gate, int recover);
+int bw_ekf_fuse3(bw_ekf_t *e, const bw_config_t *c, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_status_t st[3],
+                 bw_real r2_extra);
+int bw_ekf_end_update(bw_ekf_t *e);
+void bw_ekf_fix_covariance(bw_ekf_t *e);
+bw_real bw_ekf_wind_accuracy(const bw_ekf_t *e);
+void bw_status_init(bw_status_t *st, int32_t recover_after);
+
+/* consistency.py */
+void bw_consistency_reset(bw_consistency_t *m);
+void bw_consistency_add(bw_consistency_t *m, int source, bw_real nis, bw_real alpha);
+void bw_consistency_evaluate(bw_consistency_t *m);
+bw_real bw_systematic_variance(bw_real speed_mps, bw_real drag_scale, bw_real drag_scale_var, bw_real rope_drag_share);
+
+/* aid sources */
+void bw_control_accel(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az);
+int bw_baro_sample(bw_estimator_t *est, int64_t t_us, bw_real pressure_hpa, bw_real temperature_c);
+void bw_control_baro(bw_estimator_t *est);
+void bw_reset_height(bw_ekf_t *e, bw_real pos_d, bw_real var);
+void bw_control_mag(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az, bw_real mx, bw_real my, bw_real mz);
+void bw_control_tether(bw_estimator_t *est);
+void bw_enter_taut(bw_ekf_t *e, const bw_config_t *c, bw_real height_m, bw_real rho, int from_tilt);
+
+/* control.py */
+bw_real bw_height_for_taut(const bw_estimator_t *est);
+
+#endif

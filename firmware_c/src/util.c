@@ -1,0 +1,26 @@
+/* Attitude and air (balloon_core/rotation.py, balloon_core/atmosphere.py) and Python's rounding. */
+#include "internal.h"
+
+void bw_rotation(const bw_real q[4], bw_real r[9])
+{
+    const bw_real q0 = q[0], q1 = q[1], q2 = q[2], q3 = q[3];
+    r[0] = q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3, r[1] = BW_R(2.0) * (q1 * q2 - q0 * q3);
+    r[2] = BW_R(2.0) * (q1 * q3 + q0 * q2);
+    r[3] = BW_R(2.0) * (q1 * q2 + q0 * q3), r[4] = q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3;
+    r[5] = BW_R(2.0) * (q2 * q3 - q0 * q1);
+    r[6] = BW_R(2.0) * (q1 * q3 - q0 * q2), r[7] = BW_R(2.0) * (q2 * q3 + q0 * q1);
+    r[8] = q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3;
+}
+
+bw_real bw_air_density(bw_real pressure_pa, bw_real temperature_k)
+{
+    return pressure_pa / ((bw_real)BW_R_AIR * temperature_k);
+}
+
+double bw_round_half_even(double v)
+{
+    double f = floor(v), d = v - f;
+    if (d > 0.5 || (d == 0.5 && fmod(f, 2.0) != 0.0))
+        return f + 1.0;
+    return f;
+}

@@ -1,0 +1,339 @@
+"""The C core (firmware_c/) behind the Python estimator's interface: ``CEstimator`` and ``CWindCovOutput``
+stand in for ``estimator.control.Estimator`` and ``estimator.outputs.WindCovOutput`` wherever the firmware,
+the replay or a study runs the filter (``[filter] core = "c"``, ``balloon-fw --core c``).
+
+The binding is ctypes over the host library that ``firmware_c.build`` compiles (no Python headers): the
+estimator's whole state is one C struct owned here, and its arrays (x, P, q) are numpy views of that
+memory, read without a copy. The real type follows ``[filter] float32``: the float build is the firmware
+as flown, the double build the one the lockstep harness holds against the Python core's float64."""
+
+from __future__ import annotations
+
+import ctypes as C
+import math
+
+import numpy as np
+
+from balloon_core.config import Design
+from firmware_py.estimator.consistency import SOURCES
+from firmware_py.estimator.model import BalloonModel
+from firmware_py.estimator.state import MODE_NAMES, N_STATES, FilterConfig
+
+N = N_STATES
+NCOL = 11
+COUNTER_NAMES = (
+    "imu_samples", "baro_samples", "rejected", "duplicates", "reordered", "jitter", "gaps", "long_gaps",
+    "time_resets", "numeric_resets", "taut_resets", "mode_switches", "baro_resets", "false_releases",
+)  # fmt: skip
+CONFIG_FIELDS = (
+    "radius_m", "volume_m3", "mass_kg", "half_cd_area_m2", "tether_length_m", "rope_kg_m", "rope_drag_m2",
+    "rope_cn_d_m", "accel_mps2", "baro_m", "gyro_dps", "mag_gauss", "mag_declination_deg", "ground_pressure_hpa",
+    "altitude_amsl_m", "imu_rate_hz", "accel_process_mps2", "expected_wind_mps", "turbulence_intensity",
+    "drag_walk_rt_s", "baro_walk_m_rt_s", "accel_bias_walk_mps2_rt_s", "gyro_bias_walk_dps_rt_s",
+    "accel_model_mps2", "accel_taut_mps2", "accel_static_mps2", "align_rad", "radial_m", "radial_rate_mps",
+)  # fmt: skip
+CONFIG_FIELDS_2 = (
+    "gate_sigma", "recover_after_s", "init_wind_mps", "init_drag", "init_accel_bias_mps2", "init_gyro_bias_dps",
+    "init_tilt_deg", "init_yaw_deg", "taut_margin_m", "mode_dwell_s", "release_accel_mps2", "release_height_m",
+    "max_gap_s",
+)  # fmt: skip
+
+
+def _structs(real):
+    """The C structs of include/bw_core.h for one real type (checked against the library's sizeof)."""
+    i32, i64, f32, d = C.c_int32, C.c_int64, C.c_float, C.c_double
+
+    class Config(C.Structure):
+        _fields_ = [(n, d) for n in CONFIG_FIELDS] + [("rope_catenary", i32)] + [(n, d) for n in CONFIG_FIELDS_2]
+
+    class Status(C.Structure):
+        _fields_ = [("innov", real), ("innov_var", real), ("test_ratio", real), ("fused", i32), ("rejected", i32),
+                    ("consecutive_rejects", i32), ("recover_after", i32), ("time_last_fuse_us", i64),
+                    ("time_test_us", i64)]  # fmt: skip
+
+    class Counters(C.Structure):
+        _fields_ = [(n, i64) for n in COUNTER_NAMES]
+
+    class Forces(C.Structure):
+        _fields_ = [("an", real), ("ae", real), ("ad", real), ("ja", real * (3 * NCOL)), ("jpull", real * NCOL),
+                    ("tension_n", real), ("m_eff_kg", real), ("taut", i32), ("params", real * 10),
+                    ("attach_ned", real * 3), ("rope_weight_n", real)]  # fmt: skip
+
+    class Ekf(C.Structure):
+        _fields_ = [
+            ("x", real * N), ("q", real * 4), ("P", real * (N * N)), ("F", real * (N * N)), ("T", real * (N * N)),
+            ("h", real * N), ("dx", real * N), ("ph", real * N), ("H3", real * (3 * N)), ("pht", real * (3 * N)),
+            ("var_max", real * N), ("q_flight", real * N), ("q_ground", real * N), ("qd_ground", real * N),
+            ("dt", real), ("rate_decay", real), ("q_rate0", real), ("u0", real), ("q_walk_step", real),
+            ("wp_tau_s", real), ("wp_q_rate", real), ("wp_q_walk", real), ("sigma_rate", real), ("forces", Forces),
+            ("rope_chord_m", real), ("rope_weight_n", real), ("mode", i32), ("f_ground", i32), ("learn_drag", i32),
+            ("drag_correlated", i32), ("recover_after", i32), ("time_us", i64), ("reset_counts", i32 * 3),
+            ("reset_count", i32),
+        ]  # fmt: skip
+
+    class Consistency(C.Structure):
+        _fields_ = [("nis", real * 5), ("flags", i32), ("inflation", real), ("flag_changes", i32)]
+
+    class Schedule(C.Structure):
+        _fields_ = [(n, i32) for n in ("taut_every", "align_reset", "baro_reset", "baro_recover", "mag_recover",
+                                       "field_learn", "field_flight", "wind_noise_every", "release_confirm",
+                                       "release_height")] + [("rope_shape_alpha", real)]  # fmt: skip
+
+    class WindCov(C.Structure):
+        _fields_ = [("time_usec", i64)] + [(n, f32) for n in ("wind_x", "wind_y", "wind_z", "var_horiz", "var_vert",
+                                                               "wind_alt", "horiz_accuracy", "vert_accuracy")]
+
+    class Out(C.Structure):
+        _fields_ = [("alpha", d), ("ln", real), ("le", real), ("primed", i32), ("ring_n", real * 60),
+                    ("ring_e", real * 60), ("count", i64), ("next_slot_us", i64), ("site_altitude_m", d)]
+
+    rest = [
+        ("accel_var", real), ("accel_static_var", real), ("accel_confirm_var", real), ("accel_taut_var", real),
+        ("vertical_gust_var", real), ("align_var", real), ("baro_var", real), ("mag_sigma", real), ("mag_var", real),
+        ("declination", real), ("rope_drag_share", real), ("catenary", i32),
+        ("n_dwell", i64), ("n_learn_drag", i64), ("n_false_release", i64), ("n_taut_pull", i64), ("n_confirm", i64),
+        ("a_accel", real), ("a_taut", real), ("a_baro", real), ("a_confirm", real),
+        ("dt_us", i64), ("max_gap_steps", i32),
+        ("initialised", i32), ("t_filter_us", i64), ("t_last_us", i64), ("t_boot_us", i64), ("step", i64),
+        ("last_gyro", real * 3), ("release_count", i32), ("field_n", i32), ("field_sum", real * 6), ("joined", i32),
+        ("unconfirmed", i32), ("acc_mean", real * 3), ("acc_var", real), ("confirm_count", i64),
+        ("field_ned", real * 3), ("dwell", i64), ("accel_innov2", real), ("innov_alpha", real), ("mean_speed", real),
+        ("speed_alpha", real), ("slack", i64), ("pulling", i64), ("was_slack", i32), ("height_above", i64),
+        ("accel_var_excess", real), ("p_ref_pa", real), ("zeroing", i32), ("ref_pos_d", real), ("t_ref_k", real),
+        ("zero_sum", real), ("zero_n", i32), ("join_height", real), ("rho", real), ("height_baro", real),
+        ("baro_pending", i32),
+    ]  # fmt: skip
+
+    class Estimator(C.Structure):
+        _fields_ = [
+            ("cfg", Config), ("ekf", Ekf), ("probe", Forces), ("sched", Schedule), ("counters", Counters),
+            ("consistency", Consistency), ("accel_status", Status * 3), ("baro_status", Status),
+            ("heading_status", Status), ("mag_status", Status * 3), ("taut_status", Status * 4), ("out", Out),
+            *rest,
+        ]  # fmt: skip
+
+    return Config, Estimator, WindCov
+
+
+_LIBS: dict[str, tuple] = {}
+
+
+def load(real: str = "float"):
+    """(library, Config, Estimator, WindCov) for ``real``, building the library if needed
+    (firmware_c.build.BuildError if it cannot be)."""
+    if real in _LIBS:
+        return _LIBS[real]
+    from firmware_c.build import library
+
+    ct = C.c_float if real == "float" else C.c_double
+    lib = C.CDLL(str(library(real)))
+    Config, Est, WindCov = _structs(ct)
+    lib.bw_sizeof_estimator.restype = C.c_size_t
+    if lib.bw_sizeof_estimator() != C.sizeof(Est):
+        raise RuntimeError(f"firmware_py.core_c: bw_estimator_t is {lib.bw_sizeof_estimator()} B in C, "
+                           f"{C.sizeof(Est)} B here: the binding does not match include/bw_core.h")  # fmt: skip
+    P = C.POINTER(Est)
+    lib.bw_init.argtypes = [P, C.POINTER(Config)]
+    lib.bw_on_imu.argtypes = [P, C.c_int64] + [ct] * 9
+    lib.bw_on_baro.argtypes = [P, C.c_int64, ct, ct]
+    lib.bw_coast.argtypes = [P, ct]
+    lib.bw_reset.argtypes = [P]
+    lib.bw_output_update.argtypes = [P, C.c_int64]
+    lib.bw_output_reset.argtypes = [P]
+    lib.bw_wind_cov.argtypes = [P, C.POINTER(WindCov)]
+    lib.bw_wind_accuracy.argtypes = [P]
+    lib.bw_wind_accuracy.restype = ct
+    lib.bw_config_default.argtypes = [C.POINTER(Config)]
+    _LIBS[real] = (lib, Config, Est, WindCov)
+    return _LIBS[real]
+
+
+def config_struct(design: Design, cfg: FilterConfig, Config):
+    """bw_config_t from the design file and the [filter] tuning (the numbers the Python core derives)."""
+    catenary = cfg.rope_model == "catenary"
+    m = BalloonModel.from_design(design, cfg.rope_normal_cd, rope_drag_at_balloon=not catenary)
+    s, site = design.sensors, design.site
+    c = Config()
+    for name in ("radius_m", "volume_m3", "mass_kg", "half_cd_area_m2", "tether_length_m", "rope_drag_m2",
+                 "rope_cn_d_m"):  # fmt: skip
+        setattr(c, name, getattr(m, name))
+    c.rope_kg_m = m.rope_kg_m
+    c.accel_mps2, c.baro_m, c.gyro_dps, c.mag_gauss = s.accel_mps2, s.baro_m, s.gyro_dps, s.mag_gauss
+    c.mag_declination_deg = site.mag_declination_deg
+    c.ground_pressure_hpa = math.nan if site.ground_pressure_hpa is None else site.ground_pressure_hpa
+    c.altitude_amsl_m = site.altitude_amsl_m
+    for name in CONFIG_FIELDS[15:] + CONFIG_FIELDS_2:
+        setattr(c, name, getattr(cfg, name))
+    c.rope_catenary = int(catenary)
+    return c
+
+
+class _Counters:
+    """est.counters: the C counters by name (as control.Counters)."""
+
+    __slots__ = ("_c",)
+
+    def __init__(self, c) -> None:
+        object.__setattr__(self, "_c", c)
+
+    def __getattr__(self, name: str) -> int:
+        return getattr(self._c, name)
+
+    def as_dict(self) -> dict[str, int]:
+        return {name: getattr(self._c, name) for name in COUNTER_NAMES}
+
+
+class _Consistency:
+    __slots__ = ("_m",)
+
+    def __init__(self, m) -> None:
+        self._m = m
+
+    @property
+    def flags(self) -> int:
+        return self._m.flags
+
+    @property
+    def inflation(self) -> float:
+        return self._m.inflation
+
+    @property
+    def flag_changes(self) -> int:
+        return self._m.flag_changes
+
+    @property
+    def nis(self) -> list[float]:
+        return list(self._m.nis)
+
+    def names(self) -> list[str]:
+        return [name for i, name in enumerate(SOURCES) if self._m.flags >> i & 1]
+
+
+class _Ekf:
+    """est.ekf: the filter's state as numpy views of the C struct (no copy)."""
+
+    def __init__(self, e, dtype) -> None:
+        self._e = e
+        self.x = np.ctypeslib.as_array(e.x)
+        self.q = np.ctypeslib.as_array(e.q)
+        self.P = np.ctypeslib.as_array(e.P).reshape(N, N)
+        self.recorder = None
+
+    @property
+    def mode(self) -> int:
+        return self._e.mode
+
+    @property
+    def reset_count(self) -> int:
+        return self._e.reset_count
+
+    @property
+    def reset_counts(self) -> list[int]:
+        return list(self._e.reset_counts)
+
+    @property
+    def rope_chord_m(self) -> float:
+        return self._e.rope_chord_m
+
+    def wind_accuracy(self) -> float:
+        return math.sqrt(max(0.0, float(self.P[12, 12]) + float(self.P[13, 13])))
+
+
+class CEstimator:
+    """The C core with the interface of ``estimator.control.Estimator`` (what the firmware, the input
+    pipeline and the studies use of it)."""
+
+    def __init__(self, design: Design, cfg: FilterConfig | None = None) -> None:
+        self.design = design
+        self.cfg = cfg or FilterConfig()
+        self.real = "float" if self.cfg.float32 else "double"
+        lib, Config, Est, _ = load(self.real)
+        self._lib = lib
+        self._s = Est()
+        self._p = C.byref(self._s)
+        if lib.bw_init(self._p, C.byref(config_struct(design, self.cfg, Config))) != 0:
+            raise ValueError("the C core refused the design (rate, radius, mass and volume must be positive)")
+        self._imu = lib.bw_on_imu
+        self._baro = lib.bw_on_baro
+        self.counters = _Counters(self._s.counters)
+        self.consistency = _Consistency(self._s.consistency)
+        self.ekf = _Ekf(self._s.ekf, np.float32 if self.real == "float" else np.float64)
+        self.model = BalloonModel.from_design(design, self.cfg.rope_normal_cd,
+                                              rope_drag_at_balloon=self.cfg.rope_model != "catenary")  # fmt: skip
+
+    def on_imu(self, t_us, ax, ay, az, gx, gy, gz, mx=math.nan, my=math.nan, mz=math.nan) -> bool:
+        return self._imu(self._p, t_us, ax, ay, az, gx, gy, gz, mx, my, mz) == 1
+
+    def on_baro(self, t_us: int, pressure_hpa: float, temperature_c: float) -> bool:
+        return self._baro(self._p, t_us, pressure_hpa, temperature_c) == 1
+
+    def coast(self, seconds: float) -> None:
+        self._lib.bw_coast(self._p, seconds)
+
+    def reset(self) -> None:
+        self._lib.bw_reset(self._p)
+
+    # the state the firmware reads
+    @property
+    def initialised(self) -> bool:
+        return bool(self._s.initialised)
+
+    @property
+    def t_last_us(self) -> int:
+        return self._s.t_last_us
+
+    @property
+    def step(self) -> int:
+        return self._s.step
+
+    @property
+    def dt_us(self) -> int:
+        return self._s.dt_us
+
+    @property
+    def unconfirmed(self) -> bool:
+        return bool(self._s.unconfirmed)
+
+    @property
+    def mode_name(self) -> str:
+        return MODE_NAMES[self._s.ekf.mode]
+
+    @property
+    def height_baro(self) -> float:
+        return self._s.height_baro
+
+    def wind(self) -> tuple[float, float]:
+        x = self._s.ekf.x
+        return x[12], x[13]
+
+    def wind_accuracy(self) -> float:
+        return self._lib.bw_wind_accuracy(self._p)
+
+    def height_m(self) -> float:
+        return -self._s.ekf.x[2]
+
+    @property
+    def struct(self):
+        """The whole bw_estimator_t (the lockstep harness compares its fields)."""
+        return self._s
+
+
+class CWindCovOutput:
+    """WIND_COV's fields from the C core (``estimator.outputs.WindCovOutput``'s interface)."""
+
+    def __init__(self, est: CEstimator) -> None:
+        self._est = est
+        self._lib = est._lib
+        self._fields = load(est.real)[3]()
+
+    def reset(self) -> None:
+        self._lib.bw_output_reset(self._est._p)
+
+    def update(self, est: CEstimator, t_us: int) -> None:
+        self._lib.bw_output_update(est._p, t_us)
+
+    def fields(self, est: CEstimator) -> tuple:
+        f = self._fields
+        self._lib.bw_wind_cov(est._p, C.byref(f))
+        return (f.time_usec, f.wind_x, f.wind_y, f.wind_z, f.var_horiz, f.var_vert, f.wind_alt, f.horiz_accuracy,
+                f.vert_accuracy)  # fmt: skip
