@@ -21,9 +21,8 @@ from balloon_core.config import Design
 from balloon_core.samples import BaroSample, MavlinkSampler, Sample
 from balloon_core.score import direction_from_deg
 from balloon_core.wire import LinkStats, pack
+from firmware_py.core_c import new_core
 from firmware_py.estimator.consistency import SOURCES
-from firmware_py.estimator.control import Estimator
-from firmware_py.estimator.outputs import WindCovOutput
 from firmware_py.estimator.state import MODE_GROUND, FilterConfig
 from firmware_py.streams import InputPipeline, feed, print_warning
 
@@ -76,8 +75,7 @@ class Firmware:
         rate_explicit: bool = False, warn=print_warning,
     ) -> None:  # fmt: skip
         self.design = design
-        self.est = Estimator(design, cfg)
-        self.out = WindCovOutput(self.est.cfg.imu_rate_hz, design.site.altitude_amsl_m)
+        self.est, self.out = new_core(design, cfg or FilterConfig())
         self.sinks = [sink] if sink is not None else []
         self.mav = mavlink.MAVLink(None, srcSystem=FW_SYSID, srcComponent=FW_COMPID)
         self.period_us = round(1e6 / wind_cov_hz)
@@ -147,8 +145,7 @@ class Firmware:
         if d.warning:
             self.warn(d.warning)
         if self.pipe.cfg.imu_rate_hz != self.est.cfg.imu_rate_hz:
-            self.est = Estimator(self.design, self.pipe.cfg)
-            self.out = WindCovOutput(self.est.cfg.imu_rate_hz, self.design.site.altitude_amsl_m)
+            self.est, self.out = new_core(self.design, self.pipe.cfg)
 
     def _step(self, s: Sample) -> None:
         est = self.est

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import sys
 import time
@@ -10,6 +11,7 @@ from balloon_core import userargs
 from balloon_core.config import ConfigError, design_from_dict, load_toml
 from balloon_core.progress import Progress, RateMeter
 from balloon_core.wire import Decoder, capture_messages, open_link, open_sink
+from firmware_c.build import BuildError
 from firmware_py.app import Firmware
 from firmware_py.estimator.state import FilterConfig
 from firmware_py.streams import StreamRequester
@@ -103,17 +105,26 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", dest="sink", type=userargs.tlog_sink,
                     help="udpout:HOST:PORT or FILE.tlog for WIND_COV + HEARTBEAT")  # fmt: skip
     ap.add_argument("--config", type=userargs.input_file, help="TOML design file (the same one balloon-sim reads)")
+    ap.add_argument("--core", choices=("c", "py"),
+                    help="c: the C core, py: the Python reference (default: [filter] core, else c)")  # fmt: skip
     ap.add_argument("--quiet", action="store_true", help="no progress bar / live status (the summary stays)")
     args = ap.parse_args(argv)
     try:
         design, fcfg = load_config(args.config)
     except ConfigError as exc:
         return userargs.fail(prog, exc)
+    if args.core is not None:
+        fcfg = dataclasses.replace(fcfg, core=args.core)
     try:
         sink = open_sink(args.sink) if args.sink else None
     except (ValueError, OSError) as exc:
         return userargs.fail(prog, exc)
-    fw = Firmware(design, fcfg, sink, rate_explicit=rate_is_explicit(args.config))
+    try:
+        fw = Firmware(design, fcfg, sink, rate_explicit=rate_is_explicit(args.config))
+    except BuildError as exc:
+        if sink is not None:
+            sink.close()
+        return userargs.fail(prog, exc)
     stop = userargs.stop_flag()
     is_file = os.path.isfile(args.source)
     if is_file:

@@ -80,12 +80,32 @@ def _structs(real):
                                        "release_height")] + [("rope_shape_alpha", real)]  # fmt: skip
 
     class WindCov(C.Structure):
-        _fields_ = [("time_usec", i64)] + [(n, f32) for n in ("wind_x", "wind_y", "wind_z", "var_horiz", "var_vert",
-                                                               "wind_alt", "horiz_accuracy", "vert_accuracy")]
+        _fields_ = [("time_usec", i64)] + [
+            (n, f32)
+            for n in (
+                "wind_x",
+                "wind_y",
+                "wind_z",
+                "var_horiz",
+                "var_vert",
+                "wind_alt",
+                "horiz_accuracy",
+                "vert_accuracy",
+            )
+        ]
 
     class Out(C.Structure):
-        _fields_ = [("alpha", d), ("ln", real), ("le", real), ("primed", i32), ("ring_n", real * 60),
-                    ("ring_e", real * 60), ("count", i64), ("next_slot_us", i64), ("site_altitude_m", d)]
+        _fields_ = [
+            ("alpha", d),
+            ("ln", real),
+            ("le", real),
+            ("primed", i32),
+            ("ring_n", real * 60),
+            ("ring_e", real * 60),
+            ("count", i64),
+            ("next_slot_us", i64),
+            ("site_altitude_m", d),
+        ]
 
     rest = [
         ("accel_var", real), ("accel_static_var", real), ("accel_confirm_var", real), ("accel_taut_var", real),
@@ -337,3 +357,16 @@ class CWindCovOutput:
         self._lib.bw_wind_cov(est._p, C.byref(f))
         return (f.time_usec, f.wind_x, f.wind_y, f.wind_z, f.var_horiz, f.var_vert, f.wind_alt, f.horiz_accuracy,
                 f.vert_accuracy)  # fmt: skip
+
+
+def new_core(design: Design, cfg: FilterConfig):
+    """(estimator, WIND_COV output) of the core ``cfg.core`` names: the C core or the Python reference.
+    A C core that cannot be built is a firmware_c.build.BuildError (one line)."""
+    if cfg.core == "c":
+        est = CEstimator(design, cfg)
+        return est, CWindCovOutput(est)
+    from firmware_py.estimator.control import Estimator
+    from firmware_py.estimator.outputs import WindCovOutput
+
+    est = Estimator(design, cfg)
+    return est, WindCovOutput(est.cfg.imu_rate_hz, design.site.altitude_amsl_m)

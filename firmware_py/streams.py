@@ -269,7 +269,9 @@ def estimator_steps(
     def run(batch: list[Sample]) -> Iterator[tuple[Estimator, Sample, bool]]:
         nonlocal est
         if est is None and batch:
-            est = Estimator(design, pipe.cfg)
+            from firmware_py.core_c import new_core  # the core [filter] core names
+
+            est, _ = new_core(design, pipe.cfg)
             if pipe.decision.warning and warn is not None:
                 warn(pipe.decision.warning)
         for s in batch:

@@ -56,7 +56,8 @@ def reprocess(
     from the stream unless ``rate_explicit``, a faster stream averaged down to the filter's step), so
     the forward pass is what the firmware computes. ``progress(n)`` is called every 10 000 samples
     with the count so far; ``warn`` gets the pipeline's one-line warnings."""
-    cfg = dataclasses.replace(cfg or FilterConfig(), float32=False)  # the smoother works in float64
+    # the smoother works in float64 and records every step of the filter: the Python core's recorder hooks
+    cfg = dataclasses.replace(cfg or FilterConfig(), float32=False, core="py")
     pipe = InputPipeline(cfg, rate_explicit)
     rec = SmootherRecorder(N_STATES)
     run = _Run(design, rec, grid_hz)

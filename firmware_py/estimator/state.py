@@ -41,6 +41,9 @@ class FilterConfig:
 
     imu_rate_hz: float = 100.0
     float32: bool = False
+    # which core runs the filter: "c" the C99 core (firmware_c/, the firmware as flashed; float32 or
+    # double as ``float32`` says), "py" this Python reference; they agree step by step (docs/porting.md)
+    core: str = "c"
     # process noise
     accel_process_mps2: float = 0.05  # unmodelled force per unit mass between two samples (docs/estimator.md)
     # the wind the filter expects (its process noise is derived from this spectrum: tuning.py)
