@@ -44,7 +44,7 @@ def _structs(real):
     i32, i64, f32, d = C.c_int32, C.c_int64, C.c_float, C.c_double
 
     class Config(C.Structure):
-        _fields_ = [(n, d) for n in CONFIG_FIELDS] + [("rope_catenary", i32)] + [(n, d) for n in CONFIG_FIELDS_2]
+        _fields_ = [(n, d) for n in CONFIG_FIELDS] + [("rope_catenary", d)] + [(n, d) for n in CONFIG_FIELDS_2]
 
     class Status(C.Structure):
         _fields_ = [("innov", real), ("innov_var", real), ("test_ratio", real), ("fused", i32), ("rejected", i32),
@@ -184,7 +184,7 @@ def config_struct(design: Design, cfg: FilterConfig, Config):
     c.altitude_amsl_m = site.altitude_amsl_m
     for name in CONFIG_FIELDS[15:] + CONFIG_FIELDS_2:
         setattr(c, name, getattr(cfg, name))
-    c.rope_catenary = int(catenary)
+    c.rope_catenary = float(catenary)
     return c
 
 

@@ -121,11 +121,13 @@ def _messages(fw, path: Path):
 
 def _digest(path: Path) -> str:
     """sha256 over the estimator's float64 state (x, P, q, mode, counters) after every sample the
-    firmware takes, in process: the one place here that follows the code's names."""
+    firmware takes, in process: the one place here that follows the code's names. The Python core's
+    (the reference); the output tlog above is the default core's (the C core: the same bytes)."""
     from balloon_core.config import Design
     from firmware_py.app import Firmware
+    from firmware_py.estimator.state import FilterConfig
 
-    fw = Firmware(Design(), sink=None)
+    fw = Firmware(Design(), FilterConfig(core="py"), sink=None)
     fw.sinks = [type("S", (), {"send_at": lambda self, f, t: None})()]
     h = hashlib.sha256()
     orig = fw._step

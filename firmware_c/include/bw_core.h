@@ -46,7 +46,7 @@ typedef struct {
     double accel_process_mps2, expected_wind_mps, turbulence_intensity, drag_walk_rt_s, baro_walk_m_rt_s;
     double accel_bias_walk_mps2_rt_s, gyro_bias_walk_dps_rt_s;
     double accel_model_mps2, accel_taut_mps2, accel_static_mps2, align_rad, radial_m, radial_rate_mps;
-    int32_t rope_catenary;       /* 1: rope_model "catenary" (the rope's real shape); 0: "paper" (Eq. 5) */
+    double rope_catenary;        /* 1: rope_model "catenary" (the rope's real shape); 0: "paper" (Eq. 5); a double: the config is 43 doubles */
     double gate_sigma, recover_after_s;
     double init_wind_mps, init_drag, init_accel_bias_mps2, init_gyro_bias_dps, init_tilt_deg, init_yaw_deg;
     double taut_margin_m, mode_dwell_s, release_accel_mps2, release_height_m, max_gap_s;

@@ -137,7 +137,7 @@ int bw_init(bw_estimator_t *est, const bw_config_t *cfg)
         return -1;
     memset(est, 0, sizeof *est);
     est->cfg = *cfg;
-    est->catenary = cfg->rope_catenary != 0;
+    est->catenary = cfg->rope_catenary != 0.0;
     bw_ekf_init(&est->ekf, cfg);
     s_acc = cfg->accel_mps2 * cfg->accel_mps2;
     est->accel_var = (bw_real)(s_acc + cfg->accel_model_mps2 * cfg->accel_model_mps2);

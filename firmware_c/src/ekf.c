@@ -57,7 +57,7 @@ void bw_ekf_init(bw_ekf_t *e, const bw_config_t *c)
     lift0 = (rho0 * c->volume_m3 - c->mass_kg) * BW_G0;
     rope_w = c->rope_kg_m * BW_G0 * c->tether_length_m;
     e->rope_chord_m = (bw_real)c->tether_length_m;
-    e->rope_weight_n = (bw_real)(c->rope_catenary ? bw_calm_weight_share(lift0, rope_w) : rope_w);
+    e->rope_weight_n = (bw_real)(c->rope_catenary != 0.0 ? bw_calm_weight_share(lift0, rope_w) : rope_w);
     g = c->gyro_dps * 0.017453292519943295;
     qv = c->accel_process_mps2 * c->accel_process_mps2 * dt;
     bw_wind_process(c->expected_wind_mps, c->turbulence_intensity, 2.0 * c->radius_m, &tau, &q_rate, &q_walk);

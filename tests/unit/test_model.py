@@ -64,7 +64,8 @@ def test_the_air_push_is_in_the_model():
 
 @pytest.mark.slow
 def test_generated_code_matches_the_derivation():
-    """tools/derive_model.py regenerates firmware_py/estimator/generated.py exactly (the check-in is not stale)."""
+    """tools/derive_model.py regenerates the Python and the C it writes (generated.py, firmware_c/src/generated.[ch],
+    params.h) exactly: no checked-in file is stale."""
     pytest.importorskip("sympy")
     import subprocess
     import sys
