@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-test
 BENCH_STAMP := $(VENV)/.installed-bench
 
-.PHONY: test test-fast demo bench lint clean
+.PHONY: test test-fast demo bench lint clean arm
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -13,6 +13,7 @@ $(BIN)/python:
 
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install -q -e '.[all,test]'
+	$(BIN)/python -m firmware_c.build >/dev/null  # the C core for this host (else built at first use)
 	touch $(STAMP)
 
 $(BENCH_STAMP): pyproject.toml | $(BIN)/python
@@ -31,6 +32,10 @@ test-fast: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/balloon-sil --scenario paper-reference
 
+# the C core on a Cortex-M4F under QEMU (needs gcc-arm-none-eabi, libnewlib-arm-none-eabi, qemu-system-arm)
+arm: $(STAMP)
+	$(BIN)/python tools/arm.py
+
 bench: $(BENCH_STAMP)
 	$(BIN)/python -m benchmarks.run_all
 
@@ -38,4 +43,4 @@ lint: $(STAMP)
 	$(BIN)/ruff check balloon_core firmware_py sim_hil ground_station postflight sil study tests benchmarks tools
 
 clean:
-	rm -rf $(VENV) out build *.egg-info
+	rm -rf $(VENV) out build *.egg-info firmware_c/build

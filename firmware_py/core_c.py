@@ -59,15 +59,36 @@ def _structs(real):
                     ("tension_n", real), ("m_eff_kg", real), ("taut", i32), ("params", real * 10),
                     ("attach_ned", real * 3), ("rope_weight_n", real)]  # fmt: skip
 
+    class Model(C.Structure):
+        _fields_ = [
+            (n, real)
+            for n in (
+                "radius_m",
+                "volume_m3",
+                "mass_kg",
+                "half_cd_area_m2",
+                "tether_length_m",
+                "rope_kg_m",
+                "rope_drag_m2",
+                "rope_cn_d_m",
+                "lam_g",
+                "rope_weight_n",
+            )
+        ]
+        _fields_ += [("rope_drag", i32)] + [(n, real) for n in (
+            "turbulence_intensity", "release_height_m", "release_accel_mps2", "taut_margin_m", "imu_rate_hz",
+            "gate_sigma", "gate2", "radial_var", "radial_rate_var")]  # fmt: skip
+
     class Ekf(C.Structure):
         _fields_ = [
-            ("x", real * N), ("q", real * 4), ("P", real * (N * N)), ("F", real * (N * N)), ("T", real * (N * N)),
+            ("m", Model), ("x", real * N), ("q", real * 4), ("P", real * (N * N)), ("T", real * (N * N)),
             ("h", real * N), ("dx", real * N), ("ph", real * N), ("H3", real * (3 * N)), ("pht", real * (3 * N)),
             ("var_max", real * N), ("q_flight", real * N), ("q_ground", real * N), ("qd_ground", real * N),
             ("dt", real), ("rate_decay", real), ("q_rate0", real), ("u0", real), ("q_walk_step", real),
             ("wp_tau_s", real), ("wp_q_rate", real), ("wp_q_walk", real), ("sigma_rate", real), ("forces", Forces),
-            ("rope_chord_m", real), ("rope_weight_n", real), ("mode", i32), ("f_ground", i32), ("learn_drag", i32),
-            ("drag_correlated", i32), ("recover_after", i32), ("time_us", i64), ("reset_counts", i32 * 3),
+            ("rope_chord_m", real), ("rope_weight_n", real), ("mode", i32), ("learn_drag", i32),
+            ("drag_correlated", i32), ("recover_after", i32), ("time_us", i64), ("taut_phase", i32),
+            ("noise_phase", i32), ("reset_counts", i32 * 3),
             ("reset_count", i32),
         ]  # fmt: skip
 
@@ -96,7 +117,7 @@ def _structs(real):
 
     class Out(C.Structure):
         _fields_ = [
-            ("alpha", d),
+            ("alpha", real),
             ("ln", real),
             ("le", real),
             ("primed", i32),
@@ -126,7 +147,7 @@ def _structs(real):
 
     class Estimator(C.Structure):
         _fields_ = [
-            ("cfg", Config), ("ekf", Ekf), ("probe", Forces), ("sched", Schedule), ("counters", Counters),
+            ("cfg", C.POINTER(Config)), ("ekf", Ekf), ("probe", Forces), ("sched", Schedule), ("counters", Counters),
             ("consistency", Consistency), ("accel_status", Status * 3), ("baro_status", Status),
             ("heading_status", Status), ("mag_status", Status * 3), ("taut_status", Status * 4), ("out", Out),
             *rest,
@@ -271,7 +292,8 @@ class CEstimator:
         self._lib = lib
         self._s = Est()
         self._p = C.byref(self._s)
-        if lib.bw_init(self._p, C.byref(config_struct(design, self.cfg, Config))) != 0:
+        self._config = config_struct(design, self.cfg, Config)  # the C estimator points at it
+        if lib.bw_init(self._p, C.byref(self._config)) != 0:
             raise ValueError("the C core refused the design (rate, radius, mass and volume must be positive)")
         self._imu = lib.bw_on_imu
         self._baro = lib.bw_on_baro

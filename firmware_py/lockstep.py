@@ -159,7 +159,7 @@ def run(design: Design, cfg: FilterConfig, samples: Iterable[Sample], coast_ever
 RECORD = struct.Struct("<qii9d")
 KIND_IMU, KIND_BARO, KIND_COAST = 0, 1, 2
 OUT_DTYPE = np.dtype([("time_usec", "<i8"), ("advanced", "<i4"), ("mode", "<i4"), ("reset_count", "<i4"),
-                      ("flags", "<i4"), ("f", "<f4", (5 + 2 * N_STATES,))])  # fmt: skip
+                      ("flags", "<i4"), ("f", "<f4", (5 + 2 * N_STATES,)), ("pad", "<i4")])  # fmt: skip
 
 
 def write_stream(path: str, design: Design, cfg: FilterConfig, samples: Iterable[Sample]) -> int:
@@ -199,7 +199,7 @@ def compare_outputs(a: np.ndarray, b: np.ndarray, real: str = "float") -> tuple[
     tol = np.concatenate([FLOAT_WINDCOV_TOL, FLOAT_TOL, FLOAT_TOL**2])
     if real == "double":
         tol = DOUBLE_RTOL * np.ones_like(tol)
-    worst = float(np.max(d / (tol + np.abs(fb) * 2.0**-23), initial=0.0))
+    worst = float(np.max(d / (tol + np.abs(np.nan_to_num(fb)) * 2.0**-23), initial=0.0))
     identical = float(np.mean(same.all(axis=1))) * 100.0
     line = f"{len(a)} records, {identical:.1f} % bit-identical, worst difference {worst:.2g} of the tolerance"
     return worst <= 1.0, line

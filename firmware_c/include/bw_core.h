@@ -78,13 +78,23 @@ typedef struct {
     bw_real rope_weight_n;        /* input: weight the taut rod carries (catenary.py W_eff), NAN: Eq. 5 */
 } bw_forces_t;
 
+/* what the step uses of the configuration, in the core's real type (no double on the step's path) */
+typedef struct {
+    bw_real radius_m, volume_m3, mass_kg, half_cd_area_m2, tether_length_m, rope_kg_m, rope_drag_m2, rope_cn_d_m;
+    bw_real lam_g;               /* rope weight per metre, N/m */
+    bw_real rope_weight_n;       /* the whole rope's weight, N */
+    int32_t rope_drag;           /* rope_drag_m2 > 0: the paper's rod carries rope drag */
+    bw_real turbulence_intensity, release_height_m, release_accel_mps2, taut_margin_m, imu_rate_hz;
+    bw_real gate_sigma, gate2, radial_var, radial_rate_var;
+} bw_model_t;
+
 typedef struct {
     /* the filter (ekf.py WindEkf) */
+    bw_model_t m;
     bw_real x[BW_N];
     bw_real q[4];                 /* nominal attitude, body FRD -> NED, scalar first */
     bw_real P[BW_N][BW_N];
-    bw_real F[BW_N][BW_N];
-    bw_real T[BW_N][BW_N];        /* scratch: F P */
+    bw_real T[BW_N][BW_N];        /* scratch: F P (F itself is generated row by row: ekf.c f_row) */
     bw_real h[BW_N], dx[BW_N], ph[BW_N];
     bw_real H3[3][BW_N], pht[BW_N][3];
     bw_real var_max[BW_N];
@@ -94,8 +104,9 @@ typedef struct {
     bw_real wp_tau_s, wp_q_rate, wp_q_walk, sigma_rate;
     bw_forces_t forces;
     bw_real rope_chord_m, rope_weight_n;      /* catenary.py RopeShape */
-    int32_t mode, f_ground, learn_drag, drag_correlated, recover_after;
+    int32_t mode, learn_drag, drag_correlated, recover_after;
     int64_t time_us;
+    int32_t taut_phase, noise_phase;   /* step % taut_every, step % wind_noise_every */
     int32_t reset_counts[3];
     int32_t reset_count;
 } bw_ekf_t;
@@ -120,7 +131,7 @@ typedef struct {
 } bw_wind_cov_t;
 
 typedef struct {
-    double alpha;                 /* 1 Hz low-pass weight per step */
+    bw_real alpha;                /* 1 Hz low-pass weight per step */
     bw_real ln, le;
     int32_t primed;
     bw_real ring_n[60], ring_e[60];
@@ -129,7 +140,7 @@ typedef struct {
 } bw_windcov_out_t;
 
 typedef struct {
-    bw_config_t cfg;
+    const bw_config_t *cfg;      /* the caller's (in flash on the target): it must outlive the estimator */
     bw_ekf_t ekf;
     bw_forces_t probe;
     bw_schedule_t sched;

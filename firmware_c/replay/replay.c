@@ -18,8 +18,7 @@
 #define SYST_CSR (*(volatile unsigned long *)0xE000E010u)
 #define SYST_RVR (*(volatile unsigned long *)0xE000E014u)
 #define SYST_CVR (*(volatile unsigned long *)0xE000E018u)
-#define CPACR (*(volatile unsigned long *)0xE000ED88u)
-/* the board's 25 MHz SysTick under -icount shift=0 (1 ns per instruction): 40 instructions a tick */
+/* the board's 25 MHz SysTick under QEMU -icount shift=0 (one instruction a virtual ns): 40 instructions a tick */
 #define INSTRUCTIONS_PER_TICK 40u
 static void timer_start(void)
 {
@@ -47,7 +46,27 @@ typedef struct {
 
 static bw_estimator_t est; /* static memory: the whole filter */
 
-#define HIST 64u
+#ifdef BW_TARGET_M4
+#define HIST 8192u                   /* instruction counts in ticks of 40: up to 327 680 a step */
+#define PAINT_BYTES 6144u            /* the stack below the caller's, painted to find how deep a step goes */
+static unsigned long hist[HIST];
+static unsigned long stack_depth(int paint)
+{
+    unsigned long sp, k;
+    volatile unsigned char *p;
+    __asm volatile("mov %0, sp" : "=r"(sp));
+    p = (volatile unsigned char *)(sp - 64u); /* below this frame */
+    if (paint) {
+        for (k = 0; k < PAINT_BYTES; k++)
+            p[-(long)k] = 0xA5u;
+        return 0;
+    }
+    for (k = PAINT_BYTES; k > 0; k--)
+        if (p[-(long)(k - 1)] != 0xA5u)
+            return k + 64u;
+    return 0;
+}
+#endif
 int main(int argc, char **argv)
 {
     FILE *in, *out;
@@ -57,10 +76,7 @@ int main(int argc, char **argv)
     bw_wind_cov_t w;
     unsigned long n_steps = 0;
 #ifdef BW_TARGET_M4
-    static unsigned long hist[4096]; /* instruction counts of the advancing steps, in units of a tick */
-    unsigned long worst = 0;
-    CPACR |= 0xFu << 20; /* the FPU (CP10, CP11) on */
-    __asm volatile("dsb\n isb");
+    unsigned long worst = 0, deepest = 0, n_imu = 0;
     timer_start();
 #endif
     if (argc < 3) {
@@ -89,7 +105,11 @@ int main(int argc, char **argv)
         }
         {
 #ifdef BW_TARGET_M4
-            unsigned long t0 = timer_now(), t1, ticks;
+            unsigned long t0, t1, ticks;
+            int measure_stack = n_imu++ % 50u == 0u;
+            if (measure_stack)
+                stack_depth(1);
+            t0 = timer_now();
 #endif
             advanced = bw_on_imu(&est, r.t_us, (bw_real)r.v[0], (bw_real)r.v[1], (bw_real)r.v[2], (bw_real)r.v[3],
                                  (bw_real)r.v[4], (bw_real)r.v[5], (bw_real)r.v[6], (bw_real)r.v[7], (bw_real)r.v[8]);
@@ -98,8 +118,13 @@ int main(int argc, char **argv)
 #ifdef BW_TARGET_M4
             t1 = timer_now();
             ticks = (t0 - t1) & 0x00FFFFFFu; /* SysTick counts down */
+            if (measure_stack) {
+                unsigned long depth = stack_depth(0);
+                if (depth > deepest)
+                    deepest = depth;
+            }
             if (advanced && est.step > 0) {
-                hist[n_steps % 4096u] = ticks;
+                hist[ticks < HIST ? ticks : HIST - 1u]++;
                 if (ticks > worst)
                     worst = ticks;
             }
@@ -125,26 +150,22 @@ int main(int argc, char **argv)
     fclose(out);
 #ifdef BW_TARGET_M4
     if (argc > 3) {
-        /* the median of the kept steps by counting (ticks are small integers) */
-        static unsigned short count[8192];
-        unsigned long kept = n_steps < 4096u ? n_steps : 4096u, seen = 0, median = 0, k;
+        unsigned long seen = 0, median = 0, k;
         FILE *st = fopen(argv[3], "w");
-        for (k = 0; k < kept; k++)
-            count[hist[k] < 8191u ? hist[k] : 8191u]++;
-        for (k = 0; k < 8192u; k++) {
-            seen += count[k];
-            if (2u * seen >= kept) {
+        for (k = 0; k < HIST; k++) {
+            seen += hist[k];
+            if (2u * seen >= n_steps) {
                 median = k;
                 break;
             }
         }
         if (st != NULL) {
-            fprintf(st, "steps %lu median_instructions %lu worst_instructions %lu estimator_bytes %lu\n", n_steps,
-                    median * INSTRUCTIONS_PER_TICK, worst * INSTRUCTIONS_PER_TICK, (unsigned long)sizeof est);
+            fprintf(st, "steps %lu median_instructions %lu worst_instructions %lu estimator_bytes %lu stack_bytes %lu\n",
+                    n_steps, median * INSTRUCTIONS_PER_TICK, worst * INSTRUCTIONS_PER_TICK, (unsigned long)sizeof est,
+                    deepest);
             fclose(st);
         }
     }
 #endif
-    (void)HIST;
     return 0;
 }

@@ -34,7 +34,7 @@ static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, 
     if (ground) /* learnt at rest, where g is the only force */
         e->H3[2][BW_ABIAS_Z] = BW_R(1.0);
     pred[2] += e->x[BW_ABIAS_Z];
-    bw_ekf_fuse3(e, &est->cfg, fx - pred[0], fy - pred[1], fz - pred[2], var, est->accel_status, var_z_extra);
+    bw_ekf_fuse3(e, fx - pred[0], fy - pred[1], fz - pred[2], var, est->accel_status, var_z_extra);
 }
 
 void bw_control_accel(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)

@@ -17,7 +17,7 @@ static void fuse_baro(bw_estimator_t *est, bw_real height_m)
     e->h[BW_POS_D] = BW_R(-1.0);
     e->h[BW_BARO_OFF] = BW_R(1.0);
     pred = -(e->x[BW_POS_D] - est->ref_pos_d) + e->x[BW_BARO_OFF];
-    bw_ekf_fuse(e, &est->cfg, height_m - pred, est->baro_var, &est->baro_status, BW_R(0.0), 1);
+    bw_ekf_fuse(e, height_m - pred, est->baro_var, &est->baro_status, BW_R(0.0), 1);
 }
 
 void bw_reset_height(bw_ekf_t *e, bw_real pos_d, bw_real var)

@@ -29,7 +29,7 @@ static void fuse_heading(bw_estimator_t *est, bw_real mx, bw_real my, bw_real mz
     e->h[BW_ATT_E] = -me * md / h2;
     e->h[BW_ATT_D] = BW_R(1.0);
     var = (est->mag_sigma / horiz) * (est->mag_sigma / horiz) + (BW_R(0.5) * BW_DEG) * (BW_R(0.5) * BW_DEG);
-    bw_ekf_fuse(e, &est->cfg, innov, var, st, BW_R(0.0), 1);
+    bw_ekf_fuse(e, innov, var, st, BW_R(0.0), 1);
 }
 
 static void fuse_mag_field(bw_estimator_t *est, bw_real mx, bw_real my, bw_real mz)
@@ -47,7 +47,7 @@ static void fuse_mag_field(bw_estimator_t *est, bw_real mx, bw_real my, bw_real 
         e->H3[i][BW_ATT_D] = cn * be - ce * bn;
         pred[i] = cn * bn + ce * be + cd * bd;
     }
-    bw_ekf_fuse3(e, &est->cfg, mx - pred[0], my - pred[1], mz - pred[2], est->mag_var, est->mag_status, BW_R(0.0));
+    bw_ekf_fuse3(e, mx - pred[0], my - pred[1], mz - pred[2], est->mag_var, est->mag_status, BW_R(0.0));
 }
 
 static void learn_field(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az, bw_real mx, bw_real my, bw_real mz)

@@ -6,12 +6,13 @@
 
 static const int MODEL_COLS[BW_NCOL] = {0, 1, 2, 3, 4, 5, 12, 13, 14, 15, 16};
 
-void bw_enter_taut(bw_ekf_t *e, const bw_config_t *m, bw_real height_m, bw_real rho, int from_tilt)
+void bw_enter_taut(bw_ekf_t *e, bw_real height_m, bw_real rho, int from_tilt)
 {
     static const int reset_rows[10] = {BW_POS_N, BW_POS_E, BW_POS_D, BW_VEL_N, BW_VEL_E,
                                        BW_VEL_D, BW_WIND_N, BW_WIND_E, BW_WRATE_N, BW_WRATE_E};
+    const bw_model_t *m = &e->m;
     bw_real *x = e->x, r[9];
-    bw_real ell = e->rope_chord_m + (bw_real)m->radius_m;
+    bw_real ell = e->rope_chord_m + m->radius_m;
     bw_real cos_t = BW_MIN(BW_MAX(height_m / ell, BW_R(0.05)), BW_R(1.0));
     bw_real sin_t = BW_SQRT(BW_R(1.0) - cos_t * cos_t);
     bw_real pn = x[BW_POS_N], pe = x[BW_POS_E], wn = x[BW_WIND_N], we = x[BW_WIND_E];
@@ -30,10 +31,10 @@ void bw_enter_taut(bw_ekf_t *e, const bw_config_t *m, bw_real height_m, bw_real 
     else
         an = ae = BW_R(0.0);
     /* the wind's speed from the static balance along that azimuth, drag = (N_b - W) tan(theta) */
-    lift = (rho * (bw_real)m->volume_m3 - (bw_real)m->mass_kg) * (bw_real)BW_G0 - e->rope_weight_n;
+    lift = (rho * m->volume_m3 - m->mass_kg) * (bw_real)BW_G0 - e->rope_weight_n;
     drag = BW_MAX(lift, BW_R(0.0)) * sin_t / cos_t;
     k = BW_MAX(x[BW_DRAG], BW_R(0.2));
-    speed = drag > BW_R(0.0) ? BW_SQRT(drag / (k * rho * (bw_real)m->half_cd_area_m2)) : BW_R(0.0);
+    speed = drag > BW_R(0.0) ? BW_SQRT(drag / (k * rho * m->half_cd_area_m2)) : BW_R(0.0);
     x[BW_WIND_N] = speed * an, x[BW_WIND_E] = speed * ae;
     x[BW_WRATE_N] = x[BW_WRATE_E] = BW_R(0.0);
     x[BW_VEL_N] = x[BW_VEL_E] = x[BW_VEL_D] = BW_R(0.0);
@@ -55,7 +56,6 @@ void bw_enter_taut(bw_ekf_t *e, const bw_config_t *m, bw_real height_m, bw_real 
 static void fuse_taut(bw_estimator_t *est)
 {
     bw_ekf_t *e = &est->ekf;
-    const bw_config_t *c = &est->cfg;
     const bw_real *x = e->x;
     const bw_real pn = x[0], pe = x[1], pd = x[2], vn = x[3], ve = x[4], vd = x[5];
     const bw_forces_t *f = &e->forces;
@@ -68,7 +68,7 @@ static void fuse_taut(bw_estimator_t *est)
     memset(e->h, 0, sizeof e->h);
     for (i = 0; i < 3; i++)
         e->h[BW_POS_N + i] = ev[i];
-    bw_ekf_fuse(e, c, e->rope_chord_m - dist, (bw_real)(c->radial_m * c->radial_m), &est->taut_status[0],
+    bw_ekf_fuse(e, e->rope_chord_m - dist, e->m.radial_var, &est->taut_status[0],
                 (bw_real)BW_UNGATED, 1);
     memset(e->h, 0, sizeof e->h);
     vr = vn * ev[0] + ve * ev[1] + vd * ev[2];
@@ -77,14 +77,14 @@ static void fuse_taut(bw_estimator_t *est)
         e->h[BW_VEL_N + i] = ev[i];
         e->h[BW_POS_N + i] = (v[i] - vr * ev[i]) / dist; /* d(v . e)/dp */
     }
-    bw_ekf_fuse(e, c, -vr, (bw_real)(c->radial_rate_mps * c->radial_rate_mps), &est->taut_status[1],
+    bw_ekf_fuse(e, -vr, e->m.radial_rate_var, &est->taut_status[1],
                 (bw_real)BW_UNGATED, 1);
     if (!f->taut)
         return;
     {
         const bw_real s[BW_NCOL] = {pn, pe, pd, vn, ve, vd, x[12], x[13], x[14], x[15], x[16]};
         bw_real n[BW_ROPE_DIRECTION_SIZE], r[9], z[3], dz[2][3];
-        if (c->rope_drag_m2 > 0.0)
+        if (e->m.rope_drag)
             bw_rope_direction(s, f->params, n);
         else
             bw_rope_direction_plain(s, f->params, n);
@@ -99,7 +99,7 @@ static void fuse_taut(bw_estimator_t *est)
             e->h[BW_ATT_N] = dz[cc][0], e->h[BW_ATT_E] = dz[cc][1], e->h[BW_ATT_D] = dz[cc][2];
             for (j = 0; j < ncol; j++)
                 e->h[MODEL_COLS[j]] = -n[2 + BW_NCOL * cc + j]; /* residual z - n(x) */
-            bw_ekf_fuse(e, c, n[cc] - z[cc], est->align_var, &est->taut_status[2 + cc], BW_R(0.0), 0);
+            bw_ekf_fuse(e, n[cc] - z[cc], est->align_var, &est->taut_status[2 + cc], BW_R(0.0), 0);
         }
     }
 }
@@ -107,19 +107,19 @@ static void fuse_taut(bw_estimator_t *est)
 static void update_rope_shape(bw_estimator_t *est)
 {
     bw_ekf_t *e = &est->ekf;
-    const bw_config_t *m = &est->cfg;
+    const bw_model_t *m = &e->m;
     const bw_real *x = e->x, rho = est->rho, alpha = est->sched.rope_shape_alpha;
     bw_real un = x[BW_WIND_N] - x[BW_VEL_N], ue = x[BW_WIND_E] - x[BW_VEL_E], ud = -x[BW_VEL_D];
-    bw_real kd = x[BW_DRAG] * rho * (bw_real)m->half_cd_area_m2 * BW_SQRT(un * un + ue * ue + ud * ud);
-    bw_real lift = (rho * (bw_real)m->volume_m3 - (bw_real)m->mass_kg) * (bw_real)BW_G0;
+    bw_real kd = x[BW_DRAG] * rho * m->half_cd_area_m2 * BW_SQRT(un * un + ue * ue + ud * ud);
+    bw_real lift = (rho * m->volume_m3 - m->mass_kg) * (bw_real)BW_G0;
     bw_real fn = -kd * un, fe = -kd * ue, fd = -kd * ud + lift, ch[3], chord, weight;
-    bw_real length = (bw_real)m->tether_length_m;
-    bw_rope_chord(fn, fe, fd, length, (bw_real)(m->rope_kg_m * BW_G0), BW_R(0.5) * rho * (bw_real)m->rope_cn_d_m,
+    bw_real length = m->tether_length_m;
+    bw_rope_chord(fn, fe, fd, length, m->lam_g, BW_R(0.5) * rho * m->rope_cn_d_m,
                   x[BW_WIND_N], x[BW_WIND_E], ch);
     chord = BW_SQRT(ch[0] * ch[0] + ch[1] * ch[1] + ch[2] * ch[2]);
     if (!(chord > BW_R(0.5) * length))
         return; /* no rope shape under this pull (lift gone): keep the last */
-    weight = bw_effective_rod(fn, fe, fd, ch[0], ch[1], ch[2], bw_rope_weight_n(m));
+    weight = bw_effective_rod(fn, fe, fd, ch[0], ch[1], ch[2], m->rope_weight_n);
     e->rope_chord_m += alpha * (chord - e->rope_chord_m);
     if (weight == weight)
         e->rope_weight_n += alpha * (weight - e->rope_weight_n);
@@ -128,7 +128,7 @@ static void update_rope_shape(bw_estimator_t *est)
 void bw_control_tether(bw_estimator_t *est)
 {
     bw_ekf_t *e = &est->ekf;
-    if (e->mode == BW_MODE_TAUT && est->step % est->sched.taut_every == 0) {
+    if (e->mode == BW_MODE_TAUT && e->taut_phase == 0) {
         bw_status_t *an = &est->taut_status[2], *ae = &est->taut_status[3];
         if (est->catenary)
             update_rope_shape(est);
@@ -136,7 +136,7 @@ void bw_control_tether(bw_estimator_t *est)
         if (BW_MAX(an->consecutive_rejects, ae->consecutive_rejects) >= est->sched.align_reset) {
             est->counters.taut_resets += 1;
             an->consecutive_rejects = ae->consecutive_rejects = 0;
-            bw_enter_taut(e, &est->cfg, bw_height_for_taut(est), est->rho, 1);
+            bw_enter_taut(e, bw_height_for_taut(est), est->rho, 1);
         }
     }
 }

@@ -44,11 +44,11 @@ static void schedule_at(bw_schedule_t *s, double rate, double recover_after_s)
 
 static bw_real vertical_gust_var(const bw_estimator_t *est, bw_real mean_speed_mps, bw_real rho)
 {
-    const bw_config_t *m = &est->cfg;
-    bw_real m_eff = (bw_real)m->mass_kg + (bw_real)BW_ADDED_MASS_COEFFICIENT * rho * (bw_real)m->volume_m3;
+    const bw_model_t *m = &est->ekf.m;
+    bw_real m_eff = m->mass_kg + (bw_real)BW_ADDED_MASS_COEFFICIENT * rho * m->volume_m3;
     bw_real u = BW_MAX(mean_speed_mps, BW_R(0.5));
-    bw_real sigma_w = (bw_real)BW_VERTICAL_TURBULENCE_RATIO * (bw_real)m->turbulence_intensity * u;
-    bw_real a = rho * (bw_real)m->half_cd_area_m2 * u * sigma_w / m_eff;
+    bw_real sigma_w = (bw_real)BW_VERTICAL_TURBULENCE_RATIO * m->turbulence_intensity * u;
+    bw_real a = rho * m->half_cd_area_m2 * u * sigma_w / m_eff;
     return a * a;
 }
 
@@ -59,6 +59,7 @@ static void init_clock(bw_estimator_t *est)
     est->t_last_us = -1;
     est->t_boot_us = 0;
     est->step = 0;
+    est->ekf.taut_phase = est->ekf.noise_phase = 0;
     est->last_gyro[0] = est->last_gyro[1] = est->last_gyro[2] = BW_R(0.0);
     est->release_count = 0;
     est->field_n = 0;
@@ -71,9 +72,9 @@ static void init_clock(bw_estimator_t *est)
     est->field_ned[0] = est->field_ned[1] = est->field_ned[2] = BW_R(NAN);
     est->dwell = 0;
     est->accel_innov2 = BW_R(0.0);
-    est->innov_alpha = (bw_real)(1.0 / (BW_ACCEL_INNOV_S * est->cfg.imu_rate_hz));
-    est->mean_speed = (bw_real)est->cfg.expected_wind_mps;
-    est->speed_alpha = (bw_real)(1.0 / (BW_MEAN_WIND_S * est->cfg.imu_rate_hz));
+    est->innov_alpha = (bw_real)(1.0 / (BW_ACCEL_INNOV_S * est->cfg->imu_rate_hz));
+    est->mean_speed = (bw_real)est->cfg->expected_wind_mps;
+    est->speed_alpha = (bw_real)(1.0 / (BW_MEAN_WIND_S * est->cfg->imu_rate_hz));
     est->slack = 0;
     est->pulling = 0;
     est->was_slack = 0;
@@ -84,11 +85,11 @@ static void init_clock(bw_estimator_t *est)
 
 static void init_baro(bw_estimator_t *est)
 {
-    double gp = est->cfg.ground_pressure_hpa;
+    double gp = est->cfg->ground_pressure_hpa;
     int known = gp == gp;
     est->p_ref_pa = known ? (bw_real)(gp * 100.0) : BW_R(NAN);
     est->zeroing = !known;
-    est->ref_pos_d = known ? BW_R(0.0) : (bw_real)-est->cfg.radius_m;
+    est->ref_pos_d = known ? BW_R(0.0) : (bw_real)-est->cfg->radius_m;
     est->t_ref_k = BW_R(NAN);
     est->zero_sum = BW_R(0.0);
     est->zero_n = 0;
@@ -136,7 +137,7 @@ int bw_init(bw_estimator_t *est, const bw_config_t *cfg)
     if (!(cfg->imu_rate_hz > 0.0 && cfg->radius_m > 0.0 && cfg->mass_kg > 0.0 && cfg->volume_m3 > 0.0))
         return -1;
     memset(est, 0, sizeof *est);
-    est->cfg = *cfg;
+    est->cfg = cfg;
     est->catenary = cfg->rope_catenary != 0.0;
     bw_ekf_init(&est->ekf, cfg);
     s_acc = cfg->accel_mps2 * cfg->accel_mps2;
@@ -146,10 +147,10 @@ int bw_init(bw_estimator_t *est, const bw_config_t *cfg)
     share = est->catenary ? cfg->rope_kg_m * cfg->tether_length_m / (cfg->mass_kg + 1e-9) : 0.0;
     est->accel_confirm_var = (bw_real)(s_acc + cfg->accel_taut_mps2 * cfg->accel_taut_mps2);
     est->accel_taut_var = (bw_real)((double)est->accel_confirm_var + (BW_ROPE_WAVE_ACCEL_MPS2 * share) * (BW_ROPE_WAVE_ACCEL_MPS2 * share));
-    est->vertical_gust_var = vertical_gust_var(est, (bw_real)cfg->expected_wind_mps, (bw_real)(101325.0 / (BW_R_AIR * 293.15)));
+    est->vertical_gust_var = vertical_gust_var(est, cfg->expected_wind_mps, (bw_real)(101325.0 / (BW_R_AIR * 293.15)));
     est->align_var = (bw_real)(cfg->align_rad * cfg->align_rad + (BW_ROPE_WAVE_ALIGN_RAD * share) * (BW_ROPE_WAVE_ALIGN_RAD * share));
     est->baro_var = (bw_real)(cfg->baro_m * cfg->baro_m + BW_BARO_MODEL_M * BW_BARO_MODEL_M);
-    est->mag_sigma = (bw_real)cfg->mag_gauss;
+    est->mag_sigma = cfg->mag_gauss;
     est->declination = (bw_real)(cfg->mag_declination_deg * 0.017453292519943295);
     dt_us = bw_round_half_even(1e6 / cfg->imu_rate_hz);
     est->dt_us = (int64_t)dt_us;
@@ -181,7 +182,7 @@ int bw_init(bw_estimator_t *est, const bw_config_t *cfg)
     est->probe.m_eff_kg = BW_R(1.0);
     {
         double dt = 1.0 / cfg->imu_rate_hz;
-        est->out.alpha = dt / (dt + 1.0 / (2.0 * 3.141592653589793 * 1.0));
+        est->out.alpha = (bw_real)(dt / (dt + 1.0 / (2.0 * 3.141592653589793 * 1.0)));
         est->out.site_altitude_m = cfg->altitude_amsl_m;
     }
     init_clock(est);
@@ -214,23 +215,23 @@ static void quat_from_accel_mag(bw_real ax, bw_real ay, bw_real az, bw_real mx, 
 
 static void join_in_flight(bw_estimator_t *est, const bw_real q[4])
 {
-    const bw_config_t *m = &est->cfg;
     bw_ekf_t *e = &est->ekf;
+    const bw_model_t *m = &e->m;
     bw_real zd = q[0] * q[0] - q[1] * q[1] - q[2] * q[2] + q[3] * q[3]; /* cos(tilt) */
     bw_real tan_tilt = BW_SQRT(BW_MAX(BW_R(0.0), BW_R(1.0) - zd * zd)) / BW_MAX(zd, BW_R(0.1));
-    bw_real lift = (est->rho * (bw_real)m->volume_m3 - (bw_real)m->mass_kg) * (bw_real)BW_G0;
-    bw_real spare = lift - (est->catenary ? e->rope_weight_n : bw_rope_weight_n(m));
+    bw_real lift = (est->rho * m->volume_m3 - m->mass_kg) * (bw_real)BW_G0;
+    bw_real spare = lift - (est->catenary ? e->rope_weight_n : m->rope_weight_n);
     bw_real tan_chord = spare > BW_R(0.1) * lift ? tan_tilt * lift / spare : tan_tilt;
-    bw_real height = (e->rope_chord_m + (bw_real)m->radius_m) / BW_SQRT(BW_R(1.0) + tan_chord * tan_chord);
+    bw_real height = (e->rope_chord_m + m->radius_m) / BW_SQRT(BW_R(1.0) + tan_chord * tan_chord);
     e->mode = BW_MODE_TAUT;
     est->joined = 1;
     est->unconfirmed = 1;
     est->confirm_count = 0;
     est->acc_var = BW_R(-1.0);
     est->counters.mode_switches += 1;
-    bw_enter_taut(e, m, height, est->rho, 1);
+    bw_enter_taut(e, height, est->rho, 1);
     if (est->zeroing)
-        est->join_height = height - (bw_real)m->radius_m;
+        est->join_height = height - m->radius_m;
 }
 
 static void initialise(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real az, bw_real mx, bw_real my,
@@ -238,7 +239,7 @@ static void initialise(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay
 {
     bw_real q[4];
     quat_from_accel_mag(ax, ay, az, mx, my, mz, est->declination, q);
-    bw_ekf_initialise(&est->ekf, &est->cfg, q, (bw_real)-est->cfg.radius_m);
+    bw_ekf_initialise(&est->ekf, est->cfg, q, (bw_real)-est->cfg->radius_m);
     est->initialised = 1;
     est->t_boot_us = est->t_last_us = est->t_filter_us = t_us;
     if (t_us > BW_JOIN_IN_FLIGHT_US)
@@ -283,9 +284,9 @@ static void reinitialise_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, 
         else
             q[0] = BW_R(1.0), q[1] = q[2] = q[3] = BW_R(0.0);
     }
-    bw_ekf_initialise(e, &est->cfg, q, est->ref_pos_d - h);
+    bw_ekf_initialise(e, est->cfg, q, est->ref_pos_d - h);
     e->P[0][0] = e->P[1][1] = BW_R(100.0) * BW_R(100.0);
-    e->mode = h > (bw_real)est->cfg.release_height_m ? BW_MODE_FREE : BW_MODE_GROUND;
+    e->mode = h > e->m.release_height_m ? BW_MODE_FREE : BW_MODE_GROUND;
 }
 
 bw_real bw_height_for_taut(const bw_estimator_t *est)
@@ -307,7 +308,7 @@ static int rope_would_pull(bw_estimator_t *est)
     }
     {
         const bw_real s[BW_NCOL] = {pn, pe, pd, vn, ve, vd, x[12], x[13], x[14], x[15], x[16]};
-        bw_accelerations(&est->cfg, est->rho, s, 1, &est->probe);
+        bw_accelerations(&est->ekf.m, est->rho, s, 1, &est->probe);
     }
     return est->probe.taut;
 }
@@ -322,16 +323,16 @@ static void switch_mode(bw_estimator_t *est, int mode)
 static void update_mode(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
 {
     bw_ekf_t *e = &est->ekf;
-    const bw_config_t *cfg = &est->cfg;
+    const bw_model_t *cfg = &e->m;
     int dwell_ok;
     bw_real pn, pe, pd, dist, length;
     est->dwell += 1;
     dwell_ok = est->dwell >= est->n_dwell;
     e->learn_drag = e->mode == BW_MODE_FREE && est->dwell >= est->n_learn_drag;
     if (e->mode == BW_MODE_GROUND) {
-        int lifted = BW_FABS(BW_SQRT(ax * ax + ay * ay + az * az) - (bw_real)BW_G0) > (bw_real)cfg->release_accel_mps2;
+        int lifted = BW_FABS(BW_SQRT(ax * ax + ay * ay + az * az) - (bw_real)BW_G0) > cfg->release_accel_mps2;
         bw_real hb = est->height_baro;
-        int high = hb == hb && hb - hb == BW_R(0.0) && hb > (bw_real)cfg->release_height_m;
+        int high = hb == hb && hb - hb == BW_R(0.0) && hb > cfg->release_height_m;
         est->release_count = lifted ? est->release_count + 1 : 0;
         est->height_above = high ? est->height_above + 1 : 0;
         if (est->release_count >= est->sched.release_confirm || est->height_above >= est->sched.release_height)
@@ -340,10 +341,10 @@ static void update_mode(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
     }
     pn = e->x[0], pe = e->x[1], pd = e->x[2];
     dist = BW_SQRT(pn * pn + pe * pe + pd * pd);
-    length = e->rope_chord_m + (bw_real)cfg->radius_m;
+    length = e->rope_chord_m + cfg->radius_m;
     if (e->mode == BW_MODE_FREE) {
         bw_real hb = est->height_baro;
-        int low = hb == hb && hb - hb == BW_R(0.0) && hb < (bw_real)cfg->release_height_m;
+        int low = hb == hb && hb - hb == BW_R(0.0) && hb < cfg->release_height_m;
         int stalled, near;
         int64_t need;
         if (low && est->dwell >= est->n_false_release) {
@@ -354,13 +355,13 @@ static void update_mode(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
             return;
         }
         stalled = -pd > BW_R(0.5) * length && -e->x[BW_VEL_D] < BW_R(0.3);
-        near = dist >= length - (bw_real)cfg->taut_margin_m || stalled;
+        near = dist >= length - cfg->taut_margin_m || stalled;
         est->pulling = near && rope_would_pull(est) ? est->pulling + 1 : 0;
         /* back to taut after the rope went slack: only once it has pulled for a while (no flapping) */
         need = est->was_slack ? est->n_taut_pull : 1;
         if (dwell_ok && est->pulling >= need) {
             switch_mode(est, BW_MODE_TAUT);
-            bw_enter_taut(e, cfg, bw_height_for_taut(est), est->rho, 0);
+            bw_enter_taut(e, bw_height_for_taut(est), est->rho, 0);
         }
     } else {
         est->slack = e->forces.taut ? 0 : est->slack + 1;
@@ -466,7 +467,7 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
     }
     /* the tether pulls at the bottom of the sphere: where that is depends on the attitude */
     bw_rotation(e->q, r);
-    rad = (bw_real)est->cfg.radius_m;
+    rad = e->m.radius_m;
     e->forces.attach_ned[0] = est->probe.attach_ned[0] = rad * r[2];
     e->forces.attach_ned[1] = est->probe.attach_ned[1] = rad * r[5];
     e->forces.attach_ned[2] = est->probe.attach_ned[2] = rad * r[8];
@@ -474,11 +475,15 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
         e->forces.rope_weight_n = est->probe.rope_weight_n = e->rope_weight_n;
     for (i = 0; i < steps; i++) {
         if (i == steps - 1)
-            bw_ekf_predict(e, &est->cfg, gx, gy, gz, est->rho);
+            bw_ekf_predict(e, gx, gy, gz, est->rho);
         else
-            bw_ekf_predict(e, &est->cfg, est->last_gyro[0], est->last_gyro[1], est->last_gyro[2], est->rho);
+            bw_ekf_predict(e, est->last_gyro[0], est->last_gyro[1], est->last_gyro[2], est->rho);
         est->t_filter_us += est->dt_us;
         est->step += 1;
+        if (++e->taut_phase == est->sched.taut_every)
+            e->taut_phase = 0;
+        if (++e->noise_phase == est->sched.wind_noise_every)
+            e->noise_phase = 0;
     }
     est->last_gyro[0] = gx, est->last_gyro[1] = gy, est->last_gyro[2] = gz;
     e->time_us = est->t_filter_us;
@@ -501,7 +506,7 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
     if (e->mode == BW_MODE_TAUT) {
         bw_real wn = e->x[BW_WIND_N], we = e->x[BW_WIND_E];
         est->mean_speed += est->speed_alpha * (BW_SQRT(wn * wn + we * we) - est->mean_speed);
-        if (est->step % est->sched.wind_noise_every == 0) {
+        if (e->noise_phase == 0) {
             bw_real misfit;
             est->vertical_gust_var = vertical_gust_var(est, est->mean_speed, est->rho);
             misfit = BW_MAX(BW_R(1.0), est->accel_innov2 / est->accel_taut_var);
@@ -514,7 +519,7 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
 void bw_coast(bw_estimator_t *est, bw_real seconds)
 {
     if (est->initialised)
-        bw_ekf_inflate(&est->ekf, seconds * (bw_real)est->cfg.imu_rate_hz);
+        bw_ekf_inflate(&est->ekf, seconds * est->ekf.m.imu_rate_hz);
 }
 
 bw_real bw_wind_accuracy(const bw_estimator_t *est)

@@ -17,33 +17,23 @@ void bw_status_init(bw_status_t *st, int32_t recover_after)
     st->time_test_us = -1;
 }
 
-static void set_static_jacobian(bw_ekf_t *e, int ground)
-{
-    int i, j;
-    for (i = 0; i < 6; i++)
-        for (j = 0; j < N; j++)
-            e->F[i][j] = BW_R(0.0);
-    for (i = 0; i < 6; i++)
-        e->F[i][i] = BW_R(1.0);
-    if (!ground)
-        for (i = 0; i < 3; i++)
-            e->F[BW_POS_N + i][BW_VEL_N + i] = e->dt;
-    e->f_ground = ground;
-    if (ground)
-        e->F[3][3] = e->F[4][4] = e->F[5][5] = BW_R(0.0);
-    e->F[BW_WIND_N][BW_WRATE_N] = e->F[BW_WIND_E][BW_WRATE_E] = e->dt;
-    e->F[BW_WRATE_N][BW_WRATE_N] = e->F[BW_WRATE_E][BW_WRATE_E] = e->rate_decay;
-}
-
 void bw_ekf_init(bw_ekf_t *e, const bw_config_t *c)
 {
     int i;
     double dt = 1.0 / c->imu_rate_hz, g, qv, qr, tau, q_rate, q_walk, rho0, lift0, rope_w;
     memset(e, 0, sizeof *e);
+    e->m.radius_m = (bw_real)c->radius_m, e->m.volume_m3 = (bw_real)c->volume_m3, e->m.mass_kg = (bw_real)c->mass_kg;
+    e->m.half_cd_area_m2 = (bw_real)c->half_cd_area_m2, e->m.tether_length_m = (bw_real)c->tether_length_m;
+    e->m.rope_kg_m = (bw_real)c->rope_kg_m, e->m.rope_drag_m2 = (bw_real)c->rope_drag_m2;
+    e->m.rope_cn_d_m = (bw_real)c->rope_cn_d_m, e->m.lam_g = (bw_real)(c->rope_kg_m * BW_G0);
+    e->m.rope_weight_n = (bw_real)(c->rope_kg_m * BW_G0 * c->tether_length_m), e->m.rope_drag = c->rope_drag_m2 > 0.0;
+    e->m.turbulence_intensity = (bw_real)c->turbulence_intensity, e->m.release_height_m = (bw_real)c->release_height_m;
+    e->m.release_accel_mps2 = (bw_real)c->release_accel_mps2, e->m.taut_margin_m = (bw_real)c->taut_margin_m;
+    e->m.imu_rate_hz = (bw_real)c->imu_rate_hz, e->m.gate_sigma = (bw_real)c->gate_sigma;
+    e->m.gate2 = (bw_real)(c->gate_sigma * c->gate_sigma), e->m.radial_var = (bw_real)(c->radial_m * c->radial_m);
+    e->m.radial_rate_var = (bw_real)(c->radial_rate_mps * c->radial_rate_mps);
     e->dt = (bw_real)dt;
     e->q[0] = BW_R(1.0);
-    for (i = 0; i < N; i++)
-        e->F[i][i] = BW_R(1.0);
     for (i = 0; i < N; i++) {
         double v = i < 3 ? BW_POS_VAR_MAX_M2 : i < 6 ? BW_VEL_VAR_MAX_M2S2 : i < 9 ? BW_ATT_VAR_MAX_RAD2
                  : i < 12 ? (BW_GYRO_BIAS_SIGMA_MAX_DEG_S * 0.017453292519943295) * (BW_GYRO_BIAS_SIGMA_MAX_DEG_S * 0.017453292519943295)
@@ -85,8 +75,6 @@ void bw_ekf_init(bw_ekf_t *e, const bw_config_t *c)
     e->q_rate0 = (bw_real)qr;
     e->u0 = (bw_real)(c->expected_wind_mps > 0.5 ? c->expected_wind_mps : 0.5);
     e->q_walk_step = (bw_real)(q_walk * dt);
-    e->f_ground = 0;
-    set_static_jacobian(e, 1);
     e->mode = BW_MODE_GROUND;
     e->drag_correlated = 1;
     e->recover_after = (int32_t)(c->recover_after_s * c->imu_rate_hz);
@@ -125,34 +113,95 @@ void bw_ekf_initialise(bw_ekf_t *e, const bw_config_t *c, const bw_real q[4], bw
     bw_ekf_reset(e, BW_RESET_INITIALISE);
 }
 
-/* P <- F P F^T over F's non-zeros; the result written symmetric */
-static void propagate_covariance(bw_ekf_t *e)
+/* The non-zeros of row i of the transition matrix F (ekf.py predict and _set_static_jacobian): the
+ * position integrates the velocity; in flight the velocity follows the model's Jacobian (on the ground it
+ * is held at zero); the attitude error is driven by the gyro-bias error through R; the wind integrates
+ * its rate, which decays. F is never stored: each row is made when a product needs it. */
+static int f_row(const bw_ekf_t *e, const bw_real r[9], int ground, int i, int cols[BW_NCOL + 1],
+                 bw_real vals[BW_NCOL + 1])
 {
-    int nz_col[N][N], nz_n[N];
-    int i, j, k;
-    for (i = 0; i < N; i++) {
-        nz_n[i] = 0;
-        for (j = 0; j < N; j++)
-            if (e->F[i][j] != BW_R(0.0))
-                nz_col[i][nz_n[i]++] = j;
+    const bw_real dt = e->dt;
+    int n = 0, j;
+    if (i < 3) {
+        cols[n] = i, vals[n++] = BW_R(1.0);
+        if (!ground)
+            cols[n] = 3 + i, vals[n++] = dt;
+    } else if (i < 6) {
+        if (!ground)
+            for (j = 0; j < BW_NCOL; j++) {
+                int col = MODEL_COLS[j];
+                bw_real v = e->forces.ja[BW_NCOL * (i - 3) + j] * dt;
+                if (col == i)
+                    v += BW_R(1.0);
+                if ((col == BW_DRAG && !e->learn_drag) || v == BW_R(0.0))
+                    continue; /* a structural zero of the model's Jacobian (the reference adds its 0 x P) */
+                cols[n] = col, vals[n++] = v;
+            }
+    } else if (i < 9) {
+        cols[n] = i, vals[n++] = BW_R(1.0);
+        for (j = 0; j < 3; j++)
+            cols[n] = 9 + j, vals[n++] = -r[3 * (i - 6) + j] * dt;
+    } else if (i == BW_WIND_N || i == BW_WIND_E) {
+        cols[n] = i, vals[n++] = BW_R(1.0);
+        cols[n] = i + 2, vals[n++] = dt;
+    } else if (i == BW_WRATE_N || i == BW_WRATE_E) {
+        cols[n] = i, vals[n++] = e->rate_decay;
+    } else {
+        cols[n] = i, vals[n++] = BW_R(1.0);
     }
-    for (i = 0; i < N; i++)
-        for (j = 0; j < N; j++) {
-            bw_real s = BW_R(0.0);
-            for (k = 0; k < nz_n[i]; k++)
-                s += e->F[i][nz_col[i][k]] * e->P[nz_col[i][k]][j];
-            e->T[i][j] = s;
-        }
-    for (i = 0; i < N; i++)
-        for (j = i; j < N; j++) {
-            bw_real s = BW_R(0.0);
-            for (k = 0; k < nz_n[j]; k++)
-                s += e->T[i][nz_col[j][k]] * e->F[j][nz_col[j][k]];
-            e->P[i][j] = e->P[j][i] = s;
-        }
+    return n;
 }
 
-void bw_ekf_predict(bw_ekf_t *e, const bw_config_t *c, bw_real gx, bw_real gy, bw_real gz, bw_real rho)
+/* P <- F P F^T over F's non-zeros; the result written symmetric (both triangles, bit-identical) */
+static void propagate_covariance(bw_ekf_t *e, const bw_real r[9], int ground)
+{
+    int cols[BW_NCOL + 1], i, j, k, n;
+    bw_real vals[BW_NCOL + 1], acc[N];
+    for (i = 0; i < N; i++) { /* T = F P, a row of T from the rows of P that row i of F takes */
+        bw_real *t = e->T[i];
+        n = f_row(e, r, ground, i, cols, vals);
+        if (n == 0) {
+            for (j = 0; j < N; j++)
+                t[j] = BW_R(0.0);
+            continue;
+        }
+        if (n == 1 && vals[0] == BW_R(1.0)) { /* an identity row: a copy (1 x P, exactly) */
+            memcpy(t, e->P[cols[0]], sizeof e->T[i]);
+            continue;
+        }
+        {
+            const bw_real v = vals[0], *pr = e->P[cols[0]];
+            for (j = 0; j < N; j++)
+                t[j] = v * pr[j];
+        }
+        for (k = 1; k < n; k++) {
+            const bw_real v = vals[k], *pr = e->P[cols[k]];
+            for (j = 0; j < N; j++)
+                t[j] += v * pr[j];
+        }
+    }
+    for (j = 0; j < N; j++) { /* P = T F^T: column j from the columns of T that row j of F takes */
+        n = f_row(e, r, ground, j, cols, vals);
+        if (n == 1 && vals[0] == BW_R(1.0)) {
+            const int c = cols[0];
+            for (i = 0; i <= j; i++)
+                e->P[i][j] = e->P[j][i] = e->T[i][c];
+            continue;
+        }
+        for (i = 0; i <= j; i++)
+            acc[i] = BW_R(0.0);
+        for (k = 0; k < n; k++) {
+            const bw_real v = vals[k];
+            const int c = cols[k];
+            for (i = 0; i <= j; i++)
+                acc[i] += e->T[i][c] * v;
+        }
+        for (i = 0; i <= j; i++)
+            e->P[i][j] = e->P[j][i] = acc[i];
+    }
+}
+
+void bw_ekf_predict(bw_ekf_t *e, bw_real gx, bw_real gy, bw_real gz, bw_real rho)
 {
     bw_real *x = e->x;
     const bw_real dt = e->dt;
@@ -161,8 +210,7 @@ void bw_ekf_predict(bw_ekf_t *e, const bw_config_t *c, bw_real gx, bw_real gy, b
     bw_real q0 = e->q[0], q1 = e->q[1], q2 = e->q[2], q3 = e->q[3], n, r[9];
     bw_real wx = gx - x[BW_GB_X], wy = gy - x[BW_GB_Y], wz = gz - x[BW_GB_Z];
     bw_real ang = BW_SQRT(wx * wx + wy * wy + wz * wz) * dt;
-    int ground, i, j;
-    (void)c;
+    int ground, i;
     if (ang > BW_R(1e-12)) {
         bw_real s = BW_SIN(BW_R(0.5) * ang) / ang * dt, cc = BW_COS(BW_R(0.5) * ang);
         bw_real ax = wx * s, ay = wy * s, az = wz * s;
@@ -176,42 +224,27 @@ void bw_ekf_predict(bw_ekf_t *e, const bw_config_t *c, bw_real gx, bw_real gy, b
     e->q[0] = q0 * n, e->q[1] = q1 * n, e->q[2] = q2 * n, e->q[3] = q3 * n;
     bw_rotation(e->q, r);
     ground = e->mode == BW_MODE_GROUND;
-    if (ground != e->f_ground)
-        set_static_jacobian(e, ground);
     if (ground) {
         x[BW_VEL_N] = x[BW_VEL_E] = x[BW_VEL_D] = BW_R(0.0);
     } else {
         const bw_real s[BW_NCOL] = {pn, pe, pd, vn, ve, vd, wn, we, rn, re, k};
         bw_forces_t *f = &e->forces;
-        bw_accelerations(c, rho, s, e->mode == BW_MODE_TAUT, f);
+        bw_accelerations(&e->m, rho, s, e->mode == BW_MODE_TAUT, f);
         x[BW_POS_N] = pn + (vn + BW_R(0.5) * f->an * dt) * dt;
         x[BW_POS_E] = pe + (ve + BW_R(0.5) * f->ae * dt) * dt;
         x[BW_POS_D] = pd + (vd + BW_R(0.5) * f->ad * dt) * dt;
         x[BW_VEL_N] = vn + f->an * dt;
         x[BW_VEL_E] = ve + f->ae * dt;
         x[BW_VEL_D] = vd + f->ad * dt;
-        /* d(vel)/d(x) = I + (d a / d x) dt over the model's columns */
-        for (i = 0; i < 3; i++)
-            for (j = 0; j < BW_NCOL; j++)
-                e->F[3 + i][MODEL_COLS[j]] = f->ja[BW_NCOL * i + j] * dt;
-        e->F[BW_VEL_N][BW_VEL_N] += BW_R(1.0);
-        e->F[BW_VEL_E][BW_VEL_E] += BW_R(1.0);
-        e->F[BW_VEL_D][BW_VEL_D] += BW_R(1.0);
-        if (e->learn_drag)
+        if (e->learn_drag) /* d(vel)/d(x) = I + (d a / d x) dt: f_row */
             e->drag_correlated = 1;
-        else
-            e->F[3][BW_DRAG] = e->F[4][BW_DRAG] = e->F[5][BW_DRAG] = BW_R(0.0);
     }
     /* the wind: integrated Ornstein-Uhlenbeck (tuning.py) */
     x[BW_WIND_N] = wn + rn * dt;
     x[BW_WIND_E] = we + re * dt;
     x[BW_WRATE_N] = rn * e->rate_decay;
     x[BW_WRATE_E] = re * e->rate_decay;
-    /* attitude error driven by the gyro-bias error: d(att)/dt = -R d(bias) */
-    for (i = 0; i < 3; i++)
-        for (j = 0; j < 3; j++)
-            e->F[6 + i][9 + j] = -r[3 * i + j] * dt;
-    propagate_covariance(e);
+    propagate_covariance(e, r, ground);
     for (i = 0; i < N; i++)
         e->P[i][i] += ground ? e->qd_ground[i] : e->q_flight[i];
 }
@@ -226,7 +259,6 @@ void bw_ekf_adapt_wind_noise(bw_ekf_t *e, bw_real mean_speed_mps, bw_real model_
     e->qd_ground[BW_WRATE_N] = e->qd_ground[BW_WRATE_E] = q;
     e->rate_decay = BW_EXP(-e->dt * ratio / e->wp_tau_s);
     e->q_walk_step = q * (t * t);
-    e->F[BW_WRATE_N][BW_WRATE_N] = e->F[BW_WRATE_E][BW_WRATE_E] = e->rate_decay;
 }
 
 void bw_ekf_inflate(bw_ekf_t *e, bw_real steps)
@@ -250,12 +282,12 @@ static int finite(bw_real v)
     return v == v && v - v == BW_R(0.0);
 }
 
-int bw_ekf_fuse(bw_ekf_t *e, const bw_config_t *c, bw_real innov, bw_real r, bw_status_t *st, bw_real gate, int recover)
+int bw_ekf_fuse(bw_ekf_t *e, bw_real innov, bw_real r, bw_status_t *st, bw_real gate, int recover)
 {
     int nz[N], nn = 0, i, j, k;
     bw_real hdx = BW_R(0.0), s = BW_R(0.0), ratio, kv[N];
     if (!(gate > BW_R(0.0)))
-        gate = (bw_real)c->gate_sigma;
+        gate = e->m.gate_sigma;
     for (i = 0; i < N; i++)
         if (e->h[i] != BW_R(0.0))
             nz[nn++] = i;
@@ -297,20 +329,22 @@ int bw_ekf_fuse(bw_ekf_t *e, const bw_config_t *c, bw_real innov, bw_real r, bw_
             e->dx[i] += kv[i] * innov;
         }
     }
-    for (i = 0; i < N; i++)
+    for (i = 0; i < N; i++) {
+        const bw_real ki = kv[i];
         for (j = i; j < N; j++)
-            e->P[i][j] = e->P[j][i] = e->P[i][j] - kv[i] * e->ph[j];
+            e->P[i][j] = e->P[j][i] = e->P[i][j] - ki * e->ph[j];
+    }
     st->fused += 1;
     st->consecutive_rejects = 0;
     st->time_last_fuse_us = e->time_us;
     return 1;
 }
 
-int bw_ekf_fuse3(bw_ekf_t *e, const bw_config_t *c, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_status_t st[3],
+int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_status_t st[3],
                  bw_real r2_extra)
 {
     int nz[N], nn = 0, i, j, k, a, ok = 1;
-    bw_real s[3][3], si[3][3], k3[N][3], inn[3], var[3], gate2, worst = BW_R(0.0), scale = BW_R(1.0);
+    bw_real s[3][3], si[3][3], k3[N][3], hc[3][N], inn[3], var[3], gate2, worst = BW_R(0.0), scale = BW_R(1.0);
     bw_real a00, a01, a02, det, inv;
     for (j = 0; j < N; j++)
         if (e->H3[0][j] != BW_R(0.0) || e->H3[1][j] != BW_R(0.0) || e->H3[2][j] != BW_R(0.0))
@@ -322,13 +356,19 @@ int bw_ekf_fuse3(bw_ekf_t *e, const bw_config_t *c, bw_real i0, bw_real i1, bw_r
         inn[a] = v;
     }
     i0 -= inn[0], i1 -= inn[1], i2 -= inn[2];
-    for (i = 0; i < N; i++)
-        for (a = 0; a < 3; a++) {
-            bw_real v = BW_R(0.0);
-            for (k = 0; k < nn; k++)
-                v += e->P[i][nz[k]] * e->H3[a][nz[k]];
-            e->pht[i][a] = v;
+    for (k = 0; k < nn; k++)
+        hc[0][k] = e->H3[0][nz[k]], hc[1][k] = e->H3[1][nz[k]], hc[2][k] = e->H3[2][nz[k]];
+    for (i = 0; i < N; i++) {
+        const bw_real *row = e->P[i];
+        bw_real v0 = BW_R(0.0), v1 = BW_R(0.0), v2 = BW_R(0.0);
+        for (k = 0; k < nn; k++) {
+            const bw_real pv = row[nz[k]];
+            v0 += pv * hc[0][k];
+            v1 += pv * hc[1][k];
+            v2 += pv * hc[2][k];
         }
+        e->pht[i][0] = v0, e->pht[i][1] = v1, e->pht[i][2] = v2;
+    }
     for (a = 0; a < 3; a++)
         for (j = 0; j < 3; j++) {
             bw_real v = BW_R(0.0);
@@ -342,7 +382,7 @@ int bw_ekf_fuse3(bw_ekf_t *e, const bw_config_t *c, bw_real i0, bw_real i1, bw_r
     s[0][1] = s[1][0] = BW_R(0.5) * (s[0][1] + s[1][0]);
     s[0][2] = s[2][0] = BW_R(0.5) * (s[0][2] + s[2][0]);
     s[1][2] = s[2][1] = BW_R(0.5) * (s[1][2] + s[2][1]);
-    gate2 = (bw_real)(c->gate_sigma * c->gate_sigma);
+    gate2 = e->m.gate2;
     inn[0] = i0, inn[1] = i1, inn[2] = i2;
     var[0] = s[0][0], var[1] = s[1][1], var[2] = s[2][2];
     for (a = 0; a < 3; a++) {
@@ -391,10 +431,11 @@ int bw_ekf_fuse3(bw_ekf_t *e, const bw_config_t *c, bw_real i0, bw_real i1, bw_r
             k3[i][a] = e->pht[i][0] * si[0][a] + e->pht[i][1] * si[1][a] + e->pht[i][2] * si[2][a];
         e->dx[i] += k3[i][0] * inn[0] + k3[i][1] * inn[1] + k3[i][2] * inn[2];
     }
-    for (i = 0; i < N; i++)
+    for (i = 0; i < N; i++) {
+        const bw_real k0 = k3[i][0], k1 = k3[i][1], k2 = k3[i][2];
         for (j = i; j < N; j++)
-            e->P[i][j] = e->P[j][i] =
-                e->P[i][j] - (k3[i][0] * e->pht[j][0] + k3[i][1] * e->pht[j][1] + k3[i][2] * e->pht[j][2]);
+            e->P[i][j] = e->P[j][i] = e->P[i][j] - (k0 * e->pht[j][0] + k1 * e->pht[j][1] + k2 * e->pht[j][2]);
+    }
     for (a = 0; a < 3; a++) {
         st[a].fused += 1;
         st[a].consecutive_rejects = 0;
@@ -450,9 +491,7 @@ void bw_ekf_fix_covariance(bw_ekf_t *e)
 {
     int i, j;
     bw_real scale[N], mn;
-    for (i = 0; i < N; i++)
-        for (j = i + 1; j < N; j++)
-            e->P[i][j] = e->P[j][i] = (e->P[i][j] + e->P[j][i]) * BW_R(0.5);
+    /* (the reference symmetrises here: P is kept exactly symmetric, every write sets both triangles) */
     for (i = 0; i < N; i++)
         scale[i] = e->var_max[i] / e->P[i][i];
     mn = scale[0];
@@ -463,8 +502,8 @@ void bw_ekf_fix_covariance(bw_ekf_t *e)
         for (i = 0; i < N; i++)
             scale[i] = BW_SQRT(BW_MIN(scale[i], BW_R(1.0)));
         for (i = 0; i < N; i++)
-            for (j = 0; j < N; j++)
-                e->P[i][j] = e->P[i][j] * scale[i] * scale[j];
+            for (j = i; j < N; j++)
+                e->P[i][j] = e->P[j][i] = e->P[i][j] * scale[i] * scale[j];
     }
     for (i = 0; i < N; i++)
         if (e->P[i][i] < (bw_real)BW_VAR_MIN)

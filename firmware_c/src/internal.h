@@ -25,8 +25,7 @@ double bw_round_half_even(double v);
 void bw_wind_process(double mean_mps, double ti, double diameter_m, double *tau_s, double *q_rate, double *q_walk);
 
 /* model.py */
-void bw_accelerations(const bw_config_t *m, bw_real rho, const bw_real s[BW_NCOL], int taut, bw_forces_t *out);
-bw_real bw_rope_weight_n(const bw_config_t *m);
+void bw_accelerations(const bw_model_t *m, bw_real rho, const bw_real s[BW_NCOL], int taut, bw_forces_t *out);
 
 /* catenary.py */
 void bw_rope_chord(bw_real fn, bw_real fe, bw_real fd, bw_real length_m, bw_real weight_n_m, bw_real drag_kg_m2,
@@ -38,12 +37,12 @@ bw_real bw_effective_rod(bw_real fn, bw_real fe, bw_real fd, bw_real cn, bw_real
 void bw_ekf_init(bw_ekf_t *e, const bw_config_t *c);
 void bw_ekf_initialise(bw_ekf_t *e, const bw_config_t *c, const bw_real q[4], bw_real pos_d);
 void bw_ekf_reset(bw_ekf_t *e, int kind);
-void bw_ekf_predict(bw_ekf_t *e, const bw_config_t *c, bw_real gx, bw_real gy, bw_real gz, bw_real rho);
+void bw_ekf_predict(bw_ekf_t *e, bw_real gx, bw_real gy, bw_real gz, bw_real rho);
 void bw_ekf_adapt_wind_noise(bw_ekf_t *e, bw_real mean_speed_mps, bw_real model_misfit);
 void bw_ekf_inflate(bw_ekf_t *e, bw_real steps);
 void bw_ekf_begin_update(bw_ekf_t *e);
-int bw_ekf_fuse(bw_ekf_t *e, const bw_config_t *c, bw_real innov, bw_real r, bw_status_t *st, bw_real gate, int recover);
-int bw_ekf_fuse3(bw_ekf_t *e, const bw_config_t *c, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_status_t st[3],
+int bw_ekf_fuse(bw_ekf_t *e, bw_real innov, bw_real r, bw_status_t *st, bw_real gate, int recover);
+int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_status_t st[3],
                  bw_real r2_extra);
 int bw_ekf_end_update(bw_ekf_t *e);
 void bw_ekf_fix_covariance(bw_ekf_t *e);
@@ -63,7 +62,7 @@ void bw_control_baro(bw_estimator_t *est);
 void bw_reset_height(bw_ekf_t *e, bw_real pos_d, bw_real var);
 void bw_control_mag(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az, bw_real mx, bw_real my, bw_real mz);
 void bw_control_tether(bw_estimator_t *est);
-void bw_enter_taut(bw_ekf_t *e, const bw_config_t *c, bw_real height_m, bw_real rho, int from_tilt);
+void bw_enter_taut(bw_ekf_t *e, bw_real height_m, bw_real rho, int from_tilt);
 
 /* control.py */
 bw_real bw_height_for_taut(const bw_estimator_t *est);

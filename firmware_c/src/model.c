@@ -2,54 +2,49 @@
  * parameters and the free / taut configuration at one state. */
 #include "internal.h"
 
-bw_real bw_rope_weight_n(const bw_config_t *m)
-{
-    return (bw_real)(m->rope_kg_m * BW_G0 * m->tether_length_m);
-}
-
 /* (m_eff, push, c, lift, rope_w, rope_slope, kr, att_n, att_e, att_d) for air density rho */
-static void parameters(const bw_config_t *m, bw_real rho, bw_real pd, int taut, const bw_real attach[3],
+static void parameters(const bw_model_t *m, bw_real rho, bw_real pd, int taut, const bw_real attach[3],
                        bw_real rope_weight_n, bw_real par[10])
 {
-    bw_real rho_v = rho * (bw_real)m->volume_m3;
-    bw_real m_eff = (bw_real)m->mass_kg + (bw_real)BW_ADDED_MASS_COEFFICIENT * rho_v;
-    bw_real lam_g = (bw_real)(m->rope_kg_m * BW_G0);
+    bw_real rho_v = rho * m->volume_m3;
+    bw_real m_eff = m->mass_kg + (bw_real)BW_ADDED_MASS_COEFFICIENT * rho_v;
+    bw_real lam_g = m->lam_g;
     bw_real rope_w, slope;
     if (taut) {
-        rope_w = rope_weight_n != rope_weight_n ? lam_g * (bw_real)m->tether_length_m : rope_weight_n;
+        rope_w = rope_weight_n != rope_weight_n ? lam_g * m->tether_length_m : rope_weight_n;
         slope = BW_R(0.0);
     } else {
-        bw_real height = -pd - (bw_real)m->radius_m;
+        bw_real height = -pd - m->radius_m;
         if (height <= BW_R(0.0)) {
             rope_w = slope = BW_R(0.0);
-        } else if (height >= (bw_real)m->tether_length_m) {
-            rope_w = lam_g * (bw_real)m->tether_length_m;
+        } else if (height >= m->tether_length_m) {
+            rope_w = lam_g * m->tether_length_m;
             slope = BW_R(0.0);
         } else { /* lambda g (-pd - r), written as rope_w + slope * pd */
-            rope_w = -lam_g * (bw_real)m->radius_m;
+            rope_w = -lam_g * m->radius_m;
             slope = -lam_g;
         }
     }
     par[0] = m_eff;
     par[1] = (BW_R(1.0) + (bw_real)BW_ADDED_MASS_COEFFICIENT) * rho_v;
-    par[2] = rho * (bw_real)m->half_cd_area_m2;
-    par[3] = (rho_v - (bw_real)m->mass_kg) * (bw_real)BW_G0;
+    par[2] = rho * m->half_cd_area_m2;
+    par[3] = (rho_v - m->mass_kg) * (bw_real)BW_G0;
     par[4] = rope_w;
     par[5] = slope;
-    par[6] = taut ? rho * (bw_real)m->rope_drag_m2 : BW_R(0.0);
+    par[6] = taut ? rho * m->rope_drag_m2 : BW_R(0.0);
     par[7] = attach[0];
     par[8] = attach[1];
     par[9] = attach[2];
 }
 
-void bw_accelerations(const bw_config_t *m, bw_real rho, const bw_real s[BW_NCOL], int taut, bw_forces_t *out)
+void bw_accelerations(const bw_model_t *m, bw_real rho, const bw_real s[BW_NCOL], int taut, bw_forces_t *out)
 {
     int i;
     parameters(m, rho, s[2], taut, out->attach_ned, out->rope_weight_n, out->params);
     out->m_eff_kg = out->params[0];
     if (taut) {
         bw_real r[BW_TAUT_MODEL_SIZE];
-        if (m->rope_drag_m2 > 0.0)
+        if (m->rope_drag)
             bw_taut_model(s, out->params, r);
         else
             bw_taut_model_plain(s, out->params, r);

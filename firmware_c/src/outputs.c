@@ -15,7 +15,7 @@ void bw_output_update(bw_estimator_t *est, int64_t t_us)
 {
     bw_windcov_out_t *o = &est->out;
     const bw_real wn = est->ekf.x[BW_WIND_N], we = est->ekf.x[BW_WIND_E];
-    const bw_real a = (bw_real)o->alpha;
+    const bw_real a = o->alpha;
     if (!o->primed) {
         o->ln = wn, o->le = we, o->primed = 1;
         o->next_slot_us = t_us;
