@@ -20,7 +20,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 SOURCES = sorted((HERE / "src").glob("*.c"))
 HEADERS = sorted((HERE / "src").glob("*.h")) + sorted((HERE / "include").glob("*.h"))
-FLAGS = ("-std=c99", "-O2", "-fPIC", "-shared", "-Wall", "-Wextra", "-Werror", "-Wshadow")
+FLAGS = ("-std=c99", "-O3", "-fPIC", "-shared", "-Wall", "-Wextra", "-Werror", "-Wshadow")
 REALS = {"float": ("-Wdouble-promotion",), "double": ("-DBW_DOUBLE",)}
 
 
