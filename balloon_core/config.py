@@ -205,6 +205,7 @@ SCHEMA: dict[str, dict[str, Rule]] = {
     "filter": {
         "imu_rate_hz": num(1.0, 10000.0),
         "float32": BOOL,
+        "core": one_of("c", "py"),
         "accel_process_mps2": num(1e-4, 100.0),
         "expected_wind_mps": num(0.0, 50.0),
         "turbulence_intensity": num(0.01, 1.0),

@@ -13,7 +13,7 @@ from balloon_core.atmosphere import G0, R_AIR
 from balloon_core.config import Design
 from balloon_core.rotation import euler_from_quat
 from balloon_core.score import response, score
-from firmware_py.estimator.control import Estimator
+from firmware_py.core_c import new_core
 from firmware_py.estimator.state import FilterConfig
 from sim_hil.dynamics import TruthConfig
 from sim_hil.simulator import TRUTH_COLUMNS, Simulation
@@ -25,7 +25,7 @@ def fly(design: Design, wind: WindConfig, truth: TruthConfig, filt: FilterConfig
     """Rows (time s, wind N, wind E, horiz accuracy, roll, pitch, yaw rad) per IMU sample, the truth table by
     column, and the estimator (its counters)."""
     sim = Simulation(design, wind, truth, duration_s, seed)
-    est = Estimator(design, filt)
+    est, _ = new_core(design, filt)
     rows = np.zeros((sim.n_imu, 7))
     for i, s in enumerate(sim.samples()):
         if s.baro:
