@@ -17,7 +17,7 @@ wrong sign, a missed row, a different gate) and shows in the mode or reset seque
 Also writes and reads the binary sample streams that ``firmware_c/replay`` (host, sanitisers, QEMU)
 replays, and their outputs.
 
-    python -m firmware_py.lockstep FLIGHT.tlog [--config FILE.toml] [--float32]
+    python -m firmware_py.lockstep FLIGHT.tlog|CAPTURE.raw [--config FILE.toml] [--float32]
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import dataclasses
 import math
 import struct
 import sys
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -205,18 +205,33 @@ def compare_outputs(a: np.ndarray, b: np.ndarray, real: str = "float") -> tuple[
     return worst <= 1.0, line
 
 
-def flight_samples(path: str, cfg: FilterConfig) -> tuple[list[Sample], FilterConfig]:
-    """The samples of a log (any format the post-flight readers take) after the firmware's input
-    pipeline, and the configuration at the rate it chose."""
+def capture_samples(path: str) -> Iterator[Sample]:
+    """The sensor samples of a tlog or a raw capture, as the firmware reads them (a ULog or a DataFlash log:
+    ``postflight.logs.read_flight(path).samples()``)."""
+    from balloon_core.samples import MavlinkSampler
+    from balloon_core.wire import LinkStats, capture_messages
+
+    sampler = MavlinkSampler()
+    for m in capture_messages(path, LinkStats()):
+        yield from sampler.convert(m) or ()
+
+
+def pipeline_samples(samples: Iterable[Sample], cfg: FilterConfig) -> tuple[list[Sample], FilterConfig]:
+    """The samples after the firmware's input pipeline (rate measured, faster streams averaged), and the
+    configuration at the rate it chose."""
     from firmware_py.streams import InputPipeline
-    from postflight.logs import read_flight
 
     pipe = InputPipeline(cfg, False)
     out: list[Sample] = []
-    for s in read_flight(path).samples():
+    for s in samples:
         out.extend(pipe.push(s))
     out.extend(pipe.flush())
     return out, pipe.cfg
+
+
+def flight_samples(path: str, cfg: FilterConfig) -> tuple[list[Sample], FilterConfig]:
+    """``pipeline_samples`` of a tlog or a raw capture."""
+    return pipeline_samples(capture_samples(path), cfg)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -224,7 +239,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from firmware_py.cli import load_config
 
     ap = userargs.Parser(prog="lockstep", description="the C core against the Python reference, step by step")
-    ap.add_argument("flight", type=userargs.input_file, help=".tlog, raw capture, .ulg or .bin")
+    ap.add_argument("flight", type=userargs.input_file, help=".tlog or raw capture")
     ap.add_argument("--config", type=userargs.input_file)
     ap.add_argument("--float32", action="store_true", help="the float build against the Python float32 mode")
     args = ap.parse_args(argv)
