@@ -275,7 +275,7 @@ class Firmware:
             f"resets: {c.time_resets} reboot, {c.numeric_resets} numeric, {c.taut_resets} taut, "
             f"{c.baro_resets} baro, {c.false_releases} false release, {c.mode_switches} mode switches, "
             f"{self.wind_cov_sent} WIND_COV sent, final mode {self.est.mode_name}, "
-            f"filter at {self.est.cfg.imu_rate_hz:g} Hz{self._rate_note()}, "
+            f"filter at {self.est.cfg.imu_rate_hz:g} Hz{self._rate_note()} on the {self._core_name()}, "
             f"input packets {self.stats.loss_summary()}, {self.imu_missing} IMU samples missing by time"
             f"{self._consistency_note()}" + (self.streams.summary() if self.streams is not None else "")
         )
@@ -294,6 +294,10 @@ class Firmware:
             return ", model consistent"
         parts[0] += " of flight time"
         return ", model misfit: " + ", ".join(parts)
+
+    def _core_name(self) -> str:
+        real = "float32" if self.est.cfg.float32 else "float64"
+        return f"C core ({real})" if self.est.cfg.core == "c" else f"Python core ({real})"
 
     def _rate_note(self) -> str:
         d = self.pipe.decision
