@@ -17,7 +17,7 @@ import numpy as np
 
 from balloon_core.config import Design
 from balloon_core.samples import BaroSample, Sample
-from balloon_core.score import direction_from_deg
+from balloon_core.score import direction_from_deg, wind_unknown
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.state import MODE_GROUND, N_STATES, POS_D, POS_E, POS_N, WIND_E, WIND_N, FilterConfig
 from firmware_py.streams import InputPipeline, feed
@@ -31,7 +31,6 @@ from postflight.product import (
 from postflight.smoother import SmootherRecorder
 
 GRID_HZ = 10.0  # the product's rate: WIND_COV's default
-UNKNOWN_SIGMA_MPS = 1.0  # a horizontal 1-sigma above max(this, half the speed): the wind is not known
 
 
 def _signature(est: Estimator) -> tuple:
@@ -173,7 +172,7 @@ def _product(
     moved = (np.abs(wn - sm.x[:, WIND_N]) > 1e-9) | (np.abs(we - sm.x[:, WIND_E]) > 1e-9)
     flags[moved] |= FLAG_SMOOTHED
     unknown = never | (modes == MODE_GROUND)
-    unknown |= np.sqrt(var_n + var_e) > np.maximum(UNKNOWN_SIGMA_MPS, 0.5 * np.hypot(wn, we))
+    unknown |= wind_unknown(np.hypot(wn, we), np.sqrt(var_n + var_e))
     flags[unknown] |= FLAG_WIND_UNKNOWN
     height = -sm.xs[:, POS_D]
     if not baro_seen:
