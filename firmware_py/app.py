@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from balloon_core.config import Design
@@ -80,7 +81,8 @@ def wind_fields(wind_n: float, wind_e: float) -> tuple[float, float, float]:
     """WIND (168, ardupilotmega): (direction the wind comes FROM in degrees [0, 360), 0 = north,
     clockwise; horizontal speed m/s; vertical speed m/s, NaN: not estimated) of the air velocity
     north / east that WIND_COV carries."""
-    return float(direction_from_deg(wind_n, wind_e)), math.hypot(wind_n, wind_e), math.nan
+    direction = np.float32(direction_from_deg(wind_n, wind_e)) % np.float32(360.0)  # the wire's float32: < 360
+    return float(direction), math.hypot(wind_n, wind_e), math.nan
 
 
 def estimator_flags(initialised: bool, silent: bool, mode: int, flags: int, wind_known: bool) -> int:
