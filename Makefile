@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-test
 BENCH_STAMP := $(VENV)/.installed-bench
 
-.PHONY: test test-fast demo bench lint clean
+.PHONY: test test-fast demo bench lint clean docs-figures
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -30,6 +30,10 @@ test-fast: $(STAMP)
 
 demo: $(STAMP)
 	$(BIN)/balloon-sil --scenario paper-reference
+
+# the figures and numbers the docs quote, from their commands (docs/sil.png, docs/study.md, docs/figures.json)
+docs-figures: $(STAMP)
+	$(BIN)/python tools/docs_figures.py
 
 bench: $(BENCH_STAMP)
 	$(BIN)/python -m benchmarks.run_all
