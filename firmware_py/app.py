@@ -293,16 +293,22 @@ class Firmware:
         the wind's accuracy); the position's 1-sigma from P."""
         est = self.est
         c, P = est.consistency, est.ekf.P
-        wn, we = est.wind()
-        known = est.ekf.mode != MODE_GROUND and not est.unconfirmed and not self.silent
-        known = known and not wind_unknown(math.hypot(wn, we), est.wind_accuracy())
-        bits = estimator_flags(est.initialised, self.silent, est.ekf.mode, c.flags, bool(known))
+        bits = estimator_flags(est.initialised, self.silent, est.ekf.mode, c.flags, self.wind_known())
         r = [v / FLAG_NIS for v in c.nis]
         frame = pack(self.mav, self.mav.estimator_status_encode(
             max(est.t_last_us, 0), bits, r[ACCEL], r[ALIGN], r[BARO], r[MAG], r[RADIUS], max(r),
             math.sqrt(float(P[POS_N, POS_N] + P[POS_E, POS_E])), math.sqrt(float(P[POS_D, POS_D])),
         ))  # fmt: skip
         self._send(frame, t_us)
+
+    def wind_known(self) -> bool:
+        """Is the wind known: the sensors heard, in flight (not resting on the ground), not an unconfirmed
+        join in flight, and an accuracy below what the wind itself could be (``wind_unknown``)?"""
+        est = self.est
+        if not est.initialised or self.silent or est.ekf.mode == MODE_GROUND or est.unconfirmed:
+            return False
+        wn, we = est.wind()
+        return not wind_unknown(math.hypot(wn, we), est.wind_accuracy())
 
     def wind(self, t_us: int) -> None:
         """WIND (168) at 1 Hz, the estimate WIND_COV carries (``wind_fields``)."""
@@ -381,8 +387,11 @@ class Firmware:
         if not est.initialised:
             return f"waiting for the sensors, {self.stats.lost} lost"
         wn, we = est.wind()
-        frm = direction_from_deg(wn, we)
+        if self.wind_known():
+            wind = f"wind {math.hypot(wn, we):.1f} m/s from {direction_from_deg(wn, we):03.0f} deg"
+        else:
+            wind = "wind not known"  # not the filter's calm from 180 deg
+        wind += f" \u00b1{est.wind_accuracy():.2f}"
         return (f"{self.stats.lost} lost ({100 * self.stats.lost_fraction():.1f} %), {self.imu_missing} IMU missing, "
-                f"{est.counters.long_gaps} long gaps, mode {est.mode_name}, wind {math.hypot(wn, we):.1f} m/s "
-                f"from {frm:03.0f} deg \u00b1{est.wind_accuracy():.2f}"
+                f"{est.counters.long_gaps} long gaps, mode {est.mode_name}, {wind}"
                 + (f", misfit {','.join(est.consistency.names())}" if est.consistency.flags else ""))  # fmt: skip
