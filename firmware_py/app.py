@@ -10,7 +10,7 @@ explain an aid source's data, the reported ``horiz_accuracy`` already grows (``E
 this module says why: a STATUSTEXT when the flags change, the health bits of SYS_STATUS, ESTIMATOR_STATUS,
 the live status line and the summary (docs/protocol.md, "Model misfit", "ESTIMATOR_STATUS").
 
-Besides WIND_COV it sends ArduPilot's WIND (168) at 1 Hz, which MAVProxy and Mission Planner show, so
+Besides WIND_COV it sends ArduPilot's WIND (168) at 1 Hz (``WIND_EVERY``), which MAVProxy and Mission Planner show, so
 frames are packed with pymavlink's ``ardupilotmega`` dialect (which includes ``common``).
 """
 
@@ -46,6 +46,9 @@ MISFIT_HEALTH_BITS = {
 }  # fmt: skip
 assert tuple(MISFIT_HEALTH_BITS) == SOURCES
 TEXT_MAX = 50  # STATUSTEXT's text field, characters
+# WIND (168) goes out just before every WIND_EVERY-th WIND_COV (1 Hz at the default 10 Hz): a ground station
+# that reads both (QGroundControl) is left holding WIND_COV's value, never one or the other at random
+WIND_EVERY = 10
 TEXT_INTERVAL_US = 1_000_000  # at most one consistency STATUSTEXT a second (sensor clock)
 # the sensors' own health bits: all cleared while the sensors are silent (the gyro has no innovation, so
 # a cleared gyro bit says "silent", never "misfit")
@@ -259,7 +262,6 @@ class Firmware:
         self.sys_status(t_us)
         if self.est.initialised:
             self.estimator_status(t_us)
-            self.wind(t_us)
 
     def sys_status(self, t_us: int) -> None:
         """SYS_STATUS with each HEARTBEAT: the health a ground station (or a lockstep sender) shows.
@@ -311,7 +313,7 @@ class Firmware:
         return not wind_unknown(math.hypot(wn, we), est.wind_accuracy())
 
     def wind(self, t_us: int) -> None:
-        """WIND (168) at 1 Hz, the estimate WIND_COV carries (``wind_fields``)."""
+        """WIND (168), the estimate WIND_COV carries (``wind_fields``)."""
         self._send(pack(self.mav, self.mav.wind_encode(*wind_fields(*self.est.wind()))), t_us)
         self.wind_sent += 1
 
@@ -322,6 +324,9 @@ class Firmware:
         self.texts_sent += 1
 
     def wind_cov(self, t_us: int) -> None:
+        """WIND_COV, and before every ``WIND_EVERY``-th one WIND (once the filter has started)."""
+        if self.wind_cov_sent % WIND_EVERY == 0 and self.est.initialised:
+            self.wind(t_us)
         self._send(pack(self.mav, self.mav.wind_cov_encode(*self.out.fields(self.est))), t_us)
         self.wind_cov_sent += 1
 

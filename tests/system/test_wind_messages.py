@@ -108,6 +108,8 @@ def test_firmware_sends_wind_and_estimator_status_at_1_hz(flight):
     winds, covs, status = sink.of("WIND"), sink.of("WIND_COV"), sink.of("ESTIMATOR_STATUS")
     assert len(winds) == len(status) == pytest.approx(60, abs=1) and len(covs) == pytest.approx(600, abs=2)
     assert all(b - a == pytest.approx(1.0, abs=0.011) for (a, _), (b, _) in zip(winds, winds[1:]))
+    kinds = [m.get_type() for _, m in sink.sent]  # each WIND just before a WIND_COV: a reader of both keeps WIND_COV's
+    assert all(kinds[i + 1] == "WIND_COV" for i, k in enumerate(kinds) if k == "WIND")
     for t, w in winds:  # the same estimate as the WIND_COV sent at the same time
         cov = [m for tc, m in covs if tc == t]
         assert cov, t
