@@ -229,5 +229,3 @@ def resolve(name: str, config_path: str | None = None, wind_choice: str | None =
             raise ConfigError(f"unknown --wind '{wind_choice}'; known: {', '.join(WIND_CHOICES)}")
         sc = replace(sc, wind=replace(sc.wind, **WIND_CHOICES[wind_choice]))
     return sc
-
-
