@@ -225,16 +225,20 @@ def _free_port() -> int:
 @pytest.mark.network
 @pytest.mark.skipif(_mavproxy() is None, reason="MAVProxy is not installed (pip install MAVProxy: the test extra)")
 def test_mavproxy_shows_the_firmwares_wind(flight, tmp_path):
-    """MAVProxy, headless, with the firmware's output as its master: ``status WIND`` prints the wind."""
+    """MAVProxy, headless, with the firmware's output as its master: ``status WIND`` prints the wind,
+    ``status ESTIMATOR_STATUS`` the filter's health."""
     tlog, fw, sink = flight
     port = _free_port()
     proc = subprocess.Popen([PY, _mavproxy(), f"--master=udpin:127.0.0.1:{port}", "--non-interactive",
-                             "--cmd=repeat add 1 status WIND", f"--state-basedir={tmp_path}"],
+                             "--cmd=repeat add 1 status WIND; repeat add 1 status ESTIMATOR_STATUS",
+                             f"--state-basedir={tmp_path}"],
                             cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)  # fmt: skip
     try:
         deadline = time.monotonic() + 60.0
         seen = []
-        while time.monotonic() < deadline and not any("WIND {" in ln for ln in seen):
+        while time.monotonic() < deadline and not (
+            any("WIND {" in ln for ln in seen) and any("ESTIMATOR_STATUS {" in ln for ln in seen)
+        ):
             # the firmware replays the flight into MAVProxy's port (again, until MAVProxy has bound it)
             subprocess.run([PY, "-m", "firmware_py", "--in", str(tlog), "--out", f"udpout:127.0.0.1:{port}",
                             "--quiet"], check=True, capture_output=True)  # fmt: skip
@@ -256,3 +260,6 @@ def test_mavproxy_shows_the_firmwares_wind(flight, tmp_path):
     speed = float(text.split("speed : ")[1].split(",")[0])
     assert direction == pytest.approx(last_wind.direction, abs=1e-3) and speed == pytest.approx(last_wind.speed)
     assert "speed_z : nan" in text
+    status = [ln for ln in seen if "ESTIMATOR_STATUS {" in ln]
+    flags = int(status[-1].split("flags : ")[1].split(",")[0])
+    assert flags == sink.of("ESTIMATOR_STATUS")[-1][1].flags and flags & mavlink.ESTIMATOR_VELOCITY_HORIZ
