@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-test
 BENCH_STAMP := $(VENV)/.installed-bench
 
-.PHONY: test test-fast demo bench lint clean arm
+.PHONY: test test-fast demo bench lint clean arm docs-figures
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -35,6 +35,10 @@ demo: $(STAMP)
 # the C core on a Cortex-M4F under QEMU (needs gcc-arm-none-eabi, libnewlib-arm-none-eabi, qemu-system-arm)
 arm: $(STAMP)
 	$(BIN)/python tools/arm.py
+
+# the figures and numbers the docs quote, from their commands (docs/sil.png, docs/study.md, docs/figures.json)
+docs-figures: $(STAMP)
+	$(BIN)/python tools/docs_figures.py
 
 bench: $(BENCH_STAMP)
 	$(BIN)/python -m benchmarks.run_all

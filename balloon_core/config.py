@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -398,3 +398,36 @@ def read_toml(path: str | Path) -> dict[str, Any]:
 
 def load_design(path: str | Path | None) -> Design:
     return Design() if path is None else design_from_dict(load_toml(path))
+
+
+# ---------------------------------------------------------------- writing a design file
+
+
+def section_values(obj: Any) -> dict[str, Any]:
+    """A section's dataclass as its keys and values (a key whose value is None, "not given", left out)."""
+    return {k: v for k, v in asdict(obj).items() if v is not None}
+
+
+def toml_value(v: Any) -> str:
+    """One value as TOML writes it (floats as floats: ``12.0``)."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return f'"{v}"'
+    if isinstance(v, (tuple, list)):
+        return "[" + ", ".join(toml_value(x) for x in v) + "]"
+    if isinstance(v, int):
+        return repr(v)
+    return repr(float(v))
+
+
+def to_toml(sections: dict[str, Any], header: str) -> str:
+    """A whole design file: ``header`` (a comment line), then each section (a dataclass or a dict) with
+    every key and its value. ``load_toml`` reads it back to the same values."""
+    lines = [header]
+    for name, obj in sections.items():
+        lines.append(f"\n[{name}]")
+        values = obj if isinstance(obj, dict) else section_values(obj)
+        for k, v in values.items():
+            lines.append(f"{k} = {toml_value(v)}")
+    return "\n".join(lines) + "\n"

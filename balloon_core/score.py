@@ -172,3 +172,14 @@ def direction_from_deg(wind_n, wind_e):
     """Meteorological direction the wind blows FROM, degrees clockwise from north, in [0, 360)
     (scalars or arrays). The one definition every program, product and plot uses."""
     return np.degrees(np.arctan2(-np.asarray(wind_e, float), -np.asarray(wind_n, float))) % 360.0
+
+
+UNKNOWN_SIGMA_MPS = 1.0  # a horizontal 1-sigma above max(this, half the speed): the wind is not known
+
+
+def wind_unknown(speed_mps, sigma_mps):
+    """Is a wind of this horizontal speed with this 1-sigma accuracy not known at all (the error could
+    be as large as the wind)? Scalars or arrays; a NaN accuracy or speed is unknown too. The one rule
+    the products (flag ``wind_unknown``), the firmware's ESTIMATOR_STATUS and the live view use."""
+    speed, sigma = np.asarray(speed_mps, float), np.asarray(sigma_mps, float)
+    return ~(sigma <= np.maximum(UNKNOWN_SIGMA_MPS, 0.5 * speed))

@@ -10,7 +10,7 @@ from collections import deque
 from collections.abc import Iterator
 from typing import BinaryIO
 
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 TLOG_HEADER = 8
 MAGIC_V2, MAGIC_V1 = 0xFD, 0xFE

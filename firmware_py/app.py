@@ -7,23 +7,27 @@ filter's step), exactly as post-flight reprocessing does. Everything else is cou
 
 When the estimator's consistency monitor (``firmware_py.estimator.consistency``) says the model does not
 explain an aid source's data, the reported ``horiz_accuracy`` already grows (``Estimator.wind_accuracy``);
-this module says why: a STATUSTEXT when the flags change, the health bits of SYS_STATUS, the live status
-line and the summary (docs/protocol.md, "Model misfit").
+this module says why: a STATUSTEXT when the flags change, the health bits of SYS_STATUS, ESTIMATOR_STATUS,
+the live status line and the summary (docs/protocol.md, "Model misfit", "ESTIMATOR_STATUS").
+
+Besides WIND_COV it sends ArduPilot's WIND (168) at 1 Hz (``WIND_EVERY``), which MAVProxy and Mission Planner show, so
+frames are packed with pymavlink's ``ardupilotmega`` dialect (which includes ``common``).
 """
 
 from __future__ import annotations
 
 import math
 
-from pymavlink.dialects.v20 import common as mavlink
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from balloon_core.config import Design
 from balloon_core.samples import BaroSample, MavlinkSampler, Sample
-from balloon_core.score import direction_from_deg
+from balloon_core.score import direction_from_deg, wind_unknown
 from balloon_core.wire import LinkStats, pack
 from firmware_py.core_c import new_core
-from firmware_py.estimator.consistency import SOURCES
-from firmware_py.estimator.state import MODE_GROUND, FilterConfig
+from firmware_py.estimator.consistency import ACCEL, ALIGN, BARO, FLAG_NIS, MAG, RADIUS, SOURCES
+from firmware_py.estimator.state import MODE_GROUND, MODE_TAUT, POS_D, POS_E, POS_N, FilterConfig
 from firmware_py.streams import InputPipeline, feed, print_warning
 
 FW_SYSID = 1
@@ -41,7 +45,13 @@ MISFIT_HEALTH_BITS = {
 }  # fmt: skip
 assert tuple(MISFIT_HEALTH_BITS) == SOURCES
 TEXT_MAX = 50  # STATUSTEXT's text field, characters
+# WIND (168) goes out just before every WIND_EVERY-th WIND_COV (1 Hz at the default 10 Hz): a ground station
+# that reads both (QGroundControl) is left holding WIND_COV's value, never one or the other at random
+WIND_EVERY = 10
 TEXT_INTERVAL_US = 1_000_000  # at most one consistency STATUSTEXT a second (sensor clock)
+# the sensors' own health bits: all cleared while the sensors are silent (the gyro has no innovation, so
+# a cleared gyro bit says "silent", never "misfit")
+SILENT_HEALTH_BITS = SENSOR_BITS & ~mavlink.MAV_SYS_STATUS_AHRS
 CONSISTENT_TEXT = "wind model consistent again"
 RESTARTED_TEXT = "wind model check restarted (filter reset)"
 
@@ -67,6 +77,36 @@ def misfit_text(names: list[str], inflation: float) -> str:
         if len(text) <= TEXT_MAX:
             return text
     return forms[-1][:TEXT_MAX]
+
+
+def wind_fields(wind_n: float, wind_e: float) -> tuple[float, float, float]:
+    """WIND (168, ardupilotmega): (direction the wind comes FROM in degrees [0, 360), 0 = north,
+    clockwise; horizontal speed m/s; vertical speed m/s, NaN: not estimated) of the air velocity
+    north / east that WIND_COV carries."""
+    direction = np.float32(direction_from_deg(wind_n, wind_e)) % np.float32(360.0)  # the wire's float32: < 360
+    return float(direction), math.hypot(wind_n, wind_e), math.nan
+
+
+def estimator_flags(initialised: bool, silent: bool, mode: int, flags: int, wind_known: bool) -> int:
+    """ESTIMATOR_STATUS ``flags`` (ESTIMATOR_STATUS_FLAGS) of the filter's health (docs/protocol.md):
+    a "good" bit is set when that part of the estimate is trusted, ACCEL_ERROR while the accelerometer
+    misfits the force model, CONST_POS_MODE while the balloon rests on the ground station."""
+    if not initialised:
+        return 0
+    bits = mavlink.ESTIMATOR_CONST_POS_MODE if mode == MODE_GROUND else 0
+    if flags >> ACCEL & 1:
+        bits |= mavlink.ESTIMATOR_ACCEL_ERROR
+    if silent:  # nothing is measured: nothing is good
+        return bits
+    if not flags >> MAG & 1:
+        bits |= mavlink.ESTIMATOR_ATTITUDE
+    if wind_known and not flags >> ACCEL & 1:
+        bits |= mavlink.ESTIMATOR_VELOCITY_HORIZ
+    if not flags >> BARO & 1:
+        bits |= mavlink.ESTIMATOR_VELOCITY_VERT | mavlink.ESTIMATOR_POS_VERT_AGL
+    if mode == MODE_TAUT and not flags & (1 << ALIGN | 1 << RADIUS):
+        bits |= mavlink.ESTIMATOR_POS_HORIZ_REL
+    return bits
 
 
 class Firmware:
@@ -97,6 +137,8 @@ class Firmware:
         self._last_step = 0
         self._told_flags = 0  # the flags the last STATUSTEXT told (0 before any: consistent)
         self._next_text_us = 0
+        self.silent = False  # the sensors fell silent (``coast``): SYS_STATUS and ESTIMATOR_STATUS say so
+        self.wind_sent = 0
 
     # ----------------------------------------------------------------- input
 
@@ -110,6 +152,7 @@ class Firmware:
 
     def push(self, s: Sample) -> None:
         """One sample from any source: through the input pipeline into the estimator."""
+        self.silent = False
         if type(s) is not BaroSample:
             self._track_imu_time(s.t_us)
         decided = self.pipe.decided
@@ -214,6 +257,8 @@ class Firmware:
         ))  # fmt: skip
         self._send(frame, t_us)
         self.sys_status(t_us)
+        if self.est.initialised:
+            self.estimator_status(t_us)
 
     def sys_status(self, t_us: int) -> None:
         """SYS_STATUS with each HEARTBEAT: the health a ground station (or a lockstep sender) shows.
@@ -225,10 +270,13 @@ class Firmware:
         Sensors present and enabled: gyro, accelerometer, magnetometer, absolute pressure and AHRS (the
         estimator). Healthy: all of them unless the consistency monitor flags a source, whose bit is then
         cleared (``MISFIT_HEALTH_BITS``): accel -> 3D_ACCEL, baro -> ABSOLUTE_PRESSURE, mag -> 3D_MAG,
-        align and radius (the tether model) -> AHRS. The gyro has no innovation and stays healthy."""
+        align and radius (the tether model) -> AHRS. The gyro has no innovation and stays healthy, unless
+        the sensors are silent: then every sensor bit is cleared (``SILENT_HEALTH_BITS``)."""
         c, st = self.est.counters, self.stats
         sensors = SENSOR_BITS
         health = sensors & ~misfit_health(self.est.consistency.flags)
+        if self.silent:
+            health &= ~SILENT_HEALTH_BITS
         resets = c.time_resets + c.numeric_resets + c.taut_resets + c.baro_resets
         frame = pack(self.mav, self.mav.sys_status_encode(
             sensors, sensors, health, 0, 0xFFFF, -1, -1, min(round(10000 * st.lost_fraction()), 10000),
@@ -237,6 +285,35 @@ class Firmware:
         ))  # fmt: skip
         self._send(frame, t_us)
 
+    def estimator_status(self, t_us: int) -> None:
+        """ESTIMATOR_STATUS (230) at 1 Hz: ``estimator_flags``; the ratios are the consistency monitor's
+        windowed NIS over its flag threshold (1 = flagged): vel_ratio accel, pos_horiz_ratio align,
+        pos_vert_ratio baro, mag_ratio mag, hagl_ratio radius, tas_ratio the largest (what inflates
+        the wind's accuracy); the position's 1-sigma from P."""
+        est = self.est
+        c, P = est.consistency, est.ekf.P
+        bits = estimator_flags(est.initialised, self.silent, est.ekf.mode, c.flags, self.wind_known())
+        r = [v / FLAG_NIS for v in c.nis]
+        frame = pack(self.mav, self.mav.estimator_status_encode(
+            max(est.t_last_us, 0), bits, r[ACCEL], r[ALIGN], r[BARO], r[MAG], r[RADIUS], max(r),
+            math.sqrt(float(P[POS_N, POS_N] + P[POS_E, POS_E])), math.sqrt(float(P[POS_D, POS_D])),
+        ))  # fmt: skip
+        self._send(frame, t_us)
+
+    def wind_known(self) -> bool:
+        """Is the wind known: the sensors heard, in flight (not resting on the ground), not an unconfirmed
+        join in flight, and an accuracy below what the wind itself could be (``wind_unknown``)?"""
+        est = self.est
+        if not est.initialised or self.silent or est.ekf.mode == MODE_GROUND or est.unconfirmed:
+            return False
+        wn, we = est.wind()
+        return not wind_unknown(math.hypot(wn, we), est.wind_accuracy())
+
+    def wind(self, t_us: int) -> None:
+        """WIND (168), the estimate WIND_COV carries (``wind_fields``)."""
+        self._send(pack(self.mav, self.mav.wind_encode(*wind_fields(*self.est.wind()))), t_us)
+        self.wind_sent += 1
+
     def statustext(self, severity: int, text: str, t_us: int) -> None:
         """A STATUSTEXT (one chunk: ``id`` 0), ASCII, at most ``TEXT_MAX`` characters."""
         data = text.encode("ascii", "replace")[:TEXT_MAX]
@@ -244,6 +321,9 @@ class Firmware:
         self.texts_sent += 1
 
     def wind_cov(self, t_us: int) -> None:
+        """WIND_COV, and before every ``WIND_EVERY``-th one WIND (once the filter has started)."""
+        if self.wind_cov_sent % WIND_EVERY == 0 and self.est.initialised:
+            self.wind(t_us)
         self._send(pack(self.mav, self.mav.wind_cov_encode(*self.out.fields(self.est))), t_us)
         self.wind_cov_sent += 1
 
@@ -257,6 +337,7 @@ class Firmware:
     def coast(self, now_s: float) -> None:
         """Sensors silent: keep talking (WIND_COV every call, HEARTBEAT each second), honestly."""
         self.est.coast(0.1)
+        self.silent = True
         t = max(self.est.t_last_us, 0)
         if now_s - getattr(self, "_last_hb_wall", 0.0) >= 1.0:
             self._last_hb_wall = now_s
@@ -274,7 +355,7 @@ class Firmware:
             f"{c.reordered + self.pipe.reordered} reordered, {c.gaps} gaps, {c.long_gaps} long gaps, "
             f"resets: {c.time_resets} reboot, {c.numeric_resets} numeric, {c.taut_resets} taut, "
             f"{c.baro_resets} baro, {c.false_releases} false release, {c.mode_switches} mode switches, "
-            f"{self.wind_cov_sent} WIND_COV sent, final mode {self.est.mode_name}, "
+            f"{self.wind_cov_sent} WIND_COV sent, {self.wind_sent} WIND sent, final mode {self.est.mode_name}, "
             f"filter at {self.est.cfg.imu_rate_hz:g} Hz{self._rate_note()} on the {self._core_name()}, "
             f"input packets {self.stats.loss_summary()}, {self.imu_missing} IMU samples missing by time"
             f"{self._consistency_note()}" + (self.streams.summary() if self.streams is not None else "")
@@ -312,8 +393,11 @@ class Firmware:
         if not est.initialised:
             return f"waiting for the sensors, {self.stats.lost} lost"
         wn, we = est.wind()
-        frm = direction_from_deg(wn, we)
+        if self.wind_known():
+            wind = f"wind {math.hypot(wn, we):.1f} m/s from {direction_from_deg(wn, we):03.0f} deg"
+        else:
+            wind = "wind not known"  # not the filter's calm from 180 deg
+        wind += f" \u00b1{est.wind_accuracy():.2f}"
         return (f"{self.stats.lost} lost ({100 * self.stats.lost_fraction():.1f} %), {self.imu_missing} IMU missing, "
-                f"{est.counters.long_gaps} long gaps, mode {est.mode_name}, wind {math.hypot(wn, we):.1f} m/s "
-                f"from {frm:03.0f} deg \u00b1{est.wind_accuracy():.2f}"
+                f"{est.counters.long_gaps} long gaps, mode {est.mode_name}, {wind}"
                 + (f", misfit {','.join(est.consistency.names())}" if est.consistency.flags else ""))  # fmt: skip

@@ -8,7 +8,12 @@ terminal (piped, logged): one plain line per balloon every second.
 
 A balloon-fw's model misfit (docs/protocol.md, "Model misfit") shows twice: the state ``MISFIT`` while
 its SYS_STATUS clears a health bit (what is flagged now), and below the table the latest STATUSTEXT of
-each system (what the balloon last said, and how long ago)."""
+each system (what the balloon last said, and how long ago).
+
+A balloon-fw whose sensors have gone silent keeps sending WIND_COV (its accuracy growing); its SYS_STATUS
+then clears every sensor's health bit, the gyro's too (which a misfit never clears): the state is
+``SENSORS LOST``. A wind that is not known (NaN, or an accuracy as large as the wind could be:
+``balloon_core.score.wind_unknown``) is shown as ``—``, never as a calm from 180°."""
 
 from __future__ import annotations
 
@@ -19,7 +24,7 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from rich import box
 from rich.console import Console, Group
 from rich.measure import Measurement
@@ -36,6 +41,8 @@ MISFIT_BITS = (
     (mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL, "accel"), (mavlink.MAV_SYS_STATUS_AHRS, "tether"),
     (mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE, "baro"), (mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG, "mag"),
 )  # fmt: skip
+SILENT_BIT = mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO  # balloon-fw clears it only when its sensors are silent
+UNKNOWN = "—"  # a value not known (yet)
 SEVERITY_NAMES = {v: e.name.removeprefix("MAV_SEVERITY_") for v, e in mavlink.enums["MAV_SEVERITY"].items()}
 STALE_S = 2.0  # no WIND_COV for this long: the row's wind is old
 HB_LATE_S = 3.0  # no HEARTBEAT for this long: shown in red
@@ -110,14 +117,24 @@ class Vehicle:
         """Sensor packets the balloon's firmware lost, % (SYS_STATUS drop_rate_comm)."""
         return self.status.drop_rate_comm / 100.0 if self.status is not None else None
 
-    def misfit(self) -> list[str]:
-        """What the balloon's model does not explain now: the health bits its SYS_STATUS clears among
-        the present and enabled ones (``MISFIT_BITS``; balloon-fw only)."""
+    def _unhealthy(self) -> int:
+        """The health bits the balloon's SYS_STATUS clears among the present and enabled ones (balloon-fw only)."""
         st = self.status
         if st is None or not self.ours:
-            return []
+            return 0
         bad = st.onboard_control_sensors_present & st.onboard_control_sensors_enabled
-        bad &= ~st.onboard_control_sensors_health
+        return bad & ~st.onboard_control_sensors_health
+
+    def sensors_lost(self) -> bool:
+        """The balloon says its sensors are silent: its SYS_STATUS clears the gyro's health (``SILENT_BIT``)."""
+        return bool(self._unhealthy() & SILENT_BIT)
+
+    def misfit(self) -> list[str]:
+        """What the balloon's model does not explain now: the health bits its SYS_STATUS clears
+        (``MISFIT_BITS``; balloon-fw only), unless its sensors are silent (then all are cleared)."""
+        bad = self._unhealthy()
+        if bad & SILENT_BIT:
+            return []
         return [name for bit, name in MISFIT_BITS if bad & bit]
 
     def said(self, now: float) -> str | None:
@@ -171,7 +188,7 @@ class GroundStation:
             v.last, v.wind_at = rec, now
             v.wind_count += 1
             v.times.append(now)
-            if not v.history or now - v.history[-1][0] >= 1.0:
+            if rec.known and (not v.history or now - v.history[-1][0] >= 1.0):
                 v.history.append((now, rec.speed_mps))
             self.wind_count += 1
             if self._csv:
@@ -215,6 +232,12 @@ class GroundStation:
             r = v.last
             var = "  n/a" if r.var_horiz != r.var_horiz else f"{r.var_horiz:5.2f}"
             stale = f" STALE {v.age(now):.0f} s" if v.stale(now) else ""
+            stale += " SENSORS LOST" if v.sensors_lost() else ""
+            if r.known:
+                wind = (f"wind {r.speed_mps:5.2f} m/s from {r.from_deg:5.1f} deg "
+                        f"(N {r.wind_x:+5.2f} E {r.wind_y:+5.2f})")  # fmt: skip
+            else:
+                wind = f"wind {UNKNOWN} (not known)"
             resets = v.resets()
             health = f"resets {resets}, " if resets is not None else ""
             misfit = v.misfit()
@@ -222,8 +245,7 @@ class GroundStation:
             hb = "-" if v.hb_at is None else f"{now - v.hb_at:.0f} s"
             said = v.said(now)
             lines.append(
-                f"sys {v.sysid}: t={r.time_usec * 1e-6:7.1f}s wind {r.speed_mps:5.2f} m/s from {r.from_deg:5.1f} deg "
-                f"(N {r.wind_x:+5.2f} E {r.wind_y:+5.2f}) ±{r.horiz_accuracy:4.2f} var {var} "
+                f"sys {v.sysid}: t={r.time_usec * 1e-6:7.1f}s {wind} ±{r.horiz_accuracy:4.2f} var {var} "
                 f"alt {r.wind_alt:6.1f} m mode {v.mode}{stale} | {v.rate(now):4.1f} msg/s, {health}"
                 f"heartbeat {hb} ago, {link}" + (f" | said: {said}" if said else "")
             )
@@ -261,12 +283,13 @@ class GroundStation:
         if "t" in keys and spark_w >= 10:
             table = self._table(now, keys, spark_w)
         logs = ", ".join(p for p in (self.csv_path, self.tlog_path) if p)
-        notes = [f"STALE: no WIND_COV for {STALE_S:g} s.  MISFIT: data unexplained.  rst: the balloon's filter "
-                 "resets.  lost: packets lost on the way here.  in%: sensor packets the balloon lost.  hb: heartbeat "
-                 "age.  Ctrl-C stops."]  # fmt: skip
+        notes = [f"STALE: no WIND_COV for {STALE_S:g} s.  SENSORS LOST: the balloon hears no sensor.  MISFIT: data "
+                 f"unexplained.  {UNKNOWN}: not known.  rst: filter resets.  lost: lost on the way here.  in%: sensor "
+                 "packets the balloon lost.  hb: heartbeat age.  Ctrl-C stops."]  # fmt: skip
         if len(notes[0]) > width:
             notes = ["wind, ±acc: m/s; from: deg; rst: filter resets; lost: lost on the way here;",
                      f"in%: sensor packets the balloon lost; hb: heartbeat age; STALE: no WIND_COV {STALE_S:g} s",
+                     f"SENSORS LOST: the balloon hears no sensor; {UNKNOWN}: the wind is not known (yet)",
                      "MISFIT: the model does not explain the data (±acc grown). Ctrl-C stops."]  # fmt: skip
         if logs:
             notes[-1] += f" Logging to {logs}."
@@ -317,6 +340,12 @@ class GroundStation:
             vals = {"t": f"{r.time_usec * 1e-6:.1f}", "wind": f"{r.speed_mps:.2f}", "from": f"{r.from_deg:03.0f}",
                     "N": f"{r.wind_x:+.2f}", "E": f"{r.wind_y:+.2f}", "acc": f"{r.horiz_accuracy:.2f}", "var": var,
                     "alt": f"{r.wind_alt:.0f}"}  # fmt: skip
+            if not r.known:
+                vals.update(dict.fromkeys(("wind", "from", "N", "E"), UNKNOWN))
+            if r.horiz_accuracy != r.horiz_accuracy:
+                vals["acc"] = UNKNOWN
+            if r.wind_alt != r.wind_alt:
+                vals["alt"] = UNKNOWN
             for k, x in vals.items():
                 c[k] = Text(x, style=dim)
         resets = v.resets()
@@ -334,6 +363,8 @@ class GroundStation:
             c["state"] = Text("WAIT", style="yellow")
         elif v.stale(now):
             c["state"] = Text(f"STALE {v.age(now):.0f}s", style="bold white on red")
+        elif v.sensors_lost():
+            c["state"] = Text("SENSORS LOST", style="bold white on red")
         elif v.misfit():
             c["state"] = Text("MISFIT", style="bold yellow")
         else:

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from balloon_core.score import direction_from_deg
+from balloon_core.score import direction_from_deg, wind_unknown
 
 CSV_COLUMNS = ("time_usec", "sysid", "compid", "wind_x", "wind_y", "wind_z", "var_horiz", "var_vert",
                "wind_alt", "horiz_accuracy", "vert_accuracy", "speed_mps", "from_deg")  # fmt: skip
@@ -36,6 +36,12 @@ class WindRecord:
     @property
     def speed_mps(self) -> float:
         return math.hypot(self.wind_x, self.wind_y)
+
+    @property
+    def known(self) -> bool:
+        """Is the horizontal wind known (``balloon_core.score.wind_unknown``; a vehicle reporting accuracy
+        0, as PX4 does, counts as known)?"""
+        return not bool(wind_unknown(self.speed_mps, self.horiz_accuracy))
 
     @property
     def from_deg(self) -> float:

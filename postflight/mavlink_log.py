@@ -51,7 +51,7 @@ def read_mavlink(path: str) -> Flight:
         raise ValueError(f"{path}: no IMU messages (HIGHRES_IMU, HIL_SENSOR, SCALED_IMU*) in this file")
     sensors: dict[str, str] = {}
     if sampler.imu_key is not None:
-        from pymavlink.dialects.v20 import common as mavlink
+        from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
         sensors = {"imu": mavlink.mavlink_map[sampler.imu_key[0]].msgname}
         if sampler.embedded_baro:

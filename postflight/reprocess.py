@@ -15,9 +15,9 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 
-from balloon_core.config import Design
+from balloon_core.config import Design, to_toml
 from balloon_core.samples import BaroSample, Sample
-from balloon_core.score import direction_from_deg
+from balloon_core.score import direction_from_deg, wind_unknown
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.state import MODE_GROUND, N_STATES, POS_D, POS_E, POS_N, WIND_E, WIND_N, FilterConfig
 from firmware_py.streams import InputPipeline, feed
@@ -31,7 +31,18 @@ from postflight.product import (
 from postflight.smoother import SmootherRecorder
 
 GRID_HZ = 10.0  # the product's rate: WIND_COV's default
-UNKNOWN_SIGMA_MPS = 1.0  # a horizontal 1-sigma above max(this, half the speed): the wind is not known
+
+
+def design_toml(design: Design, cfg: FilterConfig) -> str:
+    """The design a reprocessing used as a design file (the product's ``design_toml``): every section and
+    key of the estimator's design with its value, defaults filled in, ``cfg`` as the run used it (the IMU
+    rate the input pipeline chose, float64)."""
+    sections: dict = {name: getattr(design, name) for name in ("balloon", "tether", "site", "sensors")}
+    sections["filter"] = cfg
+    text = to_toml(sections, "# the design used by balloon-gs reprocess, every value written out")
+    if design.site.ground_pressure_hpa is None:
+        text = text.replace("\n[sensors]", "# ground_pressure_hpa not given: the barometer zeroed at boot\n\n[sensors]")
+    return text
 
 
 def _signature(est: Estimator) -> tuple:
@@ -74,6 +85,7 @@ def reprocess(
                        np.array(run.inflation, float))  # fmt: skip
     product.consistency_flags = np.array(run.consistency, np.int8)
     product.accuracy_inflation = np.array(run.inflation, float)
+    product.attrs["design_toml"] = design_toml(design, pipe.cfg)
     return product
 
 
@@ -174,7 +186,7 @@ def _product(
     moved = (np.abs(wn - sm.x[:, WIND_N]) > 1e-9) | (np.abs(we - sm.x[:, WIND_E]) > 1e-9)
     flags[moved] |= FLAG_SMOOTHED
     unknown = never | (modes == MODE_GROUND)
-    unknown |= np.sqrt(var_n + var_e) > np.maximum(UNKNOWN_SIGMA_MPS, 0.5 * np.hypot(wn, we))
+    unknown |= wind_unknown(np.hypot(wn, we), np.sqrt(var_n + var_e))
     flags[unknown] |= FLAG_WIND_UNKNOWN
     height = -sm.xs[:, POS_D]
     if not baro_seen:
@@ -228,7 +240,9 @@ def run_reprocess(args, argv: list[str] | None) -> int:
         cfg = FilterConfig.from_dict(data.get("filter", {}))
     except ConfigError as exc:
         raise ValueError(str(exc)) from None
-    design_text = open(args.config).read() if args.config else "# the defaults (no --config given)\n"
+    given = f"from {os.path.basename(args.config)}" if args.config else "the defaults (no --config given)"
+    other = {name: values for name, values in data.items() if name not in ("balloon", "tether", "site", "sensors",
+                                                                           "filter")}  # fmt: skip
     t0 = time.perf_counter()
     bar = Progress(prog, unit="", quiet=args.quiet)
     bar.update(status=f"reading {os.path.basename(args.flight)}")
@@ -247,7 +261,7 @@ def run_reprocess(args, argv: list[str] | None) -> int:
             raise ValueError(f"{args.flight}: the estimator never started (no usable IMU + magnetometer sample)")
         product.utc_start_s = meta.utc_start_s
         product.attrs.update({
-            "design_toml": design_text,
+            "design_toml": f"# {given}\n" + product.attrs["design_toml"] + (to_toml(other, "")[1:] if other else ""),
             "source_log": meta.source,
             "source_log_sha256": meta.sha256,
             "source_log_format": meta.format,

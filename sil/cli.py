@@ -113,6 +113,10 @@ def main(argv: list[str] | None = None) -> int:
     latest = [""]
     t_start = time.monotonic()
     tty = sys.stdout.isatty()
+    # our header first: on a terminal the ground station then draws its live view below it (a line printed
+    # after the view's first frame would shift it, leaving a copy of that frame and overwriting the header)
+    print(f"balloon-sil: {args.scenario}, {args.duration:.0f} s at {args.speed:g}x, seed {args.seed} "
+          f"(sim -> udp:{p_fw} -> fw -> udp:{p_gs} -> gs)", flush=True)  # fmt: skip
     try:
         gs_args = ["ground_station", "listen", f"udpin:127.0.0.1:{p_gs}", "--csv", gs_csv, "--tlog", gs_tlog]
         # on a terminal the ground station draws its live view there itself; otherwise we relay its lines
@@ -127,8 +131,6 @@ def main(argv: list[str] | None = None) -> int:
                                  "--seed", str(args.seed), "--out", f"udpout:127.0.0.1:{p_fw}", "--truth", truth,
                                  "--speed", str(args.speed), "--lockstep", "--quiet", *cfg],
                          stderr=subprocess.PIPE, text=True)  # fmt: skip
-        print(f"balloon-sil: {args.scenario}, {args.duration:.0f} s at {args.speed:g}x, seed {args.seed} "
-              f"(sim -> udp:{p_fw} -> fw -> udp:{p_gs} -> gs)")  # fmt: skip
         next_show = 0.0
         while sim.poll() is None:
             if stop():

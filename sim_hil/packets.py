@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from balloon_core.wire import pack
 from sim_hil.simulator import SensorSample

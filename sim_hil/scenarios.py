@@ -13,9 +13,17 @@ rope with its own drag, vertical turbulence, and then shear, weather, wandering 
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 
-from balloon_core.config import ConfigError, Design, SensorsConfig, design_from_dict, load_toml
+from balloon_core.config import (
+    ConfigError,
+    Design,
+    SensorsConfig,
+    design_from_dict,
+    load_toml,
+    section_values,
+    to_toml,
+)
 from firmware_py.estimator.state import FilterConfig
 from sim_hil.dynamics import TruthConfig
 from sim_hil.wind import WindConfig
@@ -34,12 +42,7 @@ class Scenario:
         """The whole scenario as one design file, for balloon-sim and balloon-fw alike."""
         sections = {**{n: getattr(self.design, n) for n in ("balloon", "tether", "site", "sensors")},
                     "wind": self.wind, "truth": self.truth, "filter": self.filter}  # fmt: skip
-        lines = [f"# scenario {self.name}: {self.description}"]
-        for name, obj in sections.items():
-            lines.append(f"\n[{name}]")
-            for k, v in _as_dict(obj).items():
-                lines.append(f"{k} = {_toml_value(v)}")
-        return "\n".join(lines) + "\n"
+        return to_toml(sections, f"# scenario {self.name}: {self.description}")
 
 
 def _with(**sections) -> Design:
@@ -211,34 +214,18 @@ def resolve(name: str, config_path: str | None = None, wind_choice: str | None =
         data = load_toml(config_path)
         design_from_dict(data)  # validates sections and keys
         merged = {
-            sec: {**_as_dict(getattr(sc.design, sec)), **data.get(sec, {})}
+            sec: {**section_values(getattr(sc.design, sec)), **data.get(sec, {})}
             for sec in ("balloon", "tether", "site", "sensors")
         }
         sc = replace(
             sc,
             design=design_from_dict(merged),
-            wind=WindConfig.from_dict({**_as_dict(sc.wind), **data.get("wind", {})}),
-            truth=TruthConfig.from_dict({**_as_dict(sc.truth), **data.get("truth", {})}),
-            filter=FilterConfig.from_dict({**_as_dict(sc.filter), **data.get("filter", {})}),
+            wind=WindConfig.from_dict({**section_values(sc.wind), **data.get("wind", {})}),
+            truth=TruthConfig.from_dict({**section_values(sc.truth), **data.get("truth", {})}),
+            filter=FilterConfig.from_dict({**section_values(sc.filter), **data.get("filter", {})}),
         )
     if wind_choice:
         if wind_choice not in WIND_CHOICES:
             raise ConfigError(f"unknown --wind '{wind_choice}'; known: {', '.join(WIND_CHOICES)}")
         sc = replace(sc, wind=replace(sc.wind, **WIND_CHOICES[wind_choice]))
     return sc
-
-
-def _as_dict(obj) -> dict:
-    return {k: v for k, v in asdict(obj).items() if v is not None}
-
-
-def _toml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return f'"{v}"'
-    if isinstance(v, (tuple, list)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    if isinstance(v, int):
-        return repr(v)
-    return repr(float(v))

@@ -3,7 +3,8 @@
 ``python tools/golden.py make-inputs`` writes the frozen input flights (tests/data/golden/*.gz);
 ``python tools/golden.py record`` writes tests/data/golden/expected.json from the current code;
 ``python tools/golden.py check`` (and tests/system/test_golden.py) compares, bit for bit:
-- the whole output tlog of ``balloon-fw`` (WIND_COV float32 fields, HEARTBEAT, SYS_STATUS, timestamps);
+- the whole output tlog of ``balloon-fw`` (WIND_COV float32 fields, HEARTBEAT, SYS_STATUS, WIND, ESTIMATOR_STATUS,
+  STATUSTEXT, timestamps);
 - a float64 digest of the estimator's state (x, P, q, mode, counters) after every sample, in process;
 - the reprocessed product's variables (``balloon-gs reprocess``: causal and smoothed wind, float64).
 Re-record only when an issue changes the estimator on purpose, and say so in the commit.

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 from pymavlink import mavutil
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from balloon_core.wire import LinkStats, tlog_messages
 

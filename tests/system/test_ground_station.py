@@ -4,7 +4,7 @@ import io
 import math
 
 import pytest
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from balloon_core.score import direction_from_deg
 from balloon_core.wire import pack

@@ -13,7 +13,7 @@ import threading
 import time
 
 import pytest
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from balloon_core.wire import Decoder, LinkStats
 from ground_station.report import report

@@ -17,7 +17,7 @@ import time
 import uuid
 
 import pytest
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from balloon_core.wire import pack
 
@@ -131,3 +131,24 @@ def test_listen_view_fits_and_marks_stale(width, height):
     if width >= 200:
         assert 2.6 < float(rows[1].split()[4]) < 3.4 and "0.42" in rows[1]  # N component, variability: wide only
         assert any(c in rows[1] for c in "▁▂▃▄▅▆▇█")  # the sparkline
+
+
+@pytest.mark.slow
+@pytest.mark.network
+def test_sil_header_stays_above_the_live_view(tmp_path):
+    """Under balloon-sil on a terminal: sil's own header (with the ports) first, then the ground station's
+    live view drawn in place below it, once (no copy of a first frame left above the table)."""
+    sock = f"balloon-test-{uuid.uuid4().hex[:8]}"
+    cmd = f"cd {ROOT} && {PY} -m sil --duration 40 --speed 10 --outdir {tmp_path}; sleep 60"
+    env = {k: v for k, v in os.environ.items() if not k.startswith("TMUX")}
+    subprocess.run([TMUX, "-L", sock, "-f", "/dev/null", "new-session", "-d", "-s", "gs", "-x", "100", "-y", "30",
+                    cmd], check=True, env=env)  # fmt: skip
+    try:
+        time.sleep(6.0)  # the view has been redrawn many times by now
+        screen = capture(sock)
+    finally:
+        subprocess.run([TMUX, "-L", sock, "kill-server"], capture_output=True)
+    text = "\n".join(screen)
+    assert screen[0].startswith("balloon-sil: paper-reference, 40 s at 10x") and "-> fw -> udp:" in screen[0], text
+    assert sum(ln.startswith("balloon-gs ") for ln in screen) == 1, text
+    assert sum(ln.split()[:2] == ["sys", "wind"] for ln in screen if ln.split()) == 1, text

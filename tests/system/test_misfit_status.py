@@ -17,7 +17,7 @@ import sys
 import numpy as np
 import pytest
 import xarray as xr
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from balloon_core.config import Design
 from balloon_core.wire import TLOG_EPOCH_US, LinkStats, tlog_messages

@@ -111,3 +111,33 @@ def test_a_raw_capture_named_bin_is_read_as_raw_mavlink(tmp_path):
     r = gs("reprocess", raw, "--out", tmp_path / "w.nc", "--quiet")
     assert r.returncode == 0, r.stderr
     assert "capture.bin: 602 estimates" in r.stdout
+
+
+@pytest.mark.slow
+def test_the_product_carries_the_whole_design_it_used(tmp_path):
+    """``design_toml``: every section and key with the value the reprocessing used (not "the defaults"), the
+    file's own choices kept, and the simulator's sections as given; it reads back as the same design."""
+    import tomllib
+    from dataclasses import replace
+
+    from balloon_core.config import Design, design_from_dict
+    from firmware_py.estimator.state import FilterConfig
+
+    tlog = tmp_path / "f.tlog"
+    subprocess.run([PY, "-m", "sim_hil", "--scenario", "paper-reference", "--duration", "30", "--seed", "2", "--out",
+                    str(tlog), "--quiet"], check=True, capture_output=True)  # fmt: skip
+    cfg = tmp_path / "design.toml"
+    cfg.write_text('[balloon]\nradius_m = 1.0\n[filter]\ngate_sigma = 4.0\n[wind]\nkind = "steady"\n')
+    for args, gate in (((), 5.0), (("--config", cfg), 4.0)):
+        nc = tmp_path / "w.nc"
+        r = gs("reprocess", tlog, "--out", nc, "--quiet", *args)
+        assert r.returncode == 0, r.stderr
+        with xr.open_dataset(nc) as ds:
+            text = ds.attrs["design_toml"]
+        assert text.splitlines()[0] == ("# from design.toml" if args else "# the defaults (no --config given)")
+        data = tomllib.loads(text)
+        assert design_from_dict(data) == Design()
+        assert FilterConfig.from_dict(data["filter"]) == replace(FilterConfig(), gate_sigma=gate)
+        assert set(data["filter"]) == set(FilterConfig.__dataclass_fields__)  # every key, defaults filled in
+        assert set(data["balloon"]) == set(Design().balloon.__dataclass_fields__)
+        assert ("wind" in data) == bool(args) and (not args or data["wind"] == {"kind": "steady"})

@@ -5,7 +5,7 @@ estimate bit for bit."""
 
 import numpy as np
 import pytest
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from balloon_core.config import Design
 from balloon_core.score import describe, response, score
