@@ -25,6 +25,7 @@ from firmware_py import app
 from firmware_py.app import CONSISTENT_TEXT, RESTARTED_TEXT, SENSOR_BITS, TEXT_MAX, Firmware
 from firmware_py.estimator import control
 from firmware_py.estimator.consistency import SOURCES, Consistency
+from firmware_py.estimator.state import FilterConfig
 from ground_station.listen import GroundStation
 
 PY = sys.executable
@@ -230,7 +231,7 @@ def scripted(monkeypatch):
         monkeypatch.setattr(Scripted, "schedule", schedule)
         monkeypatch.setattr(control, "Consistency", Scripted)
         sink = Sink()
-        return Firmware(Design(), sink=sink), sink
+        return Firmware(Design(), FilterConfig(core="py"), sink=sink), sink  # the Python core: its monitor scripted
 
     return make
 
