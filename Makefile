@@ -14,6 +14,8 @@ $(BIN)/python:
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install -q -e '.[all,test]'
 	$(BIN)/python -m firmware_c.build >/dev/null  # the C core for this host (else built at first use)
+	# MAVProxy for the test that it shows our WIND: its headless core only (its GUI needs opencv and vtk)
+	$(BIN)/python -m pip install -q --no-deps 'MAVProxy>=1.8' defusedxml || true
 	touch $(STAMP)
 
 $(BENCH_STAMP): pyproject.toml | $(BIN)/python
