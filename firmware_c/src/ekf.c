@@ -117,15 +117,15 @@ void bw_ekf_initialise(bw_ekf_t *e, const bw_config_t *c, const bw_real q[4], bw
  * position integrates the velocity; in flight the velocity follows the model's Jacobian (on the ground it
  * is held at zero); the attitude error is driven by the gyro-bias error through R; the wind integrates
  * its rate, which decays. F is never stored: each row is made when a product needs it. */
-static int f_row(const bw_ekf_t *e, const bw_real r[9], int ground, int i, int cols[BW_NCOL + 1],
+static int f_row(const bw_ekf_t *e, const bw_real r[9], int ground, int i, unsigned char cols[BW_NCOL + 1],
                  bw_real vals[BW_NCOL + 1])
 {
     const bw_real dt = e->dt;
     int n = 0, j;
     if (i < 3) {
-        cols[n] = i, vals[n++] = BW_R(1.0);
+        cols[n] = (unsigned char)i, vals[n++] = BW_R(1.0);
         if (!ground)
-            cols[n] = 3 + i, vals[n++] = dt;
+            cols[n] = (unsigned char)(3 + i), vals[n++] = dt;
     } else if (i < 6) {
         if (!ground)
             for (j = 0; j < BW_NCOL; j++) {
@@ -135,19 +135,19 @@ static int f_row(const bw_ekf_t *e, const bw_real r[9], int ground, int i, int c
                     v += BW_R(1.0);
                 if ((col == BW_DRAG && !e->learn_drag) || v == BW_R(0.0))
                     continue; /* a structural zero of the model's Jacobian (the reference adds its 0 x P) */
-                cols[n] = col, vals[n++] = v;
+                cols[n] = (unsigned char)col, vals[n++] = v;
             }
     } else if (i < 9) {
-        cols[n] = i, vals[n++] = BW_R(1.0);
+        cols[n] = (unsigned char)i, vals[n++] = BW_R(1.0);
         for (j = 0; j < 3; j++)
-            cols[n] = 9 + j, vals[n++] = -r[3 * (i - 6) + j] * dt;
+            cols[n] = (unsigned char)(9 + j), vals[n++] = -r[3 * (i - 6) + j] * dt;
     } else if (i == BW_WIND_N || i == BW_WIND_E) {
-        cols[n] = i, vals[n++] = BW_R(1.0);
-        cols[n] = i + 2, vals[n++] = dt;
+        cols[n] = (unsigned char)i, vals[n++] = BW_R(1.0);
+        cols[n] = (unsigned char)(i + 2), vals[n++] = dt;
     } else if (i == BW_WRATE_N || i == BW_WRATE_E) {
-        cols[n] = i, vals[n++] = e->rate_decay;
+        cols[n] = (unsigned char)i, vals[n++] = e->rate_decay;
     } else {
-        cols[n] = i, vals[n++] = BW_R(1.0);
+        cols[n] = (unsigned char)i, vals[n++] = BW_R(1.0);
     }
     return n;
 }
@@ -155,11 +155,14 @@ static int f_row(const bw_ekf_t *e, const bw_real r[9], int ground, int i, int c
 /* P <- F P F^T over F's non-zeros; the result written symmetric (both triangles, bit-identical) */
 static void propagate_covariance(bw_ekf_t *e, const bw_real r[9], int ground)
 {
-    int cols[BW_NCOL + 1], i, j, k, n;
-    bw_real vals[BW_NCOL + 1], acc[N];
+    unsigned char rc[N][BW_NCOL + 1], *cols;
+    int rn[N], i, j, k, n;
+    bw_real rv[N][BW_NCOL + 1], acc[N], *vals;
+    for (i = 0; i < N; i++) /* F's rows, once */
+        rn[i] = f_row(e, r, ground, i, rc[i], rv[i]);
     for (i = 0; i < N; i++) { /* T = F P, a row of T from the rows of P that row i of F takes */
         bw_real *t = e->T[i];
-        n = f_row(e, r, ground, i, cols, vals);
+        n = rn[i], cols = rc[i], vals = rv[i];
         if (n == 0) {
             for (j = 0; j < N; j++)
                 t[j] = BW_R(0.0);
@@ -181,7 +184,7 @@ static void propagate_covariance(bw_ekf_t *e, const bw_real r[9], int ground)
         }
     }
     for (j = 0; j < N; j++) { /* P = T F^T: column j from the columns of T that row j of F takes */
-        n = f_row(e, r, ground, j, cols, vals);
+        n = rn[j], cols = rc[j], vals = rv[j];
         if (n == 1 && vals[0] == BW_R(1.0)) {
             const int c = cols[0];
             for (i = 0; i <= j; i++)
@@ -343,15 +346,18 @@ int bw_ekf_fuse(bw_ekf_t *e, bw_real innov, bw_real r, bw_status_t *st, bw_real 
 int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_status_t st[3],
                  bw_real r2_extra)
 {
-    int nz[N], nn = 0, i, j, k, a, ok = 1;
+    int nz[N], nn = 0, i, j, k, a, ok = 1, moved;
     bw_real s[3][3], si[3][3], k3[N][3], hc[3][N], inn[3], var[3], gate2, worst = BW_R(0.0), scale = BW_R(1.0);
     bw_real a00, a01, a02, det, inv;
     for (j = 0; j < N; j++)
         if (e->H3[0][j] != BW_R(0.0) || e->H3[1][j] != BW_R(0.0) || e->H3[2][j] != BW_R(0.0))
             nz[nn++] = j;
+    for (k = 0; k < nn && e->dx[nz[k]] == BW_R(0.0); k++) {
+    }
+    moved = k < nn; /* the first fusion of a step meets dx = 0: H dx is exactly 0 */
     for (a = 0; a < 3; a++) {
         bw_real v = BW_R(0.0);
-        for (k = 0; k < nn; k++)
+        for (k = 0; moved && k < nn; k++)
             v += e->H3[a][nz[k]] * e->dx[nz[k]];
         inn[a] = v;
     }
@@ -370,11 +376,11 @@ int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_
         e->pht[i][0] = v0, e->pht[i][1] = v1, e->pht[i][2] = v2;
     }
     for (a = 0; a < 3; a++)
-        for (j = 0; j < 3; j++) {
+        for (j = a; j < 3; j++) { /* H P H^T: symmetric, the upper half computed */
             bw_real v = BW_R(0.0);
             for (k = 0; k < nn; k++)
                 v += e->H3[a][nz[k]] * e->pht[nz[k]][j];
-            s[a][j] = v;
+            s[a][j] = s[j][a] = v;
         }
     s[0][0] += r;
     s[1][1] += r;
