@@ -16,11 +16,11 @@ from collections.abc import Callable, Iterable
 import numpy as np
 
 from balloon_core.config import Design
-from balloon_core.samples import BaroSample, Sample
+from balloon_core.samples import BaroSample, GroundBaroSample, GroundSample, Sample, WinchSample
 from balloon_core.score import direction_from_deg
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.state import MODE_GROUND, N_STATES, POS_D, POS_E, POS_N, WIND_E, WIND_N, FilterConfig
-from firmware_py.streams import InputPipeline, feed
+from firmware_py.streams import InputPipeline, feed, feed_ground
 from postflight.product import (
     FLAG_NO_BARO,
     FLAG_SEGMENT_START,
@@ -42,7 +42,7 @@ def _signature(est: Estimator) -> tuple:
 
 
 def reprocess(
-    samples: Iterable[Sample],
+    samples: Iterable[Sample | GroundSample],
     design: Design,
     cfg: FilterConfig | None = None,
     rate_explicit: bool = True,
@@ -61,6 +61,9 @@ def reprocess(
     rec = SmootherRecorder(N_STATES)
     run = _Run(design, rec, grid_hz)
     for i, s in enumerate(samples):
+        if type(s) is WinchSample or type(s) is GroundBaroSample:
+            run.ground(s)
+            continue
         for t in pipe.push(s):
             run.feed(pipe, t, warn)
         if progress is not None and i % 10_000 == 0:
@@ -73,6 +76,9 @@ def reprocess(
                        np.array(run.inflation, float))  # fmt: skip
     product.consistency_flags = np.array(run.consistency, np.int8)
     product.accuracy_inflation = np.array(run.inflation, float)
+    if run.winch_seen:
+        product.line_length_m = np.array(run.line, float)
+        product.reel_mps = np.array(run.reel, float)
     return product
 
 
@@ -94,12 +100,27 @@ class _Run:
         self.consistency: list[int] = []  # the consistency monitor's flags and accuracy factor (the causal run's)
         self.inflation: list[float] = []
         self.accuracy: list[float] = []  # what the firmware reports (WIND_COV horiz_accuracy)
+        self.pending: dict[type, GroundSample] = {}  # from the ground before the estimator exists: the newest
+        self.winch_seen = False
+        self.line: list[float] = []  # the winch's length and reel speed the filter used at each grid point
+        self.reel: list[float] = []
+
+    def ground(self, s: GroundSample) -> None:
+        """A sample from the ground (the winch, the ground reference): into the estimator as it arrives."""
+        if type(s) is WinchSample:
+            self.winch_seen = True
+        if self.est is None:
+            self.pending[type(s)] = s
+        else:
+            feed_ground(self.est, s)
 
     def feed(self, pipe: InputPipeline, s: Sample, warn) -> None:
         est = self.est
         if est is None:
             est = self.est = Estimator(self.design, pipe.cfg)
             est.ekf.recorder = self.rec
+            for g in self.pending.values():
+                feed_ground(est, g)
             self.every = max(1, round(pipe.cfg.imu_rate_hz / self.grid_hz))
             self.sig = _signature(est)
             if pipe.decision.warning and warn is not None:
@@ -126,6 +147,9 @@ class _Run:
             self.consistency.append(est.consistency.flags)
             self.inflation.append(est.consistency.inflation)
             self.accuracy.append(est.wind_accuracy())
+            heard = est.winch_samples > 0
+            self.line.append(est.model.tether_length_m if heard else math.nan)
+            self.reel.append(est.ekf.rope.rate_mps if heard else math.nan)
 
 
 def _unconfirmed_segments(segment_start: np.ndarray, unconfirmed: np.ndarray) -> np.ndarray:

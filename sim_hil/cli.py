@@ -76,8 +76,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args, sc, truth_csv: TruthCsvWriter | None) -> int:
-    sim = Simulation(sc.design, sc.wind, sc.truth, args.duration, args.seed, keep_truth=False, truth_sink=truth_csv)
-    enc = SensorPacketEncoder()
+    sim = Simulation(sc.design, sc.wind, sc.truth, args.duration, args.seed, keep_truth=False, truth_sink=truth_csv,
+                     winch=sc.winch)  # fmt: skip
+    enc = SensorPacketEncoder(ground_sysid=sc.design.site.ground_sysid)
     t0 = time.perf_counter()
     n = 0
     out = args.out
