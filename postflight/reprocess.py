@@ -258,6 +258,9 @@ def run_reprocess(args, argv: list[str] | None) -> int:
     try:
         flight = read_flight(args.flight)
         meta = flight.meta
+        if getattr(args, "ground_pressure", None):
+            flight = _with_ground_csv(flight, args.ground_pressure)
+            meta.notes.append(f"ground reference from {os.path.basename(args.ground_pressure)}")
         bar.log(f"{prog}: {meta.describe()}")
         for note in meta.notes:
             bar.log(f"{prog}: note: {note}")
@@ -279,11 +282,49 @@ def run_reprocess(args, argv: list[str] | None) -> int:
         words = argv if argv is not None else sys.argv[1:]
         history = "balloon-gs " + " ".join(shlex.quote(a) for a in words)
         paths = write_products(product, args.out, args.plot, history)
+        paths += _write_profile(product, args.out, args.plot, history)
     finally:
         bar.close()
     print(_summary(product, meta, time.perf_counter() - t0))
     print("wrote " + ", ".join(paths))
     return 0
+
+
+def _with_ground_csv(flight, path: str):
+    """The flight with the ground reference of a ``--ground-pressure`` CSV (balloon_core/groundref.py)
+    merged in by time: on the sensor clock (``time_s``) as it is, UNIX time (``time_unix_s``) through the
+    log's UTC."""
+    from balloon_core.groundref import read_ground_csv
+
+    g = read_ground_csv(path)
+    t = np.asarray(g.time_s, float)
+    if g.time_column == "time_unix_s":
+        if flight.meta.utc_start_s is None:
+            raise ValueError(f"{path}: time_unix_s needs the log's UTC, and {flight.meta.source} has none: "
+                             "give time_s on the sensor clock")  # fmt: skip
+        t = t - flight.meta.utc_start_s
+    return flight.with_ground(np.round(t * 1e6).astype(np.int64), np.asarray(g.pressure_hpa),
+                              np.asarray(g.temperature_c))  # fmt: skip
+
+
+def _write_profile(product: WindProduct, out: str, plot: str | None, history: str) -> list[str]:
+    """With winch legs: ``<out stem>_profile.nc`` (CF featureType profile) and, with ``--plot``, the
+    profile's plot beside the product's (``<plot stem>_profile<ext>``)."""
+    from postflight.profile import plot_profile, wind_profile, write_profile
+
+    prof = wind_profile(product)
+    if prof is None:
+        return []
+    stem = os.path.splitext(out)[0]
+    paths = [f"{stem}_profile.nc"]
+    write_profile(prof, product, paths[0], history)
+    if plot:
+        base, ext = os.path.splitext(plot)
+        paths.append(f"{base}_profile{ext}")
+        plot_profile(prof, paths[-1])
+    print(f"profile: {len(prof.legs)} legs, power-law exponent {prof.alpha:.3f} +- {prof.sigma_alpha:.3f}, "
+          f"veer {prof.veer_deg_100m:+.1f} +- {prof.sigma_veer_deg_100m:.1f} deg per 100 m")  # fmt: skip
+    return paths
 
 
 def _summary(p: WindProduct, meta, wall_s: float) -> str:
