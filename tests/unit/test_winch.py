@@ -210,3 +210,35 @@ def test_firmware_tether_follows_winch_status_in_flight(winch_flight):
     assert plain.model.tether_length_m == 100.0 and plain.ekf.rope.rate_mps == 0.0
     xp = plain.ekf.x
     assert math.sqrt(float(xp[0]) ** 2 + float(xp[1]) ** 2 + float(xp[2]) ** 2) > true_dist + 3.0
+
+
+def test_profile_scenarios_are_listed_and_their_design_file_round_trips(tmp_path):
+    import subprocess
+    import sys
+
+    from sim_hil.scenarios import SCENARIOS, resolve
+
+    out = subprocess.run([sys.executable, "-m", "sim_hil", "--list-scenarios"], capture_output=True, text=True)
+    listed = [line.split()[0] for line in out.stdout.splitlines() if line.strip()]
+    for name in ("profile", "profile-fast"):
+        assert name in listed
+        sc = SCENARIOS[name]
+        assert sc.filter == FilterConfig()  # the firmware knows the design, not the truth's profile
+        assert (sc.truth.shear_exponent, sc.truth.shear_reference_m, sc.truth.veer_deg_per_100m) == (0.14, 100.0, 10.0)
+        assert min(sc.winch.lengths_m) == 30.0 and max(sc.winch.lengths_m) == 150.0
+        path = tmp_path / f"{name}.toml"
+        path.write_text(sc.to_toml())
+        again = resolve("paper-reference", str(path))
+        assert (again.design, again.truth, again.winch) == (sc.design, sc.truth, sc.winch)
+
+
+def test_truth_wind_veers_and_shears_about_the_reference_height():
+    from sim_hil.rope import profile_wind
+
+    rad = math.radians(10.0) / 100.0
+    wn, we = profile_wind(0.14, 100.0, rad, 100.0, 0.0, 3.0)  # a westerly at the reference: unchanged
+    assert (wn, we) == pytest.approx((0.0, 3.0))
+    wn, we = profile_wind(0.14, 100.0, rad, 150.0, 0.0, 3.0)
+    assert math.hypot(wn, we) == pytest.approx(3.0 * 1.5**0.14)
+    frm = math.degrees(math.atan2(-we, -wn)) % 360.0
+    assert frm == pytest.approx(275.0)  # veered: from 5 deg further clockwise 50 m higher
