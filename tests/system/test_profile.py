@@ -92,3 +92,58 @@ def test_profile_netcdf_is_cf_featuretype_profile_and_plots(tmp_path):
     png = tmp_path / "flight_profile.png"
     plot_profile(prof, str(png))
     assert png.stat().st_size > 10_000 and math.isfinite(prof.alpha)
+
+
+def _flight_samples(sim):
+    """The simulator's samples as the firmware's input (balloon_core.samples), the winch's with them."""
+    from balloon_core.atmosphere import G0
+    from balloon_core.samples import BaroSample, ImuSample, WinchSample
+
+    for s in sim.samples():
+        if s.baro is not None:
+            yield BaroSample(s.time_usec, *s.baro)
+        yield ImuSample(s.time_usec, *s.accel, *s.gyro, *s.mag)
+        if s.winch is not None:
+            length, speed, kg, status = s.winch
+            yield WinchSample(s.time_usec, length, speed, kg * G0, status)
+
+
+@pytest.mark.slow
+def test_profile_fast_flight_against_the_truth():
+    """profile-fast (1 m/s, 30-150-30 m), reprocessed: each leg's bins within 0.3 m/s and 5 deg RMS of
+    the truth's wind at the balloon in the same bins of the true height, the reported 1-sigma honest,
+    the fitted exponent within 0.03 of the one the truth's own bins give (at 1 m/s a bin is 10 s of a
+    turbulent wind: the atmosphere's own profile over the legs is not the mean's 0.14)."""
+    from postflight.reprocess import reprocess
+    from sim_hil.scenarios import SCENARIOS
+    from sim_hil.simulator import TRUTH_COLUMNS, Simulation
+
+    sc = SCENARIOS["profile-fast"]
+    sim = Simulation(sc.design, sc.wind, sc.truth, sc.winch.times_s[-1] + 5.0, 3, winch=sc.winch)
+    product = reprocess(_flight_samples(sim), sc.design, sc.filter)
+    prof = wind_profile(product)
+    assert prof is not None and [g.ascent for g in prof.legs] == [True, False]
+    col = {c: i for i, c in enumerate(TRUTH_COLUMNS)}
+    tr = sim.truth
+    half = 0.5 * prof.bin_m
+    du, dv, ratio, tz, ts = [], [], [], [], []
+    for g in prof.legs:
+        leg = (tr[:, col["time_s"]] >= g.start_s) & (tr[:, col["time_s"]] <= g.end_s)
+        for j, zc in enumerate(prof.heights_m):
+            sel = leg & (np.abs(tr[:, col["height_m"]] - zc) <= half)
+            if not np.isfinite(g.u[j]) or sel.sum() < 20:
+                continue
+            te, tn = tr[sel, col["wind_e"]].mean(), tr[sel, col["wind_n"]].mean()
+            du.append(math.hypot(g.u[j], g.v[j]) - math.hypot(te, tn))
+            d = math.degrees(math.atan2(-g.u[j], -g.v[j]) - math.atan2(-te, -tn))
+            dv.append((d + 180.0) % 360.0 - 180.0)
+            ratio += [(g.u[j] - te) / g.sigma_u[j], (g.v[j] - tn) / g.sigma_v[j]]
+            tz.append(zc)
+            ts.append(math.hypot(te, tn))
+    assert len(du) >= 16  # most of 30-150 m, both legs
+    assert math.sqrt(np.mean(np.square(du))) < 0.3
+    assert math.sqrt(np.mean(np.square(dv))) < 5.0
+    assert 0.6 < math.sqrt(np.mean(np.square(ratio))) < 1.6
+    z = np.array(tz)
+    true_alpha = np.polyfit(np.log(z), np.log(ts), 1)[0]
+    assert abs(prof.alpha - true_alpha) < 0.03, (prof.alpha, true_alpha)
