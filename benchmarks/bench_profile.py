@@ -28,7 +28,6 @@ PY = sys.executable
 
 
 def run_seed(scenario: str, seed: int, outdir: str) -> dict:
-    import xarray as xr
 
     stem = os.path.join(outdir, f"{scenario}-{seed}")
     tlog, truth_csv = f"{stem}.tlog", f"{stem}.csv"
@@ -41,13 +40,20 @@ def run_seed(scenario: str, seed: int, outdir: str) -> dict:
                                 capture_output=True, text=True).stdout)  # fmt: skip
     subprocess.run([PY, "-m", "ground_station", "reprocess", tlog, "--out", f"{stem}.nc", "--config", cfg,
                     "--plot", f"{stem}.png", "--quiet"], check=True, capture_output=True)  # fmt: skip
-    truth = np.genfromtxt(truth_csv, delimiter=",", names=True)
+    return evaluate(stem, seed)
+
+
+def evaluate(stem: str, seed: int) -> dict:
+    """The metrics of one reprocessed flight (``<stem>_profile.nc``) against its truth (``<stem>.csv``)."""
+    import xarray as xr
+
+    truth = np.genfromtxt(f"{stem}.csv", delimiter=",", names=True)
     ds = xr.open_dataset(f"{stem}_profile.nc", decode_times=False)
     z = ds["z"].values
     half = 0.5 * float(z[1] - z[0])
     t_clock = ds["leg_start"].values - ds["leg_start"].values  # sensor clock: no UTC in a simulated tlog
     errs = {"speed": [], "dir": [], "vec": [], "ratio": []}
-    tz, tspeed, tdir = [], [], []  # the truth's own bins: what the atmosphere did on these legs
+    tz, tspeed, tdir, tsig = [], [], [], []  # the truth's own bins: what the atmosphere did on these legs
     for k in range(ds.sizes["profile"]):
         t0, t1 = float(ds["leg_start"][k] + t_clock[k]), float(ds["leg_end"][k] + t_clock[k])
         leg = (truth["time_s"] >= t0) & (truth["time_s"] <= t1)
@@ -62,6 +68,7 @@ def run_seed(scenario: str, seed: int, outdir: str) -> dict:
             tz.append(zc)
             tspeed.append(math.hypot(tu, tv))
             tdir.append(math.degrees(math.atan2(-tu, -tv)) % 360.0)
+            tsig.append((float(ds["wind_speed_uncertainty"][k, j]), float(ds["wind_from_direction_uncertainty"][k, j])))
             su, sv = float(ds["eastward_wind_uncertainty"][k, j]), float(ds["northward_wind_uncertainty"][k, j])
             errs["speed"].append(math.hypot(u, v) - math.hypot(tu, tv))
             d = math.degrees(math.atan2(-u, -v)) - math.degrees(math.atan2(-tu, -tv))
@@ -72,24 +79,24 @@ def run_seed(scenario: str, seed: int, outdir: str) -> dict:
     alpha, s_alpha = float(ds["power_law_exponent"]), float(ds["power_law_exponent_uncertainty"])
     veer, s_veer = float(ds["wind_veer"]), float(ds["wind_veer_uncertainty"])
     ds.close()
-    t_alpha, t_veer = _truth_fit(np.array(tz), np.array(tspeed), np.array(tdir))
+    t_alpha, t_veer = _truth_fit(np.array(tz), np.array(tspeed), np.array(tdir), np.array(tsig))
     return {"seed": seed, "bins": len(errs["vec"]), "rms_speed_mps": rms["speed"], "rms_dir_deg": rms["dir"],
             "truth_bins_alpha": t_alpha, "truth_bins_veer": t_veer,
             "rms_vector_mps": rms["vec"], "error_over_accuracy": rms["ratio"], "alpha": alpha,
             "sigma_alpha": s_alpha, "veer_deg_100m": veer, "sigma_veer": s_veer}  # fmt: skip
 
 
-def _truth_fit(z: np.ndarray, speed: np.ndarray, direction: np.ndarray) -> tuple[float, float]:
-    """The power law and the veer fitted to the truth's own bins (equal weights), as the profile fits."""
+def _truth_fit(z: np.ndarray, speed: np.ndarray, direction: np.ndarray, sig: np.ndarray) -> tuple[float, float]:
+    """The power law and the veer fitted to the truth's own bins with the weights the profile's fit
+    gave the estimate's (its bins' sigmas)."""
     from postflight.profile import _fit_line
 
     if len(z) < 3:
         return math.nan, math.nan
-    ones = np.ones(len(z))
     z_ref = float(np.exp(np.mean(np.log(z))))
-    _, alpha, _ = _fit_line(np.log(z / z_ref), np.log(speed), ones)
+    _, alpha, _ = _fit_line(np.log(z / z_ref), np.log(speed), sig[:, 0] / speed)
     rel = (direction - direction.mean() + 180.0) % 360.0 - 180.0
-    _, veer, _ = _fit_line(z / 100.0, rel, ones)
+    _, veer, _ = _fit_line(z / 100.0, rel, sig[:, 1])
     return alpha, veer
 
 
