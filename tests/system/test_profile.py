@@ -68,7 +68,7 @@ def test_profile_recovers_a_known_power_law_and_veer(seed):
         full = leg.count >= 50
         tn, te = true_wind(prof.heights_m[full])
         assert np.all(np.abs(leg.v[full] - tn) < 0.1) and np.all(np.abs(leg.u[full] - te) < 0.1)
-        assert np.all(leg.sigma_u[full] < 0.15)
+        assert np.allclose(leg.sigma_u[full], 0.15)  # the samples' own 1-sigma (the error need not average down)
 
 
 def test_profile_netcdf_is_cf_featuretype_profile_and_plots(tmp_path):
