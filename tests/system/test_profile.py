@@ -140,6 +140,7 @@ def test_profile_fast_flight_against_the_truth():
             ratio += [(g.u[j] - te) / g.sigma_u[j], (g.v[j] - tn) / g.sigma_v[j]]
             tz.append(zc)
             ts.append(math.hypot(te, tn))
+            sig.append(g.sigma_speed[j] / math.hypot(g.u[j], g.v[j]))
     assert len(du) >= 16  # most of 30-150 m, both legs
     assert math.sqrt(np.mean(np.square(du))) < 0.3
     assert math.sqrt(np.mean(np.square(dv))) < 5.0
