@@ -64,6 +64,7 @@ class SiteConfig:
     mag_declination_deg: float = 0.0
     ground_pressure_hpa: float | None = None
     ground_temperature_c: float = 20.0  # project extension: ISA ground temperature (Table 1: rho = 1.2)
+    ground_sysid: int = 255  # the MAVLink system whose SCALED_PRESSURE is the ground reference (not the balloon's)
 
 
 @dataclass(frozen=True)
@@ -143,6 +144,7 @@ SCHEMA: dict[str, dict[str, Rule]] = {
         "mag_declination_deg": num(-180.0, 180.0),
         "ground_pressure_hpa": num(300.0, 1100.0),
         "ground_temperature_c": num(-80.0, 60.0),
+        "ground_sysid": Rule("integer", 1, 255),
     },
     "sensors": {
         "accel_mps2": num(1e-5, 10.0),
@@ -195,12 +197,25 @@ SCHEMA: dict[str, dict[str, Rule]] = {
         "mag_field_h_gauss": num(0.0, 2.0),
         "mag_field_z_gauss": num(-2.0, 2.0),
         "pressure_drift_hpa_h": num(-50.0, 50.0),
+        "shear_reference_m": num(0.0, 10000.0),
+        "veer_deg_per_100m": num(-180.0, 180.0),
+        "ground_baro_hz": num(0.0, 100.0),
+        "ground_baro_hpa": num(0.0, 10.0),
+        "ground_thermometer_k": num(0.0, 10.0),
         "temperature_drift_k_h": num(-20.0, 20.0),
         "drag_model": one_of("constant", "reynolds"),
         "drag_crisis_reynolds": num(1e3, 1e8),
         "drag_crisis_exponent": num(0.1, 10.0),
         "avionics_offset_m": num(0.0, 20.0),
         "avionics_kg": num(0.0, 1000.0),
+    },
+    "winch": {
+        "times_s": Rule("numbers", 0.0, 1e6),
+        "lengths_m": Rule("numbers", 1.0, 5000.0),
+        "max_speed_mps": pos(10.0),
+        "status_hz": pos(100.0),
+        "tension_noise_kg": num(0.0, 100.0),
+        "tension_measured": BOOL,
     },
     "filter": {
         "imu_rate_hz": num(1.0, 10000.0),

@@ -35,7 +35,28 @@ class BaroSample(NamedTuple):
     temperature_c: float
 
 
+class WinchSample(NamedTuple):
+    """WINCH_STATUS: the paid-out line (m), the reel's speed (m/s, positive paying out), the pull at the
+    anchor (N; NaN when the winch does not measure it) and its status flags. ``t_us`` the winch's clock."""
+
+    t_us: int
+    line_length_m: float
+    speed_mps: float
+    tension_n: float
+    status: int
+
+
+class GroundBaroSample(NamedTuple):
+    """The ground reference: SCALED_PRESSURE from the ground station's system (``[site] ground_sysid``),
+    pressure hPa, temperature degC (NaN: none). ``t_us`` the ground station's clock."""
+
+    t_us: int
+    pressure_hpa: float
+    temperature_c: float
+
+
 Sample = ImuSample | BaroSample
+GroundSample = WinchSample | GroundBaroSample  # what comes up from the ground: not the balloon's sensors
 
 
 # ---------------------------------------------------------------------------------------------- MAVLink
@@ -53,6 +74,8 @@ SCALED_IMUS = (MSG_SCALED_IMU, MSG_SCALED_IMU2, MSG_SCALED_IMU3)
 IMU_MESSAGES = HIGHRES_IMUS + SCALED_IMUS
 PRESSURE_MESSAGES = (MSG_SCALED_PRESSURE, MSG_SCALED_PRESSURE2, MSG_SCALED_PRESSURE3)
 SENSOR_MESSAGES = frozenset(IMU_MESSAGES + PRESSURE_MESSAGES)
+MSG_WINCH_STATUS = mavlink.MAVLINK_MSG_ID_WINCH_STATUS  # 9005, from the winch (any system)
+GROUND_SYSID = 255  # [site] ground_sysid's default: the ground station's system
 
 ACC_GYRO_BITS = 0x3F  # HIGHRES_IMU / HIL_SENSOR fields_updated
 MAG_BITS = 0x1C0
@@ -82,6 +105,11 @@ def scaled_pressure_sample(m) -> BaroSample:
     return BaroSample(m.time_boot_ms * 1000, m.press_abs, m.temperature / 100.0)
 
 
+def winch_sample(m) -> WinchSample:
+    """WINCH_STATUS: ``line_length`` m, ``speed`` m/s, ``tension`` kg (NaN: not measured) as N."""
+    return WinchSample(m.time_usec, m.line_length, m.speed, m.tension * G0, m.status)
+
+
 class MavlinkSampler:
     """MAVLink messages -> samples: the one converter for live links, tlogs and raw captures.
 
@@ -90,9 +118,16 @@ class MavlinkSampler:
     ``SWITCH_AFTER`` messages, the other is taken and ``switched`` counts it.) The barometer is the one
     inside the chosen HIGHRES_IMU / HIL_SENSOR when it carries one (``fields_updated``), else the first
     SCALED_PRESSURE* instance heard. A message whose values are NaN or out of range still becomes a
-    sample: the estimator rejects and counts it."""
+    sample: the estimator rejects and counts it.
 
-    def __init__(self) -> None:
+    From the ground: WINCH_STATUS (any sender) becomes a ``WinchSample``; SCALED_PRESSURE from
+    ``ground_sysid`` (unless that is the IMU's own system) a ``GroundBaroSample``. The balloon's
+    barometer is the IMU's system's: once the IMU is known, pressure from any other system is ignored
+    (and a barometer chosen before from another system is given up for the IMU's own)."""
+
+    def __init__(self, ground_sysid: int = GROUND_SYSID) -> None:
+        self.ground_sysid = ground_sysid
+        self.ground_messages = 0  # WINCH_STATUS and ground SCALED_PRESSURE converted
         self.imu_key: tuple | None = None
         self.baro_key: tuple | None = None
         self.embedded_baro = False  # the chosen IMU message carries the barometer
@@ -141,7 +176,17 @@ class MavlinkSampler:
             return (s,)
         if mid in PRESSURE_MESSAGES:
             key = self._key(msg, mid)
-            if self.baro_key is None:
+            src = key[1]
+            imu_sys = self.imu_key[1] if self.imu_key is not None else None
+            if src == self.ground_sysid and src != imu_sys:
+                if mid != MSG_SCALED_PRESSURE:
+                    return ()
+                self.ground_messages += 1
+                return (GroundBaroSample(msg.time_boot_ms * 1000, msg.press_abs, msg.temperature / 100.0),)
+            if imu_sys is not None and src != imu_sys:
+                self.ignored += 1  # not the balloon's: its barometer is its IMU's system's
+                return ()
+            if self.baro_key is None or (imu_sys is not None and self.baro_key[1] != imu_sys):
                 self.baro_key = key
             if self.embedded_baro:
                 self.baro_beside += 1  # the IMU messages carry the barometer: this one is not needed
@@ -150,6 +195,9 @@ class MavlinkSampler:
                 self.ignored += 1
                 return ()
             return (scaled_pressure_sample(msg),)
+        if mid == MSG_WINCH_STATUS:
+            self.ground_messages += 1
+            return (winch_sample(msg),)
         return None
 
     def _highres(self, m) -> tuple[Sample, ...]:

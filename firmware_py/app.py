@@ -3,7 +3,9 @@
 Every message goes through the one sample interface (``balloon_core.samples``: HIGHRES_IMU and HIL_SENSOR
 with their ``fields_updated`` bits, ArduPilot's SCALED_IMU/2/3, SCALED_PRESSURE/2/3) and the input
 pipeline (``firmware_py.streams``: the IMU rate measured from the stream, a faster stream averaged to the
-filter's step), exactly as post-flight reprocessing does. Everything else is counted and ignored.
+filter's step), exactly as post-flight reprocessing does. What comes up from the ground (WINCH_STATUS,
+the ground reference's SCALED_PRESSURE from ``[site] ground_sysid``) goes straight to the estimator,
+stamped with the newest sensor time (``streams.feed_ground``). Everything else is counted and ignored.
 
 When the estimator's consistency monitor (``firmware_py.estimator.consistency``) says the model does not
 explain an aid source's data, the reported ``horiz_accuracy`` already grows (``Estimator.wind_accuracy``);
@@ -22,13 +24,13 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from balloon_core.config import Design
-from balloon_core.samples import BaroSample, MavlinkSampler, Sample
+from balloon_core.samples import BaroSample, GroundBaroSample, GroundSample, MavlinkSampler, Sample, WinchSample
 from balloon_core.score import direction_from_deg, wind_unknown
 from balloon_core.wire import LinkStats, pack
 from firmware_py.core_c import new_core
 from firmware_py.estimator.consistency import ACCEL, ALIGN, BARO, FLAG_NIS, MAG, RADIUS, SOURCES
 from firmware_py.estimator.state import MODE_GROUND, MODE_TAUT, POS_D, POS_E, POS_N, FilterConfig
-from firmware_py.streams import InputPipeline, feed, print_warning
+from firmware_py.streams import InputPipeline, feed, feed_ground, print_warning
 
 FW_SYSID = 1
 FW_COMPID = mavlink.MAV_COMP_ID_AUTOPILOT1
@@ -120,7 +122,7 @@ class Firmware:
         self.mav = mavlink.MAVLink(None, srcSystem=FW_SYSID, srcComponent=FW_COMPID)
         self.period_us = round(1e6 / wind_cov_hz)
         self.stats = LinkStats()
-        self.sampler = MavlinkSampler()
+        self.sampler = MavlinkSampler(design.site.ground_sysid)
         self.pipe = InputPipeline(self.est.cfg, rate_explicit, hold=self._hold)
         self.streams = None  # a live link's StreamRequester (cli.run_live), for its hold and summary
         self.warn = warn
@@ -150,9 +152,12 @@ class Firmware:
         for s in samples:
             self.push(s)
 
-    def push(self, s: Sample) -> None:
+    def push(self, s: Sample | GroundSample) -> None:
         """One sample from any source: through the input pipeline into the estimator."""
         self.silent = False
+        if type(s) is WinchSample or type(s) is GroundBaroSample:
+            feed_ground(self.est, s)
+            return
         if type(s) is not BaroSample:
             self._track_imu_time(s.t_us)
         decided = self.pipe.decided

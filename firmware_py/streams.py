@@ -23,8 +23,10 @@ from balloon_core.samples import (
     MSG_SCALED_IMU,
     MSG_SCALED_PRESSURE,
     PRESSURE_MESSAGES,
+    GroundSample,
     ImuSample,
     Sample,
+    WinchSample,
 )
 from balloon_core.wire import pack
 from firmware_py.estimator.control import Estimator, valid_imu
@@ -38,13 +40,21 @@ QUICK_WINDOW_S = 0.25  # a stream already at the filter's rate over this much is
 MAX_HELD = 20_000  # samples held while the rate is measured (bounds memory whatever the stream)
 
 
+def feed_ground(est: Estimator, s: GroundSample) -> bool:
+    """A sample from the ground into the estimator, on the sensor clock: the winch's and the ground
+    station's clocks are not the balloon's, so it counts from the newest sensor sample (its arrival)."""
+    t = max(est.t_last_us, 0)
+    if type(s) is WinchSample:
+        return est.on_winch(t, s.line_length_m, s.speed_mps, s.tension_n)
+    return est.on_ground_baro(t, s.pressure_hpa, s.temperature_c)
+
+
 def feed(est: Estimator, s: Sample) -> bool:
     """Hand one sample to the estimator. Returns True when the filter advanced (an IMU step)."""
     if type(s) is ImuSample:
         return est.on_imu(s.t_us, s.ax, s.ay, s.az, s.gx, s.gy, s.gz, s.mx, s.my, s.mz)
     est.on_baro(s.t_us, s.pressure_hpa, s.temperature_c)
     return False
-
 
 
 # ------------------------------------------------------------------------------------------ the rate

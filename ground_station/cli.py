@@ -17,9 +17,17 @@ def main(argv: list[str] | None = None) -> int:
     li.add_argument("--csv", type=userargs.output_path, help="log every WIND_COV to this CSV")
     li.add_argument("--tlog", type=userargs.output_path, help="log every received frame to this tlog")
     li.add_argument("--duration", type=userargs.positive_float, help="stop after this many seconds")
+    li.add_argument("--ground-pressure", type=userargs.input_file, metavar="CSV",
+                    help="send the newest reading of this ground-barometer CSV (a logger appends to it) up the "
+                         "link each second as the ground reference")  # fmt: skip
+    li.add_argument("--ground-sysid", type=int, default=255, help="this ground station's MAVLink system id "
+                    "([site] ground_sysid of the firmware's design file)")  # fmt: skip
     rp = sub.add_parser("report", help="score a WIND_COV log against a truth CSV and plot it")
-    rp.add_argument("file", type=userargs.input_file,
-                    help="ground-station CSV, .tlog or raw capture holding WIND_COV, or a reprocess .nc")
+    rp.add_argument(
+        "file",
+        type=userargs.input_file,
+        help="ground-station CSV, .tlog or raw capture holding WIND_COV, or a reprocess .nc",
+    )
     rp.add_argument("--truth", required=True, type=userargs.input_file, help="balloon-sim --truth CSV")
     rp.add_argument("--plot", type=userargs.output_path, help="write the Fig. 6-style figure here (PNG)")
     rp.add_argument("--start", type=userargs.start_time, default=120.0, help="score from this time since boot [s]")
@@ -29,6 +37,9 @@ def main(argv: list[str] | None = None) -> int:
     rr.add_argument("--config", type=userargs.input_file, help="TOML design file (the one the firmware flew with)")
     rr.add_argument("--plot", type=userargs.output_path, help="also draw the product here (PNG)")
     rr.add_argument("--quiet", action="store_true", help="no progress bar / status lines (the final lines stay)")
+    rr.add_argument("--ground-pressure", type=userargs.input_file, metavar="CSV",
+                    help="the ground reference's readings (time_s or time_unix_s, pressure_hpa, temperature_c): "
+                         "height as a difference of two barometers")  # fmt: skip
     args = ap.parse_args(argv)
     if args.cmd == "reprocess":
         try:
@@ -45,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
 
         stop = userargs.stop_flag()
         try:
-            gs = GroundStation(args.csv, args.tlog)
+            gs = GroundStation(args.csv, args.tlog, ground_pressure=args.ground_pressure, sysid=args.ground_sysid)
         except OSError as exc:
             return userargs.fail(PROG, exc)
         try:

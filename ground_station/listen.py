@@ -155,9 +155,12 @@ class Vehicle:
 
 
 class GroundStation:
-    def __init__(self, csv_path: str | None = None, tlog_path: str | None = None, out=sys.stdout) -> None:
+    def __init__(self, csv_path: str | None = None, tlog_path: str | None = None, out=sys.stdout,
+                 ground_pressure: str | None = None, sysid: int = 255) -> None:  # fmt: skip
         self.stats = LinkStats()
-        self.mav = mavlink.MAVLink(None, srcSystem=255, srcComponent=mavlink.MAV_COMP_ID_MISSIONPLANNER)
+        self.mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=mavlink.MAV_COMP_ID_MISSIONPLANNER)
+        self.ground = GroundReferenceFile(ground_pressure) if ground_pressure else None
+        self.ground_sent = 0
         self.vehicles: dict[int, Vehicle] = {}
         self.wind_count = 0
         self.out = out
@@ -208,6 +211,19 @@ class GroundStation:
         return pack(self.mav, self.mav.heartbeat_encode(
             mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE
         ))  # fmt: skip
+
+    def ground_reference(self) -> bytes | None:
+        """The newest ground reading as SCALED_PRESSURE from this station's system, if there is a new one."""
+        if self.ground is None:
+            return None
+        reading = self.ground.newest()
+        if reading is None:
+            return None
+        hpa, temp_c = reading
+        self.ground_sent += 1
+        ms = int((time.monotonic() - self.t0) * 1000.0)
+        cdeg = int(round(temp_c * 100.0)) if temp_c == temp_c else 0
+        return pack(self.mav, self.mav.scaled_pressure_encode(ms, hpa, 0.0, cdeg, 0))
 
     def link_lost(self, sysid: int) -> int:
         """Packets from this system lost on the way to the ground station (all its components)."""
@@ -391,6 +407,39 @@ def sparkline(values: list[float]) -> str:
     return "".join(SPARK[min(len(SPARK) - 1, int((x - lo) / span * len(SPARK)))] for x in values)
 
 
+class GroundReferenceFile:
+    """A ground-barometer CSV that a logger appends to (balloon_core/groundref.py): its newest row, once."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+        self.header: list[str] | None = None
+        self._last: tuple | None = None
+
+    def newest(self) -> tuple[float, float] | None:
+        """(hPa, degC or NaN) of the last complete row if it is new since the last call; None otherwise."""
+        from balloon_core.groundref import check_header, parse_row
+
+        try:
+            with open(self.path, newline="") as fh:
+                lines = fh.read().splitlines()
+        except OSError:
+            return None
+        rows = [r for r in csv.reader(lines) if r and "".join(r).strip()]
+        if len(rows) < 2:
+            return None
+        if self.header is None:
+            check_header(rows[0], self.path)
+            self.header = rows[0]
+        try:
+            t, hpa, temp = parse_row(self.header, rows[-1], self.path)
+        except ValueError:
+            return None  # a row being written
+        if self._last == (t, hpa):
+            return None
+        self._last = (t, hpa)
+        return hpa, temp
+
+
 def listen(endpoint: str, gs: GroundStation, stop, duration_s: float | None = None) -> None:
     link = open_link(endpoint)
     gs.endpoint = endpoint
@@ -418,6 +467,9 @@ def listen(endpoint: str, gs: GroundStation, stop, duration_s: float | None = No
                     gs.handle(m, now)
             if now >= next_hb:
                 link.send(gs.heartbeat())
+                ground = gs.ground_reference()
+                if ground is not None:
+                    link.send(ground)
                 next_hb = now + 1.0
             if now >= next_show:
                 if live is not None:

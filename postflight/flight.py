@@ -10,11 +10,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from balloon_core.samples import BaroSample, ImuSample, Sample
+from balloon_core.samples import BaroSample, GroundBaroSample, GroundSample, ImuSample, Sample, WinchSample
 from firmware_py.streams import RATE_WINDOW_S, measure_rate_hz
 
-KIND_IMU, KIND_BARO = 0, 1
-N_VALUES = 9  # IMU: ax ay az gx gy gz mx my mz; barometer: hPa degC (then NaN)
+KIND_IMU, KIND_BARO, KIND_WINCH, KIND_GROUND = 0, 1, 2, 3
+# IMU: ax ay az gx gy gz mx my mz; barometer: hPa degC (then NaN); winch: length m, speed m/s, tension N,
+# status; ground reference: hPa degC
+N_VALUES = 9
 ULOG_MAGIC = b"ULog\x01\x12\x35"
 DATAFLASH_MAGIC = b"\xa3\x95\x80"  # the first record of a DataFlash log: FMT describing FMT
 INT32_MAX = 2**31 - 1  # PX4's "no sample" relative timestamp
@@ -51,7 +53,7 @@ class FlightMeta:
 
 @dataclass
 class Flight:
-    kind: np.ndarray  # int8, KIND_IMU / KIND_BARO
+    kind: np.ndarray  # int8, KIND_IMU / KIND_BARO / KIND_WINCH / KIND_GROUND
     t_us: np.ndarray  # int64, the sensor's clock (us since its boot)
     values: np.ndarray  # float64 (n, 9): IMU ax..gz, mx..mz (NaN: no new magnetometer); baro hPa, degC
     meta: FlightMeta
@@ -59,7 +61,7 @@ class Flight:
     def __len__(self) -> int:
         return len(self.t_us)
 
-    def samples(self) -> Iterator[Sample]:
+    def samples(self) -> Iterator[Sample | GroundSample]:
         """The samples in order, converted a chunk at a time (no list of the whole flight)."""
         for a in range(0, len(self.t_us), CHUNK):
             kinds = self.kind[a : a + CHUNK].tolist()
@@ -68,8 +70,29 @@ class Flight:
             for k, t, v in zip(kinds, times, vals):
                 if k == KIND_IMU:
                     yield ImuSample(t, *v)
-                else:
+                elif k == KIND_BARO:
                     yield BaroSample(t, v[0], v[1])
+                elif k == KIND_WINCH:
+                    yield WinchSample(t, v[0], v[1], v[2], int(v[3]))
+                else:
+                    yield GroundBaroSample(t, v[0], v[1])
+
+    @property
+    def has_winch(self) -> bool:
+        return bool(np.any(self.kind == KIND_WINCH))
+
+    def with_ground(self, t_us: np.ndarray, hpa: np.ndarray, temp_c: np.ndarray) -> Flight:
+        """This flight with a ground reference (e.g. ``--ground-pressure`` CSV) merged in by time (after
+        the flight's own samples of the same time); the flight's own ground reference is dropped."""
+        own = self.kind != KIND_GROUND
+        n = len(t_us)
+        kind = np.concatenate([self.kind[own], np.full(n, KIND_GROUND, np.int8)])
+        t = np.concatenate([self.t_us[own], np.asarray(t_us, np.int64)])
+        vals = np.full((n, N_VALUES), np.nan)
+        vals[:, 0], vals[:, 1] = hpa, temp_c
+        values = np.concatenate([self.values[own], vals])
+        order = np.argsort(t, kind="stable")
+        return Flight(kind[order], t[order], values[order], self.meta)
 
 
 # ------------------------------------------------------------------------------------------ helpers
@@ -87,7 +110,7 @@ def first_rate_hz(t_us: np.ndarray) -> float | None:
     """The IMU rate as the firmware measures it: median interval over the first 2 s of samples."""
     if len(t_us) < 2:
         return None
-    t = np.sort(t_us[: 20_000])
+    t = np.sort(t_us[:20_000])
     return measure_rate_hz(t[t <= t[0] + RATE_WINDOW_S * 1e6].tolist())
 
 
@@ -127,5 +150,3 @@ def attach_mag(imu_t: np.ndarray, imu: np.ndarray, mag_t: np.ndarray, mag: np.nd
     idx = np.searchsorted(imu_t, mag_t, side="left")
     ok = idx < len(imu_t)
     imu[idx[ok], 6:9] = mag[ok]
-
-

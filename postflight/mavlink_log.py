@@ -8,16 +8,29 @@ import os
 
 import numpy as np
 
-from balloon_core.samples import ImuSample, MavlinkSampler
+from balloon_core.samples import GROUND_SYSID, BaroSample, GroundBaroSample, ImuSample, MavlinkSampler, WinchSample
 from balloon_core.wire import LinkStats, capture_messages
-from postflight.flight import KIND_BARO, KIND_IMU, N_VALUES, Flight, FlightMeta, first_rate_hz, sha256_of
+from postflight.flight import (
+    KIND_BARO,
+    KIND_GROUND,
+    KIND_IMU,
+    KIND_WINCH,
+    N_VALUES,
+    Flight,
+    FlightMeta,
+    first_rate_hz,
+    sha256_of,
+)
 
 
-def read_mavlink(path: str) -> Flight:
+def read_mavlink(path: str, ground_sysid: int = GROUND_SYSID) -> Flight:
     """A telemetry log or raw capture, through the live firmware's converter (MavlinkSampler): the same
-    messages, instances and units. UTC from SYSTEM_TIME (time_unix_usec against time_boot_ms)."""
+    messages, instances and units. UTC from SYSTEM_TIME (time_unix_usec against time_boot_ms). The
+    winch's and the ground reference's samples keep their place in the log (their arrival); their time is
+    the newest sensor sample's, as the firmware stamps them."""
     stats = LinkStats()
-    sampler = MavlinkSampler()
+    sampler = MavlinkSampler(ground_sysid)
+    last_t = 0
     kinds = array.array("b")
     times = array.array("q")
     vals = array.array("d")
@@ -35,9 +48,20 @@ def read_mavlink(path: str) -> Flight:
                 if type(s) is ImuSample:
                     kinds.append(KIND_IMU)
                     vals.extend(s[1:])
-                else:
+                    last_t = s.t_us
+                elif type(s) is BaroSample:
                     kinds.append(KIND_BARO)
                     vals.extend((s.pressure_hpa, s.temperature_c) + (math.nan,) * (N_VALUES - 2))
+                elif type(s) is WinchSample:
+                    kinds.append(KIND_WINCH)
+                    vals.extend((s.line_length_m, s.speed_mps, s.tension_n, float(s.status)) + (math.nan,) * 5)
+                    times.append(last_t)
+                    continue
+                elif type(s) is GroundBaroSample:
+                    kinds.append(KIND_GROUND)
+                    vals.extend((s.pressure_hpa, s.temperature_c) + (math.nan,) * (N_VALUES - 2))
+                    times.append(last_t)
+                    continue
                 times.append(s.t_us)
     finally:
         msgs.close()
@@ -47,6 +71,7 @@ def read_mavlink(path: str) -> Flight:
     t = np.frombuffer(times, np.int64).copy() if len(times) else np.zeros(0, np.int64)
     values = np.frombuffer(vals, np.float64).reshape(-1, N_VALUES).copy() if len(vals) else np.zeros((0, N_VALUES))
     imu = kind == KIND_IMU
+    sensor = (kind == KIND_IMU) | (kind == KIND_BARO)
     if not imu.any():
         raise ValueError(f"{path}: no IMU messages (HIGHRES_IMU, HIL_SENSOR, SCALED_IMU*) in this file")
     sensors: dict[str, str] = {}
@@ -64,15 +89,15 @@ def read_mavlink(path: str) -> Flight:
     notes = [f"{sampler.ignored} messages from other sensor instances ignored"] if sampler.ignored else []
     if stats.bad_frames:
         notes.append(f"{stats.bad_frames} bad frames skipped")
-    n_baro = int(np.count_nonzero(~imu))
+    n_baro = int(np.count_nonzero(kind == KIND_BARO))
+    if sampler.ground_messages:
+        notes.append(f"{sampler.ground_messages} messages from the ground (WINCH_STATUS, ground reference)")
     meta = FlightMeta(
         source=os.path.basename(path), sha256=sha256_of(path), format=fmt, has_imu=True, has_mag=n_mag > 0,
         has_baro=n_baro > 0, imu_rate_hz=first_rate_hz(t[imu]), n_imu=int(imu.sum()), n_baro=n_baro,
-        n_mag=n_mag, duration_s=float(t.max() - t.min()) * 1e-6, utc_start_s=utc[0] if utc else None,
+        n_mag=n_mag, duration_s=float(t[sensor].max() - t[sensor].min()) * 1e-6, utc_start_s=utc[0] if utc else None,
         utc_source=utc[1] if utc else None, sensors=sensors, notes=notes,
     )  # fmt: skip
     if not meta.has_baro:
         meta.notes.append("no barometer in the log: height and air data unknown")
     return Flight(kind, t, values, meta)
-
-

@@ -43,5 +43,9 @@ class WindProduct:
     # the causal filter's consistency monitor at each time (None: not known, e.g. a product built elsewhere):
     consistency_flags: np.ndarray | None = None  # int8 bit field, CONSISTENCY_MASKS (what SYS_STATUS said in flight)
     accuracy_inflation: np.ndarray | None = None  # its factor (>= 1) on the accuracy WIND_COV reported
+    # the winch (None: the flight had none): the tether's paid-out length the filter used, m, and the reel's
+    # speed, m/s (positive paying out); NaN before the first WINCH_STATUS
+    line_length_m: np.ndarray | None = None
+    reel_mps: np.ndarray | None = None
     utc_start_s: float | None = None  # UNIX time of time_s == 0 when the log knows it (GPS time), else None
     attrs: dict[str, str] = field(default_factory=dict)  # design TOML, software version, source name, sha256

@@ -16,11 +16,11 @@ from collections.abc import Callable, Iterable
 import numpy as np
 
 from balloon_core.config import Design, to_toml
-from balloon_core.samples import BaroSample, Sample
+from balloon_core.samples import BaroSample, GroundBaroSample, GroundSample, Sample, WinchSample
 from balloon_core.score import direction_from_deg, wind_unknown
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.state import MODE_GROUND, N_STATES, POS_D, POS_E, POS_N, WIND_E, WIND_N, FilterConfig
-from firmware_py.streams import InputPipeline, feed
+from firmware_py.streams import InputPipeline, feed, feed_ground
 from postflight.product import (
     FLAG_NO_BARO,
     FLAG_SEGMENT_START,
@@ -53,7 +53,7 @@ def _signature(est: Estimator) -> tuple:
 
 
 def reprocess(
-    samples: Iterable[Sample],
+    samples: Iterable[Sample | GroundSample],
     design: Design,
     cfg: FilterConfig | None = None,
     rate_explicit: bool = True,
@@ -73,6 +73,9 @@ def reprocess(
     rec = SmootherRecorder(N_STATES)
     run = _Run(design, rec, grid_hz)
     for i, s in enumerate(samples):
+        if type(s) is WinchSample or type(s) is GroundBaroSample:
+            run.ground(s)
+            continue
         for t in pipe.push(s):
             run.feed(pipe, t, warn)
         if progress is not None and i % 10_000 == 0:
@@ -86,6 +89,9 @@ def reprocess(
     product.consistency_flags = np.array(run.consistency, np.int8)
     product.accuracy_inflation = np.array(run.inflation, float)
     product.attrs["design_toml"] = design_toml(design, pipe.cfg)
+    if run.winch_seen:
+        product.line_length_m = np.array(run.line, float)
+        product.reel_mps = np.array(run.reel, float)
     return product
 
 
@@ -107,12 +113,27 @@ class _Run:
         self.consistency: list[int] = []  # the consistency monitor's flags and accuracy factor (the causal run's)
         self.inflation: list[float] = []
         self.accuracy: list[float] = []  # what the firmware reports (WIND_COV horiz_accuracy)
+        self.pending: dict[type, GroundSample] = {}  # from the ground before the estimator exists: the newest
+        self.winch_seen = False
+        self.line: list[float] = []  # the winch's length and reel speed the filter used at each grid point
+        self.reel: list[float] = []
+
+    def ground(self, s: GroundSample) -> None:
+        """A sample from the ground (the winch, the ground reference): into the estimator as it arrives."""
+        if type(s) is WinchSample:
+            self.winch_seen = True
+        if self.est is None:
+            self.pending[type(s)] = s
+        else:
+            feed_ground(self.est, s)
 
     def feed(self, pipe: InputPipeline, s: Sample, warn) -> None:
         est = self.est
         if est is None:
             est = self.est = Estimator(self.design, pipe.cfg)
             est.ekf.recorder = self.rec
+            for g in self.pending.values():
+                feed_ground(est, g)
             self.every = max(1, round(pipe.cfg.imu_rate_hz / self.grid_hz))
             self.sig = _signature(est)
             if pipe.decision.warning and warn is not None:
@@ -139,6 +160,9 @@ class _Run:
             self.consistency.append(est.consistency.flags)
             self.inflation.append(est.consistency.inflation)
             self.accuracy.append(est.wind_accuracy())
+            heard = est.winch_samples > 0
+            self.line.append(est.model.tether_length_m if heard else math.nan)
+            self.reel.append(est.ekf.rope.rate_mps if heard else math.nan)
 
 
 def _unconfirmed_segments(segment_start: np.ndarray, unconfirmed: np.ndarray) -> np.ndarray:
@@ -249,6 +273,9 @@ def run_reprocess(args, argv: list[str] | None) -> int:
     try:
         flight = read_flight(args.flight)
         meta = flight.meta
+        if getattr(args, "ground_pressure", None):
+            flight = _with_ground_csv(flight, args.ground_pressure)
+            meta.notes.append(f"ground reference from {os.path.basename(args.ground_pressure)}")
         bar.log(f"{prog}: {meta.describe()}")
         for note in meta.notes:
             bar.log(f"{prog}: note: {note}")
@@ -270,11 +297,49 @@ def run_reprocess(args, argv: list[str] | None) -> int:
         words = argv if argv is not None else sys.argv[1:]
         history = "balloon-gs " + " ".join(shlex.quote(a) for a in words)
         paths = write_products(product, args.out, args.plot, history)
+        paths += _write_profile(product, args.out, args.plot, history)
     finally:
         bar.close()
     print(_summary(product, meta, time.perf_counter() - t0))
     print("wrote " + ", ".join(paths))
     return 0
+
+
+def _with_ground_csv(flight, path: str):
+    """The flight with the ground reference of a ``--ground-pressure`` CSV (balloon_core/groundref.py)
+    merged in by time: on the sensor clock (``time_s``) as it is, UNIX time (``time_unix_s``) through the
+    log's UTC."""
+    from balloon_core.groundref import read_ground_csv
+
+    g = read_ground_csv(path)
+    t = np.asarray(g.time_s, float)
+    if g.time_column == "time_unix_s":
+        if flight.meta.utc_start_s is None:
+            raise ValueError(f"{path}: time_unix_s needs the log's UTC, and {flight.meta.source} has none: "
+                             "give time_s on the sensor clock")  # fmt: skip
+        t = t - flight.meta.utc_start_s
+    return flight.with_ground(np.round(t * 1e6).astype(np.int64), np.asarray(g.pressure_hpa),
+                              np.asarray(g.temperature_c))  # fmt: skip
+
+
+def _write_profile(product: WindProduct, out: str, plot: str | None, history: str) -> list[str]:
+    """With winch legs: ``<out stem>_profile.nc`` (CF featureType profile) and, with ``--plot``, the
+    profile's plot beside the product's (``<plot stem>_profile<ext>``)."""
+    from postflight.profile import plot_profile, wind_profile, write_profile
+
+    prof = wind_profile(product)
+    if prof is None:
+        return []
+    stem = os.path.splitext(out)[0]
+    paths = [f"{stem}_profile.nc"]
+    write_profile(prof, product, paths[0], history)
+    if plot:
+        base, ext = os.path.splitext(plot)
+        paths.append(f"{base}_profile{ext}")
+        plot_profile(prof, paths[-1])
+    print(f"profile: {len(prof.legs)} legs, power-law exponent {prof.alpha:.3f} +- {prof.sigma_alpha:.3f}, "
+          f"veer {prof.veer_deg_100m:+.1f} +- {prof.sigma_veer_deg_100m:.1f} deg per 100 m")  # fmt: skip
+    return paths
 
 
 def _summary(p: WindProduct, meta, wall_s: float) -> str:

@@ -25,6 +25,8 @@ def build_parser() -> userargs.Parser:
     p.add_argument("--out", type=userargs.sink, help="FILE.tlog or a raw FILE (as fast as possible), or a UDP "
                    "endpoint / serial port (paced: --speed, --lockstep)")  # fmt: skip
     p.add_argument("--truth", type=userargs.output_path, help="truth CSV, one row per IMU sample")
+    p.add_argument("--ground-csv", type=userargs.output_path,
+                   help="write the ground reference's readings here ([truth] ground_baro_hz > 0)")  # fmt: skip
     p.add_argument("--config", type=userargs.input_file, help="TOML design file (overrides the scenario)")
     p.add_argument("--wind", choices=sorted(WIND_CHOICES), help="override the scenario's wind model")
     p.add_argument(
@@ -76,12 +78,15 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args, sc, truth_csv: TruthCsvWriter | None) -> int:
-    sim = Simulation(sc.design, sc.wind, sc.truth, args.duration, args.seed, keep_truth=False, truth_sink=truth_csv)
-    enc = SensorPacketEncoder()
+    sim = Simulation(sc.design, sc.wind, sc.truth, args.duration, args.seed, keep_truth=False, truth_sink=truth_csv,
+                     winch=sc.winch)  # fmt: skip
+    enc = SensorPacketEncoder(ground_sysid=sc.design.site.ground_sysid)
     t0 = time.perf_counter()
     n = 0
     out = args.out
     bar = Progress(PROG, total=args.duration, unit="s simulated", quiet=args.quiet)
+    if args.ground_csv:
+        sim = _GroundCsv(sim, args.ground_csv)
     try:
         if out and userargs.is_link(out):
             from sim_hil.link import stream_udp  # network edge, only when asked for
@@ -106,6 +111,8 @@ def _run(args, sc, truth_csv: TruthCsvWriter | None) -> int:
     finally:
         bar.close()
         sim.flush_truth()
+        if isinstance(sim, _GroundCsv):
+            sim.close()
         if truth_csv is not None:
             truth_csv.close()
     wall = time.perf_counter() - t0
@@ -118,6 +125,28 @@ def _run(args, sc, truth_csv: TruthCsvWriter | None) -> int:
         file=sys.stderr,
     )
     return 130 if interrupted else 0
+
+
+class _GroundCsv:
+    """The simulation with its ground reference's readings also written to a CSV (balloon_core/groundref.py)."""
+
+    def __init__(self, sim: Simulation, path: str) -> None:
+        self.sim, self.path, self.rows = sim, path, ([], [], [])
+
+    def __getattr__(self, name: str):
+        return getattr(self.sim, name)
+
+    def samples(self):
+        for s in self.sim.samples():
+            if s.ground is not None:
+                for col, v in zip(self.rows, (s.time_usec * 1e-6, *s.ground)):
+                    col.append(v)
+            yield s
+
+    def close(self) -> None:
+        from balloon_core.groundref import write_ground_csv
+
+        write_ground_csv(self.path, *self.rows)
 
 
 if __name__ == "__main__":

@@ -23,12 +23,12 @@ Options that the firmware's model does not have (docs/model.md, "Truth options")
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from balloon_core.atmosphere import G0, ISA_EXP, LAPSE_K_M, R_AIR
 from balloon_core.config import ConfigError, Design, build_section
 from balloon_core.rotation import quat_from_euler, rotation
-from sim_hil.rope import LumpedRope, initial_nodes, rope_derivative, shear_factor
+from sim_hil.rope import LumpedRope, initial_nodes, profile_wind, rope_derivative, shear_factor
 
 SUTHERLAND_MU0_PAS = 1.716e-5  # dynamic viscosity of air at 273.15 K (White, Viscous Fluid Flow)
 SUTHERLAND_T0_K = 273.15
@@ -50,7 +50,14 @@ class TruthConfig:
     tether_damping_ratio: float = 0.2  # of the axial rope mode (paper rope)
     rope_drag: bool = True  # Hoerner cross-flow drag on the rope (the paper neglects it)
     rope_normal_cd: float = 1.1
-    shear_exponent: float = 0.0  # power-law wind profile (z / tether length)^alpha; 0 = uniform
+    shear_exponent: float = 0.0  # power-law wind profile (z / shear_reference_m)^alpha; 0 = uniform
+    shear_reference_m: float = 0.0  # the height where the wind is the [wind] section's; 0: the tether length
+    veer_deg_per_100m: float = 0.0  # the wind turns clockwise with height (from the reference height up)
+    # the ground reference: a barometer and thermometer at the anchor, sent up the link as SCALED_PRESSURE
+    # from the ground station's system ([site] ground_sysid); 0 Hz: none
+    ground_baro_hz: float = 0.0
+    ground_baro_hpa: float = 0.01  # 1-sigma white noise of the ground barometer
+    ground_thermometer_k: float = 0.1
     rot_damping_nms: float = 0.5  # rotational air damping torque per rad/s
     release_s: float = 5.0  # boot resting on the ground station, released after this time
     initial_yaw_deg: float = 30.0
@@ -146,6 +153,9 @@ class BalloonPhysics:
     inertia_z_kgm2: float = 0.0
     rope: LumpedRope | None = None  # the lumped rope (rope_model = "lumped"); None: the paper's rope
     shear_exponent: float = 0.0
+    shear_reference_m: float = 100.0  # the height of the reference wind
+    veer_rad_m: float = 0.0
+    tether_ea_n: float = 20000.0
 
     @classmethod
     def from_design(cls, design: Design, truth: TruthConfig) -> BalloonPhysics:
@@ -167,6 +177,8 @@ class BalloonPhysics:
         m_eff = mass + truth.added_mass_coefficient * rho0 * volume
         c = 2.0 * truth.tether_damping_ratio * math.sqrt(k * m_eff)
         reynolds = truth.drag and truth.drag_model == "reynolds"
+        z_ref = truth.shear_reference_m or t.length_m
+        veer = math.radians(truth.veer_deg_per_100m) / 100.0
         return cls(
             radius_m=r,
             volume_m3=volume,
@@ -194,10 +206,21 @@ class BalloonPhysics:
             inertia_z_kgm2=inertia_z,
             rope=LumpedRope.build(
                 t.length_m, t.linear_density_kg_m, t.diameter_m, truth.tether_ea_n, truth.rope_segments,
-                truth.rope_damping_ratio, truth.rope_normal_cd, truth.rope_drag, truth.shear_exponent, t.length_m,
+                truth.rope_damping_ratio, truth.rope_normal_cd, truth.rope_drag, truth.shear_exponent, z_ref, veer,
             ) if truth.rope_model == "lumped" else None,
             shear_exponent=truth.shear_exponent,
+            shear_reference_m=z_ref,
+            veer_rad_m=veer,
+            tether_ea_n=truth.tether_ea_n,
         )  # fmt: skip
+
+    def at_length(self, length_m: float, speed_mps: float) -> BalloonPhysics:
+        """The physics with ``length_m`` of rope paid out at ``speed_mps`` (the winch, sim_hil/winch.py):
+        the lumped rope rebuilt at that length, the paper's rope's length and stiffness EA / L."""
+        rope = self.rope.at_length(length_m, speed_mps) if self.rope is not None else None
+        k = self.tether_ea_n / length_m
+        c = self.tether_c_ns_m * math.sqrt(k / self.tether_k_n_m)
+        return replace(self, tether_length_m=length_m, rope=rope, tether_k_n_m=k, tether_c_ns_m=c)
 
 
 def offset_inertia_kgm2(
@@ -298,8 +321,12 @@ def derivative(
     the tether tension at the balloon [N]. The wind is the reference wind (at the tether length's
     height); with shear the balloon feels it scaled to its own height."""
     pn, pe, pd, vn, ve, vd, q0, q1, q2, q3, p, q, r = s[:13]
-    if ph.shear_exponent:
-        sf = shear_factor(ph.shear_exponent, ph.tether_length_m, -pd)
+    if ph.veer_rad_m:
+        wn_ref, we_ref = wn, we
+        wn, we = profile_wind(ph.shear_exponent, ph.shear_reference_m, ph.veer_rad_m, -pd, wn, we)
+        dwn, dwe = profile_wind(ph.shear_exponent, ph.shear_reference_m, ph.veer_rad_m, -pd, dwn, dwe)
+    elif ph.shear_exponent:
+        sf = shear_factor(ph.shear_exponent, ph.shear_reference_m, -pd)
         wn_ref, we_ref = wn, we
         wn, we, dwn, dwe = sf * wn, sf * we, sf * dwn, sf * dwe
     else:

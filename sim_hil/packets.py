@@ -1,6 +1,10 @@
-"""MAVLink 2 sensor packets (pymavlink): HIGHRES_IMU, SCALED_PRESSURE and HEARTBEAT frames."""
+"""MAVLink 2 sensor packets (pymavlink): HIGHRES_IMU, SCALED_PRESSURE and HEARTBEAT frames from the
+balloon's sensors; WINCH_STATUS from the winch (its own component) and the ground reference's
+SCALED_PRESSURE from the ground station's system, when the simulation has them."""
 
 from __future__ import annotations
+
+import math
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -12,14 +16,20 @@ SIM_COMPID = mavlink.MAV_COMP_ID_IMU
 HIGHRES_ACC_GYRO_MAG = 0x1FF
 HIGHRES_ABS_PRESSURE = 0x200
 HIGHRES_TEMPERATURE = 0x1000
+GROUND_SYSID = 255  # the ground station's system ([site] ground_sysid's default)
+GROUND_COMPID = mavlink.MAV_COMP_ID_MISSIONPLANNER
+WINCH_SYSID = GROUND_SYSID  # the winch stands at the ground station: a component of its system
+WINCH_COMPID = mavlink.MAV_COMP_ID_WINCH
 
 
 class SensorPacketEncoder:
     """Encodes simulator samples as HIGHRES_IMU (every sample), SCALED_PRESSURE (new baro samples) and
     HEARTBEAT (1 Hz, MAV_TYPE_FREE_BALLOON) frames."""
 
-    def __init__(self, sysid: int = SIM_SYSID, compid: int = SIM_COMPID) -> None:
+    def __init__(self, sysid: int = SIM_SYSID, compid: int = SIM_COMPID, ground_sysid: int = GROUND_SYSID) -> None:
         self.mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        self.winch_mav = mavlink.MAVLink(None, srcSystem=WINCH_SYSID, srcComponent=WINCH_COMPID)
+        self.ground_mav = mavlink.MAVLink(None, srcSystem=ground_sysid, srcComponent=GROUND_COMPID)
         self._last_baro = (1013.25, 20.0)
         self._next_heartbeat_us = 0
 
@@ -43,4 +53,12 @@ class SensorPacketEncoder:
         if s.baro is not None:
             temp_cdeg = int(round(temp_c * 100.0))
             out.append(pack(mav, mav.scaled_pressure_encode(s.time_usec // 1000, hpa, 0.0, temp_cdeg, 0)))
+        if s.winch is not None:
+            length, speed, kg, status = s.winch
+            w = self.winch_mav
+            out.append(pack(w, w.winch_status_encode(s.time_usec, length, speed, kg, math.nan, math.nan, 0, status)))
+        if s.ground is not None:
+            g = self.ground_mav
+            ghpa, gtemp = s.ground
+            out.append(pack(g, g.scaled_pressure_encode(s.time_usec // 1000, ghpa, 0.0, int(round(gtemp * 100.0)), 0)))
         return out

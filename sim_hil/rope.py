@@ -42,12 +42,21 @@ class LumpedRope:
     shear_exponent: float  # wind at height z: (z / shear_reference_m)^alpha times the reference wind
     shear_reference_m: float
     ground_c_ns_m: float
+    # what a winch needs to rebuild the rope at another length (``at_length``)
+    kg_m: float = 0.0
+    ea_n: float = 0.0
+    damping_ratio: float = 0.0
+    normal_cd_d_m: float = 0.0  # Cn d, 0 without rope drag
+    seg_rate_mps: float = 0.0  # the rest length's rate of one segment (the winch paying out / in)
+    veer_rad_m: float = 0.0  # the wind turns clockwise with height by this much per metre (0: no veer)
 
     @classmethod
     def build(
         cls, length_m: float, kg_m: float, diameter_m: float, ea_n: float, segments: int, damping_ratio: float,
-        normal_cd: float, drag: bool, shear_exponent: float, shear_reference_m: float,
+        normal_cd: float, drag: bool, shear_exponent: float, shear_reference_m: float, veer_rad_m: float = 0.0,
+        speed_mps: float = 0.0,
     ) -> LumpedRope:  # fmt: skip
+        """``speed_mps``: the winch's paying-out speed (negative: reeling in), shared by the segments."""
         l0 = length_m / segments
         m = max(kg_m * l0, 1e-6)
         k = ea_n / l0
@@ -61,7 +70,21 @@ class LumpedRope:
             shear_exponent=shear_exponent,
             shear_reference_m=shear_reference_m,
             ground_c_ns_m=2.0 * GROUND_DAMPING_RATIO * math.sqrt(GROUND_STIFFNESS_N_M * m),
+            kg_m=kg_m,
+            ea_n=ea_n,
+            damping_ratio=damping_ratio,
+            normal_cd_d_m=normal_cd * diameter_m if drag else 0.0,
+            seg_rate_mps=speed_mps / segments,
+            veer_rad_m=veer_rad_m,
         )
+
+    def at_length(self, length_m: float, speed_mps: float) -> LumpedRope:
+        """The same rope with ``length_m`` paid out at ``speed_mps`` (a winch at the anchor): the segments
+        keep their count and share the length (each node's mass, stiffness and dashpot follow it)."""
+        return LumpedRope.build(
+            length_m, self.kg_m, 1.0, self.ea_n, self.segments, self.damping_ratio, self.normal_cd_d_m,
+            self.normal_cd_d_m > 0.0, self.shear_exponent, self.shear_reference_m, self.veer_rad_m, speed_mps,
+        )  # fmt: skip
 
     @property
     def n_nodes(self) -> int:
@@ -76,6 +99,31 @@ def shear_factor(exponent: float, reference_m: float, height_m: float) -> float:
     if height_m <= 0.0:
         return 0.0
     return (height_m / reference_m) ** exponent
+
+
+def profile_wind(
+    exponent: float, reference_m: float, veer_rad_m: float, height_m: float, wn: float, we: float
+) -> tuple[float, float]:
+    """The horizontal wind at ``height_m`` from the reference wind (wn, we) at ``reference_m``: the power
+    law's speed (``shear_factor``) turned clockwise (seen from above: veer) by ``veer_rad_m`` per metre
+    above the reference height."""
+    sf = shear_factor(exponent, reference_m, height_m)
+    if veer_rad_m == 0.0:
+        return sf * wn, sf * we
+    a = veer_rad_m * (height_m - reference_m)
+    c, s = math.cos(a), math.sin(a)
+    return sf * (c * wn - s * we), sf * (s * wn + c * we)
+
+
+def anchor_tension_n(rope: LumpedRope, nodes: list[float]) -> float:
+    """The pull of the bottom segment on the anchor (the winch's load cell), N, at rest-length rate."""
+    n = rope.n_nodes
+    x, y, z = nodes[0], nodes[1], nodes[2]
+    length = math.sqrt(x * x + y * y + z * z)
+    if length <= rope.seg_length_m or length < 1e-9:
+        return 0.0
+    rate = (x * nodes[3 * n] + y * nodes[3 * n + 1] + z * nodes[3 * n + 2]) / length - rope.seg_rate_mps
+    return max(0.0, rope.seg_k_n_m * (length - rope.seg_length_m) + rope.seg_c_ns_m * rate)
 
 
 def initial_nodes(rope: LumpedRope) -> list[float]:
@@ -120,7 +168,8 @@ def rope_derivative(
             ez = -1.0
         tension = 0.0
         if length > l0:
-            rate = ex * (vx[j + 1] - vx[j]) + ey * (vy[j + 1] - vy[j]) + ez * (vz[j + 1] - vz[j])
+            # the dashpot acts on the strain's rate: the rest length's own (a winch) is not stretch
+            rate = ex * (vx[j + 1] - vx[j]) + ey * (vy[j + 1] - vy[j]) + ez * (vz[j + 1] - vz[j]) - rope.seg_rate_mps
             tension = k * (length - l0) + c * rate
             if tension < 0.0:
                 tension = 0.0
@@ -135,9 +184,14 @@ def rope_derivative(
         if j == n:
             t_top = tension
         if kd > 0.0:
-            sf = shear_factor(rope.shear_exponent, rope.shear_reference_m, -0.5 * (pz[j] + pz[j + 1]))
-            ux = sf * wn - 0.5 * (vx[j] + vx[j + 1])
-            uy = sf * we - 0.5 * (vy[j] + vy[j + 1])
+            if rope.veer_rad_m == 0.0:
+                sf = shear_factor(rope.shear_exponent, rope.shear_reference_m, -0.5 * (pz[j] + pz[j + 1]))
+                swn, swe = sf * wn, sf * we
+            else:
+                swn, swe = profile_wind(rope.shear_exponent, rope.shear_reference_m, rope.veer_rad_m,
+                                        -0.5 * (pz[j] + pz[j + 1]), wn, we)  # fmt: skip
+            ux = swn - 0.5 * (vx[j] + vx[j + 1])
+            uy = swe - 0.5 * (vy[j] + vy[j + 1])
             uz = wd - 0.5 * (vz[j] + vz[j + 1])
             along = ux * ex + uy * ey + uz * ez
             ux, uy, uz = ux - along * ex, uy - along * ey, uz - along * ez

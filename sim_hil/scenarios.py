@@ -26,6 +26,7 @@ from balloon_core.config import (
 )
 from firmware_py.estimator.state import FilterConfig
 from sim_hil.dynamics import TruthConfig
+from sim_hil.winch import WinchConfig
 from sim_hil.wind import WindConfig
 
 
@@ -37,11 +38,14 @@ class Scenario:
     wind: WindConfig = field(default_factory=WindConfig)
     truth: TruthConfig = field(default_factory=TruthConfig)
     filter: FilterConfig = field(default_factory=FilterConfig)  # what the firmware should be told
+    winch: WinchConfig = field(default_factory=WinchConfig)  # the winch's schedule (none: the design's length)
 
     def to_toml(self) -> str:
         """The whole scenario as one design file, for balloon-sim and balloon-fw alike."""
         sections = {**{n: getattr(self.design, n) for n in ("balloon", "tether", "site", "sensors")},
                     "wind": self.wind, "truth": self.truth, "filter": self.filter}  # fmt: skip
+        if self.winch.enabled:
+            sections["winch"] = self.winch
         return to_toml(sections, f"# scenario {self.name}: {self.description}")
 
 
@@ -195,7 +199,40 @@ _FIELD_SCENARIOS = (
     ),
 )
 
-SCENARIOS: dict[str, Scenario] = {s.name: s for s in (*_PAPER_SCENARIOS, *_FIELD_SCENARIOS)}
+
+def winch_profile(low_m: float, high_m: float, speed_mps: float, hold_s: float, settle_s: float) -> WinchConfig:
+    """A winch schedule for a profile: ``settle_s`` at ``low_m`` after the launch, up to ``high_m`` and
+    down again at ``speed_mps``, ``hold_s`` at the top and at the end."""
+    leg = (high_m - low_m) / speed_mps
+    t = (0.0, settle_s, settle_s + leg, settle_s + leg + hold_s, settle_s + 2.0 * leg + hold_s,
+         settle_s + 2.0 * leg + 2.0 * hold_s)  # fmt: skip
+    return WinchConfig(times_s=t, lengths_m=(low_m, low_m, high_m, high_m, low_m, low_m))
+
+
+# the profile's world: 3 m/s at 100 m, power law 0.14, veering 10 deg per 100 m, on a winch between 30
+# and 150 m. The r = 1.15 m balloon lifts 150 m of the reference rope with 23 N to spare (the reference
+# one only 2 N); ten segments keep the lumped rope's shortest (3 m) stable at 400 Hz.
+_PROFILE_TRUTH = TruthConfig(shear_exponent=0.14, shear_reference_m=100.0, veer_deg_per_100m=10.0,
+                             rope_segments=10, physics_hz=400.0)  # fmt: skip
+_PROFILE_DESIGN = _with(balloon=replace(_B, radius_m=1.15))
+_PROFILE_SCENARIOS = (
+    Scenario(
+        "profile",
+        "a winch profile 30-150-30 m at 0.25 m/s on the real rope; 3 m/s at 100 m, shear 0.14, veer 10 deg/100 m",
+        _PROFILE_DESIGN,
+        truth=_PROFILE_TRUTH,
+        winch=winch_profile(30.0, 150.0, 0.25, 30.0, 120.0),
+    ),
+    Scenario(
+        "profile-fast",
+        "profile at 1 m/s (30-150-30 m in 5 min): the quick check",
+        _PROFILE_DESIGN,
+        truth=_PROFILE_TRUTH,
+        winch=winch_profile(30.0, 150.0, 1.0, 10.0, 60.0),
+    ),
+)
+
+SCENARIOS: dict[str, Scenario] = {s.name: s for s in (*_PAPER_SCENARIOS, *_FIELD_SCENARIOS, *_PROFILE_SCENARIOS)}
 
 WIND_CHOICES = {
     "vdh": {"kind": "vdh"},
@@ -223,6 +260,7 @@ def resolve(name: str, config_path: str | None = None, wind_choice: str | None =
             wind=WindConfig.from_dict({**section_values(sc.wind), **data.get("wind", {})}),
             truth=TruthConfig.from_dict({**section_values(sc.truth), **data.get("truth", {})}),
             filter=FilterConfig.from_dict({**section_values(sc.filter), **data.get("filter", {})}),
+            winch=WinchConfig.from_dict({**section_values(sc.winch), **data.get("winch", {})}),
         )
     if wind_choice:
         if wind_choice not in WIND_CHOICES:

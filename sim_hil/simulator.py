@@ -23,13 +23,15 @@ from sim_hil.dynamics import (
     resting_state,
     rk4_step,
 )
-from sim_hil.rope import rope_airborne, shear_factor
+from sim_hil.rope import anchor_tension_n, profile_wind, rope_airborne, shear_factor
 from sim_hil.sensors import SensorSuite
+from sim_hil.winch import WinchConfig, line_length_m, load_cell_kg, status_flags
 from sim_hil.wind import WindConfig, WindSeries, WindStream, wind_source
 
 TRUTH_COLUMNS = (
     "time_s", "wind_n", "wind_e", "wind_d", "pos_n", "pos_e", "pos_d", "vel_n", "vel_e", "vel_d",
-    "roll_deg", "pitch_deg", "yaw_deg", "tether_taut", "tension_n", "height_m",
+    "roll_deg", "pitch_deg", "yaw_deg", "tether_taut", "tension_n", "height_m", "line_length_m",
+    "anchor_tension_n",
 )  # fmt: skip
 CHUNK_STEPS = 4000
 TRUTH_CHUNK_ROWS = 6000  # truth rows handed to the sink at a time (keep_truth=False): one minute at 100 Hz
@@ -52,6 +54,9 @@ class SensorSample:
     gyro: tuple[float, float, float]
     mag: tuple[float, float, float]
     baro: tuple[float, float] | None  # (hPa, degC) when a new barometer sample is due
+    # the winch's report when one is due: (paid-out length m, speed m/s, load cell kg or NaN, status flags)
+    winch: tuple[float, float, float, int] | None = None
+    ground: tuple[float, float] | None = None  # the ground reference (hPa, degC) when one is due
 
 
 class Simulation:
@@ -67,6 +72,7 @@ class Simulation:
         wind_series: WindSeries | WindStream | None = None,
         keep_truth: bool = True,
         truth_sink: Callable[[np.ndarray], None] | None = None,
+        winch: WinchConfig | None = None,
     ) -> None:
         """``keep_truth``: the whole flight's truth table in ``self.truth`` (memory grows with the
         duration); otherwise it is handed to ``truth_sink`` in chunks of rows and not kept."""
@@ -91,6 +97,12 @@ class Simulation:
         self._truth_base = 0  # flight row index of self.truth[0]
         self._truth_rows = 0  # rows filled so far (whole flight)
         self.samples_done = 0  # IMU samples yielded so far
+        self.winch = winch if winch is not None and winch.enabled else None
+        self.winch_every = max(1, round(imu_hz / self.winch.status_hz)) if self.winch else 0
+        self.ground_every = max(1, round(imu_hz / truth.ground_baro_hz)) if truth.ground_baro_hz > 0.0 else 0
+        # the winch's load cell and the ground barometer draw from their own streams: the flight's other
+        # sensors stay the same with them or without
+        self._aux_rng = np.random.default_rng(np.random.SeedSequence([seed, 0x47524E44]))
 
     def flush_truth(self) -> None:
         """Hand the truth rows not yet handed over to the sink (streaming mode; idempotent)."""
@@ -128,12 +140,24 @@ class Simulation:
         zero = [0.0] * 13
         baro_every = self.baro_every
         d = ph.imu_offset_m  # avionics (IMU, barometer) this far below the centre along body z
+        base = ph
+        winch = self.winch
+        paid = (ph.tether_length_m, 0.0)
+        if winch is not None:
+            paid = line_length_m(winch, 0.0)
+            ph = base.at_length(*paid)
+        aux = self._aux_rng
         for c0 in range(0, n_steps, CHUNK_STEPS):
             n = min(CHUNK_STEPS, n_steps - c0)
             wind = self._wind_chunk(c0, n)
             for j in range(n):
                 step = c0 + j
                 w0 = wind[2 * j]
+                if winch is not None:
+                    now = line_length_m(winch, step * h)
+                    if now != paid:
+                        paid = now
+                        ph = base.at_length(*paid)
                 held = step < release_step
                 if held:
                     k1, tension = zero, 0.0
@@ -160,21 +184,42 @@ class Simulation:
                         sensor_height = height
                     baro = self.sensors.baro(sensor_height, step * h) if i % baro_every == 0 else None
                     roll, pitch, yaw = euler_from_quat(*s[6:10])
-                    sf = shear_factor(ph.shear_exponent, ph.tether_length_m, height)
+                    if ph.veer_rad_m:
+                        wtn, wte = profile_wind(ph.shear_exponent, ph.shear_reference_m, ph.veer_rad_m, height,
+                                                w0[0], w0[1])  # fmt: skip
+                    else:
+                        sf = shear_factor(ph.shear_exponent, ph.shear_reference_m, height)
+                        wtn, wte = sf * w0[0], sf * w0[1]
                     taut = tension > 0.0 and (ph.rope is None or rope_airborne(ph.rope, s[13:]))
+                    anchor = anchor_tension_n(ph.rope, s[13:]) if ph.rope is not None else tension
                     if not keep and i - self._truth_base == chunk_rows:
                         self.flush_truth()
                     truth[i - self._truth_base if not keep else i] = (
-                        step * h, sf * w0[0], sf * w0[1], w0[2], s[0], s[1], s[2], s[3], s[4], s[5],
+                        step * h, wtn, wte, w0[2], s[0], s[1], s[2], s[3], s[4], s[5],
                         math.degrees(roll), math.degrees(pitch), math.degrees(yaw),
-                        1.0 if taut else 0.0, tension, height,
+                        1.0 if taut else 0.0, tension, height, paid[0], anchor,
                     )  # fmt: skip
                     self._truth_rows = i + 1
                     self.samples_done = i + 1
-                    yield SensorSample(round(step * h * 1e6), acc, gyro, mag, baro)
+                    report = None
+                    if winch is not None and i % self.winch_every == 0:
+                        kg = load_cell_kg(anchor, float(aux.standard_normal()), winch)
+                        report = (paid[0], paid[1], kg, status_flags(paid[1]))
+                    ground = None
+                    if self.ground_every and i % self.ground_every == 0:
+                        ground = self._ground_reading(step * h, aux)
+                    yield SensorSample(round(step * h * 1e6), acc, gyro, mag, baro, report, ground)
                 if not held:
                     s = rk4_step(s, h, w0, wind[2 * j + 1], wind[2 * j + 2], ph, k1)
                 self.state = s
+
+    def _ground_reading(self, time_s: float, rng: np.random.Generator) -> tuple[float, float]:
+        """The ground reference at the anchor: the weather's ground pressure and temperature (the truth's
+        drift) plus the ground barometer's and thermometer's noise, (hPa, degC)."""
+        p0, t0 = self.sensors.ground(time_s)
+        tc = self.truth_cfg
+        n = rng.standard_normal(2)
+        return p0 / 100.0 + tc.ground_baro_hpa * float(n[0]), t0 - 273.15 + tc.ground_thermometer_k * float(n[1])
 
     def run(self) -> int:
         """Run the whole flight, discarding the sensor samples; returns their count."""

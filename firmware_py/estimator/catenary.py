@@ -94,11 +94,13 @@ def effective_rod(fn: float, fe: float, fd: float, cn: float, ce: float, cd: flo
 
 class RopeShape:
     """The taut rod's two rope parameters, followed as the wind changes: the chord length and the
-    weight the rod carries (both low-passed: parameters of the model, not states)."""
+    weight the rod carries (both low-passed: parameters of the model, not states); ``rate_mps`` the
+    chord's rate while a winch reels (aid_sources/winch.py; 0 without one)."""
 
-    __slots__ = ("chord_m", "weight_n", "calm_weight_n")
+    __slots__ = ("chord_m", "weight_n", "calm_weight_n", "rate_mps")
 
     def __init__(self, length_m: float, calm_weight_n: float) -> None:
+        self.rate_mps = 0.0
         self.calm_weight_n = calm_weight_n
         self.chord_m = length_m
         self.weight_n = calm_weight_n

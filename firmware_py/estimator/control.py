@@ -11,8 +11,10 @@ from balloon_core.config import Design
 from balloon_core.rotation import quat_from_euler, rotation
 from firmware_py.estimator.aid_sources.accel import control_accel
 from firmware_py.estimator.aid_sources.baro import baro_sample, control_baro, reset_height
+from firmware_py.estimator.aid_sources.ground_ref import ground_baro_sample, init_ground_ref
 from firmware_py.estimator.aid_sources.magnetometer import control_mag
 from firmware_py.estimator.aid_sources.tether import control_tether, enter_taut
+from firmware_py.estimator.aid_sources.winch import control_winch, init_winch, winch_sample
 from firmware_py.estimator.consistency import (
     ACCEL,
     ALIGN,
@@ -147,6 +149,7 @@ class Estimator:
         self.rope_drag_share = rope_half / (m.half_cd_area_m2 + rope_half)
         self._init_clock()
         self._init_baro()
+        init_winch(self)
 
     # ------------------------------------------------------------------ state of the clock / baro
 
@@ -190,6 +193,7 @@ class Estimator:
         self.rho = air_density(101325.0, 293.15)
         self.height_baro = math.nan
         self._baro_pending = False
+        init_ground_ref(self)
 
     def reset(self) -> None:
         """Forget everything (time went backwards: the vehicle rebooted)."""
@@ -203,6 +207,16 @@ class Estimator:
         """A barometer + thermometer sample (aid_sources/baro.py): zeroed during the first second unless
         the config gives the ground pressure; fused at the next IMU step."""
         return baro_sample(self, t_us, pressure_hpa, temperature_c)
+
+    def on_winch(self, t_us: int, line_length_m: float, speed_mps: float, tension_n: float) -> bool:
+        """A WINCH_STATUS (aid_sources/winch.py): the paid-out length is the tether's length from now on,
+        the reel's speed the chord's rate; ``t_us`` on the sensor clock (when it arrived)."""
+        return winch_sample(self, t_us, line_length_m, speed_mps, tension_n)
+
+    def on_ground_baro(self, t_us: int, pressure_hpa: float, temperature_c: float) -> bool:
+        """The ground reference's pressure and temperature (aid_sources/ground_ref.py): the barometer's
+        zero follows the ground's pressure; ``t_us`` on the sensor clock (when it arrived)."""
+        return ground_baro_sample(self, t_us, pressure_hpa, temperature_c)
 
     def on_imu(
         self, t_us: int, ax: float, ay: float, az: float, gx: float, gy: float, gz: float,
@@ -267,6 +281,7 @@ class Estimator:
         if self.unconfirmed:
             self._confirm(ax, ay, az)
         control_baro(self)
+        control_winch(self)
         if mag_ok:
             control_mag(self, ax, ay, az, mx, my, mz)
         control_tether(self)

@@ -48,6 +48,12 @@ WIND_NOISE_PERIOD_S = 1.0  # time between updates of that noise
 FIELD_LEARN_S = 1.0  # at least this much magnetometer on the ground (all of the ground time is used)
 MAG_MODEL_GAUSS = 0.004  # field direction model error (~0.5 deg of a 0.5 G field: soft iron, anomalies)
 
+# the winch (aid_sources/winch.py) and the ground reference (aid_sources/ground_ref.py)
+WINCH_LENGTH_MIN_M, WINCH_LENGTH_MAX_M = 1.0, 5000.0  # a WINCH_STATUS line length outside is rejected
+WINCH_SPEED_MAX_MPS = 10.0  # a reel speed beyond this is not a winch's: taken as 0
+WINCH_TIMEOUT_S = 1.0  # no WINCH_STATUS this long: the reel is taken to have stopped
+GROUND_REF_S = 10.0  # low-pass of the ground reference's pressure (its noise; the weather is slower)
+
 MAG_RECOVER_S = 0.1  # the magnetometer and heading: rejected this long, fused again with inflated noise
 RELEASE_CONFIRM_S = 0.03  # | |f| - g | above the release threshold this long (3 samples at 100 Hz)
 RELEASE_HEIGHT_S = 0.5  # barometric height above the release height this long

@@ -24,6 +24,7 @@ from sil import cli as sil_cli
 from sim_hil import cli as sim_cli
 from sim_hil import replay as replay_cli
 from sim_hil.dynamics import TruthConfig
+from sim_hil.winch import WinchConfig
 from sim_hil.wind import WindConfig
 
 MAINS = {"sim": sim_cli.main, "fw": fw_cli.main, "gs": gs_cli.main, "sil": sil_cli.main, "replay": replay_cli.main}
@@ -182,7 +183,7 @@ def test_one_verdict_for_one_file(files, capsys):
 
 def test_schema_names_every_key_the_programs_read():
     classes = {"balloon": BalloonConfig, "tether": TetherConfig, "site": SiteConfig, "sensors": SensorsConfig,
-               "wind": WindConfig, "truth": TruthConfig, "filter": FilterConfig}  # fmt: skip
+               "wind": WindConfig, "truth": TruthConfig, "filter": FilterConfig, "winch": WinchConfig}  # fmt: skip
     assert set(SCHEMA) == set(classes)
     for name, cls in classes.items():
         assert set(SCHEMA[name]) == {f.name for f in dataclasses.fields(cls)}, name

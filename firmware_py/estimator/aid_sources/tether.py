@@ -105,9 +105,9 @@ def fuse_taut(
 ) -> None:
     """Restricted radial motion (paper Sec. 2.3): the attachment point at the bottom of the sphere
     (Eq. 7; ``ekf.forces.attach_ned`` from the attitude) at |p_a| = L_c (the rope's chord) from the anchor, no radial
-    velocity, and the balloon's down axis along the rope force (tension towards the anchor + the rope's
-    weight, Eq. 5, + the rope's cross-flow drag if modelled). The attitude enters the first two as a
-    parameter (no attitude column: r / L ~ 1 %)."""
+    velocity but the winch's reel (``ekf.rope.rate_mps``), and the balloon's down axis along the rope
+    force (tension towards the anchor + the rope's weight, Eq. 5, + the rope's cross-flow drag if
+    modelled). The attitude enters the first two as a parameter (no attitude column: r / L ~ 1 %)."""
     x = ekf.x
     pn, pe, pd, vn, ve, vd = x[:6].tolist()
     on, oe, od = ekf.forces.attach_ned
@@ -127,7 +127,7 @@ def fuse_taut(
     for i in range(3):
         h[VEL_N + i] = e[i]
         h[POS_N + i] = (v[i] - vr * e[i]) / dist  # d(v . e)/dp
-    ekf.fuse(-vr, radial_rate_var, status[1], UNGATED)
+    ekf.fuse(ekf.rope.rate_mps - vr, radial_rate_var, status[1], UNGATED)  # the winch's reel (0: none)
     f = ekf.forces
     if not f.taut:
         return
