@@ -86,7 +86,8 @@ def _structs(real):
             ("var_max", real * N), ("q_flight", real * N), ("q_ground", real * N), ("qd_ground", real * N),
             ("dt", real), ("rate_decay", real), ("q_rate0", real), ("u0", real), ("q_walk_step", real),
             ("wp_tau_s", real), ("wp_q_rate", real), ("wp_q_walk", real), ("sigma_rate", real), ("forces", Forces),
-            ("rope_chord_m", real), ("rope_weight_n", real), ("mode", i32), ("learn_drag", i32),
+            ("rope_chord_m", real), ("rope_weight_n", real), ("rope_rate_mps", real), ("mode", i32),
+            ("learn_drag", i32),
             ("drag_correlated", i32), ("recover_after", i32), ("time_us", i64), ("taut_phase", i32),
             ("noise_phase", i32), ("reset_counts", i32 * 3),
             ("reset_count", i32),
@@ -142,7 +143,9 @@ def _structs(real):
         ("speed_alpha", real), ("slack", i64), ("pulling", i64), ("was_slack", i32), ("height_above", i64),
         ("accel_var_excess", real), ("p_ref_pa", real), ("zeroing", i32), ("ref_pos_d", real), ("t_ref_k", real),
         ("zero_sum", real), ("zero_n", i32), ("join_height", real), ("rho", real), ("height_baro", real),
-        ("baro_pending", i32),
+        ("baro_pending", i32), ("winch_samples", i64), ("winch_t_us", i64), ("winch_tension_n", real),
+        ("ground_samples", i64), ("ground_t_us", i64), ("ground_p_pa", real), ("ground_p0_pa", real),
+        ("p_ref0_pa", real),
     ]  # fmt: skip
 
     class Estimator(C.Structure):
@@ -178,6 +181,8 @@ def load(real: str = "float"):
     lib.bw_on_imu.argtypes = [P, C.c_int64] + [ct] * 9
     lib.bw_on_baro.argtypes = [P, C.c_int64, ct, ct]
     lib.bw_coast.argtypes = [P, ct]
+    lib.bw_on_winch.argtypes = [P, C.c_int64, ct, ct, ct]
+    lib.bw_on_ground_baro.argtypes = [P, C.c_int64, ct, ct]
     lib.bw_reset.argtypes = [P]
     lib.bw_output_update.argtypes = [P, C.c_int64]
     lib.bw_output_reset.argtypes = [P]
@@ -308,6 +313,28 @@ class CEstimator:
 
     def on_baro(self, t_us: int, pressure_hpa: float, temperature_c: float) -> bool:
         return self._baro(self._p, t_us, pressure_hpa, temperature_c) == 1
+
+    def on_winch(self, t_us: int, line_length_m: float, speed_mps: float, tension_n: float) -> bool:
+        return self._lib.bw_on_winch(self._p, t_us, line_length_m, speed_mps, tension_n) == 1
+
+    def on_ground_baro(self, t_us: int, pressure_hpa: float, temperature_c: float) -> bool:
+        return self._lib.bw_on_ground_baro(self._p, t_us, pressure_hpa, temperature_c) == 1
+
+    @property
+    def winch_samples(self) -> int:
+        return self._s.winch_samples
+
+    @property
+    def ground_samples(self) -> int:
+        return self._s.ground_samples
+
+    @property
+    def winch_tension_n(self) -> float:
+        return self._s.winch_tension_n
+
+    @property
+    def p_ref_pa(self) -> float:
+        return self._s.p_ref_pa
 
     def coast(self, seconds: float) -> None:
         self._lib.bw_coast(self._p, seconds)

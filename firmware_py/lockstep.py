@@ -32,11 +32,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from balloon_core.config import Design
-from balloon_core.samples import BaroSample, ImuSample, Sample
+from balloon_core.samples import BaroSample, GroundBaroSample, ImuSample, Sample, WinchSample
 from firmware_py.core_c import COUNTER_NAMES, CEstimator, CWindCovOutput, config_struct, load
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.outputs import WindCovOutput
 from firmware_py.estimator.state import N_STATES, STATE_NAMES, FilterConfig
+from firmware_py.streams import feed_ground
 
 # absolute tolerances per state (and per sqrt(P) of that state): double, float32
 _UNIT_TOL = {  # by the state's unit: what float32 rounding grows to over a flight, measured x 10
@@ -99,7 +100,7 @@ def _discrete(est) -> tuple:
     e = est.ekf
     counters = est.counters.as_dict()
     return (e.mode, e.reset_count, tuple(e.reset_counts), tuple(counters[n] for n in COUNTER_NAMES),
-            est.consistency.flags, bool(est.unconfirmed))  # fmt: skip
+            est.consistency.flags, bool(est.unconfirmed), est.winch_samples, est.ground_samples)  # fmt: skip
 
 
 def run(design: Design, cfg: FilterConfig, samples: Iterable[Sample], coast_every: int = 0) -> Report:
@@ -117,6 +118,8 @@ def run(design: Design, cfg: FilterConfig, samples: Iterable[Sample], coast_ever
         if type(s) is BaroSample:
             a = py.on_baro(s.t_us, s.pressure_hpa, s.temperature_c)
             b = c.on_baro(s.t_us, s.pressure_hpa, s.temperature_c)
+        elif type(s) is WinchSample or type(s) is GroundBaroSample:
+            a, b = feed_ground(py, s), feed_ground(c, s)
         else:
             a = py.on_imu(*s)
             b = c.on_imu(*s)
@@ -157,7 +160,7 @@ def run(design: Design, cfg: FilterConfig, samples: Iterable[Sample], coast_ever
 # ------------------------------------------------------------------ the replay program's files
 
 RECORD = struct.Struct("<qii9d")
-KIND_IMU, KIND_BARO, KIND_COAST = 0, 1, 2
+KIND_IMU, KIND_BARO, KIND_COAST, KIND_WINCH, KIND_GROUND = 0, 1, 2, 3, 4
 OUT_DTYPE = np.dtype([("time_usec", "<i8"), ("advanced", "<i4"), ("mode", "<i4"), ("reset_count", "<i4"),
                       ("flags", "<i4"), ("f", "<f4", (5 + 2 * N_STATES,)), ("pad", "<i4")])  # fmt: skip
 
@@ -172,6 +175,10 @@ def write_stream(path: str, design: Design, cfg: FilterConfig, samples: Iterable
         for s in samples:
             if type(s) is BaroSample:
                 f.write(RECORD.pack(s.t_us, KIND_BARO, 0, s.pressure_hpa, s.temperature_c, *[0.0] * 7))
+            elif type(s) is WinchSample:  # on the sensor clock of its arrival (streams.feed_ground)
+                f.write(RECORD.pack(0, KIND_WINCH, 0, s.line_length_m, s.speed_mps, s.tension_n, *[0.0] * 6))
+            elif type(s) is GroundBaroSample:
+                f.write(RECORD.pack(0, KIND_GROUND, 0, s.pressure_hpa, s.temperature_c, *[0.0] * 7))
             else:
                 f.write(RECORD.pack(s.t_us, KIND_IMU, 0, *s[1:]))
             n += 1

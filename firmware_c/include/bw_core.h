@@ -104,6 +104,7 @@ typedef struct {
     bw_real wp_tau_s, wp_q_rate, wp_q_walk, sigma_rate;
     bw_forces_t forces;
     bw_real rope_chord_m, rope_weight_n;      /* catenary.py RopeShape */
+    bw_real rope_rate_mps;       /* the chord's rate while a winch reels (0: none) */
     int32_t mode, learn_drag, drag_correlated, recover_after;
     int64_t time_us;
     int32_t taut_phase, noise_phase;   /* step % taut_every, step % wind_noise_every */
@@ -180,6 +181,11 @@ typedef struct {
     int32_t zero_n;
     bw_real join_height, rho, height_baro;
     int32_t baro_pending;
+    /* the winch (aid_sources/winch.py) and the ground reference (aid_sources/ground_ref.py) */
+    int64_t winch_samples, winch_t_us;
+    bw_real winch_tension_n;
+    int64_t ground_samples, ground_t_us;
+    bw_real ground_p_pa, ground_p0_pa, p_ref0_pa;
 } bw_estimator_t;
 
 /* the defaults of the design file and of [filter] (the paper's reference balloon) */
@@ -191,6 +197,13 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
               bw_real gz, bw_real mx, bw_real my, bw_real mz);
 /* one barometer + thermometer sample, hPa and degrees C; 1 if accepted */
 int bw_on_baro(bw_estimator_t *est, int64_t t_us, bw_real pressure_hpa, bw_real temperature_c);
+/* WINCH_STATUS: the paid-out line (m) is the tether's length from now on, the reel's speed (m/s, paying
+ * out positive) the chord's rate, the pull at the anchor (N, NAN: not measured) kept; t_us on the sensor
+ * clock (the newest IMU sample's when it arrived). 1 if accepted */
+int bw_on_winch(bw_estimator_t *est, int64_t t_us, bw_real line_length_m, bw_real speed_mps, bw_real tension_n);
+/* the ground reference (the ground station's barometer, hPa, and thermometer, degrees C or NAN): the
+ * barometer's zero follows the ground's pressure; t_us on the sensor clock. 1 if accepted */
+int bw_on_ground_baro(bw_estimator_t *est, int64_t t_us, bw_real pressure_hpa, bw_real temperature_c);
 /* no sensor data for this long: grow the covariance (the state stays) */
 void bw_coast(bw_estimator_t *est, bw_real seconds);
 /* forget everything (the sender rebooted) */

@@ -56,6 +56,8 @@ int main(int argc, char **argv)
                 bw_on_baro(&est, r[k].t_us, (bw_real)r[k].v[0], (bw_real)r[k].v[1]);
                 continue;
             }
+            if (r[k].kind != 0)
+                continue;
             t0 = now_ns();
             if (bw_on_imu(&est, r[k].t_us, (bw_real)r[k].v[0], (bw_real)r[k].v[1], (bw_real)r[k].v[2],
                           (bw_real)r[k].v[3], (bw_real)r[k].v[4], (bw_real)r[k].v[5], (bw_real)r[k].v[6],

@@ -6,7 +6,8 @@
  *   replay STREAM.bin OUT.bin [STATS.txt]
  *
  * STREAM.bin: 43 little-endian doubles (bw_config_t), then records of 88 bytes: int64 t_us, int32 kind
- * (0 IMU: ax ay az gx gy gz mx my mz; 1 baro: pressure_hpa temperature_c; 2 coast: seconds), int32 0,
+ * (0 IMU: ax ay az gx gy gz mx my mz; 1 baro: pressure_hpa temperature_c; 2 coast: seconds; 3 winch:
+ * line_length_m speed_mps tension_n; 4 ground reference: pressure_hpa temperature_c), int32 0,
  * 9 doubles. OUT.bin: per IMU record, int64 time_usec, int32 advanced, mode, reset_count, flags, then
  * 5 + 2 x 19 floats: wind_x, wind_y, var_horiz, wind_alt, horiz_accuracy, x[19], P diagonal[19]. */
 #include <stdio.h>
@@ -101,6 +102,14 @@ int main(int argc, char **argv)
         }
         if (r.kind == 2) {
             bw_coast(&est, (bw_real)r.v[0]);
+            continue;
+        }
+        if (r.kind == 3 || r.kind == 4) { /* from the ground: on the sensor clock of its arrival */
+            int64_t t = est.t_last_us > 0 ? est.t_last_us : 0;
+            if (r.kind == 3)
+                bw_on_winch(&est, t, (bw_real)r.v[0], (bw_real)r.v[1], (bw_real)r.v[2]);
+            else
+                bw_on_ground_baro(&est, t, (bw_real)r.v[0], (bw_real)r.v[1]);
             continue;
         }
         {

@@ -77,7 +77,7 @@ static void fuse_taut(bw_estimator_t *est)
         e->h[BW_VEL_N + i] = ev[i];
         e->h[BW_POS_N + i] = (v[i] - vr * ev[i]) / dist; /* d(v . e)/dp */
     }
-    bw_ekf_fuse(e, -vr, e->m.radial_rate_var, &est->taut_status[1],
+    bw_ekf_fuse(e, e->rope_rate_mps - vr, e->m.radial_rate_var, &est->taut_status[1], /* the winch's reel (0: none) */
                 (bw_real)BW_UNGATED, 1);
     if (!f->taut)
         return;

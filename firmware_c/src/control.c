@@ -97,6 +97,7 @@ static void init_baro(bw_estimator_t *est)
     est->rho = (bw_real)(101325.0 / (BW_R_AIR * 293.15));
     est->height_baro = BW_R(NAN);
     est->baro_pending = 0;
+    bw_init_ground_ref(est);
 }
 
 size_t bw_sizeof_estimator(void)
@@ -187,6 +188,7 @@ int bw_init(bw_estimator_t *est, const bw_config_t *cfg)
     }
     init_clock(est);
     init_baro(est);
+    bw_init_winch(est);
     return 0;
 }
 
@@ -492,6 +494,7 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
     if (est->unconfirmed)
         confirm(est, ax, ay, az);
     bw_control_baro(est);
+    bw_control_winch(est);
     if (mag_ok)
         bw_control_mag(est, ax, ay, az, mx, my, mz);
     bw_control_tether(est);

@@ -64,6 +64,11 @@ void bw_control_mag(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az, bw_
 void bw_control_tether(bw_estimator_t *est);
 void bw_enter_taut(bw_ekf_t *e, bw_real height_m, bw_real rho, int from_tilt);
 
+/* aid_sources/winch.py, aid_sources/ground_ref.py */
+void bw_init_winch(bw_estimator_t *est);
+void bw_control_winch(bw_estimator_t *est);
+void bw_init_ground_ref(bw_estimator_t *est);
+
 /* control.py */
 bw_real bw_height_for_taut(const bw_estimator_t *est);
 

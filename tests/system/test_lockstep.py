@@ -16,8 +16,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from balloon_core.atmosphere import G0
 from balloon_core.config import Design
-from balloon_core.samples import BaroSample, ImuSample
+from balloon_core.samples import BaroSample, GroundBaroSample, ImuSample, WinchSample
 from firmware_py import lockstep
 from firmware_py.estimator.state import FilterConfig
 from sim_hil.scenarios import SCENARIOS
@@ -30,9 +31,15 @@ pytestmark = pytest.mark.slow
 
 
 def samples_of(sim_samples) -> list:
-    """The simulator's samples as the firmware feeds them (barometer first, then the IMU)."""
+    """The simulator's samples as the firmware feeds them (the winch and the ground reference, the
+    barometer, then the IMU)."""
     out = []
     for s in sim_samples:
+        if s.winch:
+            length, speed, kg, status = s.winch
+            out.append(WinchSample(s.time_usec, length, speed, kg * G0, status))
+        if s.ground:
+            out.append(GroundBaroSample(s.time_usec, *s.ground))
         if s.baro:
             out.append(BaroSample(s.time_usec, *s.baro))
         out.append(ImuSample(s.time_usec, *s.accel, *s.gyro, *s.mag))
@@ -51,7 +58,7 @@ def check(rep: lockstep.Report) -> None:
 @pytest.mark.parametrize("name", list(SCENARIOS))
 def test_every_scenario_double(name):
     sc = SCENARIOS[name]
-    sim = Simulation(sc.design, sc.wind, sc.truth, 30.0, 7)
+    sim = Simulation(sc.design, sc.wind, sc.truth, 30.0, 7, winch=sc.winch)
     rep = lockstep.run(sc.design, dataclasses.replace(sc.filter, float32=False), samples_of(sim.samples()))
     check(rep)
     assert rep.steps >= 2900
@@ -159,3 +166,14 @@ def test_replay_files_round_trip(tmp_path):
     t, kind, _, *v = lockstep.RECORD.unpack_from(raw, 43 * 8)
     assert t == s[0].t_us and v[: len(s[0]) - 1] == list(s[0][1:])
     assert np.frombuffer(raw[:8], "<f8")[0] == Design().balloon.radius_m
+
+
+@pytest.mark.parametrize("float32", [False, True])
+def test_winch_and_ground_reference(float32):
+    """A profile flight: WINCH_STATUS reels the line, the ground station's barometer moves the zero."""
+    sc = SCENARIOS["profile-fast"]
+    truth = dataclasses.replace(sc.truth, ground_baro_hz=1.0)
+    sim = Simulation(sc.design, sc.wind, truth, 90.0, 5, winch=sc.winch)
+    samples = samples_of(sim.samples())
+    assert any(type(s) is WinchSample for s in samples) and any(type(s) is GroundBaroSample for s in samples)
+    check(lockstep.run(sc.design, dataclasses.replace(sc.filter, float32=float32), samples))
