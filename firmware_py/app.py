@@ -14,6 +14,7 @@ line and the summary (docs/protocol.md, "Model misfit").
 from __future__ import annotations
 
 import math
+from collections import deque
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -43,6 +44,7 @@ MISFIT_HEALTH_BITS = {
 assert tuple(MISFIT_HEALTH_BITS) == SOURCES
 TEXT_MAX = 50  # STATUSTEXT's text field, characters
 TEXT_INTERVAL_US = 1_000_000  # at most one consistency STATUSTEXT a second (sensor clock)
+RECENT_IMU = 256  # IMU sample times remembered to tell a late sample from a copy (2.5 s at 100 Hz)
 CONSISTENT_TEXT = "wind model consistent again"
 RESTARTED_TEXT = "wind model check restarted (filter reset)"
 
@@ -87,11 +89,13 @@ class Firmware:
         self.streams = None  # a live link's StreamRequester (cli.run_live), for its hold and summary
         self.warn = warn
         self.other_messages = 0
+        self.samples_in = 0  # sensor samples (IMU and barometer) taken from the messages
         self.wind_cov_sent = 0
         self._next_wind_us = 0
         self._next_hb_us = 0
         self.imu_missing = 0  # IMU samples missing by their time stamps (what 8-bit sequences cannot count)
         self._prev_imu_us = -1
+        self._recent_imu_us: deque[int] = deque(maxlen=RECENT_IMU)  # sample times seen lately (a late one's twin)
         # the consistency monitor's verdicts: filter steps in flight (where it judges), with each source flagged
         self.flight_steps = 0
         self.misfit_steps = [0] * len(SOURCES)
@@ -112,6 +116,7 @@ class Firmware:
 
     def push(self, s: Sample) -> None:
         """One sample from any source: through the input pipeline into the estimator."""
+        self.samples_in += 1
         if type(s) is not BaroSample:
             self._track_imu_time(s.t_us)
         decided = self.pipe.decided
@@ -191,12 +196,24 @@ class Firmware:
             self.statustext(mavlink.MAV_SEVERITY_INFO, CONSISTENT_TEXT, t_us)
 
     def _track_imu_time(self, t_us: int) -> None:
-        """Count IMU samples missing between this one and the previous (at the filter's IMU rate). Late
-        ones are not counted twice; time going back by more than a second is a restart."""
+        """Count IMU samples missing between this one and the previous (at the filter's IMU rate). A late
+        one (reordered, within a second) fills a hole it left: it is no longer missing (it is counted as
+        reordered, once); a copy of a recent one changes nothing; time going back by more than a second is
+        a restart."""
         prev = self._prev_imu_us
-        if prev >= 0 and t_us > prev:
-            self.imu_missing += max(0, (t_us - prev + self.est.dt_us // 2) // self.est.dt_us - 1)
-        if t_us > prev or t_us < prev - 1_000_000:
+        recent = self._recent_imu_us
+        if t_us > prev:
+            if prev >= 0:
+                self.imu_missing += max(0, (t_us - prev + self.est.dt_us // 2) // self.est.dt_us - 1)
+            recent.append(t_us)
+            self._prev_imu_us = t_us
+        elif t_us >= prev - 1_000_000:
+            if t_us not in recent:
+                recent.append(t_us)
+                self.imu_missing = max(0, self.imu_missing - 1)
+        else:
+            recent.clear()
+            recent.append(t_us)
             self._prev_imu_us = t_us
 
     # ----------------------------------------------------------------- output
@@ -270,7 +287,9 @@ class Firmware:
         c = self.est.counters
         return (
             f"balloon-fw: {c.imu_samples} IMU samples, {c.baro_samples} baro samples, "
-            f"{c.rejected} rejected, {self.stats.bad_frames} bad frames, {self.other_messages} other messages, "
+            f"{c.rejected} rejected, {self.stats.bad_frames} bad frames"
+            f"{' (the file ends inside a frame)' if self.stats.truncated else ''}, "
+            f"{self.stats.garbage_bytes} garbage bytes, {self.other_messages} other messages, "
             f"{self.sampler.ignored} from other sensor instances, "
             f"{self.sampler.baro_beside} pressure messages not needed (the IMU messages carry the barometer), "
             f"{c.duplicates + self.pipe.duplicates} duplicates, "

@@ -55,6 +55,9 @@ def main(argv: list[str] | None = None) -> int:
             return userargs.fail(PROG, exc)
         gs.close()
         print(gs.summary(), file=sys.stderr)
+        if stop():  # Ctrl-C or SIGTERM (not --duration): the run did not finish
+            print(f"{PROG}: interrupted (Ctrl-C) on {args.endpoint}", file=sys.stderr)
+            return 130
         return 0
     from ground_station.report import format_score, report
 
