@@ -67,8 +67,10 @@ def on_grid(t_est, est_n, est_e, acc, t_true, true_n, true_e, start_s):
         end = min(t_est[-1], t_true[-1])
         who = "the estimates end" if t_est[-1] <= t_true[-1] else "the truth ends"
         hint = max(0.0, float(max(t_est[0], t_true[0])), end - 20.0)
-        raise ValueError(f"too little to score from {start_s:g} s: {who} at {end:.1f} s and the score needs 10 s "
-                         f"after its start (score from earlier: --start {hint:.0f})")
+        raise ValueError(
+            f"too little to score from {start_s:g} s: {who} at {end:.1f} s and the score needs 10 s "
+            f"after its start (score from earlier: --start {hint:.0f})"
+        )
     grid = np.arange(t0, t1, 1.0 / GRID_HZ)
     ip = lambda t, y: np.interp(grid, t, y)  # noqa: E731
     return grid, ip(t_est, est_n), ip(t_est, est_e), ip(t_est, acc), ip(t_true, true_n), ip(t_true, true_e)

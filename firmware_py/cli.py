@@ -99,8 +99,11 @@ def run_live(fw: Firmware, spec: str, stop, progress: Progress | None = None,
             if progress is not None and now >= next_status:
                 next_status = now + 1.0
                 silent = f", silent {now - last_rx:.0f} s" if now - last_rx > 2.0 else ""
-                progress.update(fw.stats.frames, f"in {frames.rate(now, fw.stats.frames):.0f} msg/s "
-                                f"({imu.rate(now, fw.est.counters.imu_samples):.0f} IMU/s){silent}, {fw.status()}")
+                progress.update(
+                    fw.stats.frames,
+                    f"in {frames.rate(now, fw.stats.frames):.0f} msg/s "
+                    f"({imu.rate(now, fw.est.counters.imu_samples):.0f} IMU/s){silent}, {fw.status()}",
+                )
     finally:
         link.close()
     return False
@@ -154,9 +157,11 @@ def main(argv: list[str] | None = None) -> int:
     if sink is not None:
         sink.close()
     print(fw.summary(), file=sys.stderr)
-    if not finished:
-        where = f"before the end of {args.source}" if is_file else f"(Ctrl-C) on {args.source}"
-        print(f"{prog}: interrupted {where}", file=sys.stderr)
+    if is_file and not finished:
+        print(f"{prog}: interrupted before the end of {args.source}", file=sys.stderr)
+        return 130
+    if not is_file and stop.interrupted:
+        print(f"{prog}: interrupted (Ctrl-C) on {args.source}", file=sys.stderr)
         return 130
     return 0
 

@@ -18,8 +18,11 @@ def main(argv: list[str] | None = None) -> int:
     li.add_argument("--tlog", type=userargs.output_path, help="log every received frame to this tlog")
     li.add_argument("--duration", type=userargs.positive_float, help="stop after this many seconds")
     rp = sub.add_parser("report", help="score a WIND_COV log against a truth CSV and plot it")
-    rp.add_argument("file", type=userargs.input_file,
-                    help="ground-station CSV, .tlog or raw capture holding WIND_COV, or a reprocess .nc")
+    rp.add_argument(
+        "file",
+        type=userargs.input_file,
+        help="ground-station CSV, .tlog or raw capture holding WIND_COV, or a reprocess .nc",
+    )
     rp.add_argument("--truth", required=True, type=userargs.input_file, help="balloon-sim --truth CSV")
     rp.add_argument("--plot", type=userargs.output_path, help="write the Fig. 6-style figure here (PNG)")
     rp.add_argument("--start", type=userargs.start_time, default=120.0, help="score from this time since boot [s]")
@@ -55,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
             return userargs.fail(PROG, exc)
         gs.close()
         print(gs.summary(), file=sys.stderr)
-        if stop():  # Ctrl-C or SIGTERM (not --duration): the run did not finish
+        if stop.interrupted:  # Ctrl-C (not --duration, not SIGTERM): the run did not finish
             print(f"{PROG}: interrupted (Ctrl-C) on {args.endpoint}", file=sys.stderr)
             return 130
         return 0

@@ -282,8 +282,10 @@ class GroundStation:
         link = Text(no_wrap=True, overflow="ellipsis")
         link.append(f"link: {s.frames} frames, ")
         link.append(f"{s.lost} lost", style="red bold" if s.lost else "")
-        link.append(f", {s.bad_frames} CRC errors, {s.garbage_bytes} garbage bytes, {self.duplicates} duplicates, "
-                    f"{s.bytes / 1024:.0f} kB")
+        link.append(
+            f", {s.bad_frames} CRC errors, {s.garbage_bytes} garbage bytes, {self.duplicates} duplicates, "
+            f"{s.bytes / 1024:.0f} kB"
+        )
         if head.cell_len + 2 + link.cell_len <= width:
             head.append("  ")
             head.append_text(link)

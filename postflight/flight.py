@@ -3,9 +3,11 @@ and the helpers every log reader shares (postflight/ulog.py, dataflash.py, mavli
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import os
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -21,6 +23,9 @@ INT32_MAX = 2**31 - 1  # PX4's "no sample" relative timestamp
 GPS_EPOCH_UNIX_S = 315_964_800  # 1980-01-06T00:00Z
 GPS_LEAP_S = 18  # GPS - UTC since 2017
 CHUNK = 4096
+STALL_S = 10.0  # a log reader that makes no progress in the file for this long is stopped (WatchedFile)
+CLOCK_BACK_US = 1_000_000  # the sensor clock going back by more than this: a reboot (less: reordering)
+CLOCK_JUMP_US = 60_000_000  # ... forward by more than this: a damaged stretch or a clock that jumped
 
 
 @dataclass
@@ -40,6 +45,12 @@ class FlightMeta:
     utc_source: str | None = None  # where that came from ("gps", "SYSTEM_TIME")
     sensors: dict[str, str] = field(default_factory=dict)  # role -> message/topic it was read from
     notes: list[str] = field(default_factory=list)
+    # what the file lost, each counted once (docs/usage.md, "What a damaged log loses")
+    bad_frames: int = 0  # corrupt MAVLink frames skipped (a cut-off last frame included)
+    truncated: bool = False  # the file ends inside a frame / record, or the reader stopped before its end
+    imu_missing: int = 0  # IMU samples missing by their time stamps (at the measured rate)
+    gaps: int = 0  # holes in the IMU stream (two or more steps without a sample)
+    clock_breaks: int = 0  # the sensor clock going back (a reboot) or jumping: where a new segment starts
 
     def describe(self) -> str:
         rate = f"{self.imu_rate_hz:.1f} Hz" if self.imu_rate_hz else "unknown rate"
@@ -53,14 +64,19 @@ class FlightMeta:
 class Flight:
     kind: np.ndarray  # int8, KIND_IMU / KIND_BARO
     t_us: np.ndarray  # int64, the sensor's clock (us since its boot)
-    values: np.ndarray  # float64 (n, 9): IMU ax..gz, mx..mz (NaN: no new magnetometer); baro hPa, degC
+    values: np.ndarray | None  # float64 (n, 9): IMU ax..gz, mx..mz (NaN: no new magnetometer); baro hPa, degC
     meta: FlightMeta
+    # the samples read again from the file (a MAVLink log: its values are not held in memory); None: ``values``
+    stream: Callable[[], Iterator[Sample]] | None = None
 
     def __len__(self) -> int:
         return len(self.t_us)
 
     def samples(self) -> Iterator[Sample]:
         """The samples in order, converted a chunk at a time (no list of the whole flight)."""
+        if self.stream is not None:
+            yield from self.stream()
+            return
         for a in range(0, len(self.t_us), CHUNK):
             kinds = self.kind[a : a + CHUNK].tolist()
             times = self.t_us[a : a + CHUNK].tolist()
@@ -75,6 +91,118 @@ class Flight:
 # ------------------------------------------------------------------------------------------ helpers
 
 
+class ReaderStalled(Exception):
+    """A log reader made no progress in its file for ``STALL_S`` (a loop in a third-party parser)."""
+
+
+class WatchedFile:
+    """A binary file for a third-party reader (pyulog) with a watchdog: when the furthest position
+    read has not advanced for ``stall_s`` seconds, the file reads as ended from then on, so a reader
+    that loops (seeks back to where it was, again and again) stops with what it has read."""
+
+    def __init__(self, path: str, stall_s: float = STALL_S) -> None:
+        self.fh = open(path, "rb")
+        self.size = os.fstat(self.fh.fileno()).st_size
+        self.stall_s = stall_s
+        self.furthest = 0
+        self.stalled_at: int | None = None  # where the reader kept going back to when the watchdog ended the read
+        self._low = 0  # the lowest position read from since the furthest last advanced
+        self._moved = time.monotonic()
+
+    def read(self, n: int = -1) -> bytes:
+        if self.stalled_at is not None:
+            return b""
+        start = self.fh.tell()
+        data = self.fh.read(n)
+        pos = self.fh.tell()
+        now = time.monotonic()
+        if pos > self.furthest:
+            self.furthest, self._moved, self._low = pos, now, pos
+        else:
+            self._low = min(self._low, start)
+            if now - self._moved > self.stall_s:
+                self.stalled_at = self._low
+                return b""
+        return data
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        return self.fh.seek(offset, whence)
+
+    def tell(self) -> int:
+        return self.fh.tell()
+
+    def close(self) -> None:
+        self.fh.close()
+
+    def note(self) -> str | None:
+        """The note for the flight's metadata when the watchdog ended the read, else None."""
+        if self.stalled_at is None:
+            return None
+        return (
+            f"the reader made no progress in the file for {self.stall_s:g} s (it kept going back to byte "
+            f"{self.stalled_at} of {self.size}: a damaged stretch it loops on); the read stopped there"
+        )
+
+
+def describe_error(exc: BaseException) -> str:
+    """What a reader's exception means, in words (a bare ``'AccY'`` or ``[Errno 22]`` says nothing)."""
+    if isinstance(exc, KeyError):
+        return f"a field the reader needs, {exc.args[0]!r}, is missing (a damaged or unexpected log format)"
+    if isinstance(exc, OSError) and exc.errno == errno.EINVAL:
+        return "a length or position inside the file points outside it (the file is damaged)"
+    if isinstance(exc, OSError):
+        return f"{exc.strerror or exc} (reading the file)"
+    if isinstance(exc, (OverflowError, MemoryError)) or "out of range" in str(exc):
+        return f"a value in the file is impossible ({exc}): the file is damaged"
+    text = str(exc).strip()
+    return f"{text} ({type(exc).__name__})" if text else f"the file is damaged ({type(exc).__name__})"
+
+
+def imu_losses(imu_t: np.ndarray, rate_hz: float | None) -> tuple[int, int, int]:
+    """(IMU samples missing, gaps, clock breaks) from the IMU sample times in file order: at the
+    measured rate, a hole of k steps is k - 1 missing samples (a late sample fills its hole, a copy
+    counts nothing); the clock going back by more than ``CLOCK_BACK_US`` or forward by more than
+    ``CLOCK_JUMP_US`` is a break (the holes are counted within the stretches between breaks)."""
+    t = np.asarray(imu_t, np.int64)
+    if len(t) < 2 or not rate_hz:
+        return 0, 0, 0
+    d = np.diff(t)
+    brk = np.flatnonzero((d < -CLOCK_BACK_US) | (d > CLOCK_JUMP_US)) + 1
+    dt = 1e6 / rate_hz
+    missing = gaps = 0
+    for part in np.split(t, brk):
+        u = np.unique(part)  # in time order, copies once: a late sample sits in its place
+        steps = np.rint(np.diff(u) / dt).astype(np.int64)
+        holes = steps[steps >= 2]
+        missing += int(np.sum(holes - 1))
+        gaps += len(holes)
+    return missing, gaps, len(brk)
+
+
+def loss_notes(meta: FlightMeta) -> list[str]:
+    """One note per kind of loss the flight file holds (none for a clean file)."""
+    out = []
+    if meta.bad_frames:
+        cut = ", the last one cut off: the file ends inside a frame" if meta.truncated else ""
+        out.append(f"{meta.bad_frames} bad frames skipped{cut}")
+    elif meta.truncated:
+        out.append("the file ends inside a record (truncated)")
+    if meta.imu_missing:
+        out.append(f"{meta.imu_missing} IMU samples missing by their time stamps, in {meta.gaps} gaps")
+    return out
+
+
+def segment_note(meta: FlightMeta) -> str | None:
+    """Where the log is cut into segments (the sensor clock went back or jumped), None if nowhere."""
+    if not meta.clock_breaks:
+        return None
+    times = "once" if meta.clock_breaks == 1 else f"{meta.clock_breaks} times"
+    return (
+        f"the sensor clock goes back (a reboot) or jumps {times}: reprocessed in {meta.clock_breaks + 1} "
+        "segments, each its own filter and smoother run"
+    )
+
+
 def sha256_of(path: str) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as fh:
@@ -87,7 +215,7 @@ def first_rate_hz(t_us: np.ndarray) -> float | None:
     """The IMU rate as the firmware measures it: median interval over the first 2 s of samples."""
     if len(t_us) < 2:
         return None
-    t = np.sort(t_us[: 20_000])
+    t = np.sort(t_us[:20_000])
     return measure_rate_hz(t[t <= t[0] + RATE_WINDOW_S * 1e6].tolist())
 
 
@@ -119,6 +247,8 @@ def build_flight(path: str, fmt: str, imu_t, imu, baro_t, baro, sensors, notes, 
     )  # fmt: skip
     if not meta.has_baro:
         meta.notes.append("no barometer in the log: height and air data unknown")
+    meta.imu_missing, meta.gaps, meta.clock_breaks = imu_losses(np.asarray(imu_t), meta.imu_rate_hz)
+    meta.notes.extend(loss_notes(meta) + [n for n in (segment_note(meta),) if n])
     return Flight(kind, t, values, meta)
 
 
@@ -127,5 +257,3 @@ def attach_mag(imu_t: np.ndarray, imu: np.ndarray, mag_t: np.ndarray, mag: np.nd
     idx = np.searchsorted(imu_t, mag_t, side="left")
     ok = idx < len(imu_t)
     imu[idx[ok], 6:9] = mag[ok]
-
-
