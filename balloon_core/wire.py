@@ -15,6 +15,8 @@ from pymavlink.dialects.v20 import common as mavlink
 
 TLOG_HEADER = 8
 MAGIC_V2, MAGIC_V1 = 0xFD, 0xFE
+CLOCK_BACK_US = 1_000_000  # a sender's clock going back further than this restarted (less: a late packet)
+MAX_CLOCK_STEP_US = 86_400_000_000  # a sender's clock stepping further than a day is not its boot clock
 MAX_FRAME = 280  # the longest MAVLink 2 frame: 10 header + 255 payload + 2 CRC + 13 signature
 
 
@@ -37,47 +39,60 @@ class SenderSeq:
     A silence longer than a sequence cycle wraps the 8-bit counter unseen: when a packet carries the
     sender's own clock (``time_usec`` / ``time_boot_ms``) and that clock jumped by more than half a
     cycle's worth of packets (at the sender's packet rate, measured from its stream), the whole cycles
-    the sequence cannot show are added to the lost count (``timed``)."""
+    the sequence cannot show are added to the lost count (``see_timed``)."""
 
     __slots__ = ("received", "lost", "reordered", "duplicates", "restarts", "_newest", "_holes", "_behind",
-                 "_t0", "_i0", "_t_last", "_i_last")  # fmt: skip
+                 "_t0", "_i0", "_t_mid", "_i_mid", "_t_last", "_i_last")  # fmt: skip
     WINDOW = 128
     RESYNC_AFTER = 4
     CYCLE = 256
     RATE_MIN_S = 1.0  # the packet rate is known once the sender's clock has run this long
+    RATE_SPAN_S = 10.0  # ... and measured over about the last this long (a stream that speeds up or slows)
 
     def __init__(self) -> None:
         self.received = self.lost = self.reordered = self.duplicates = self.restarts = 0
         self._newest = -1  # unwrapped index of the newest packet
         self._holes: deque[int] = deque()  # unwrapped indices counted lost, ascending, within WINDOW
         self._behind = 0
-        self._t0 = self._t_last = -1  # the sender's clock (us) at the rate's anchor and at the last timed packet
-        self._i0 = self._i_last = 0  # the packet indices there
+        # the sender's clock (us) at the rate's anchor, at the next anchor and at the last timed packet
+        self._t0 = self._t_mid = self._t_last = -1
+        self._i0 = self._i_mid = self._i_last = 0  # the packet indices there
 
-    def timed(self, t_us: int) -> int:
-        """The newest packet (just seen) carries the sender's clock ``t_us``: add the sequence cycles a
-        long silence hid. Returns the change in the lost count."""
-        i, t_last = self._newest, self._t_last
-        if t_last < 0 or t_us < t_last or t_us - t_last > 86_400_000_000:  # first, or the clock restarted
-            self._t0 = self._t_last = t_us
-            self._i0 = self._i_last = i
-            return 0
-        if i < self._i_last:  # the index range was re-based (a restart): re-anchor
-            self._t0, self._i0 = t_us, i
+    def see_timed(self, seq: int, t_us: int) -> int:
+        """``see`` for a packet that carries the sender's clock ``t_us``. After a silence longer than half
+        the sequence window (at the sender's recent packet rate) the 8-bit number cannot tell how many
+        cycles went by: the packet gets the index that its number allows nearest to where the clock says
+        the sender is, and what lies between is lost (the packets of the run ``see`` took for late
+        copies were new ones). Returns the change in the lost count."""
+        t_last = self._t_last
+        if t_last < 0 or t_us < t_last - CLOCK_BACK_US or t_us - t_last > MAX_CLOCK_STEP_US:  # first, or a restart
+            lost = self.see(seq)
+            self._t0 = self._t_mid = self._t_last = t_us
+            self._i0 = self._i_mid = self._i_last = self._newest
+            return lost
         span = t_last - self._t0
-        added = 0
         if span >= self.RATE_MIN_S * 1e6 and self._i_last > self._i0:
-            per_us = (self._i_last - self._i0) / span  # packets per microsecond of the sender's clock
-            expected = (t_us - t_last) * per_us  # packets sent since the last timed one
-            counted = i - self._i_last
-            cycles = round((expected - counted) / self.CYCLE)
-            if cycles > 0 and expected > self.CYCLE / 2:
-                added = cycles * self.CYCLE
-                self.lost += added
-                self._newest = i = i + added
+            expected = self._i_last + (t_us - t_last) * (self._i_last - self._i0) / span
+            newest = self._newest
+            if expected - newest > self.WINDOW / 2:
+                index = newest + 1 + (seq - newest - 1) % self.CYCLE  # the first index this number allows
+                index += self.CYCLE * max(0, round((expected - index) / self.CYCLE))
+                lost = index - newest - 1 - self._behind
+                self.duplicates -= self._behind
+                self.received += 1
+                self.lost += lost
+                self._newest = index
                 self._holes.clear()
-        self._t_last, self._i_last = t_us, i
-        return added
+                self._behind = 0
+                self._t_last, self._i_last = t_us, index
+                return lost
+        lost = self.see(seq)
+        if lost >= 0 and self._behind == 0 and t_us >= t_last:  # a new packet: the clock's anchor moves on
+            if t_us - self._t_mid > self.RATE_SPAN_S * 1e6:  # the rate over the last 1-2 RATE_SPAN_S
+                self._t0, self._i0 = self._t_mid, self._i_mid
+                self._t_mid, self._i_mid = self._t_last, self._i_last
+            self._t_last, self._i_last = t_us, self._newest
+        return lost
 
     def see(self, seq: int) -> int:
         """Account for one packet; returns the change in the lost count (+n for a hole, -1 when a late
@@ -136,17 +151,13 @@ class LinkStats:
 
     def sequence(self, msg) -> None:
         """Count lost packets from the per-(system, component) sequence numbers (and, across a silence
-        longer than a sequence cycle, from the sender's own clock in the message: ``SenderSeq.timed``)."""
+        longer than a sequence cycle, from the sender's own clock in the message: ``SenderSeq.see_timed``)."""
         key = (msg.get_srcSystem(), msg.get_srcComponent())
         sender = self.senders.get(key)
         if sender is None:
             sender = self.senders[key] = SenderSeq()
-        lost = sender.see(msg.get_seq())
-        if lost >= 0 and sender._behind == 0:  # a new packet (not a late one, not a duplicate)
-            t_us = message_time_us(msg)
-            if t_us is not None:
-                lost += sender.timed(t_us)
-        self.lost += lost
+        t_us = message_time_us(msg)
+        self.lost += sender.see(msg.get_seq()) if t_us is None else sender.see_timed(msg.get_seq(), t_us)
 
     def lost_fraction(self) -> float:
         """Lost / (received + lost) over all senders (0 before anything came)."""

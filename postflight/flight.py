@@ -242,7 +242,7 @@ def build_flight(path: str, fmt: str, imu_t, imu, baro_t, baro, sensors, notes, 
     meta = FlightMeta(
         source=os.path.basename(path), sha256=sha256_of(path), format=fmt, has_imu=True, has_mag=n_mag > 0,
         has_baro=len(baro_t) > 0, imu_rate_hz=first_rate_hz(np.asarray(imu_t)), n_imu=len(imu_t),
-        n_baro=len(baro_t), n_mag=n_mag, duration_s=float(t.max() - t.min()) * 1e-6,
+        n_baro=len(baro_t), n_mag=n_mag, duration_s=(float(t.max()) - float(t.min())) * 1e-6,
         utc_start_s=utc[0] if utc else None, utc_source=utc[1] if utc else None, sensors=sensors, notes=notes,
     )  # fmt: skip
     if not meta.has_baro:

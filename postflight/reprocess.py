@@ -68,16 +68,15 @@ def reprocess(
     cfg = dataclasses.replace(cfg or FilterConfig(), float32=False)  # the smoother works in float64
     parts: list[WindProduct] = []
     seg = _Segment(design, cfg, rate_explicit, grid_hz, store_dir)
-    newest = None  # the newest IMU time in this segment
+    newest = None  # the newest sample time in this segment
     for i, s in enumerate(samples):
-        if type(s) is not BaroSample:
-            t = s.t_us
-            if newest is not None and (t < newest - CLOCK_BACK_US or t > newest + CLOCK_JUMP_US):
-                parts.append(seg.finish(warn))
-                seg = _Segment(design, cfg, rate_explicit, grid_hz, store_dir)
-                newest = t
-            elif newest is None or t > newest:
-                newest = t
+        t = s.t_us  # IMU and barometer alike: one clock (a barometer sample of the new boot comes first)
+        if newest is not None and (t < newest - CLOCK_BACK_US or t > newest + CLOCK_JUMP_US):
+            parts.append(seg.finish(warn))
+            seg = _Segment(design, cfg, rate_explicit, grid_hz, store_dir)
+            newest = t
+        elif newest is None or t > newest:
+            newest = t
         seg.push(s, warn)
         if progress is not None and i % 10_000 == 0:
             progress(i)
@@ -334,7 +333,8 @@ def run_reprocess(args, argv: list[str] | None) -> int:
         paths = write_products(product, args.out, args.plot, history)
     finally:
         bar.close()
-    print(f"{prog}: {loss_line(meta)}", file=sys.stderr)  # always, --quiet or not: nothing lost without a word
+    if loss_notes(meta) or segment_note(meta) or not args.quiet:  # a loss is told under --quiet too
+        print(f"{prog}: {loss_line(meta)}", file=sys.stderr)
     print(_summary(product, meta, time.perf_counter() - t0))
     print("wrote " + ", ".join(paths))
     return 0

@@ -7,10 +7,10 @@ import io
 
 import numpy as np
 
+from postflight import flight as flight_module
 from postflight.flight import (
     INT32_MAX,
     N_VALUES,
-    STALL_S,
     Flight,
     WatchedFile,
     attach_mag,
@@ -22,7 +22,7 @@ ULOG_TOPICS = ["sensor_combined", "vehicle_magnetometer", "sensor_mag", "vehicle
                "vehicle_gps_position", "sensor_gps"]  # fmt: skip
 
 
-def read_ulog(path: str, stall_s: float = STALL_S) -> Flight:
+def read_ulog(path: str, stall_s: float | None = None) -> Flight:
     """PX4 ULog: ``sensor_combined`` (accelerometer m/s^2 and gyro rad/s, FRD); the magnetometer from
     ``vehicle_magnetometer`` (gauss), else ``sensor_mag``, else the old ``sensor_combined.magnetometer_ga``;
     the barometer from ``vehicle_air_data`` (baro_pressure_pa, baro_temp_celcius), else ``sensor_baro``
@@ -33,7 +33,7 @@ def read_ulog(path: str, stall_s: float = STALL_S) -> Flight:
     read before is used, with a note (nothing usable: the ValueError says why)."""
     from pyulog import ULog
 
-    fh = WatchedFile(path, stall_s)
+    fh = WatchedFile(path, flight_module.STALL_S if stall_s is None else stall_s)
     try:
         with contextlib.redirect_stdout(io.StringIO()):
             u = ULog(fh, ULOG_TOPICS)
