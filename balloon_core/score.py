@@ -64,7 +64,13 @@ def on_grid(t_est, est_n, est_e, acc, t_true, true_n, true_e, start_s):
     t0 = max(start_s, t_est[0], t_true[0])
     t1 = min(t_est[-1], t_true[-1])
     if t1 - t0 < 10.0:
-        raise ValueError(f"not enough overlap after {start_s} s to score ({t1 - t0:.1f} s)")
+        end = min(t_est[-1], t_true[-1])
+        who = "the estimates end" if t_est[-1] <= t_true[-1] else "the truth ends"
+        hint = max(0.0, float(max(t_est[0], t_true[0])), end - 20.0)
+        raise ValueError(
+            f"too little to score from {start_s:g} s: {who} at {end:.1f} s and the score needs 10 s "
+            f"after its start (score from earlier: --start {hint:.0f})"
+        )
     grid = np.arange(t0, t1, 1.0 / GRID_HZ)
     ip = lambda t, y: np.interp(grid, t, y)  # noqa: E731
     return grid, ip(t_est, est_n), ip(t_est, est_e), ip(t_est, acc), ip(t_true, true_n), ip(t_true, true_e)

@@ -39,15 +39,32 @@ def fail(prog: str, message: object) -> int:
     return 2
 
 
-def stop_flag():
-    """Ctrl-C and SIGTERM set a flag instead of raising: the returned ``stop()`` says whether to stop
-    (the program then finishes its files and exits 0, or 130 when the run could not finish)."""
+class StopFlag:
+    """Set by Ctrl-C (SIGINT) or SIGTERM instead of raising: ``stop()`` says whether to stop, and
+    ``interrupted`` whether it was Ctrl-C (exit 130: the run could not finish) rather than a SIGTERM (a
+    service told to stop, as ``balloon-sil`` stops its programs: exit 0 with the files finished)."""
+
+    def __init__(self) -> None:
+        self.signals: list[int] = []
+
+    def __call__(self) -> bool:
+        return bool(self.signals)
+
+    @property
+    def interrupted(self) -> bool:
+        import signal
+
+        return signal.SIGINT in self.signals
+
+
+def stop_flag() -> StopFlag:
+    """Install the SIGINT / SIGTERM handlers; the returned ``StopFlag`` says whether to stop."""
     import signal
 
-    stopping: list[int] = []
+    flag = StopFlag()
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stopping.append(1))
-    return lambda: bool(stopping)
+        signal.signal(sig, lambda signum, _frame: flag.signals.append(signum))
+    return flag
 
 
 # what each optional part needs; `pip install balloon-wind` brings the firmware, simulator and live station

@@ -3,6 +3,7 @@ messages, and sinks (tlog / UDP). Parsing is pymavlink's; bad frames are counted
 
 from __future__ import annotations
 
+import errno
 import socket
 import struct
 import time
@@ -14,6 +15,9 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 TLOG_HEADER = 8
 MAGIC_V2, MAGIC_V1 = 0xFD, 0xFE
+CLOCK_BACK_US = 1_000_000  # a sender's clock going back further than this restarted (less: a late packet)
+MAX_CLOCK_STEP_US = 86_400_000_000  # a sender's clock stepping further than a day is not its boot clock
+MAX_FRAME = 280  # the longest MAVLink 2 frame: 10 header + 255 payload + 2 CRC + 13 signature
 
 
 def pack(mav, msg) -> bytes:
@@ -30,17 +34,65 @@ class SenderSeq:
     duplicated. The 8-bit sequence is unwrapped into a packet index: a packet up to 127 ahead of the
     newest is new (the ones skipped are counted lost), one up to 128 behind is late. A late packet that
     fills a hole within the last 128 is "reordered" and no longer lost; any other late one is a
-    duplicate. A run of RESYNC_AFTER such packets in a row is a sender that restarted: follow it."""
+    duplicate. A run of RESYNC_AFTER such packets in a row is a sender that restarted: follow it.
 
-    __slots__ = ("received", "lost", "reordered", "duplicates", "restarts", "_newest", "_holes", "_behind")
+    A silence longer than a sequence cycle wraps the 8-bit counter unseen: when a packet carries the
+    sender's own clock (``time_usec`` / ``time_boot_ms``) and that clock jumped by more than half a
+    cycle's worth of packets (at the sender's packet rate, measured from its stream), the whole cycles
+    the sequence cannot show are added to the lost count (``see_timed``)."""
+
+    __slots__ = ("received", "lost", "reordered", "duplicates", "restarts", "_newest", "_holes", "_behind",
+                 "_t0", "_i0", "_t_mid", "_i_mid", "_t_last", "_i_last")  # fmt: skip
     WINDOW = 128
     RESYNC_AFTER = 4
+    CYCLE = 256
+    RATE_MIN_S = 1.0  # the packet rate is known once the sender's clock has run this long
+    RATE_SPAN_S = 10.0  # ... and measured over about the last this long (a stream that speeds up or slows)
 
     def __init__(self) -> None:
         self.received = self.lost = self.reordered = self.duplicates = self.restarts = 0
         self._newest = -1  # unwrapped index of the newest packet
         self._holes: deque[int] = deque()  # unwrapped indices counted lost, ascending, within WINDOW
         self._behind = 0
+        # the sender's clock (us) at the rate's anchor, at the next anchor and at the last timed packet
+        self._t0 = self._t_mid = self._t_last = -1
+        self._i0 = self._i_mid = self._i_last = 0  # the packet indices there
+
+    def see_timed(self, seq: int, t_us: int) -> int:
+        """``see`` for a packet that carries the sender's clock ``t_us``. After a silence longer than half
+        the sequence window (at the sender's recent packet rate) the 8-bit number cannot tell how many
+        cycles went by: the packet gets the index that its number allows nearest to where the clock says
+        the sender is, and what lies between is lost (the packets of the run ``see`` took for late
+        copies were new ones). Returns the change in the lost count."""
+        t_last = self._t_last
+        if t_last < 0 or t_us < t_last - CLOCK_BACK_US or t_us - t_last > MAX_CLOCK_STEP_US:  # first, or a restart
+            lost = self.see(seq)
+            self._t0 = self._t_mid = self._t_last = t_us
+            self._i0 = self._i_mid = self._i_last = self._newest
+            return lost
+        span = t_last - self._t0
+        if span >= self.RATE_MIN_S * 1e6 and self._i_last > self._i0:
+            expected = self._i_last + (t_us - t_last) * (self._i_last - self._i0) / span
+            newest = self._newest
+            if expected - newest > self.WINDOW / 2:
+                index = newest + 1 + (seq - newest - 1) % self.CYCLE  # the first index this number allows
+                index += self.CYCLE * max(0, round((expected - index) / self.CYCLE))
+                lost = index - newest - 1 - self._behind
+                self.duplicates -= self._behind
+                self.received += 1
+                self.lost += lost
+                self._newest = index
+                self._holes.clear()
+                self._behind = 0
+                self._t_last, self._i_last = t_us, index
+                return lost
+        lost = self.see(seq)
+        if lost >= 0 and self._behind == 0 and t_us >= t_last:  # a new packet: the clock's anchor moves on
+            if t_us - self._t_mid > self.RATE_SPAN_S * 1e6:  # the rate over the last 1-2 RATE_SPAN_S
+                self._t0, self._i0 = self._t_mid, self._i_mid
+                self._t_mid, self._i_mid = self._t_last, self._i_last
+            self._t_last, self._i_last = t_us, self._newest
+        return lost
 
     def see(self, seq: int) -> int:
         """Account for one packet; returns the change in the lost count (+n for a hole, -1 when a late
@@ -90,19 +142,22 @@ class LinkStats:
     component) the packets received, lost, reordered and duplicated (``SenderSeq``). ``lost`` is the
     total over the senders."""
 
-    __slots__ = ("bytes", "frames", "bad_frames", "garbage_bytes", "lost", "senders")
+    __slots__ = ("bytes", "frames", "bad_frames", "garbage_bytes", "lost", "senders", "truncated")
 
     def __init__(self) -> None:
         self.bytes = self.frames = self.bad_frames = self.garbage_bytes = self.lost = 0
+        self.truncated = False  # a file that ends inside a frame (that frame is one of the bad ones)
         self.senders: dict[tuple[int, int], SenderSeq] = {}
 
     def sequence(self, msg) -> None:
-        """Count lost packets from the per-(system, component) sequence numbers."""
+        """Count lost packets from the per-(system, component) sequence numbers (and, across a silence
+        longer than a sequence cycle, from the sender's own clock in the message: ``SenderSeq.see_timed``)."""
         key = (msg.get_srcSystem(), msg.get_srcComponent())
         sender = self.senders.get(key)
         if sender is None:
             sender = self.senders[key] = SenderSeq()
-        self.lost += sender.see(msg.get_seq())
+        t_us = message_time_us(msg)
+        self.lost += sender.see(msg.get_seq()) if t_us is None else sender.see_timed(msg.get_seq(), t_us)
 
     def lost_fraction(self) -> float:
         """Lost / (received + lost) over all senders (0 before anything came)."""
@@ -123,6 +178,15 @@ class LinkStats:
             extra.append(f"{restarts} sender restarts")
         tail = f"; {'; '.join(extra)}" if extra else ""
         return f"{self.lost} lost ({100 * self.lost_fraction():.2f} %{tail})"
+
+
+def message_time_us(msg) -> int | None:
+    """The sender's own clock in a message (``time_usec``, else ``time_boot_ms``), us; None if it has none."""
+    t = getattr(msg, "time_usec", None)
+    if t is None:
+        ms = getattr(msg, "time_boot_ms", None)
+        return None if ms is None else int(ms) * 1000
+    return int(t)
 
 
 class Decoder:
@@ -150,6 +214,15 @@ class Decoder:
             out.append(m)
         return out
 
+    def finish(self) -> None:
+        """End of a file: bytes left in the parser that start a frame are a frame cut off (a bad frame)."""
+        left = bytes(self.mav.buf[self.mav.buf_index :])
+        if left and left[0] in (MAGIC_V2, MAGIC_V1):
+            self.stats.bad_frames += 1
+            self.stats.truncated = True
+        elif left:
+            self.stats.garbage_bytes += len(left)
+
     def decode_frame(self, frame: bytes):
         """One complete frame (from a tlog record); None and counted if it is corrupt."""
         self.stats.bytes += len(frame)
@@ -174,36 +247,58 @@ def frame_length(buf: bytes, i: int) -> int:
     return 0
 
 
-def tlog_messages(path: str, stats: LinkStats) -> Iterator:
-    """Messages of a telemetry log: [8-byte big-endian us timestamp][frame] records. A corrupt record
-    is skipped by resynchronising on the next plausible record start."""
-    with open(path, "rb") as fh:
-        buf = fh.read()
+def tlog_messages(path: str, stats: LinkStats, chunk: int = 1 << 20) -> Iterator:
+    """Messages of a telemetry log: [8-byte big-endian us timestamp][frame] records, read a chunk at a
+    time (memory does not grow with the file). A corrupt record is skipped by resynchronising on the
+    next plausible record start; a file that ends inside a frame counts it as a bad frame
+    (``stats.truncated``)."""
     dec = Decoder(stats)
-    i, n = 0, len(buf)
-    while i + TLOG_HEADER < n:
-        j = i + TLOG_HEADER
-        ln = frame_length(buf, j)
-        if ln == 0 or j + ln > n:
-            # resync: the next byte that could start a record
-            k = j + 1
-            while k < n and buf[k] not in (MAGIC_V2, MAGIC_V1):
-                k += 1
-            stats.garbage_bytes += k - j
-            i = k - TLOG_HEADER
-            if k >= n:
+    with open(path, "rb") as fh:
+        buf, i, eof = b"", 0, False
+        while True:
+            n = len(buf)
+            if not eof and n - i < TLOG_HEADER + MAX_FRAME:
+                more = fh.read(chunk)
+                buf, i, eof = buf[i:] + more, 0, not more
+                continue
+            if i + TLOG_HEADER >= n:
+                if n > i:  # the file ends inside a record's header
+                    stats.bad_frames += 1
+                    stats.truncated = True
                 break
-            continue
-        m = dec.decode_frame(buf[j : j + ln])
-        i = j + ln
-        if m is not None:
-            yield m
+            j = i + TLOG_HEADER
+            ln = frame_length(buf, j)
+            if ln and j + ln > n and eof:  # the file ends inside this frame
+                stats.bad_frames += 1
+                stats.truncated = True
+                break
+            if ln == 0:
+                # resync: the next byte that could start a record
+                k = _next_magic(buf, j + 1)
+                stats.garbage_bytes += k - j
+                i = k - TLOG_HEADER
+                if k >= n and eof:
+                    break
+                continue
+            m = dec.decode_frame(buf[j : j + ln])
+            i = j + ln
+            if m is not None:
+                yield m
+
+
+def _next_magic(buf: bytes, k: int) -> int:
+    """The index of the next byte at or after ``k`` that could start a frame (len(buf) if none)."""
+    a, b = buf.find(MAGIC_V2, k), buf.find(MAGIC_V1, k)
+    found = [x for x in (a, b) if x >= 0]
+    return min(found) if found else len(buf)
 
 
 def raw_messages(fh: BinaryIO, stats: LinkStats, chunk: int = 65536) -> Iterator:
+    """Messages of a raw byte capture; a capture that ends inside a frame counts it as a bad frame."""
     dec = Decoder(stats)
     while data := fh.read(chunk):
         yield from dec.feed(data)
+    dec.finish()
 
 
 def capture_messages(path: str, stats: LinkStats) -> Iterator:
@@ -222,11 +317,18 @@ class UdpLink:
 
     def __init__(self, spec: str) -> None:
         kind, host, port = spec.split(":", 2)
+        # no SO_REUSEADDR: a port another program holds (pymavlink, MAVProxy and QGroundControl set it)
+        # then fails to bind instead of silently sharing (stealing) its traffic
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self.peer: tuple[str, int] | None = None
         if kind == "udpin":
-            self.sock.bind((host, int(port)))
+            try:
+                self.sock.bind((host, int(port)))
+            except OSError as exc:
+                self.sock.close()
+                if exc.errno == errno.EADDRINUSE:
+                    raise ValueError(f"{spec}: UDP port {port} is already in use by another program") from None
+                raise
         elif kind == "udpout":
             self.peer = (socket.gethostbyname(host), int(port))  # resolve once; an unknown host fails here
             self.sock.bind(("127.0.0.1" if host.startswith("127.") else "0.0.0.0", 0))
@@ -288,7 +390,9 @@ def open_link(spec: str):
     if spec.startswith(("udpin:", "udpout:")):
         try:
             return UdpLink(spec)
-        except (ValueError, OSError) as exc:
+        except ValueError:
+            raise
+        except OSError as exc:
             raise ValueError(f"cannot open {spec}: {exc}") from exc
     port = spec.rpartition(":")[0] if spec.rpartition(":")[2].isdigit() else spec
     if not (port.startswith("/dev/") or "://" in port):

@@ -1,6 +1,6 @@
 """All benchmarks, one after the other: ``make bench``."""
 
-from benchmarks import bench_accuracy, bench_sim, bench_speed
+from benchmarks import bench_accuracy, bench_memory, bench_sim, bench_speed
 
 if __name__ == "__main__":
     import sys
@@ -12,3 +12,5 @@ if __name__ == "__main__":
     bench_speed.main()
     print("\n== estimator accuracy ==")
     bench_accuracy.main()
+    print("\n== memory of long flights (balloon-fw, reprocess) ==")
+    bench_memory.main([])

@@ -19,6 +19,7 @@ frames are packed with pymavlink's ``ardupilotmega`` dialect (which includes ``c
 from __future__ import annotations
 
 import math
+from collections import deque
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -54,6 +55,7 @@ TEXT_INTERVAL_US = 1_000_000  # at most one consistency STATUSTEXT a second (sen
 # the sensors' own health bits: all cleared while the sensors are silent (the gyro has no innovation, so
 # a cleared gyro bit says "silent", never "misfit")
 SILENT_HEALTH_BITS = SENSOR_BITS & ~mavlink.MAV_SYS_STATUS_AHRS
+RECENT_IMU = 256  # IMU sample times remembered to tell a late sample from a copy (2.5 s at 100 Hz)
 CONSISTENT_TEXT = "wind model consistent again"
 RESTARTED_TEXT = "wind model check restarted (filter reset)"
 
@@ -127,11 +129,13 @@ class Firmware:
         self.streams = None  # a live link's StreamRequester (cli.run_live), for its hold and summary
         self.warn = warn
         self.other_messages = 0
+        self.samples_in = 0  # sensor samples (IMU and barometer) taken from the messages
         self.wind_cov_sent = 0
         self._next_wind_us = 0
         self._next_hb_us = 0
         self.imu_missing = 0  # IMU samples missing by their time stamps (what 8-bit sequences cannot count)
         self._prev_imu_us = -1
+        self._recent_imu_us: deque[int] = deque(maxlen=RECENT_IMU)  # sample times seen lately (a late one's twin)
         # the consistency monitor's verdicts: filter steps in flight (where it judges), with each source flagged
         self.flight_steps = 0
         self.misfit_steps = [0] * len(SOURCES)
@@ -154,10 +158,11 @@ class Firmware:
 
     def push(self, s: Sample | GroundSample) -> None:
         """One sample from any source: through the input pipeline into the estimator."""
-        self.silent = False
         if type(s) is WinchSample or type(s) is GroundBaroSample:
             feed_ground(self.est, s)
             return
+        self.silent = False
+        self.samples_in += 1
         if type(s) is not BaroSample:
             self._track_imu_time(s.t_us)
         decided = self.pipe.decided
@@ -236,12 +241,24 @@ class Firmware:
             self.statustext(mavlink.MAV_SEVERITY_INFO, CONSISTENT_TEXT, t_us)
 
     def _track_imu_time(self, t_us: int) -> None:
-        """Count IMU samples missing between this one and the previous (at the filter's IMU rate). Late
-        ones are not counted twice; time going back by more than a second is a restart."""
+        """Count IMU samples missing between this one and the previous (at the filter's IMU rate). A late
+        one (reordered, within a second) fills a hole it left: it is no longer missing (it is counted as
+        reordered, once); a copy of a recent one changes nothing; time going back by more than a second is
+        a restart."""
         prev = self._prev_imu_us
-        if prev >= 0 and t_us > prev:
-            self.imu_missing += max(0, (t_us - prev + self.est.dt_us // 2) // self.est.dt_us - 1)
-        if t_us > prev or t_us < prev - 1_000_000:
+        recent = self._recent_imu_us
+        if t_us > prev:
+            if prev >= 0:
+                self.imu_missing += max(0, (t_us - prev + self.est.dt_us // 2) // self.est.dt_us - 1)
+            recent.append(t_us)
+            self._prev_imu_us = t_us
+        elif t_us >= prev - 1_000_000:
+            if t_us not in recent:
+                recent.append(t_us)
+                self.imu_missing = max(0, self.imu_missing - 1)
+        else:
+            recent.clear()
+            recent.append(t_us)
             self._prev_imu_us = t_us
 
     # ----------------------------------------------------------------- output
@@ -353,7 +370,9 @@ class Firmware:
         c = self.est.counters
         return (
             f"balloon-fw: {c.imu_samples} IMU samples, {c.baro_samples} baro samples, "
-            f"{c.rejected} rejected, {self.stats.bad_frames} bad frames, {self.other_messages} other messages, "
+            f"{c.rejected} rejected, {self.stats.bad_frames} bad frames"
+            f"{' (the file ends inside a frame)' if self.stats.truncated else ''}, "
+            f"{self.stats.garbage_bytes} garbage bytes, {self.other_messages} other messages, "
             f"{self.sampler.ignored} from other sensor instances, "
             f"{self.sampler.baro_beside} pressure messages not needed (the IMU messages carry the barometer), "
             f"{c.duplicates + self.pipe.duplicates} duplicates, "

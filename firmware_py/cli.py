@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import math
 import os
 import sys
 import time
@@ -32,11 +34,14 @@ def rate_is_explicit(path: str | None) -> bool:
 
 
 def replay_file(fw: Firmware, path: str, progress: Progress | None = None, stop=None) -> bool:
-    """Every message of a capture; a file without a single MAVLink frame in it is a UserError.
-    Returns False if ``stop()`` said to stop before the end (Ctrl-C)."""
+    """Every message of a capture; a file without a single sensor sample in it (no MAVLink at all, or
+    none from an IMU or a barometer) is a UserError. Returns False if ``stop()`` said to stop before the
+    end (Ctrl-C)."""
     done = _replay(fw, path, progress, stop)
-    if fw.stats.frames == 0 and done:
-        raise userargs.UserError(f"no MAVLink frame in {path}")
+    if done and fw.stats.frames == 0:
+        raise userargs.UserError(f"{path}: no MAVLink frame in this file (not a capture of a MAVLink link?)")
+    if done and fw.samples_in == 0:
+        raise userargs.UserError(f"{path}: {fw.stats.frames} MAVLink frames but no sensor sample (IMU or barometer)")
     return done
 
 
@@ -59,10 +64,12 @@ def _replay(fw: Firmware, path: str, progress: Progress | None, stop) -> bool:
     return True
 
 
-def run_live(fw: Firmware, spec: str, stop, progress: Progress | None = None) -> None:
-    """Until stopped: decode what arrives; keep the 1 Hz heartbeat and the WIND_COV stream going on
-    the wall clock when the sensors fall silent (accuracy then reflects the silence). Once a second the
-    status (input rate, mode, wind, accuracy, lost) goes to ``progress``."""
+def run_live(fw: Firmware, spec: str, stop, progress: Progress | None = None,
+             duration_s: float | None = None) -> bool:  # fmt: skip
+    """Until stopped (returns False: Ctrl-C) or for ``duration_s`` of wall-clock time (returns True):
+    decode what arrives; keep the 1 Hz heartbeat and the WIND_COV stream going on the wall clock when the
+    sensors fall silent (accuracy then reflects the silence). Once a second the status (input rate,
+    mode, wind, accuracy, lost) goes to ``progress``."""
     link = open_link(spec)
     fw.sinks.append(link)  # like any vehicle, it also talks back on the link its sensors come from
     # an autopilot on the link that does not stream its sensors fast enough is asked to (streams.py)
@@ -74,10 +81,13 @@ def run_live(fw: Firmware, spec: str, stop, progress: Progress | None = None) ->
     frames, imu = RateMeter(), RateMeter()
     frames.rate(last_rx, fw.stats.frames)  # the rates count from here
     imu.rate(last_rx, fw.est.counters.imu_samples)
+    end = math.inf if duration_s is None else last_rx + duration_s
     try:
         while not stop():
             data = link.recv(0.05)
             now = time.monotonic()
+            if now >= end:
+                return True
             if data:
                 last_rx = now
                 for m in dec.feed(data):
@@ -91,10 +101,14 @@ def run_live(fw: Firmware, spec: str, stop, progress: Progress | None = None) ->
             if progress is not None and now >= next_status:
                 next_status = now + 1.0
                 silent = f", silent {now - last_rx:.0f} s" if now - last_rx > 2.0 else ""
-                progress.update(fw.stats.frames, f"in {frames.rate(now, fw.stats.frames):.0f} msg/s "
-                                f"({imu.rate(now, fw.est.counters.imu_samples):.0f} IMU/s){silent}, {fw.status()}")
+                progress.update(
+                    fw.stats.frames,
+                    f"in {frames.rate(now, fw.stats.frames):.0f} msg/s "
+                    f"({imu.rate(now, fw.est.counters.imu_samples):.0f} IMU/s){silent}, {fw.status()}",
+                )
     finally:
         link.close()
+    return False
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -108,6 +122,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--core", choices=("c", "py"),
                     help="c: the C core, py: the Python reference (default: [filter] core, else c)")  # fmt: skip
     ap.add_argument("--quiet", action="store_true", help="no progress bar / live status (the summary stays)")
+    ap.add_argument("--duration", type=userargs.duration,
+                    help="a live source: stop after this many seconds (wall clock), exit 0")  # fmt: skip
     args = ap.parse_args(argv)
     try:
         design, fcfg = load_config(args.config)
@@ -131,24 +147,32 @@ def main(argv: list[str] | None = None) -> int:
         bar = Progress("balloon-fw", total=os.path.getsize(args.source) / 1e6, unit="MB", quiet=args.quiet)
     else:
         bar = Progress("balloon-fw", unit="frames", quiet=args.quiet, interval_s=5.0)
+    if is_file and args.duration is not None:
+        return userargs.fail(prog, f"--duration is for a live source; {args.source} is a file (read to its end)")
     finished = True
     try:
         if is_file:
             finished = replay_file(fw, args.source, bar, stop)
             bar.done = bar.total if finished else bar.done
         else:
-            run_live(fw, args.source, stop, bar)
+            finished = run_live(fw, args.source, stop, bar, args.duration)
     except (ValueError, OSError, userargs.UserError) as exc:
         bar.close()
         if sink is not None:
             sink.close()
+            if args.sink.endswith(".tlog"):  # no half-written output beside an error
+                with contextlib.suppress(OSError):
+                    os.remove(args.sink)
         return userargs.fail(prog, exc)
     bar.close()
     if sink is not None:
         sink.close()
     print(fw.summary(), file=sys.stderr)
-    if not finished:
+    if is_file and not finished:
         print(f"{prog}: interrupted before the end of {args.source}", file=sys.stderr)
+        return 130
+    if not is_file and stop.interrupted:
+        print(f"{prog}: interrupted (Ctrl-C) on {args.source}", file=sys.stderr)
         return 130
     return 0
 

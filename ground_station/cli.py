@@ -66,6 +66,9 @@ def main(argv: list[str] | None = None) -> int:
             return userargs.fail(PROG, exc)
         gs.close()
         print(gs.summary(), file=sys.stderr)
+        if stop.interrupted:  # Ctrl-C (not --duration, not SIGTERM): the run did not finish
+            print(f"{PROG}: interrupted (Ctrl-C) on {args.endpoint}", file=sys.stderr)
+            return 130
         return 0
     from ground_station.report import format_score, report
 

@@ -44,6 +44,11 @@ MISFIT_BITS = (
 SILENT_BIT = mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO  # balloon-fw clears it only when its sensors are silent
 UNKNOWN = "—"  # a value not known (yet)
 SEVERITY_NAMES = {v: e.name.removeprefix("MAV_SEVERITY_") for v, e in mavlink.enums["MAV_SEVERITY"].items()}
+# after the WIND_COV columns, each CSV row says what was lost so far: packets from that system lost on the
+# way here (sequence numbers), and the sensor packets the balloon lost (its SYS_STATUS errors_count1; empty
+# until it reported)
+LOSS_COLUMNS = ("link_lost", "input_lost")
+DEDUP_FRAMES = 512  # a frame identical (bytes and sequence number) to one of the last this many is a duplicate
 STALE_S = 2.0  # no WIND_COV for this long: the row's wind is old
 HB_LATE_S = 3.0  # no HEARTBEAT for this long: shown in red
 RATE_WINDOW_S = 2.0
@@ -113,6 +118,19 @@ class Vehicle:
         """Filter resets the balloon reports (balloon-fw's SYS_STATUS errors_count2)."""
         return int(self.status.errors_count2) if self.status is not None and self.ours else None
 
+    def input_lost(self) -> int | None:
+        """Sensor packets the balloon's firmware lost (SYS_STATUS errors_count1, balloon-fw only)."""
+        return int(self.status.errors_count1) if self.status is not None and self.ours else None
+
+    def input_loss(self) -> str | None:
+        """What the balloon says it lost on its sensor link (balloon-fw's SYS_STATUS): ``12 lost (0.1 %),
+        3 IMU missing, 0 long gaps``."""
+        st = self.status
+        if st is None or not self.ours:
+            return None
+        return (f"{st.errors_count1} lost ({st.drop_rate_comm / 100.0:.1f} %), {st.errors_count4} IMU missing, "
+                f"{st.errors_count3} long gaps")  # fmt: skip
+
     def input_lost_pct(self) -> float | None:
         """Sensor packets the balloon's firmware lost, % (SYS_STATUS drop_rate_comm)."""
         return self.status.drop_rate_comm / 100.0 if self.status is not None else None
@@ -170,8 +188,11 @@ class GroundStation:
         self._csv = csv.writer(self._csv_fh) if self._csv_fh else None
         self.csv_path, self.tlog_path = csv_path, tlog_path
         if self._csv:
-            self._csv.writerow(CSV_COLUMNS)
+            self._csv.writerow(CSV_COLUMNS + LOSS_COLUMNS)
         self._tlog = TlogSink(tlog_path) if tlog_path else None
+        self.duplicates = 0  # frames received twice (a relay or a radio repeating), dropped
+        self._recent: deque[bytes] = deque()
+        self._recent_set: set[bytes] = set()
 
     # ------------------------------------------------------------ input
 
@@ -181,9 +202,23 @@ class GroundStation:
             v = self.vehicles[sysid] = Vehicle(sysid)
         return v
 
+    def _duplicate(self, frame: bytes) -> bool:
+        """The same frame (bytes and sequence number) as one of the last ``DEDUP_FRAMES``."""
+        if frame in self._recent_set:
+            self.duplicates += 1
+            return True
+        self._recent.append(frame)
+        self._recent_set.add(frame)
+        if len(self._recent) > DEDUP_FRAMES:
+            self._recent_set.discard(self._recent.popleft())
+        return False
+
     def handle(self, m, now: float) -> None:
+        frame = bytes(m.get_msgbuf())
+        if self._duplicate(frame):
+            return
         if self._tlog:
-            self._tlog.send(bytes(m.get_msgbuf()))
+            self._tlog.send(frame)
         t = m.get_type()
         if t == "WIND_COV":
             rec = WindRecord.from_msg(m)
@@ -195,7 +230,8 @@ class GroundStation:
                 v.history.append((now, rec.speed_mps))
             self.wind_count += 1
             if self._csv:
-                self._csv.writerow(rec.csv_row())
+                lost = v.input_lost()
+                self._csv.writerow(rec.csv_row() + [self.link_lost(v.sysid), "" if lost is None else lost])
         elif t == "HEARTBEAT" and m.type != mavlink.MAV_TYPE_GCS:
             v = self.vehicle(m.get_srcSystem())
             v.vehicle_type, v.hb_at = m.type, now
@@ -239,7 +275,7 @@ class GroundStation:
 
     def status_lines(self, now: float) -> list[str]:
         s = self.stats
-        link = f"lost {s.lost}, CRC errors {s.bad_frames}"
+        link = f"lost {s.lost}, CRC errors {s.bad_frames}, {self.duplicates} duplicates dropped"
         shown = [v for v in self.vehicles.values() if v.last is not None]
         if not shown:
             return [f"waiting for WIND_COV | {link}"]
@@ -260,6 +296,8 @@ class GroundStation:
             health += f"MISFIT {','.join(misfit)}, " if misfit else ""
             hb = "-" if v.hb_at is None else f"{now - v.hb_at:.0f} s"
             said = v.said(now)
+            loss = v.input_loss()
+            health += f"balloon input {loss}, " if loss else ""
             lines.append(
                 f"sys {v.sysid}: t={r.time_usec * 1e-6:7.1f}s {wind} ±{r.horiz_accuracy:4.2f} var {var} "
                 f"alt {r.wind_alt:6.1f} m mode {v.mode}{stale} | {v.rate(now):4.1f} msg/s, {health}"
@@ -282,7 +320,10 @@ class GroundStation:
         link = Text(no_wrap=True, overflow="ellipsis")
         link.append(f"link: {s.frames} frames, ")
         link.append(f"{s.lost} lost", style="red bold" if s.lost else "")
-        link.append(f", {s.bad_frames} CRC errors, {s.garbage_bytes} garbage bytes, {s.bytes / 1024:.0f} kB")
+        link.append(
+            f", {s.bad_frames} CRC errors, {s.garbage_bytes} garbage bytes, {self.duplicates} duplicates, "
+            f"{s.bytes / 1024:.0f} kB"
+        )
         if head.cell_len + 2 + link.cell_len <= width:
             head.append("  ")
             head.append_text(link)
@@ -394,9 +435,14 @@ class GroundStation:
             self._tlog.close()
 
     def summary(self) -> str:
+        """The last line: what came, what was lost on the way here, and what each balloon said it lost
+        on its own sensor link (its last SYS_STATUS)."""
         s = self.stats
+        said = "; ".join(f"sys {v.sysid} reported its sensor input {v.input_loss()}"
+                         for v in sorted(self.vehicles.values(), key=lambda v: v.sysid) if v.input_loss())  # fmt: skip
         return (f"balloon-gs: {self.wind_count} WIND_COV from {len(self.vehicles)} systems, {s.frames} frames, "
-                f"{s.lost} lost, {s.bad_frames} CRC errors, {s.garbage_bytes} garbage bytes")  # fmt: skip
+                f"{s.lost} lost, {s.bad_frames} CRC errors, {s.garbage_bytes} garbage bytes, "
+                f"{self.duplicates} duplicates dropped" + (f"; {said}" if said else ""))  # fmt: skip
 
 
 def sparkline(values: list[float]) -> str:

@@ -10,7 +10,7 @@ import sys
 
 import numpy as np
 
-from postflight.flight import GPS_EPOCH_UNIX_S, GPS_LEAP_S, N_VALUES, Flight, attach_mag, build_flight
+from postflight.flight import GPS_EPOCH_UNIX_S, GPS_LEAP_S, N_VALUES, Flight, attach_mag, build_flight, describe_error
 
 _NP_CODES = {"b": "i1", "B": "u1", "h": "<i2", "H": "<u2", "i": "<i4", "I": "<u4", "q": "<i8", "Q": "<u8",
              "f": "<f4", "d": "<f8", "e": "<f2"}  # fmt: skip
@@ -20,6 +20,7 @@ GYRO_UNITS = {"": 1.0, "rad/s": 1.0, "deg/s": math.pi / 180.0, "mrad/s": 1e-3}
 MAG_UNITS = {"": 1e-3, "mGauss": 1e-3, "mG": 1e-3, "Gauss": 1.0, "G": 1.0}  # no FMTU: ArduPilot logs mGauss
 PRESS_UNITS = {"": 0.01, "Pa": 0.01, "hPa": 1.0, "mbar": 1.0, "kPa": 10.0}
 TEMP_UNITS = {"": 1.0, "degC": 1.0, "cdegC": 0.01}
+GPS_WEEK_MIN, GPS_WEEK_MAX = 1000, 5000  # 1999 to 2075: a GPS week outside is a damaged record
 
 
 def _df_records(log, name: str):
@@ -117,7 +118,7 @@ def _read_dataflash(path: str) -> Flight:
         with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
             log = DFReader.DFReader_binary(path, zero_time_base=True)
     except Exception as exc:  # noqa: BLE001
-        raise ValueError(f"{path}: not a readable ArduPilot DataFlash log ({exc})") from exc
+        raise ValueError(f"{path}: not a readable ArduPilot DataFlash log: {describe_error(exc)}") from exc
     sensors: dict[str, str] = {}
     notes: list[str] = []
     try:
@@ -149,8 +150,8 @@ def _read_dataflash(path: str) -> Flight:
         else:
             baro_t, baro = np.zeros(0, np.int64), np.zeros((0, 2))
         utc = _df_utc(log)
-    except (KeyError, ValueError) as exc:
-        raise ValueError(str(exc) if str(exc).startswith(path) else f"{path}: {exc}") from exc
+    except (KeyError, ValueError, IndexError, OverflowError) as exc:
+        raise ValueError(str(exc) if str(exc).startswith(path) else f"{path}: {describe_error(exc)}") from exc
     finally:
         log.close()
     return build_flight(path, "dataflash", imu_t, imu, baro_t, baro, sensors, notes, utc)
@@ -160,11 +161,10 @@ def _df_utc(log) -> tuple[float, str] | None:
     recs, fmt = _df_records(log, "GPS")
     if recs is None or not {"GWk", "GMS", "TimeUS"} <= set(fmt.colhash):
         return None
-    ok = np.flatnonzero(recs["GWk"] > 0)
+    # a real GPS week (1980 + 19 to 96 years) and time of week: a damaged record is not taken for a date
+    ok = np.flatnonzero((recs["GWk"] >= GPS_WEEK_MIN) & (recs["GWk"] <= GPS_WEEK_MAX) & (recs["GMS"] < 604_800_000))
     if len(ok) == 0:
         return None
     r = recs[ok[0]]
     gps_s = GPS_EPOCH_UNIX_S + int(r["GWk"]) * 604_800 + int(r["GMS"]) * 1e-3 - GPS_LEAP_S
     return gps_s - int(r["TimeUS"]) * 1e-6, "gps"
-
-

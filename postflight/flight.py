@@ -3,9 +3,11 @@ and the helpers every log reader shares (postflight/ulog.py, dataflash.py, mavli
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import os
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -23,6 +25,9 @@ INT32_MAX = 2**31 - 1  # PX4's "no sample" relative timestamp
 GPS_EPOCH_UNIX_S = 315_964_800  # 1980-01-06T00:00Z
 GPS_LEAP_S = 18  # GPS - UTC since 2017
 CHUNK = 4096
+STALL_S = 10.0  # a log reader that makes no progress in the file for this long is stopped (WatchedFile)
+CLOCK_BACK_US = 1_000_000  # the sensor clock going back by more than this: a reboot (less: reordering)
+CLOCK_JUMP_US = 60_000_000  # ... forward by more than this: a damaged stretch or a clock that jumped
 
 
 @dataclass
@@ -42,6 +47,12 @@ class FlightMeta:
     utc_source: str | None = None  # where that came from ("gps", "SYSTEM_TIME")
     sensors: dict[str, str] = field(default_factory=dict)  # role -> message/topic it was read from
     notes: list[str] = field(default_factory=list)
+    # what the file lost, each counted once (docs/usage.md, "What a damaged log loses")
+    bad_frames: int = 0  # corrupt MAVLink frames skipped (a cut-off last frame included)
+    truncated: bool = False  # the file ends inside a frame / record, or the reader stopped before its end
+    imu_missing: int = 0  # IMU samples missing by their time stamps (at the measured rate)
+    gaps: int = 0  # holes in the IMU stream (two or more steps without a sample)
+    clock_breaks: int = 0  # the sensor clock going back (a reboot) or jumping: where a new segment starts
 
     def describe(self) -> str:
         rate = f"{self.imu_rate_hz:.1f} Hz" if self.imu_rate_hz else "unknown rate"
@@ -55,14 +66,19 @@ class FlightMeta:
 class Flight:
     kind: np.ndarray  # int8, KIND_IMU / KIND_BARO / KIND_WINCH / KIND_GROUND
     t_us: np.ndarray  # int64, the sensor's clock (us since its boot)
-    values: np.ndarray  # float64 (n, 9): IMU ax..gz, mx..mz (NaN: no new magnetometer); baro hPa, degC
+    values: np.ndarray | None  # float64 (n, 9): IMU ax..gz, mx..mz (NaN: no new magnetometer); baro hPa, degC
     meta: FlightMeta
+    # the samples read again from the file (a MAVLink log: its values are not held in memory); None: ``values``
+    stream: Callable[[], Iterator[Sample]] | None = None
 
     def __len__(self) -> int:
         return len(self.t_us)
 
     def samples(self) -> Iterator[Sample | GroundSample]:
         """The samples in order, converted a chunk at a time (no list of the whole flight)."""
+        if self.stream is not None:
+            yield from self.stream()
+            return
         for a in range(0, len(self.t_us), CHUNK):
             kinds = self.kind[a : a + CHUNK].tolist()
             times = self.t_us[a : a + CHUNK].tolist()
@@ -86,16 +102,146 @@ class Flight:
         the flight's own samples of the same time); the flight's own ground reference is dropped."""
         own = self.kind != KIND_GROUND
         n = len(t_us)
+        gt = np.asarray(t_us, np.int64)
         kind = np.concatenate([self.kind[own], np.full(n, KIND_GROUND, np.int8)])
-        t = np.concatenate([self.t_us[own], np.asarray(t_us, np.int64)])
-        vals = np.full((n, N_VALUES), np.nan)
-        vals[:, 0], vals[:, 1] = hpa, temp_c
-        values = np.concatenate([self.values[own], vals])
+        t = np.concatenate([self.t_us[own], gt])
         order = np.argsort(t, kind="stable")
-        return Flight(kind[order], t[order], values[order], self.meta)
+        if self.stream is None:
+            vals = np.full((n, N_VALUES), np.nan)
+            vals[:, 0], vals[:, 1] = hpa, temp_c
+            values = np.concatenate([self.values[own], vals])
+            return Flight(kind[order], t[order], values[order], self.meta)
+        src, gs = self.stream, sorted(zip(gt.tolist(), np.asarray(hpa, float).tolist(),
+                                         np.asarray(temp_c, float).tolist()))  # fmt: skip
+
+        def merged() -> Iterator[Sample | GroundSample]:
+            k = 0
+            for smp in src():
+                if type(smp) is GroundBaroSample:
+                    continue  # the flight's own reference is replaced
+                while k < len(gs) and gs[k][0] < smp.t_us:
+                    yield GroundBaroSample(*gs[k])
+                    k += 1
+                yield smp
+            for g in gs[k:]:
+                yield GroundBaroSample(*g)
+
+        return Flight(kind[order], t[order], None, self.meta, stream=merged)
 
 
 # ------------------------------------------------------------------------------------------ helpers
+
+
+class ReaderStalled(Exception):
+    """A log reader made no progress in its file for ``STALL_S`` (a loop in a third-party parser)."""
+
+
+class WatchedFile:
+    """A binary file for a third-party reader (pyulog) with a watchdog: when the furthest position
+    read has not advanced for ``stall_s`` seconds, the file reads as ended from then on, so a reader
+    that loops (seeks back to where it was, again and again) stops with what it has read."""
+
+    def __init__(self, path: str, stall_s: float = STALL_S) -> None:
+        self.fh = open(path, "rb")
+        self.size = os.fstat(self.fh.fileno()).st_size
+        self.stall_s = stall_s
+        self.furthest = 0
+        self.stalled_at: int | None = None  # where the reader kept going back to when the watchdog ended the read
+        self._low = 0  # the lowest position read from since the furthest last advanced
+        self._moved = time.monotonic()
+
+    def read(self, n: int = -1) -> bytes:
+        if self.stalled_at is not None:
+            return b""
+        start = self.fh.tell()
+        data = self.fh.read(n)
+        pos = self.fh.tell()
+        now = time.monotonic()
+        if pos > self.furthest:
+            self.furthest, self._moved, self._low = pos, now, pos
+        else:
+            self._low = min(self._low, start)
+            if now - self._moved > self.stall_s:
+                self.stalled_at = self._low
+                return b""
+        return data
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        return self.fh.seek(offset, whence)
+
+    def tell(self) -> int:
+        return self.fh.tell()
+
+    def close(self) -> None:
+        self.fh.close()
+
+    def note(self) -> str | None:
+        """The note for the flight's metadata when the watchdog ended the read, else None."""
+        if self.stalled_at is None:
+            return None
+        return (
+            f"the reader made no progress in the file for {self.stall_s:g} s (it kept going back to byte "
+            f"{self.stalled_at} of {self.size}: a damaged stretch it loops on); the read stopped there"
+        )
+
+
+def describe_error(exc: BaseException) -> str:
+    """What a reader's exception means, in words (a bare ``'AccY'`` or ``[Errno 22]`` says nothing)."""
+    if isinstance(exc, KeyError):
+        return f"a field the reader needs, {exc.args[0]!r}, is missing (a damaged or unexpected log format)"
+    if isinstance(exc, OSError) and exc.errno == errno.EINVAL:
+        return "a length or position inside the file points outside it (the file is damaged)"
+    if isinstance(exc, OSError):
+        return f"{exc.strerror or exc} (reading the file)"
+    if isinstance(exc, (OverflowError, MemoryError)) or "out of range" in str(exc):
+        return f"a value in the file is impossible ({exc}): the file is damaged"
+    text = str(exc).strip()
+    return f"{text} ({type(exc).__name__})" if text else f"the file is damaged ({type(exc).__name__})"
+
+
+def imu_losses(imu_t: np.ndarray, rate_hz: float | None) -> tuple[int, int, int]:
+    """(IMU samples missing, gaps, clock breaks) from the IMU sample times in file order: at the
+    measured rate, a hole of k steps is k - 1 missing samples (a late sample fills its hole, a copy
+    counts nothing); the clock going back by more than ``CLOCK_BACK_US`` or forward by more than
+    ``CLOCK_JUMP_US`` is a break (the holes are counted within the stretches between breaks)."""
+    t = np.asarray(imu_t, np.int64)
+    if len(t) < 2 or not rate_hz:
+        return 0, 0, 0
+    d = np.diff(t)
+    brk = np.flatnonzero((d < -CLOCK_BACK_US) | (d > CLOCK_JUMP_US)) + 1
+    dt = 1e6 / rate_hz
+    missing = gaps = 0
+    for part in np.split(t, brk):
+        u = np.unique(part)  # in time order, copies once: a late sample sits in its place
+        steps = np.rint(np.diff(u) / dt).astype(np.int64)
+        holes = steps[steps >= 2]
+        missing += int(np.sum(holes - 1))
+        gaps += len(holes)
+    return missing, gaps, len(brk)
+
+
+def loss_notes(meta: FlightMeta) -> list[str]:
+    """One note per kind of loss the flight file holds (none for a clean file)."""
+    out = []
+    if meta.bad_frames:
+        cut = ", the last one cut off: the file ends inside a frame" if meta.truncated else ""
+        out.append(f"{meta.bad_frames} bad frames skipped{cut}")
+    elif meta.truncated:
+        out.append("the file ends inside a record (truncated)")
+    if meta.imu_missing:
+        out.append(f"{meta.imu_missing} IMU samples missing by their time stamps, in {meta.gaps} gaps")
+    return out
+
+
+def segment_note(meta: FlightMeta) -> str | None:
+    """Where the log is cut into segments (the sensor clock went back or jumped), None if nowhere."""
+    if not meta.clock_breaks:
+        return None
+    times = "once" if meta.clock_breaks == 1 else f"{meta.clock_breaks} times"
+    return (
+        f"the sensor clock goes back (a reboot) or jumps {times}: reprocessed in {meta.clock_breaks + 1} "
+        "segments, each its own filter and smoother run"
+    )
 
 
 def sha256_of(path: str) -> str:
@@ -137,11 +283,13 @@ def build_flight(path: str, fmt: str, imu_t, imu, baro_t, baro, sensors, notes, 
     meta = FlightMeta(
         source=os.path.basename(path), sha256=sha256_of(path), format=fmt, has_imu=True, has_mag=n_mag > 0,
         has_baro=len(baro_t) > 0, imu_rate_hz=first_rate_hz(np.asarray(imu_t)), n_imu=len(imu_t),
-        n_baro=len(baro_t), n_mag=n_mag, duration_s=float(t.max() - t.min()) * 1e-6,
+        n_baro=len(baro_t), n_mag=n_mag, duration_s=(float(t.max()) - float(t.min())) * 1e-6,
         utc_start_s=utc[0] if utc else None, utc_source=utc[1] if utc else None, sensors=sensors, notes=notes,
     )  # fmt: skip
     if not meta.has_baro:
         meta.notes.append("no barometer in the log: height and air data unknown")
+    meta.imu_missing, meta.gaps, meta.clock_breaks = imu_losses(np.asarray(imu_t), meta.imu_rate_hz)
+    meta.notes.extend(loss_notes(meta) + [n for n in (segment_note(meta),) if n])
     return Flight(kind, t, values, meta)
 
 

@@ -22,7 +22,7 @@ import sys
 import numpy as np
 
 from postflight.dataflash import read_dataflash
-from postflight.flight import DATAFLASH_MAGIC, ULOG_MAGIC, Flight
+from postflight.flight import DATAFLASH_MAGIC, ULOG_MAGIC, Flight, describe_error
 from postflight.mavlink_log import read_mavlink
 from postflight.ulog import read_ulog
 
@@ -30,7 +30,7 @@ from postflight.ulog import read_ulog
 
 
 def flight_format(path: str) -> str:
-    """"ulog", "dataflash", "tlog" or "raw": by extension, else by the first bytes."""
+    """ "ulog", "dataflash", "tlog" or "raw": by extension, else by the first bytes."""
     ext = os.path.splitext(path)[1].lower()
     if ext == ".ulg":
         return "ulog"
@@ -55,11 +55,15 @@ def read_flight(path: str) -> Flight:
     if os.path.getsize(path) == 0:
         raise ValueError(f"{path}: empty file")
     kind = flight_format(path)
-    if kind == "ulog":
-        return read_ulog(path)
-    if kind == "dataflash":
-        return read_dataflash(path)
-    return read_mavlink(path)
+    reader = {"ulog": read_ulog, "dataflash": read_dataflash}.get(kind, read_mavlink)
+    try:
+        return reader(path)
+    except ValueError as exc:
+        if str(exc).startswith(path):
+            raise
+        raise ValueError(f"{path}: cannot read this {kind} log: {describe_error(exc)}") from exc
+    except Exception as exc:  # a third-party reader's own failure on a damaged file: one line  # noqa: BLE001
+        raise ValueError(f"{path}: cannot read this {kind} log: {describe_error(exc)}") from exc
 
 
 # ------------------------------------------------------------------------------------------ a look

@@ -14,6 +14,7 @@ import datetime as dt
 import importlib.metadata
 import os
 import re
+import tempfile
 
 import numpy as np
 
@@ -23,6 +24,7 @@ from postflight.averages import AVERAGE_FIELDS, product_averages, speed_directio
 from postflight.product import (
     CONSISTENCY_MASKS,
     CONSISTENCY_MEANINGS,
+    FLAG_AFTER_GAP,
     FLAG_NO_BARO,
     FLAG_SEGMENT_START,
     FLAG_SMOOTHED,
@@ -32,8 +34,8 @@ from postflight.product import (
 
 MODE_VALUES = (0, 1, 2)  # firmware_py.estimator.state MODE_GROUND, MODE_FREE, MODE_TAUT
 MODE_MEANINGS = "ground free_ascent taut"
-FLAG_MASKS = (FLAG_SMOOTHED, FLAG_SEGMENT_START, FLAG_NO_BARO, FLAG_WIND_UNKNOWN)
-FLAG_MEANINGS = "smoothed segment_start no_barometer wind_unknown"
+FLAG_MASKS = (FLAG_SMOOTHED, FLAG_SEGMENT_START, FLAG_NO_BARO, FLAG_WIND_UNKNOWN, FLAG_AFTER_GAP)
+FLAG_MEANINGS = "smoothed segment_start no_barometer wind_unknown after_data_gap"
 AVERAGE_PERIODS_S = {"avg_1s": 1.0, "avg_10min": 600.0}
 UTC_UNITS = "seconds since 1970-01-01 00:00:00 UTC"
 # CF time units need a reference date and the sensor clock has none: the UNIX epoch stands in for the boot,
@@ -127,7 +129,14 @@ def to_dataset(product: WindProduct, history: str | None = None):
     vars_.update(_wind_vars(f(p.wind_n), f(p.wind_e), f(p.sigma_n), f(p.sigma_e), "", "smoothed (zero-lag)"))
     vars_.update(_wind_vars(f(p.causal_n), f(p.causal_e), f(p.causal_sigma_n), f(p.causal_sigma_e), "_causal",
                             "real-time (causal) filter, as WIND_COV carried it"))  # fmt: skip
-    vars_["time_since_boot"] = (f(p.time_s), {"long_name": "time since the sensor clock's zero (boot)", "units": "s"})
+    boot = p.time_s if p.time_since_boot_s is None else p.time_since_boot_s
+    vars_["time_since_boot"] = (f(boot), {"long_name": "time since the sensor clock's zero (boot)", "units": "s"})
+    if p.segment is not None:
+        vars_["segment"] = (np.asarray(p.segment, np.int16), {
+            "long_name": "segment of the log: each its own filter and smoother run (the sensor clock went back, "
+                         "a reboot, or jumped, in between)", "units": "1",
+            "comment": "time runs on across segments: a segment whose sensor clock starts before the previous one "
+                       "ended is shifted to follow it; time_since_boot is the sensor clock"})  # fmt: skip
     vars_["height"] = (f(p.height_m), {"standard_name": "height", "long_name": "height of the balloon above the "
                                        "tether anchor (ground station)", "units": "m", "positive": "up"})  # fmt: skip
     vars_["northward_position"] = (f(p.pos_n), {"long_name": "balloon position north of the tether anchor",
@@ -219,6 +228,8 @@ def write_netcdf(product: WindProduct, path: str, history: str | None = None) ->
     for k in ("mode", "flags", "consistency_flags_causal"):
         if k in ds:
             enc[k] = {"dtype": "int8", "zlib": True}
+    if "segment" in ds:
+        enc["segment"] = {"dtype": "int16", "zlib": True}
     os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
     ds.to_netcdf(path, engine="netcdf4", format="NETCDF4", encoding=enc)
 
@@ -282,15 +293,34 @@ def _write_avg_csv(product: WindProduct, a: dict[str, np.ndarray], path: str) ->
 def write_products(product: WindProduct, nc_path: str, plot_path: str | None = None,
                    history: str | None = None) -> list[str]:  # fmt: skip
     """Everything ``balloon-gs reprocess`` writes: the NetCDF, the averages beside it (``write_averages`` with
-    the NetCDF's name less ``.nc`` as stem) and, if asked, the plot. Returns the paths written."""
-    write_netcdf(product, nc_path, history)
-    paths = [nc_path, *write_averages(product, os.path.splitext(nc_path)[0], history)]
-    if plot_path:
-        from postflight.plot import plot_product  # matplotlib only when a plot is asked for
+    the NetCDF's name less ``.nc`` as stem) and, if asked, the plot. Returns the paths written.
 
-        plot_product(product, plot_path)
-        paths.append(plot_path)
-    return paths
+    Each file is written under a temporary name in its own directory and all are renamed only once every
+    one is complete: an error (or Ctrl-C) on the way leaves none of them, old or half-written."""
+    nc_dir = os.path.dirname(os.path.abspath(nc_path))
+    os.makedirs(nc_dir, exist_ok=True)
+    done: list[tuple[str, str]] = []  # (temporary, final)
+    with tempfile.TemporaryDirectory(dir=nc_dir, prefix=".reprocess-") as tmp:
+        tmp_nc = os.path.join(tmp, os.path.basename(nc_path))
+        write_netcdf(product, tmp_nc, history)
+        stem = os.path.splitext(os.path.basename(nc_path))[0]
+        written = [tmp_nc, *write_averages(product, os.path.join(tmp, stem), history)]
+        done = [(w, os.path.join(nc_dir, os.path.basename(w))) for w in written]
+        plot_tmp = None
+        try:
+            if plot_path:
+                from postflight.plot import plot_product  # matplotlib only when a plot is asked for
+
+                base, ext = os.path.splitext(os.path.abspath(plot_path))
+                plot_tmp = f"{os.path.dirname(base)}/.{os.path.basename(base)}.part-{os.getpid()}{ext}"
+                plot_product(product, plot_tmp)
+                done.append((plot_tmp, plot_path))
+            for src, dst in done:
+                os.replace(src, dst)
+        finally:
+            if plot_tmp is not None and os.path.exists(plot_tmp):
+                os.remove(plot_tmp)
+    return [nc_path, *(dst for _, dst in done[1:])]
 
 
 def read_netcdf_wind(path: str) -> dict[str, np.ndarray]:

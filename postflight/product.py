@@ -16,6 +16,7 @@ FLAG_SMOOTHED = 1  # the smoothed value differs from the causal one (the segment
 FLAG_SEGMENT_START = 2  # first sample after a filter reset / re-placement (a smoother segment starts)
 FLAG_NO_BARO = 4  # the log has no barometer: height and air data are unknown
 FLAG_WIND_UNKNOWN = 8  # horizontal accuracy worse than the wind itself could be (not a balloon, on the ground)
+FLAG_AFTER_GAP = 16  # IMU samples were missing since the estimate before (a hole in the log, a lost stretch)
 # bits of ``consistency_flags``: the causal filter's consistency monitor (firmware_py/estimator/consistency.py),
 # bit i = aid source SOURCES[i] whose windowed normalised innovation squared says the model does not explain it
 CONSISTENCY_MASKS = tuple(1 << i for i in range(len(SOURCES)))
@@ -47,5 +48,10 @@ class WindProduct:
     # speed, m/s (positive paying out); NaN before the first WINCH_STATUS
     line_length_m: np.ndarray | None = None
     reel_mps: np.ndarray | None = None
+    # a log in segments (the sensor clock went back, a reboot, or jumped): each segment its own filter and
+    # smoother run. ``segment`` numbers them from 0; ``time_since_boot_s`` is the sensor clock, and ``time_s``
+    # then runs on: a segment whose clock starts before the previous one ended is shifted to follow it
+    segment: np.ndarray | None = None  # int16, the segment of each estimate (None: one segment)
+    time_since_boot_s: np.ndarray | None = None  # the sensor clock (None: the same as time_s)
     utc_start_s: float | None = None  # UNIX time of time_s == 0 when the log knows it (GPS time), else None
     attrs: dict[str, str] = field(default_factory=dict)  # design TOML, software version, source name, sha256

@@ -10,6 +10,7 @@ import dataclasses
 import math
 import os
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterable
 
@@ -21,7 +22,9 @@ from balloon_core.score import direction_from_deg, wind_unknown
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.state import MODE_GROUND, N_STATES, POS_D, POS_E, POS_N, WIND_E, WIND_N, FilterConfig
 from firmware_py.streams import InputPipeline, feed, feed_ground
+from postflight.flight import CLOCK_BACK_US, CLOCK_JUMP_US, loss_notes, segment_note
 from postflight.product import (
+    FLAG_AFTER_GAP,
     FLAG_NO_BARO,
     FLAG_SEGMENT_START,
     FLAG_SMOOTHED,
@@ -31,6 +34,7 @@ from postflight.product import (
 from postflight.smoother import SmootherRecorder
 
 GRID_HZ = 10.0  # the product's rate: WIND_COV's default
+GAP_STEPS = 1.5  # IMU samples further apart than this many filter steps: samples are missing between them
 
 
 def design_toml(design: Design, cfg: FilterConfig) -> str:
@@ -60,39 +64,102 @@ def reprocess(
     grid_hz: float = GRID_HZ,
     progress: Callable[[int], None] | None = None,
     warn: Callable[[str], None] | None = None,
+    store_dir: str | None = None,
 ) -> WindProduct:
     """Forward filter + backward smoother over ``samples`` (as logged, in order).
 
     The samples pass the live firmware's input pipeline (firmware_py/streams.py: the IMU rate measured
     from the stream unless ``rate_explicit``, a faster stream averaged down to the filter's step), so
-    the forward pass is what the firmware computes. ``progress(n)`` is called every 10 000 samples
-    with the count so far; ``warn`` gets the pipeline's one-line warnings."""
+    the forward pass is what the firmware computes. Where the sensor clock goes back by more than
+    ``CLOCK_BACK_US`` (a reboot; less is reordering, the pipeline's) or jumps ahead by more than
+    ``CLOCK_JUMP_US``, a new segment starts: its own pipeline, filter and smoother, joined into one
+    product (``WindProduct.segment``). ``progress(n)`` is called every 10 000 samples with the count so
+    far; ``warn`` gets the pipeline's one-line warnings; ``store_dir``: where the smoother's store spills
+    (``SmootherRecorder``), else memory."""
     # the smoother works in float64 and records every step of the filter: the Python core's recorder hooks
     cfg = dataclasses.replace(cfg or FilterConfig(), float32=False, core="py")
-    pipe = InputPipeline(cfg, rate_explicit)
-    rec = SmootherRecorder(N_STATES)
-    run = _Run(design, rec, grid_hz)
+    parts: list[WindProduct] = []
+    seg = _Segment(design, cfg, rate_explicit, grid_hz, store_dir)
+    newest = None  # the newest sample time in this segment
     for i, s in enumerate(samples):
-        if type(s) is WinchSample or type(s) is GroundBaroSample:
-            run.ground(s)
-            continue
-        for t in pipe.push(s):
-            run.feed(pipe, t, warn)
+        t = s.t_us  # IMU and barometer alike: one clock (a barometer sample of the new boot comes first)
+        if newest is not None and (t < newest - CLOCK_BACK_US or t > newest + CLOCK_JUMP_US):
+            parts.append(seg.finish(warn))
+            seg = _Segment(design, cfg, rate_explicit, grid_hz, store_dir)
+            newest = t
+        elif newest is None or t > newest:
+            newest = t
+        seg.push(s, warn)
         if progress is not None and i % 10_000 == 0:
             progress(i)
-    for t in pipe.flush():
-        run.feed(pipe, t, warn)
-    sm = rec.smooth()
-    product = _product(sm, np.array(run.modes, np.int8), np.array(run.air).reshape(-1, 2), run.baro_seen,
-                       np.array(run.unconfirmed, bool), np.array(run.accuracy, float),
-                       np.array(run.inflation, float))  # fmt: skip
-    product.consistency_flags = np.array(run.consistency, np.int8)
-    product.accuracy_inflation = np.array(run.inflation, float)
-    product.attrs["design_toml"] = design_toml(design, pipe.cfg)
-    if run.winch_seen:
-        product.line_length_m = np.array(run.line, float)
-        product.reel_mps = np.array(run.reel, float)
+    parts.append(seg.finish(warn))
+    product = join_segments([p for p in parts if len(p.time_s)], grid_hz)
+    product.attrs["design_toml"] = design_toml(design, seg.pipe.cfg)
     return product
+
+
+class _Segment:
+    """One stretch of the log on one sensor clock: its input pipeline, filter and smoother."""
+
+    def __init__(self, design: Design, cfg: FilterConfig, rate_explicit: bool, grid_hz: float,
+                 store_dir: str | None) -> None:  # fmt: skip
+        self.pipe = InputPipeline(cfg, rate_explicit)
+        self.rec = SmootherRecorder(N_STATES, store_dir, cov_states=(WIND_N, WIND_E))
+        self.run = _Run(design, self.rec, grid_hz)
+
+    def push(self, s: Sample | GroundSample, warn) -> None:
+        if type(s) is WinchSample or type(s) is GroundBaroSample:
+            self.run.ground(s)
+            return
+        for t in self.pipe.push(s):
+            self.run.feed(self.pipe, t, warn)
+
+    def finish(self, warn) -> WindProduct:
+        for t in self.pipe.flush():
+            self.run.feed(self.pipe, t, warn)
+        run = self.run
+        sm = self.rec.smooth()
+        product = _product(sm, np.array(run.modes, np.int8), np.array(run.air).reshape(-1, 2), run.baro_seen,
+                           np.array(run.unconfirmed, bool), np.array(run.accuracy, float),
+                           np.array(run.inflation, float))  # fmt: skip
+        product.consistency_flags = np.array(run.consistency, np.int8)
+        product.accuracy_inflation = np.array(run.inflation, float)
+        product.flags[np.array(run.after_gap, bool)] |= FLAG_AFTER_GAP
+        if run.winch_seen:
+            product.line_length_m = np.array(run.line, float)
+            product.reel_mps = np.array(run.reel, float)
+        return product
+
+
+def join_segments(parts: list[WindProduct], grid_hz: float = GRID_HZ) -> WindProduct:
+    """The segments as one product: arrays end to end, ``segment`` numbering them, and ``time_s`` running
+    on: a segment whose clock starts before the previous one ended (a reboot) is shifted to begin one grid
+    interval after it (``time_since_boot_s`` keeps the sensor clock). One segment: returned as it is."""
+    if len(parts) == 1:
+        return parts[0]
+    if not parts:
+        return _product_empty()
+    out = {}
+    shifted, end = [], -math.inf
+    for p in parts:
+        shift = max(0.0, end + 1.0 / grid_hz - float(p.time_s[0]))
+        shifted.append(p.time_s + shift)
+        end = float(shifted[-1][-1])
+    for f in dataclasses.fields(WindProduct):
+        vals = [getattr(p, f.name) for p in parts]
+        if all(isinstance(v, np.ndarray) for v in vals):
+            out[f.name] = np.concatenate(vals)
+    out["time_s"] = np.concatenate(shifted)
+    out["time_since_boot_s"] = np.concatenate([p.time_s for p in parts])
+    out["segment"] = np.concatenate([np.full(len(p.time_s), k, np.int16) for k, p in enumerate(parts)])
+    joined = WindProduct(**out)
+    joined.flags[np.r_[0, np.cumsum([len(p.time_s) for p in parts])[:-1]]] |= FLAG_SEGMENT_START
+    return joined
+
+
+def _product_empty() -> WindProduct:
+    z = np.zeros(0)
+    return WindProduct(z, z, z, z, z, z, z, z, z, z, z, z, z, z, np.zeros(0, np.int8), np.zeros(0, np.int8))
 
 
 class _Run:
@@ -113,6 +180,9 @@ class _Run:
         self.consistency: list[int] = []  # the consistency monitor's flags and accuracy factor (the causal run's)
         self.inflation: list[float] = []
         self.accuracy: list[float] = []  # what the firmware reports (WIND_COV horiz_accuracy)
+        self.after_gap: list[bool] = []  # IMU samples were missing since the grid point before
+        self._gap = False
+        self._prev_us = -1
         self.pending: dict[type, GroundSample] = {}  # from the ground before the estimator exists: the newest
         self.winch_seen = False
         self.line: list[float] = []  # the winch's length and reel speed the filter used at each grid point
@@ -143,6 +213,9 @@ class _Run:
             self.press, self.temp = s.pressure_hpa, s.temperature_c
             feed(est, s)
             return
+        if self._prev_us >= 0 and s.t_us - self._prev_us > GAP_STEPS * est.dt_us:
+            self._gap = True
+        self._prev_us = max(self._prev_us, s.t_us)
         advanced = feed(est, s)
         now = _signature(est)
         every = self.every
@@ -160,6 +233,8 @@ class _Run:
             self.consistency.append(est.consistency.flags)
             self.inflation.append(est.consistency.inflation)
             self.accuracy.append(est.wind_accuracy())
+            self.after_gap.append(self._gap)
+            self._gap = False
             heard = est.winch_samples > 0
             self.line.append(est.model.tether_length_m if heard else math.nan)
             self.reel.append(est.ekf.rope.rate_mps if heard else math.nan)
@@ -181,10 +256,10 @@ def _product(
     accuracy: np.ndarray | None = None, inflation: np.ndarray | None = None,
 ) -> WindProduct:  # fmt: skip
     n = len(sm.t_us)
-    var_n = np.maximum(sm.Ps[:, WIND_N, WIND_N], 0.0)
-    var_e = np.maximum(sm.Ps[:, WIND_E, WIND_E], 0.0)
-    cvar_n = np.maximum(sm.P[:, WIND_N, WIND_N], 0.0)
-    cvar_e = np.maximum(sm.P[:, WIND_E, WIND_E], 0.0)
+    var_n = np.maximum(sm.var(WIND_N), 0.0)
+    var_e = np.maximum(sm.var(WIND_E), 0.0)
+    cvar_n = np.maximum(sm.var(WIND_N, smoothed=False), 0.0)
+    cvar_e = np.maximum(sm.var(WIND_E, smoothed=False), 0.0)
     if accuracy is not None and len(accuracy) == n and inflation is not None and len(inflation) == n:
         # the firmware's accuracy holds more than P (Estimator.wind_accuracy): what P cannot know (the
         # drag scale, the rope's Cd; a bias the smoother cannot average away, added) and the consistency
@@ -280,9 +355,10 @@ def run_reprocess(args, argv: list[str] | None) -> int:
         for note in meta.notes:
             bar.log(f"{prog}: note: {note}")
         bar.total, bar.unit = float(len(flight)), "samples"
-        product = reprocess(flight.samples(), design, cfg, rate_explicit="imu_rate_hz" in data.get("filter", {}),
-                            progress=lambda n: bar.update(n, "forward filter"),
-                            warn=lambda w: bar.log(f"{prog}: {w}"))  # fmt: skip
+        with tempfile.TemporaryDirectory(prefix="balloon-reprocess-") as store:  # the smoother's store spills here
+            product = reprocess(flight.samples(), design, cfg, rate_explicit="imu_rate_hz" in data.get("filter", {}),
+                                progress=lambda n: bar.update(n, "forward filter"),
+                                warn=lambda w: bar.log(f"{prog}: {w}"), store_dir=store)  # fmt: skip
         bar.update(len(flight), "smoother done; writing the products")
         if len(product.time_s) == 0:
             raise ValueError(f"{args.flight}: the estimator never started (no usable IMU + magnetometer sample)")
@@ -293,6 +369,7 @@ def run_reprocess(args, argv: list[str] | None) -> int:
             "source_log_sha256": meta.sha256,
             "source_log_format": meta.format,
             "source_log_sensors": ", ".join(f"{k}: {v}" for k, v in meta.sensors.items()),
+            **loss_attrs(meta, product),
         })  # fmt: skip
         words = argv if argv is not None else sys.argv[1:]
         history = "balloon-gs " + " ".join(shlex.quote(a) for a in words)
@@ -300,9 +377,33 @@ def run_reprocess(args, argv: list[str] | None) -> int:
         paths += _write_profile(product, args.out, args.plot, history)
     finally:
         bar.close()
+    if loss_notes(meta) or segment_note(meta) or not args.quiet:  # a loss is told under --quiet too
+        print(f"{prog}: {loss_line(meta)}", file=sys.stderr)
     print(_summary(product, meta, time.perf_counter() - t0))
     print("wrote " + ", ".join(paths))
     return 0
+
+
+def loss_attrs(meta, product: WindProduct) -> dict[str, str]:
+    """What the log lost, as the product's global attributes (each counted once, by the reader)."""
+    segments = 1 if product.segment is None else int(product.segment.max()) + 1
+    return {
+        "source_log_bad_frames": str(meta.bad_frames),
+        "source_log_truncated": "yes" if meta.truncated else "no",
+        "source_log_imu_samples_missing": str(meta.imu_missing),
+        "source_log_gaps": str(meta.gaps),
+        "source_log_segments": str(segments),
+        "source_log_losses": loss_line(meta),
+        "source_log_notes": "; ".join(meta.notes) if meta.notes else "none",
+    }
+
+
+def loss_line(meta) -> str:
+    """One line: what the flight file lost, or that it lost nothing."""
+    notes = loss_notes(meta)
+    seg = segment_note(meta)
+    head = "DATA LOST: " + "; ".join(notes) if notes else "nothing lost (0 bad frames, 0 IMU samples missing)"
+    return f"{meta.source}: {head}" + (f"; {seg}" if seg else "")
 
 
 def _with_ground_csv(flight, path: str):
@@ -353,5 +454,7 @@ def _summary(p: WindProduct, meta, wall_s: float) -> str:
     else:
         wind = "the wind is NOT known anywhere in this flight (accuracy too poor: not a tethered balloon?)"
     baro = "" if meta.has_baro else ", NO barometer: height unknown"
-    return (f"{meta.source}: {len(p.time_s)} estimates over {p.time_s[-1] - p.time_s[0]:.0f} s, {segments} segments, "
+    log_segments = 1 if p.segment is None else int(p.segment.max()) + 1
+    return (f"{meta.source}: {len(p.time_s)} estimates over {p.time_s[-1] - p.time_s[0]:.0f} s, {log_segments} log "
+            f"segments, {segments} smoother segments, "
             f"{wind}{baro}; {wall_s:.1f} s")  # fmt: skip

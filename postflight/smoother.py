@@ -29,6 +29,7 @@ filter's own estimate. ``Segments`` in the result says where they start.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -46,16 +47,29 @@ class Smoothed:
     xs: np.ndarray  # (n, N) smoothed state
     Ps: np.ndarray  # (n, N, N) smoothed covariance
     segment_start: np.ndarray  # (n,) bool: a new segment starts here (no link to the point before)
+    # the states whose covariance P and Ps hold, in order (all of them unless the recorder was told fewer):
+    # P[:, i, j] is the covariance of states cov_states[i] and cov_states[j]
+    cov_states: tuple[int, ...] = ()
+
+    def var(self, state: int, smoothed: bool = True) -> np.ndarray:
+        """The (smoothed or causal) variance of one state at every grid point."""
+        i = self.cov_states.index(state) if self.cov_states else state
+        return (self.Ps if smoothed else self.P)[:, i, i]
 
 
 class SmootherRecorder:
     """Forward half of the MBF smoother: attach with ``ekf.recorder = SmootherRecorder(N)`` and call
     ``grid_point`` after the filter steps that make the output grid (the caller chooses them).
-    Memory per grid point: 4 N^2 + 2 N floats (9.5 kB at N = 17), so a 1-hour flight with a 10 Hz
-    grid keeps 36 000 points (340 MB)."""
+    Memory per grid point: 3 N^2 + 2 N floats stored (7.2 kB at N = 17), so a 1-hour flight with a 10 Hz
+    grid stores 36 000 points (260 MB), 24 hours 6.2 GB. With ``store_dir`` each full block of the store
+    goes to a file there (exact, float64) and comes back one block at a time in the backward pass: memory
+    then holds two blocks whatever the flight. ``cov_states`` keeps the covariances of those states only
+    in the result (the whole P of every point of a day is 4 GB), e.g. the wind's two."""
 
-    def __init__(self, n_states: int) -> None:
+    def __init__(self, n_states: int, store_dir: str | None = None, cov_states: tuple[int, ...] | None = None) -> None:
         self.n = n = n_states
+        self.store_dir = store_dir
+        self.cov_states = tuple(cov_states) if cov_states is not None else tuple(range(n))
         self.Pi = np.eye(n)
         self.g = np.zeros(n)
         self.G = np.zeros((n, n))
@@ -68,7 +82,7 @@ class SmootherRecorder:
         self._v3 = np.zeros(3)
         self._vn = np.zeros(n)
         self._linked = False  # the next grid point links to the one before (no break in between)
-        self._blocks: list[dict[str, np.ndarray]] = []
+        self._blocks: list[dict[str, np.ndarray] | str] = []  # a block in memory, or the file it went to
         self._k = BLOCK  # fill index in the newest block (BLOCK: none open)
         self.count = 0
 
@@ -112,6 +126,7 @@ class SmootherRecorder:
         """Store a grid point: the filter's state after a step's fusions, and the map from the last one."""
         if self._k == BLOCK:
             n = self.n
+            self._spill()
             self._blocks.append({
                 "t": np.zeros(BLOCK, np.int64), "x": np.zeros((BLOCK, n)), "P": np.zeros((BLOCK, n, n)),
                 "Pi": np.zeros((BLOCK, n, n)), "g": np.zeros((BLOCK, n)), "G": np.zeros((BLOCK, n, n)),
@@ -131,6 +146,23 @@ class SmootherRecorder:
         self._linked = True
         self._reset()
 
+    def _spill(self) -> None:
+        """The newest block is full: to a file in ``store_dir`` (if given), out of memory."""
+        if self.store_dir is None or not self._blocks or isinstance(self._blocks[-1], str):
+            return
+        path = os.path.join(self.store_dir, f"smoother-block-{id(self):x}-{len(self._blocks)}.npz")
+        np.savez(path, **self._blocks[-1])
+        self._blocks[-1] = path
+
+    def _block(self, bi: int) -> dict[str, np.ndarray]:
+        b = self._blocks[bi]
+        if isinstance(b, str):
+            with np.load(b) as z:
+                out = {k: z[k] for k in z.files}
+            os.remove(b)
+            return out
+        return b
+
     def _reset(self) -> None:
         self.Pi[...] = 0.0
         np.fill_diagonal(self.Pi, 1.0)
@@ -141,24 +173,28 @@ class SmootherRecorder:
 
     def smooth(self, progress=None) -> Smoothed:
         """The backward pass over every segment, block by block from the end (each block's maps are
-        freed once used). ``progress(done, total)`` is called once per block."""
+        freed once used, a spilled block read back and its file removed). ``progress(done, total)`` is
+        called once per block."""
         n, m = self.n, self.count
+        keep = np.asarray(self.cov_states)
         blocks = self._blocks
-        self._blocks = []
+        last = self._k
         lam = np.zeros(n)
         Lam = np.zeros((n, n))
         done = 0
+        out: list[dict[str, np.ndarray]] = []
         for bi in range(len(blocks) - 1, -1, -1):
-            b = blocks[bi]
-            size = self._k if bi == len(blocks) - 1 else BLOCK
-            x, P, Pi, g, G, linked = b["x"], b["P"], b.pop("Pi"), b.pop("g"), b.pop("G"), b["linked"]
-            xs = b["xs"] = np.empty((size, n))
-            Ps = b["Ps"] = np.empty((size, n, n))
+            b = self._block(bi)
+            blocks[bi] = None  # type: ignore[call-overload]
+            size = last if bi == len(blocks) - 1 else BLOCK
+            x, P, Pi, g, G, linked = b["x"], b["P"], b["Pi"], b["g"], b["G"], b["linked"]
+            xs = np.empty((size, n))
+            Ps = np.empty((size, len(keep), len(keep)))
             for j in range(size - 1, -1, -1):
                 Pj = P[j]
                 xs[j] = x[j] + Pj @ lam
                 ps = Pj - Pj @ Lam @ Pj
-                Ps[j] = 0.5 * (ps + ps.T)
+                Ps[j] = 0.5 * (ps + ps.T)[np.ix_(keep, keep)]
                 if linked[j]:
                     pt = Pi[j].T
                     lam = pt @ lam + g[j]
@@ -166,18 +202,21 @@ class SmootherRecorder:
                 else:
                     lam = np.zeros(n)
                     Lam = np.zeros((n, n))
-            del Pi, g, G
+            out.append({"t": b["t"][:size], "x": x[:size].copy(), "P": P[:size][:, keep][:, :, keep],
+                        "xs": xs, "Ps": Ps, "linked": b["linked"][:size]})  # fmt: skip
+            del b, x, P, Pi, g, G
             done += size
             if progress is not None:
                 progress(done, m)
+        self._blocks = []
+        out.reverse()
 
         def cat(key: str, shape: tuple) -> np.ndarray:
-            parts = [blocks[i][key][: (self._k if i == len(blocks) - 1 else BLOCK)] for i in range(len(blocks))]
-            out = np.concatenate(parts) if parts else np.zeros((0, *shape))
-            for b in blocks:
-                b.pop(key, None)
-            return out
+            parts = [o.pop(key) for o in out]
+            return np.concatenate(parts) if parts else np.zeros((0, *shape))
 
+        k = len(keep)
         t = cat("t", ()).astype(np.int64)
         linked = cat("linked", ()).astype(bool)
-        return Smoothed(t, cat("x", (n,)), cat("P", (n, n)), cat("xs", (n,)), cat("Ps", (n, n)), ~linked)
+        return Smoothed(t, cat("x", (n,)), cat("P", (k, k)), cat("xs", (n,)), cat("Ps", (k, k)), ~linked,
+                        self.cov_states)  # fmt: skip

@@ -7,30 +7,48 @@ import io
 
 import numpy as np
 
-from postflight.flight import INT32_MAX, N_VALUES, Flight, attach_mag, build_flight
+from postflight import flight as flight_module
+from postflight.flight import (
+    INT32_MAX,
+    N_VALUES,
+    Flight,
+    WatchedFile,
+    attach_mag,
+    build_flight,
+    describe_error,
+)
 
 ULOG_TOPICS = ["sensor_combined", "vehicle_magnetometer", "sensor_mag", "vehicle_air_data", "sensor_baro",
                "vehicle_gps_position", "sensor_gps"]  # fmt: skip
 
 
-def read_ulog(path: str) -> Flight:
+def read_ulog(path: str, stall_s: float | None = None) -> Flight:
     """PX4 ULog: ``sensor_combined`` (accelerometer m/s^2 and gyro rad/s, FRD); the magnetometer from
     ``vehicle_magnetometer`` (gauss), else ``sensor_mag``, else the old ``sensor_combined.magnetometer_ga``;
     the barometer from ``vehicle_air_data`` (baro_pressure_pa, baro_temp_celcius), else ``sensor_baro``
-    (Pa, or hPa in old logs); UTC from ``vehicle_gps_position`` / ``sensor_gps`` ``time_utc_usec``."""
+    (Pa, or hPa in old logs); UTC from ``vehicle_gps_position`` / ``sensor_gps`` ``time_utc_usec``.
+
+    pyulog reads through a ``WatchedFile``: on some damaged files pyulog 1.3.0 seeks back to where it was,
+    forever (docs/decisions.md); after ``stall_s`` without progress the file reads as ended, and what was
+    read before is used, with a note (nothing usable: the ValueError says why)."""
     from pyulog import ULog
 
+    fh = WatchedFile(path, flight_module.STALL_S if stall_s is None else stall_s)
     try:
         with contextlib.redirect_stdout(io.StringIO()):
-            u = ULog(path, ULOG_TOPICS)
+            u = ULog(fh, ULOG_TOPICS)
     except Exception as exc:  # pyulog raises many kinds on a bad file  # noqa: BLE001
-        raise ValueError(f"{path}: not a readable PX4 ULog ({exc})") from exc
+        raise ValueError(f"{path}: not a readable PX4 ULog: {describe_error(exc)}") from exc
+    finally:
+        fh.close()
+    stalled = fh.note()
     topics = {(d.name, d.multi_id): d.data for d in u.data_list}
     sensors: dict[str, str] = {}
-    notes: list[str] = []
+    notes: list[str] = [stalled] if stalled else []
     sc = topics.get(("sensor_combined", 0))
     if sc is None or len(sc["timestamp"]) == 0:
-        raise ValueError(f"{path}: no sensor_combined (accelerometer and gyro) in this ULog")
+        why = f"; {stalled}" if stalled else ""
+        raise ValueError(f"{path}: no sensor_combined (accelerometer and gyro) in this ULog{why}")
     sensors["imu"] = "sensor_combined"
     imu_t = sc["timestamp"].astype(np.int64)
     imu = np.full((len(imu_t), N_VALUES), np.nan)
@@ -52,7 +70,9 @@ def read_ulog(path: str) -> Flight:
         if new.any():
             sensors["mag"] = "sensor_combined.magnetometer_ga"
     baro_t, baro = _ulog_baro(topics, sensors, notes)
-    return build_flight(path, "ulog", imu_t, imu, baro_t, baro, sensors, notes, _ulog_utc(topics))
+    flight = build_flight(path, "ulog", imu_t, imu, baro_t, baro, sensors, notes, _ulog_utc(topics))
+    flight.meta.truncated = stalled is not None
+    return flight
 
 
 def _sample_time(d) -> np.ndarray:
@@ -99,5 +119,3 @@ def _ulog_utc(topics) -> tuple[float, str] | None:
             k = ok[0]
             return (utc[k] - int(d["timestamp"][k])) * 1e-6, "gps"
     return None
-
-

@@ -26,10 +26,9 @@ from balloon_core.wire import (
     TLOG_HEADER,
     Decoder,
     LinkStats,
+    capture_messages,
     frame_length,
     open_link,
-    raw_messages,
-    tlog_messages,
 )
 from sim_hil.link import Lockstep
 
@@ -76,20 +75,18 @@ def raw_chunks(path: str, chunk: int = 64):
     decoded so far."""
     dec = Decoder(LinkStats())
     with open(path, "rb") as fh:
-        data = fh.read()
-    for i in range(0, len(data), chunk):
-        piece = data[i : i + chunk]
-        t = t_imu = None
-        for m in dec.feed(piece):
-            if hasattr(m, "time_usec"):
-                t = m.time_usec
-                if m.get_msgId() in IMU_MSG_IDS:
-                    t_imu = t
-            elif hasattr(m, "time_boot_ms"):
-                t = m.time_boot_ms * 1000
-                if m.get_msgId() in IMU_MS_MSG_IDS:
-                    t_imu = t
-        yield t, t_imu, piece
+        while piece := fh.read(chunk):
+            t = t_imu = None
+            for m in dec.feed(piece):
+                if hasattr(m, "time_usec"):
+                    t = m.time_usec
+                    if m.get_msgId() in IMU_MSG_IDS:
+                        t_imu = t
+                elif hasattr(m, "time_boot_ms"):
+                    t = m.time_boot_ms * 1000
+                    if m.get_msgId() in IMU_MS_MSG_IDS:
+                        t_imu = t
+            yield t, t_imu, piece
 
 
 @dataclass
@@ -174,13 +171,20 @@ def replay(path: str, out: str, speed: float, stop=lambda: False, lockstep: bool
     return res
 
 
-def first_frame(path: str):
-    """The first MAVLink message in a capture (None if there is none), without reading it all."""
-    stats = LinkStats()
-    if path.endswith(".tlog"):
-        return next(iter(tlog_messages(path, stats)), None)
-    with open(path, "rb") as fh:
-        return next(iter(raw_messages(fh, stats)), None)
+def first_sample(path: str) -> tuple[int, bool]:
+    """(MAVLink frames read, whether a sensor sample came) up to the first sensor sample (IMU or
+    barometer) of a capture, without reading further."""
+    from balloon_core.samples import MavlinkSampler
+
+    stats, sampler = LinkStats(), MavlinkSampler()
+    msgs = capture_messages(path, stats)
+    try:
+        for m in msgs:
+            if sampler.convert(m):
+                return stats.frames, True
+    finally:
+        msgs.close()
+    return stats.frames, False
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -202,8 +206,11 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     lockstep = args.lockstep if args.lockstep is not None else args.speed == 0
     try:
-        if first_frame(args.file) is None:
-            return userargs.fail(prog, f"no MAVLink frame in {args.file}")
+        frames, sample = first_sample(args.file)
+        if frames == 0:
+            return userargs.fail(prog, f"{args.file}: no MAVLink frame in this file (not a capture of a MAVLink link?)")
+        if not sample:
+            return userargs.fail(prog, f"{args.file}: {frames} MAVLink frames but no sensor sample (IMU or barometer)")
     except OSError as exc:
         return userargs.fail(prog, exc)
     stop = userargs.stop_flag()

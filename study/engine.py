@@ -12,6 +12,7 @@ import importlib.util
 import json
 import logging
 import os
+import signal
 import sys
 import time
 import uuid
@@ -118,9 +119,34 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
         return
     n = workers or os.cpu_count() or 1
     dashboard = ":0" if importlib.util.find_spec("bokeh") else None
-    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=dashboard,
-                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client:  # fmt: skip
-        yield client
+    # Ctrl-C is this process's to answer, not the workers': a Ctrl-C at the terminal reaches the whole
+    # process group, and each worker would print its KeyboardInterrupt traceback. The workers are forked
+    # from multiprocessing's fork server, started here with SIGINT ignored: it and every process it forks
+    # keep ignoring it, while this process raises KeyboardInterrupt and closes the cluster
+    import multiprocessing.forkserver
+
+    import dask
+
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        multiprocessing.forkserver.ensure_running()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    with dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"}):
+        # a Ctrl-C while the cluster starts is held until it is up (interrupting its start-up leaves
+        # half-made nannies that print tracebacks at exit), then raised: the cluster closes cleanly
+        pressed: list[int] = []
+        previous = signal.signal(signal.SIGINT, lambda *_: pressed.append(1))
+        try:
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=dashboard,
+                                   silence_logs=logging.ERROR)  # fmt: skip
+        finally:
+            signal.signal(signal.SIGINT, previous)
+        with cluster:
+            if pressed:
+                raise KeyboardInterrupt
+            with Client(cluster) as client:
+                yield client
 
 
 def dashboard_of(client) -> str:

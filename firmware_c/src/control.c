@@ -447,8 +447,10 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
         }
         c->time_resets += 1;
         bw_reset(est);
-        if (mag_ok)
+        if (mag_ok) { /* the new boot's first sample starts the filter again: it is counted */
             initialise(est, t_us, ax, ay, az, mx, my, mz);
+            c->imu_samples += 1;
+        }
         return 0;
     }
     c->imu_samples += 1;

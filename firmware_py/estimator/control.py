@@ -246,8 +246,9 @@ class Estimator:
                 return False
             c.time_resets += 1
             self.reset()
-            if mag_ok:
+            if mag_ok:  # the new boot's first sample starts the filter again: it is counted
                 self._initialise(t_us, ax, ay, az, mx, my, mz)
+                c.imu_samples += 1
             return False
         c.imu_samples += 1
         self.t_last_us = t_us

@@ -9,7 +9,10 @@ import threading
 
 
 class LossyRelay:
-    def __init__(self, target_port: int, loss: float = 0.1, reorder: float = 0.05, seed: int = 1) -> None:
+    def __init__(self, target_port: int, loss: float = 0.1, reorder: float = 0.05, seed: int = 1,
+                 blackout: tuple[int, int] | None = None) -> None:  # fmt: skip
+        """``blackout`` = (first, count): the datagrams toward the target numbered first .. first + count - 1
+        are all dropped (a radio shadow), beside the random ``loss``."""
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
         self.sock.settimeout(0.1)
@@ -19,6 +22,9 @@ class LossyRelay:
         self.loss, self.reorder = loss, reorder
         self.rng = random.Random(seed)
         self.dropped = self.forwarded = 0
+        self.dropped_to_target = 0  # of them, on the way to the target
+        self.blackout = blackout
+        self._to_target = 0
         self._held: dict[tuple, bytes] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -45,8 +51,13 @@ class LossyRelay:
                 dest = self.target
             if dest is None:
                 continue
-            if self.rng.random() < self.loss:
+            k = -1
+            if dest == self.target:
+                k, self._to_target = self._to_target, self._to_target + 1
+            dark = self.blackout is not None and self.blackout[0] <= k < self.blackout[0] + self.blackout[1]
+            if dark or self.rng.random() < self.loss:
                 self.dropped += 1
+                self.dropped_to_target += dest == self.target
                 continue
             if dest in self._held:
                 self.sock.sendto(data, dest)  # the later one overtakes the held one

@@ -117,8 +117,8 @@ def test_netcdf_round_trip_and_cf_check(tmp_path, utc):
         # CF flags
         assert list(ds["mode"].attrs["flag_values"]) == [0, 1, 2]
         assert ds["mode"].attrs["flag_meanings"].split() == ["ground", "free_ascent", "taut"]
-        assert list(ds["flags"].attrs["flag_masks"]) == [1, 2, 4, 8]
-        assert len(ds["flags"].attrs["flag_meanings"].split()) == 4
+        assert list(ds["flags"].attrs["flag_masks"]) == [1, 2, 4, 8, 16]
+        assert len(ds["flags"].attrs["flag_meanings"].split()) == 5
         # the causal filter's consistency monitor: its flags (CF flag masks) and its accuracy factor
         cf = ds["consistency_flags_causal"]
         assert cf.dtype == np.int8 and (cf.values == p.consistency_flags).all()

@@ -105,6 +105,8 @@ def test_firmware_live_status_line(tmp_path):
     fw.send_signal(signal.SIGINT)
     fw.wait(10)
     lines = fw.stderr.read().strip().splitlines()
+    assert lines[-1].startswith("balloon-fw: interrupted (Ctrl-C)") and fw.returncode == 130
+    lines = lines[:-1]  # the summary, before the line that says it was interrupted
     live = [ln for ln in lines[:-1] if "msg/s" in ln]
     assert live, lines
     m = re.search(r"in (\d+) msg/s \((\d+) IMU/s\), (\d+) lost \([\d.]+ %\), (\d+) IMU missing, (\d+) long gaps, "

@@ -1,0 +1,360 @@
+"""Damaged logs, reboots and long blackouts: nothing hangs, nothing is lost without a word (issue 18).
+
+A mutation fuzzer with a fixed seed: byte flips, truncations, repeated, swapped and zeroed blocks in a
+telemetry log, a raw capture, a PX4 ULog and an ArduPilot DataFlash log. Every mutant ends (a timeout
+per mutant), with exit 0 or 2 and no traceback, and an exit 2 leaves no product behind; where the
+damage is known exactly (a cut, a zeroed stretch) the counts reported equal what was removed."""
+
+from __future__ import annotations
+
+import random
+import re
+import signal
+import struct
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import common as mavlink
+
+from balloon_core.config import Design
+from balloon_core.wire import TLOG_HEADER, LinkStats, TlogWriter, frame_length, tlog_messages
+from firmware_py import cli as fw_cli
+from firmware_py.app import Firmware
+from ground_station import cli as gs_cli
+from postflight import flight as flight_module
+from postflight.logs import read_flight
+from sim_hil.packets import SensorPacketEncoder
+from sim_hil.scenarios import SCENARIOS
+from sim_hil.simulator import Simulation
+
+DATA = Path("tests/data")
+SEED = 18
+PER_FORMAT = 24  # mutants of each format through the reader (and the firmware, for MAVLink)
+REPROCESSED = 3  # of them, through the whole of balloon-gs reprocess
+MUTANT_TIMEOUT_S = 30
+IMU_ID = mavlink.MAVLINK_MSG_ID_HIGHRES_IMU
+
+
+@pytest.fixture(autouse=True)
+def keep_signal_handlers():
+    """The programs install SIGINT/SIGTERM handlers; give pytest its own back."""
+    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    yield
+    for s, h in saved.items():
+        signal.signal(s, h)
+
+
+@pytest.fixture(autouse=True)
+def short_watchdog(monkeypatch):
+    monkeypatch.setattr(flight_module, "STALL_S", 1.0)
+
+
+class Hang(Exception):
+    pass
+
+
+def bounded(fn, *args):
+    """``fn(*args)``, failing the test if it takes longer than MUTANT_TIMEOUT_S (a hang)."""
+
+    def alarm(*_):
+        raise Hang(f"no end after {MUTANT_TIMEOUT_S} s")
+
+    old = signal.signal(signal.SIGALRM, alarm)
+    signal.alarm(MUTANT_TIMEOUT_S)
+    try:
+        return fn(*args)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    """A 12 s simulated flight as a tlog and as a raw capture, and the layout of its records."""
+    d = tmp_path_factory.mktemp("damaged")
+    sc = SCENARIOS["paper-reference"]
+    sim = Simulation(sc.design, sc.wind, sc.truth, 12.0, 3)
+    enc = SensorPacketEncoder()
+    tlog, raw = d / "clean.tlog", d / "clean.raw"
+    with open(tlog, "wb") as ft, open(raw, "wb") as fr:
+        w = TlogWriter(ft)
+        for s in sim.samples():
+            for frame in enc.encode(s):
+                w.write(s.time_usec, frame)
+                fr.write(frame)
+    return d, tlog, raw
+
+
+def records(data: bytes, tlog: bool) -> list[tuple[int, int, bool]]:
+    """(start, end, is an IMU frame) of every record of an undamaged capture."""
+    out, i, head = [], 0, TLOG_HEADER if tlog else 0
+    while i + head < len(data):
+        ln = frame_length(data, i + head)
+        assert ln, "the clean capture parses record by record"
+        msgid = data[i + head + 7] | data[i + head + 8] << 8 | data[i + head + 9] << 16
+        out.append((i, i + head + ln, msgid == IMU_ID))
+        i += head + ln
+    return out
+
+
+def mutate(data: bytes, rng: random.Random, kind: str) -> tuple[bytes, tuple[int, int]]:
+    """One mutant of ``data`` and the byte range it touched."""
+    n = len(data)
+    a = rng.randrange(n // 10, n - n // 10)
+    size = rng.randrange(16, max(17, n // 20))
+    b = min(n, a + size)
+    if kind == "flip":
+        out = bytearray(data)
+        for _ in range(rng.randrange(1, 20)):
+            out[rng.randrange(n)] ^= 1 << rng.randrange(8)
+        return bytes(out), (0, n)
+    if kind == "truncate":
+        return data[:a], (a, n)
+    if kind == "repeat":
+        return data[:b] + data[a:b] + data[b:], (a, b)
+    if kind == "swap":
+        c = min(n, b + size)
+        return data[:a] + data[b:c] + data[a:b] + data[c:], (a, c)
+    assert kind == "zero"
+    return data[:a] + bytes(b - a) + data[b:], (a, b)
+
+
+KINDS = ("flip", "truncate", "repeat", "swap", "zero")
+
+
+def mutants(data: bytes, n: int, seed: int):
+    rng = random.Random(seed)
+    for k in range(n):
+        kind = KINDS[k % len(KINDS)]
+        yield k, kind, *mutate(data, rng, kind)
+
+
+def summary_count(text: str, what: str) -> int:
+    return int(re.search(rf"(\d+) {what}", text).group(1))
+
+
+def fw_on(path: Path, out: Path, capsys) -> tuple[int, str]:
+    capsys.readouterr()
+    rc = bounded(fw_cli.main, ["--in", str(path), "--out", str(out), "--quiet"])
+    return rc, capsys.readouterr().err
+
+
+def check_user_error(rc: int, err: str, prog: str) -> None:
+    assert rc in (0, 2), err
+    assert "Traceback" not in err
+    if rc == 2:
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith(f"{prog}: error: "), err
+
+
+@pytest.mark.parametrize("fmt", ["tlog", "raw"])
+def test_mavlink_mutants_end_with_0_or_2_and_count_what_was_removed(capture, fmt, capsys, tmp_path):
+    d, tlog, raw = capture
+    src = tlog if fmt == "tlog" else raw
+    data = src.read_bytes()
+    layout = records(data, fmt == "tlog")
+    checked = 0
+    for k, kind, bad, (a, b) in mutants(data, PER_FORMAT, SEED + (fmt == "raw")):
+        p = tmp_path / f"m{k}-{kind}.{fmt}"
+        p.write_bytes(bad)
+        out = tmp_path / f"m{k}.tlog"
+        rc, err = fw_on(p, out, capsys)
+        check_user_error(rc, err, "balloon-fw")
+        assert out.exists() == (rc == 0), f"{kind}: an exit 2 leaves no output, an exit 0 does"
+        try:
+            meta = bounded(read_flight, str(p)).meta
+        except ValueError as exc:
+            assert str(exc).startswith(str(p)), exc
+            continue
+        if kind == "truncate":  # what was cut: the IMU frames after it; the frame it cuts is one bad frame
+            kept = [r for r in layout if r[1] <= a]
+            inside = any(r[0] < a < r[1] for r in layout)
+            assert summary_count(err, "bad frames") == int(inside) == meta.bad_frames, err
+            assert meta.truncated == inside
+            assert meta.n_imu == sum(r[2] for r in kept)
+            checked += 1
+        elif kind == "zero":  # the IMU frames the zeroed stretch touched are missing, no more, no fewer
+            hit = [r for r in layout if r[0] < b and r[1] > a]
+            assert meta.n_imu == sum(r[2] for r in layout) - sum(r[2] for r in hit)
+            assert meta.imu_missing == sum(r[2] for r in hit), (a, b)
+            assert summary_count(err, "IMU samples missing by time") == meta.imu_missing, err
+            if fmt == "tlog":  # each record the stretch starts inside is a bad frame (its CRC fails)
+                assert meta.bad_frames == int(any(r[0] < a < r[1] for r in layout))
+            checked += 1
+    assert checked >= 2 * PER_FORMAT // len(KINDS) - 1
+
+
+def test_log_mutants_are_read_or_refused_in_bounded_time(tmp_path):
+    """ULog and DataFlash: read (with notes) or a ValueError naming the file, never a hang or another
+    exception; a ULog whose zeroed block makes pyulog loop ends with the watchdog's note."""
+    t0 = time.monotonic()
+    for name in ("pyulog-sample_log_small.ulg", "balloon-sim.bin"):
+        data = (DATA / name).read_bytes()
+        for k, kind, bad, _ in mutants(data, PER_FORMAT, SEED):
+            p = tmp_path / f"m{k}-{kind}-{name}"
+            p.write_bytes(bad)
+            try:
+                f = bounded(read_flight, str(p))
+            except ValueError as exc:
+                assert str(exc).startswith(str(p)) and "\n" not in str(exc), exc
+                continue
+            assert f.meta.n_imu > 0 and len(f) == f.meta.n_imu + f.meta.n_baro
+    assert time.monotonic() - t0 < 120
+
+
+def test_a_ulog_that_makes_pyulog_loop_ends_in_bounded_time(tmp_path):
+    data = bytearray((DATA / "pyulog-sample_log_small.ulg").read_bytes())
+    data[60_720 : 60_720 + 48_570] = bytes(48_570)  # pyulog 1.3.0 seeks back here forever
+    p = tmp_path / "zeroed.ulg"
+    p.write_bytes(bytes(data))
+    t0 = time.monotonic()
+    with pytest.raises(ValueError, match=r"zeroed\.ulg: .*no progress in the file for 1 s"):
+        bounded(read_flight, str(p))
+    assert time.monotonic() - t0 < flight_module.STALL_S + 10.0
+
+
+def reprocess(path: Path, out: Path, capsys, *extra: str) -> tuple[int, str, str]:
+    capsys.readouterr()
+    rc = bounded(gs_cli.main, ["reprocess", str(path), "--out", str(out), *extra])
+    got = capsys.readouterr()
+    return rc, got.out, got.err
+
+
+def test_reprocess_of_mutants_leaves_no_partial_product(capture, capsys, tmp_path):
+    d, tlog, raw = capture
+    for src in (tlog, DATA / "pyulog-sample_log_small.ulg"):
+        data = src.read_bytes()
+        for k, kind, bad, _ in mutants(data, REPROCESSED, SEED + 7):
+            p = tmp_path / f"r{k}-{kind}{src.suffix}"
+            p.write_bytes(bad)
+            out = tmp_path / f"r{k}-{src.suffix[1:]}.nc"
+            rc, _, err = reprocess(p, out, capsys, "--quiet")
+            check_user_error(rc, err, "balloon-gs reprocess")
+            products = sorted(x.name for x in tmp_path.glob(f"{out.stem}*"))
+            if rc == 2:
+                assert products == [], products
+            else:
+                assert out.name in products and f"{out.stem}_avg_1s.csv" in products
+            assert not list(tmp_path.glob(".reprocess-*")), "no temporary left behind"
+
+
+def test_a_failing_write_leaves_nothing(capture, capsys, tmp_path, monkeypatch):
+    """An error while the products are written (here: the averages) leaves none of them."""
+    from postflight import netcdf
+
+    def boom(*_a, **_k):
+        raise ValueError("disk full (simulated)")
+
+    monkeypatch.setattr(netcdf, "write_averages", boom)
+    rc, _, err = reprocess(capture[1], tmp_path / "w.nc", capsys, "--quiet")
+    assert rc == 2 and "disk full" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_reboot_log_is_reprocessed_in_two_segments(capture, capsys, tmp_path):
+    import xarray as xr
+
+    _, tlog, _ = capture
+    two = tmp_path / "two_boots.tlog"
+    two.write_bytes(tlog.read_bytes() * 2)  # cat s.tlog s.tlog: the sensor clock starts again at 0
+    rc, out, err = reprocess(two, tmp_path / "x.nc", capsys, "--quiet")
+    assert rc == 0, err
+    assert "2 segments" in err and "reboot" in err  # told on stderr under --quiet
+    with xr.open_dataset(tmp_path / "x.nc", decode_times=False) as ds:
+        seg = ds["segment"].values
+        assert set(seg) == {0, 1} and np.all(np.diff(seg) >= 0)
+        t, boot = ds["time"].values, ds["time_since_boot"].values
+        assert np.all(np.diff(t) > 0)  # the time axis runs on
+        n0 = int(np.count_nonzero(seg == 0))
+        assert boot[n0] < boot[n0 - 1] - 5.0  # the sensor clock went back at the reboot
+        assert np.allclose(boot[:n0], boot[n0 : 2 * n0])  # each boot its own run: the same estimates
+        assert np.allclose(ds["eastward_wind"].values[:n0], ds["eastward_wind"].values[n0 : 2 * n0])
+        assert ds["flags"].values[n0] & 2  # segment_start
+        assert ds.attrs["source_log_segments"] == "2"
+    rc, err = fw_on(two, tmp_path / "fw.tlog", capsys)
+    assert rc == 0 and "1 reboot" in err
+
+
+def test_a_blackout_longer_than_a_sequence_cycle_is_counted_exactly(capture):
+    """5 % of the packets dropped, 2 % duplicated, neighbours swapped, and a blackout of 605 packets
+    (longer than the 8-bit sequence's 256): the firmware's lost count is what was dropped, and every
+    dropped IMU sample (before the last one that came) is missing by time, counted once."""
+    _, tlog, _ = capture
+    msgs = list(tlog_messages(str(tlog), LinkStats()))
+    rng = random.Random(SEED)
+    start = len(msgs) // 2
+    kept, dropped = [], []
+    for k, m in enumerate(msgs):
+        if start <= k < start + 605 or rng.random() < 0.05:
+            dropped.append(m)
+            continue
+        kept.append(m)
+        if rng.random() < 0.02:
+            kept.append(m)
+    for i in range(10, len(kept) - 1, 97):
+        kept[i], kept[i + 1] = kept[i + 1], kept[i]
+    fw = Firmware(Design(), sink=None)
+    fw.sinks = [type("Sink", (), {"send_at": lambda self, f, t: None})()]
+    for m in kept:
+        fw.stats.frames += 1
+        fw.stats.sequence(m)
+        fw.handle(m)
+    fw.flush()
+    assert fw.stats.lost == len(dropped)
+    last = max(m.time_usec for m in kept if m.get_msgId() == IMU_ID)
+    lost_imu = sum(1 for m in dropped if m.get_msgId() == IMU_ID and m.time_usec < last)
+    assert fw.imu_missing == lost_imu
+    status = []
+    fw.sinks = [type("Sink", (), {"send_at": lambda self, f, t: status.append(f)})()]
+    fw.sys_status(last)
+    st = mavlink.MAVLink(None).decode(bytearray(status[0]))
+    assert (st.errors_count1, st.errors_count4) == (len(dropped), lost_imu)  # what SYS_STATUS tells the ground
+    assert st.drop_rate_comm == round(10000 * len(dropped) / (len(msgs)))
+
+
+@pytest.mark.network
+def test_a_blackout_through_the_lossy_relay_is_reported_as_the_relay_lost(capture, tmp_path):
+    """balloon-replay -> LossyRelay (a blackout of 400 packets) -> balloon-fw over UDP on loopback."""
+    import subprocess
+    import sys
+
+    from tests.helpers.relay import LossyRelay
+
+    _, tlog, _ = capture
+    fw_port = _free_port()
+    fw = subprocess.Popen([sys.executable, "-m", "firmware_py", "--in", f"udpin:127.0.0.1:{fw_port}", "--quiet"],
+                          stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        time.sleep(1.5)
+        with LossyRelay(fw_port, loss=0.0, reorder=0.0, seed=SEED, blackout=(300, 400)) as relay:
+            r = subprocess.run([sys.executable, "-m", "sim_hil.replay", str(tlog), "--out",
+                                f"udpout:127.0.0.1:{relay.port}", "--speed", "4", "--quiet"],
+                               capture_output=True, text=True, timeout=60)  # fmt: skip
+            assert r.returncode == 0, r.stderr
+            time.sleep(0.5)
+            dropped = relay.dropped_to_target
+    finally:
+        fw.send_signal(signal.SIGTERM)
+        err = fw.communicate(timeout=20)[1]
+    assert fw.returncode == 0, err
+    lost = int(re.search(r"input packets (\d+) lost", err).group(1))
+    assert dropped >= 400 and lost == dropped, err
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_tlog_reader_memory_does_not_hold_the_file(capture, monkeypatch):
+    """The tlog is read a chunk at a time: a reader given 4 kB chunks sees every message all the same."""
+    _, tlog, _ = capture
+    whole = [bytes(m.get_msgbuf()) for m in tlog_messages(str(tlog), LinkStats())]
+    chunked = [bytes(m.get_msgbuf()) for m in tlog_messages(str(tlog), LinkStats(), chunk=4096)]
+    assert chunked == whole and len(whole) > 1000
+    assert struct.calcsize(">Q") == TLOG_HEADER
