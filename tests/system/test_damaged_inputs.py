@@ -37,14 +37,6 @@ MUTANT_TIMEOUT_S = 30
 IMU_ID = mavlink.MAVLINK_MSG_ID_HIGHRES_IMU
 
 
-@pytest.fixture(autouse=True)
-def keep_signal_handlers():
-    """The programs install SIGINT/SIGTERM handlers; give pytest its own back."""
-    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-    yield
-    for s, h in saved.items():
-        signal.signal(s, h)
-
 
 @pytest.fixture(autouse=True)
 def short_watchdog(monkeypatch):

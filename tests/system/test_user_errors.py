@@ -6,7 +6,6 @@ Run in-process (``main(argv)``) for speed; a few cases through ``python -m`` pro
 from __future__ import annotations
 
 import dataclasses
-import signal
 import subprocess
 import sys
 
@@ -30,14 +29,6 @@ from sim_hil.wind import WindConfig
 MAINS = {"sim": sim_cli.main, "fw": fw_cli.main, "gs": gs_cli.main, "sil": sil_cli.main, "replay": replay_cli.main}
 NOWHERE = "/no/such/dir"
 
-
-@pytest.fixture(autouse=True)
-def keep_signal_handlers():
-    """The programs install SIGINT/SIGTERM handlers; give pytest its own back."""
-    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-    yield
-    for s, h in saved.items():
-        signal.signal(s, h)
 
 
 @pytest.fixture(scope="module")
