@@ -43,7 +43,7 @@ def height_errors(seed: int) -> tuple[np.ndarray, np.ndarray, float, float]:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [2, 7])
+@pytest.mark.parametrize("seed", [7])  # one seed in the suite (600 s of the lumped rope each)
 def test_ground_reference_takes_the_weather_out_of_the_barometer(seed):
     ref, plain, off_ref, off_plain = height_errors(seed)
     # 600 s at -2 hPa/h: 0.33 hPa, 2.8 m of apparent climb; the taut geometry holds the height either
