@@ -305,8 +305,6 @@ class CEstimator:
         self.counters = _Counters(self._s.counters)
         self.consistency = _Consistency(self._s.consistency)
         self.ekf = _Ekf(self._s.ekf, np.float32 if self.real == "float" else np.float64)
-        self.model = BalloonModel.from_design(design, self.cfg.rope_normal_cd,
-                                              rope_drag_at_balloon=self.cfg.rope_model != "catenary")  # fmt: skip
 
     def on_imu(self, t_us, ax, ay, az, gx, gy, gz, mx=math.nan, my=math.nan, mz=math.nan) -> bool:
         return self._imu(self._p, t_us, ax, ay, az, gx, gy, gz, mx, my, mz) == 1

@@ -4,8 +4,6 @@
 
 #include "internal.h"
 
-static const int MODEL_COLS[BW_NCOL] = {0, 1, 2, 3, 4, 5, 12, 13, 14, 15, 16};
-
 static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, bw_real var, bw_real var_z_extra)
 {
     bw_ekf_t *e = &est->ekf;
@@ -27,7 +25,7 @@ static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, 
         e->H3[i][BW_ATT_D] = cn * ye - ce * yn;
         if (!ground) /* d/d (model states): R^T (d a / d x) */
             for (j = 0; j < BW_NCOL; j++)
-                e->H3[i][MODEL_COLS[j]] = cn * f->ja[j] + ce * f->ja[BW_NCOL + j] + cd * f->ja[2 * BW_NCOL + j];
+                e->H3[i][BW_MODEL_COLS[j]] = cn * f->ja[j] + ce * f->ja[BW_NCOL + j] + cd * f->ja[2 * BW_NCOL + j];
     }
     if (!ground && !e->learn_drag)
         e->H3[0][BW_DRAG] = e->H3[1][BW_DRAG] = e->H3[2][BW_DRAG] = BW_R(0.0);

@@ -4,8 +4,6 @@
 
 #include "internal.h"
 
-static const int MODEL_COLS[BW_NCOL] = {0, 1, 2, 3, 4, 5, 12, 13, 14, 15, 16};
-
 void bw_enter_taut(bw_ekf_t *e, bw_real height_m, bw_real rho, int from_tilt)
 {
     static const int reset_rows[10] = {BW_POS_N, BW_POS_E, BW_POS_D, BW_VEL_N, BW_VEL_E,
@@ -98,7 +96,7 @@ static void fuse_taut(bw_estimator_t *est)
             memset(e->h, 0, sizeof e->h);
             e->h[BW_ATT_N] = dz[cc][0], e->h[BW_ATT_E] = dz[cc][1], e->h[BW_ATT_D] = dz[cc][2];
             for (j = 0; j < ncol; j++)
-                e->h[MODEL_COLS[j]] = -n[2 + BW_NCOL * cc + j]; /* residual z - n(x) */
+                e->h[BW_MODEL_COLS[j]] = -n[2 + BW_NCOL * cc + j]; /* residual z - n(x) */
             bw_ekf_fuse(e, n[cc] - z[cc], est->align_var, &est->taut_status[2 + cc], BW_R(0.0), 0);
         }
     }

@@ -34,7 +34,7 @@ int bw_on_winch(bw_estimator_t *est, int64_t t_us, bw_real line_length_m, bw_rea
         return 0;
     est->winch_samples += 1;
     est->winch_t_us = t_us;
-    est->winch_tension_n = tension_n == tension_n && tension_n - tension_n == BW_R(0.0) && tension_n >= BW_R(0.0)
+    est->winch_tension_n = isfinite(tension_n) && tension_n >= BW_R(0.0)
                                ? tension_n : BW_R(NAN);
     set_line_length(e, line_length_m);
     speed = speed_mps == speed_mps && BW_FABS(speed_mps) <= (bw_real)BW_WINCH_SPEED_MAX_MPS ? speed_mps : BW_R(0.0);
@@ -70,11 +70,11 @@ int bw_on_ground_baro(bw_estimator_t *est, int64_t t_us, bw_real pressure_hpa, b
     }
     est->ground_t_us = t_us;
     est->ground_samples += 1;
-    if (est->zeroing || !(est->p_ref_pa == est->p_ref_pa && est->p_ref_pa - est->p_ref_pa == BW_R(0.0)))
+    if (est->zeroing || !isfinite(est->p_ref_pa))
         return 1; /* the zero is not taken yet */
     if (temperature_c == temperature_c && (bw_real)BW_T_MIN_C <= temperature_c && temperature_c <= (bw_real)BW_T_MAX_C)
         est->t_ref_k = temperature_c + BW_R(273.15);
-    if (!(est->ground_p0_pa == est->ground_p0_pa && est->ground_p0_pa - est->ground_p0_pa == BW_R(0.0))) {
+    if (!isfinite(est->ground_p0_pa)) {
         est->ground_p0_pa = est->ground_p_pa;
         est->p_ref0_pa = est->p_ref_pa;
     }

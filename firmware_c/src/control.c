@@ -272,15 +272,14 @@ static void reinitialise_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, 
                                    bw_real mz, int mag_ok)
 {
     bw_ekf_t *e = &est->ekf;
-    bw_real h = est->height_baro == est->height_baro && est->height_baro - est->height_baro == BW_R(0.0)
-                    ? est->height_baro : BW_R(0.0);
+    bw_real h = isfinite(est->height_baro) ? est->height_baro : BW_R(0.0);
     bw_real q[4];
     if (mag_ok) {
         quat_from_accel_mag(ax, ay, az, mx, my, mz, est->declination, q);
     } else { /* keep the heading we had if it is still a rotation, else level */
         bw_real n = BW_SQRT(e->q[0] * e->q[0] + e->q[1] * e->q[1] + e->q[2] * e->q[2] + e->q[3] * e->q[3]);
         int i;
-        if (n == n && n - n == BW_R(0.0) && n > BW_R(0.5))
+        if (isfinite(n) && n > BW_R(0.5))
             for (i = 0; i < 4; i++)
                 q[i] = e->q[i] / n;
         else
@@ -294,7 +293,7 @@ static void reinitialise_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, 
 bw_real bw_height_for_taut(const bw_estimator_t *est)
 {
     bw_real hb = est->height_baro;
-    if (hb == hb && hb - hb == BW_R(0.0))
+    if (isfinite(hb))
         return hb - est->ekf.x[BW_BARO_OFF] - est->ref_pos_d;
     return -est->ekf.x[BW_POS_D];
 }
@@ -334,7 +333,7 @@ static void update_mode(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
     if (e->mode == BW_MODE_GROUND) {
         int lifted = BW_FABS(BW_SQRT(ax * ax + ay * ay + az * az) - (bw_real)BW_G0) > cfg->release_accel_mps2;
         bw_real hb = est->height_baro;
-        int high = hb == hb && hb - hb == BW_R(0.0) && hb > cfg->release_height_m;
+        int high = isfinite(hb) && hb > cfg->release_height_m;
         est->release_count = lifted ? est->release_count + 1 : 0;
         est->height_above = high ? est->height_above + 1 : 0;
         if (est->release_count >= est->sched.release_confirm || est->height_above >= est->sched.release_height)
@@ -346,7 +345,7 @@ static void update_mode(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
     length = e->rope_chord_m + cfg->radius_m;
     if (e->mode == BW_MODE_FREE) {
         bw_real hb = est->height_baro;
-        int low = hb == hb && hb - hb == BW_R(0.0) && hb < cfg->release_height_m;
+        int low = isfinite(hb) && hb < cfg->release_height_m;
         int stalled, near;
         int64_t need;
         if (low && est->dwell >= est->n_false_release) {

@@ -7,8 +7,6 @@
 
 #define N BW_N
 
-static const int MODEL_COLS[BW_NCOL] = {0, 1, 2, 3, 4, 5, 12, 13, 14, 15, 16};
-
 void bw_status_init(bw_status_t *st, int32_t recover_after)
 {
     memset(st, 0, sizeof *st);
@@ -129,7 +127,7 @@ static int f_row(const bw_ekf_t *e, const bw_real r[9], int ground, int i, unsig
     } else if (i < 6) {
         if (!ground)
             for (j = 0; j < BW_NCOL; j++) {
-                int col = MODEL_COLS[j];
+                int col = BW_MODEL_COLS[j];
                 bw_real v = e->forces.ja[BW_NCOL * (i - 3) + j] * dt;
                 if (col == i)
                     v += BW_R(1.0);
@@ -280,11 +278,6 @@ void bw_ekf_begin_update(bw_ekf_t *e)
     memset(e->dx, 0, sizeof e->dx);
 }
 
-static int finite(bw_real v)
-{
-    return v == v && v - v == BW_R(0.0);
-}
-
 int bw_ekf_fuse(bw_ekf_t *e, bw_real innov, bw_real r, bw_status_t *st, bw_real gate, int recover)
 {
     int nz[N], nn = 0, i, j, k;
@@ -309,7 +302,7 @@ int bw_ekf_fuse(bw_ekf_t *e, bw_real innov, bw_real r, bw_status_t *st, bw_real 
     st->innov = innov;
     st->innov_var = s;
     st->time_test_us = e->time_us;
-    if (!(s > BW_R(0.0) && finite(innov))) {
+    if (!(s > BW_R(0.0) && isfinite(innov))) {
         st->rejected += 1;
         st->consecutive_rejects += 1;
         return 0;
@@ -395,7 +388,7 @@ int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_
         st[a].innov = inn[a];
         st[a].innov_var = var[a];
         st[a].time_test_us = e->time_us;
-        if (!(var[a] > BW_R(0.0) && finite(inn[a]))) {
+        if (!(var[a] > BW_R(0.0) && isfinite(inn[a]))) {
             ok = 0;
             continue;
         }
@@ -407,7 +400,7 @@ int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_
     a01 = s[0][2] * s[1][2] - s[0][1] * s[2][2];
     a02 = s[0][1] * s[1][2] - s[0][2] * s[1][1];
     det = s[0][0] * a00 + s[0][1] * a01 + s[0][2] * a02;
-    if (!ok || !(det > BW_R(0.0) && finite(det))) {
+    if (!ok || !(det > BW_R(0.0) && isfinite(det))) {
         for (a = 0; a < 3; a++) {
             st[a].rejected += 1;
             st[a].consecutive_rejects += 1;
@@ -490,7 +483,7 @@ int bw_ekf_end_update(bw_ekf_t *e)
         sx += x[i];
         sp += e->P[i][i];
     }
-    return finite(sx) && finite(sp);
+    return isfinite(sx) && isfinite(sp);
 }
 
 void bw_ekf_fix_covariance(bw_ekf_t *e)

@@ -16,6 +16,9 @@
 #define BW_R_AIR 287.05
 #define BW_LAPSE_K_M 0.0065
 
+/* the states the balloon model's Jacobians are taken over (state.py MODEL_COLUMNS) */
+extern const int BW_MODEL_COLS[BW_NCOL];
+
 /* balloon_core: rotation.py, atmosphere.py */
 void bw_rotation(const bw_real q[4], bw_real r[9]);
 bw_real bw_air_density(bw_real pressure_pa, bw_real temperature_k);

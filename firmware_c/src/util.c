@@ -1,6 +1,8 @@
 /* Attitude and air (balloon_core/rotation.py, balloon_core/atmosphere.py) and Python's rounding. */
 #include "internal.h"
 
+const int BW_MODEL_COLS[BW_NCOL] = {0, 1, 2, 3, 4, 5, 12, 13, 14, 15, 16};
+
 void bw_rotation(const bw_real q[4], bw_real r[9])
 {
     const bw_real q0 = q[0], q1 = q[1], q2 = q[2], q3 = q[3];
