@@ -82,7 +82,10 @@ def test_sim_status_lines_and_quiet(tmp_path):
     q = subprocess.run([PY, "-m", "sim_hil", "--duration", "120", "--out", str(out), "--quiet"], capture_output=True,
                        text=True, env=env, check=True)  # fmt: skip
     assert len(q.stderr.strip().splitlines()) == 1
-    f = subprocess.run([PY, "-m", "firmware_py", "--in", str(out)], capture_output=True, text=True, env=env, check=True)
+    # a status line every millisecond: the replay takes longer than that on any machine, however fast
+    fast = {**env, INTERVAL_ENV: "0.001"}
+    f = subprocess.run([PY, "-m", "firmware_py", "--in", str(out)], capture_output=True, text=True, env=fast,
+                       check=True)  # fmt: skip
     flines = f.stderr.strip().splitlines()
     pattern = r"balloon-fw:\s+\d+ % \([\d.]+/[\d.]+ MB\).*\| \d+ lost .*, mode \w+, wind"
     assert any(re.match(pattern, ln) for ln in flines[:-1]), flines
