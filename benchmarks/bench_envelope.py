@@ -1,0 +1,410 @@
+"""The operating envelope: many flights from a fixed-seed low-discrepancy sample of the conditions a
+user may meet, each run through the study engine, scored, summarised against the issue's targets.
+
+    .venv/bin/python -m benchmarks.bench_envelope [--quick] [--flights N] [--out DIR] [--serial]
+
+Sampled per flight (a scrambled Halton sequence, fixed seed): wind direction 0-360 deg, mean speed
+1-8 m/s, wind kind (steady | multisine both axes | VdH + Kaimal with vertical | IEC class B gusts with
+vertical), rope model of the truth (lumped | paper), tether 50-150 m, balloon radius from the smallest
+that lifts its tether with 20 % spare lift (``balloon_core.config.lift_balance``) up to 1.6 m,
+weather pressure drift +-3 hPa/h, wandering gyro/accelerometer biases (0-1 x the field-biases
+scenario's), sensor grade (Table 2 | MEMS | tactical), the simulator seed. The firmware is told only
+the design (balloon, tether, sensors); everything else is truth only, its [filter] stays the default.
+
+Per flight (after ``start_s``): the study metrics (``study.case.metrics``) plus the worst 60 s mean
+direction error, the share of samples whose horizontal error exceeds 3 x the reported accuracy,
+taut re-placements (``counters.taut_resets``) per hour, and binned stated-vs-actual error for the
+calibration plot. Writes flights.parquet, flights.csv, summary.md and PNG plots into ``--out``.
+Finished flights are stored as parts (``DIR/parts``): a repeated run only computes what is missing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import hashlib
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from balloon_core.config import Design, lift_balance
+from balloon_core.score import on_grid
+from sim_hil.scenarios import SCENARIOS
+from study import engine
+from study.spec import Case, case_key, scenario_sections
+
+BASE = "field-rope"  # the real world: lumped rope with its drag, vertical turbulence
+SEED = 20261202
+MAX_RADIUS_M = 1.6
+SPARE_LIFT = 0.20  # buoyancy >= 1.2 x everything it carries (skin and avionics, gas, the whole rope)
+WIND_KINDS = ("steady", "multisine", "kaimal", "gusts")
+ROPES = ("lumped", "paper")
+GRADES = {  # sensor 1-sigma errors the design states (and the simulator draws)
+    "table2": {"accel_mps2": 0.01, "baro_m": 1.0, "gyro_dps": 1.0, "mag_gauss": 0.005},
+    "mems": {"accel_mps2": 0.014, "baro_m": 0.1, "gyro_dps": 0.07, "mag_gauss": 0.002},
+    "tactical": {"accel_mps2": 0.002, "baro_m": 0.1, "gyro_dps": 0.1, "mag_gauss": 0.0005},
+}
+BIASES = {"gyro_bias_dps": 0.3, "gyro_bias_walk_dps_rt_s": 0.002, "accel_bias_mps2": 0.02,
+          "accel_bias_walk_mps2_rt_s": 0.001}  # fmt: skip  # the field-biases scenario's, x bias_scale
+DIMS = ("from_deg", "mean_mps", "wind_kind", "rope_model", "radius_u", "tether_m", "pressure_drift_hpa_h",
+        "bias_scale", "sensor_grade", "seed")  # fmt: skip
+#: sampled parameters as they appear in the table (radius_u becomes radius_m)
+PARAMS = ("from_deg", "mean_mps", "wind_kind", "rope_model", "radius_m", "tether_m", "pressure_drift_hpa_h",
+          "bias_scale", "sensor_grade", "seed")  # fmt: skip
+WINDOW_S = 60.0
+CAL_EDGES = np.geomspace(0.02, 5.0, 15)  # stated accuracy bins, m/s
+ENVELOPE_VERSION = 1
+
+# ---------------------------------------------------------------- the sample
+
+
+def _primes(n: int) -> list[int]:
+    out, k = [], 2
+    while len(out) < n:
+        if all(k % p for p in out):
+            out.append(k)
+        k += 1
+    return out
+
+
+def halton(n: int, d: int, seed: int = SEED) -> np.ndarray:
+    """n points of a d-dimensional Halton sequence in [0, 1), scrambled by a fixed-seed random digit
+    permutation per base and digit (the radical inverse's digits permuted, as scipy.stats.qmc.Halton's
+    scramble does; the low discrepancy is kept, the seed fixes the points). Plain numpy (scipy is not
+    a dependency): the same points on every machine."""
+    rng = np.random.default_rng(seed)
+    out = np.zeros((n, d))
+    idx = np.arange(1, n + 1)  # skip 0 (all digits 0)
+    for j, b in enumerate(_primes(d)):
+        digits = int(math.ceil(math.log(n + 1, b))) + 2
+        perms = [rng.permutation(b) for _ in range(digits)]
+        i, f, x = idx.copy(), 1.0 / b, np.zeros(n)
+        for k in range(digits):
+            x += perms[k][i % b] * f
+            i //= b
+            f /= b
+        out[:, j] = x
+    return out
+
+
+def min_radius(tether_m: float, design: Design | None = None, spare: float = SPARE_LIFT) -> float:
+    """Smallest radius whose buoyancy carries skin, gas and the whole tether with ``spare`` to spare:
+    buoyancy >= (1 + spare) x their weight, by the project's own lift balance (bisection)."""
+    d0 = design or Design()
+
+    def ok(r: float) -> bool:
+        d = dataclasses.replace(d0, balloon=dataclasses.replace(d0.balloon, radius_m=r),
+                                tether=dataclasses.replace(d0.tether, length_m=tether_m))  # fmt: skip
+        buoy, skin, gas, rope, _ = lift_balance(d)
+        return buoy >= (1.0 + spare) * (skin + gas + rope)
+
+    lo, hi = 0.05, 20.0
+    if not ok(hi):
+        raise ValueError(f"no radius up to {hi} m lifts a {tether_m} m tether with {spare:.0%} spare")
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if ok(mid) else (mid, hi)
+    return hi
+
+
+def pick(u: float, choices: tuple[str, ...]) -> str:
+    return choices[min(int(u * len(choices)), len(choices) - 1)]
+
+
+def sample(n: int, seed: int = SEED) -> list[dict[str, Any]]:
+    """The n flights' parameters (a dict per flight, in the order of ``PARAMS``)."""
+    u = halton(n, len(DIMS), seed)
+    out = []
+    for row in u:
+        v = dict(zip(DIMS, row))
+        tether = float(50.0 + 100.0 * v["tether_m"])
+        r0 = min_radius(tether)
+        out.append({
+            "from_deg": float(round(360.0 * v["from_deg"], 3)),
+            "mean_mps": float(round(1.0 + 7.0 * v["mean_mps"], 3)),
+            "wind_kind": pick(v["wind_kind"], WIND_KINDS),
+            "rope_model": pick(v["rope_model"], ROPES),
+            "radius_m": float(round(r0 + (MAX_RADIUS_M - r0) * v["radius_u"], 4)),
+            "tether_m": float(round(tether, 2)),
+            "pressure_drift_hpa_h": float(round(-3.0 + 6.0 * v["pressure_drift_hpa_h"], 3)),
+            "bias_scale": round(float(v["bias_scale"]), 4),
+            "sensor_grade": pick(v["sensor_grade"], tuple(GRADES)),
+            "seed": int(v["seed"] * 1_000_000),
+        })  # fmt: skip
+    return out
+
+
+def sections_of(p: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """Every section of the flight: the base scenario's, then the sampled values. Only balloon, tether
+    and sensors reach the firmware (as the design file a user writes); wind and truth are the world."""
+    secs = scenario_sections(SCENARIOS[BASE])
+    secs["balloon"]["radius_m"] = p["radius_m"]
+    secs["tether"]["length_m"] = p["tether_m"]
+    secs["sensors"].update(GRADES[p["sensor_grade"]])
+    w = secs["wind"]
+    w.update({"mean_mps": p["mean_mps"], "from_deg": p["from_deg"], "vertical": True, "iec_class": ""})
+    kind = p["wind_kind"]
+    if kind == "steady":
+        w["kind"] = "steady"
+    elif kind == "multisine":
+        w.update({"kind": "multisine", "multisine_axes": "both"})
+    else:
+        w["kind"] = "vdh"
+        if kind == "gusts":
+            w["iec_class"] = "B"
+    t = secs["truth"]
+    t["rope_model"] = p["rope_model"]
+    t["pressure_drift_hpa_h"] = p["pressure_drift_hpa_h"]
+    t.update({k: v * p["bias_scale"] for k, v in BIASES.items()})
+    return secs
+
+
+def cases(params: list[dict[str, Any]], duration_s: float, start_s: float) -> list[Case]:
+    out = []
+    for i, p in enumerate(params):
+        c = Case("envelope", {"flight": i, **p}, sections_of(p), p["seed"], duration_s, start_s)
+        key = hashlib.sha256(f"envelope-v{ENVELOPE_VERSION}-{case_key(c)}".encode()).hexdigest()[:20]
+        out.append(dataclasses.replace(c, key=key))
+    return out
+
+
+# ---------------------------------------------------------------- one flight (on a worker)
+
+
+def extra_metrics(rows, truth, est, start_s: float, duration_s: float) -> dict[str, float]:
+    """What study.case.metrics does not give: the worst 60 s mean direction error, the share beyond
+    3 sigma, taut re-placements per hour, and the calibration bins (stated vs actual error)."""
+    grid, en, ee, ac, tn, te = on_grid(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], truth["time_s"],
+                                       truth["wind_n"], truth["wind_e"], start_s)  # fmt: skip
+    out: dict[str, float] = {}
+    n = int(round(WINDOW_S * 10.0))  # the grid is 10 Hz
+    if len(grid) >= n:
+        c = lambda x: np.concatenate([[0.0], np.cumsum(x)])  # noqa: E731
+        mean = lambda cs: (cs[n:] - cs[:-n]) / n  # noqa: E731 - sliding 60 s means, every 0.1 s
+        d_est = np.degrees(np.arctan2(mean(c(ee)), mean(c(en))))
+        d_true = np.degrees(np.arctan2(mean(c(te)), mean(c(tn))))
+        out["dir60_max_deg"] = float(np.max(np.abs((d_est - d_true + 180.0) % 360.0 - 180.0)))
+    else:
+        out["dir60_max_deg"] = math.nan
+    err = np.hypot(en - tn, ee - te)
+    out["beyond_3sigma_frac"] = float(np.mean(err > 3.0 * ac))
+    out["taut_resets"] = float(est.counters.taut_resets)
+    out["taut_per_h"] = float(est.counters.taut_resets) / (duration_s / 3600.0)
+    k = np.clip(np.digitize(ac, CAL_EDGES) - 1, 0, len(CAL_EDGES) - 2)
+    for b in range(len(CAL_EDGES) - 1):
+        m = k == b
+        out[f"cal_n_{b}"] = float(m.sum())
+        out[f"cal_a2_{b}"] = float(np.sum(ac[m] ** 2))
+        out[f"cal_e2_{b}"] = float(np.sum(err[m] ** 2))
+    return out
+
+
+def envelope_case(payload: dict[str, Any]) -> dict[str, Any]:
+    """``study.case.run_case`` with the extra metrics: the same flight (``fly``), the same metrics."""
+    from study.case import fly, metrics
+    from study.spec import build
+
+    t0 = time.perf_counter()
+    row: dict[str, Any] = {"key": payload["key"], "status": "ok", "error": ""}
+    try:
+        design, wind, truth_cfg, filt = build(payload["sections"])
+        rows, truth, est = fly(design, wind, truth_cfg, filt, payload["duration_s"], payload["seed"])
+        row.update(metrics(design, wind, rows, truth, est, payload["start_s"]))
+        row.update(extra_metrics(rows, truth, est, payload["start_s"], payload["duration_s"]))
+    except Exception as e:  # one broken flight must not stop the envelope
+        row["status"], row["error"] = "failed", f"{type(e).__name__}: {e}"
+    row["wall_time_s"] = time.perf_counter() - t0
+    return row
+
+
+# ---------------------------------------------------------------- the summary
+
+
+def _pct(x, q: float) -> float:
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    return float(np.percentile(x, q)) if len(x) else math.nan
+
+
+def summary(df) -> tuple[str, list[tuple[str, bool]]]:
+    """The markdown summary table (percentiles and worst) and the targets with pass/fail."""
+    ok = df[df["status"] == "ok"]
+    cols = {
+        "|speed error| %": ok["speed_error_pct"].abs(),
+        "|direction error| deg": ok["direction_error_deg"].abs(),
+        "worst 60 s mean |dir error| deg": ok["dir60_max_deg"],
+        "err/acc": ok["error_ratio"],
+        "share beyond 3 sigma %": 100.0 * ok["beyond_3sigma_frac"],
+        "taut re-placements /h": ok["taut_per_h"],
+        "band skill (fluctuating winds)": ok.loc[ok["wind_kind"] != "steady", "band_skill"],
+    }
+    lines = ["| metric | p50 | p90 | p95 | worst |", "|---|---:|---:|---:|---:|"]
+    for name, s in cols.items():
+        worst = s.min() if name.startswith("band skill") else (s.max() if name != "err/acc" else _far(s))
+        q = (50, 10, 5) if name.startswith("band skill") else (50, 90, 95)  # skill: low is bad
+        lines.append(f"| {name}{' (p10, p5)' if q[1] == 10 else ''} | " + " | ".join(f"{_pct(s, x):.3g}" for x in q)
+                     + f" | {worst:.3g} |")  # fmt: skip
+    d, sp, r = cols["|direction error| deg"], cols["|speed error| %"], cols["err/acc"]
+    n_ok, n_all = len(ok), len(df)
+    flown_h = float(df.attrs.get("duration_s", 600.0)) * n_ok / 3600.0
+    hours = float(ok["taut_resets"].sum()) / flown_h if n_ok else math.nan
+    skill = cols["band skill (fluctuating winds)"].dropna()
+    targets = [
+        (f"every flight ran ({n_ok}/{n_all})", n_ok == n_all),
+        (f"|dir| <= 3 deg in 95 % of flights ({100 * np.mean(d <= 3.0):.1f} %)", np.mean(d <= 3.0) >= 0.95),
+        (f"|dir| <= 8 deg in all (worst {d.max():.2f})", bool(d.max() <= 8.0)),
+        (f"no 60 s mean > 12 deg off (worst {cols['worst 60 s mean |dir error| deg'].max():.2f})",
+         bool(cols["worst 60 s mean |dir error| deg"].max() <= 12.0)),
+        (f"|speed| <= 4 % in 95 % of flights ({100 * np.mean(sp <= 4.0):.1f} %)", np.mean(sp <= 4.0) >= 0.95),
+        (f"err/acc in 0.75-1.33 in 90 % of flights ({100 * np.mean((r >= 0.75) & (r <= 1.33)):.1f} %)",
+         np.mean((r >= 0.75) & (r <= 1.33)) >= 0.90),
+        (f"err/acc in 0.5-2 in all (range {r.min():.2f}-{r.max():.2f})", bool(r.min() >= 0.5 and r.max() <= 2.0)),
+        (f"<= 3 % beyond 3 sigma every flight (worst {cols['share beyond 3 sigma %'].max():.2f} %)",
+         bool(cols["share beyond 3 sigma %"].max() <= 3.0)),
+        (f"<= 2 taut re-placements per hour over all flights ({hours:.2f} /h; worst flight "
+         f"{cols['taut re-placements /h'].max():.1f} /h)", bool(hours <= 2.0)),
+        (f"band skill >= 0.6 on fluctuating winds, every flight ({100 * np.mean(skill >= 0.6):.1f} %, "
+         f"worst {skill.min():.2f})", bool(skill.min() >= 0.6) if len(skill) else False),
+    ]  # fmt: skip
+    lines += ["", "| target | result |", "|---|---|"]
+    lines += [f"| {t} | {'PASS' if p else 'FAIL'} |" for t, p in targets]
+    return "\n".join(lines), targets
+
+
+def _far(s) -> float:
+    v = np.asarray(s, float)
+    v = v[np.isfinite(v) & (v > 0)]
+    return float(v[np.argmax(np.abs(np.log(v)))]) if len(v) else math.nan
+
+
+def worst_flights(df, k: int = 5) -> str:
+    ok = df[df["status"] == "ok"].copy()
+    ok["abs_dir"] = ok["direction_error_deg"].abs()
+    top = ok.sort_values("abs_dir", ascending=False).head(k)
+    cols = ["flight", *PARAMS, "direction_error_deg", "dir60_max_deg", "speed_error_pct", "error_ratio",
+            "beyond_3sigma_frac", "taut_resets", "band_skill"]  # fmt: skip
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for _, r in top.iterrows():
+        lines.append("| " + " | ".join(f"{r[c]:.3g}" if isinstance(r[c], float) else str(r[c]) for c in cols) + " |")
+    failed = df[df["status"] != "ok"]
+    for _, r in failed.iterrows():
+        lines.append(f"\nfailed flight {r['flight']}: {r['error']}")
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------- plots
+
+
+def plots(df, out: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ok = df[df["status"] == "ok"]
+    y = ok["direction_error_deg"].abs()
+    fig, axes = plt.subplots(2, 5, figsize=(18, 7), sharey=True)
+    rng = np.random.default_rng(0)
+    for ax, p in zip(axes.flat, PARAMS):
+        x = ok[p]
+        if x.dtype == object:
+            cats = sorted(set(x))
+            xi = np.array([cats.index(v) for v in x]) + rng.uniform(-0.15, 0.15, len(x))
+            ax.scatter(xi, y, s=10)
+            ax.set_xticks(range(len(cats)), cats)
+        else:
+            ax.scatter(x, y, s=10)
+        ax.set_xlabel(p)
+        ax.grid(alpha=0.3)
+        ax.axhline(3.0, color="tab:orange", lw=0.8)
+        ax.axhline(8.0, color="tab:red", lw=0.8)
+        ax.set_yscale("symlog", linthresh=3.0)
+    for ax in axes[:, 0]:
+        ax.set_ylabel("|mean direction error| deg")
+    fig.suptitle(f"envelope: {len(ok)} flights, |direction error| against each sampled parameter")
+    fig.tight_layout()
+    p1 = out / "direction_error_vs_params.png"
+    fig.savefig(p1, dpi=110)
+    plt.close(fig)
+
+    nb = len(CAL_EDGES) - 1
+    n = np.array([ok[f"cal_n_{b}"].sum() for b in range(nb)])
+    a2 = np.array([ok[f"cal_a2_{b}"].sum() for b in range(nb)])
+    e2 = np.array([ok[f"cal_e2_{b}"].sum() for b in range(nb)])
+    m = n >= 100
+    fig, ax = plt.subplots(figsize=(6, 5.5))
+    stated, actual = np.sqrt(a2[m] / n[m]), np.sqrt(e2[m] / n[m])
+    ax.loglog(stated, actual, "o-", label="RMS actual error in the bin")
+    lim = [CAL_EDGES[0], CAL_EDGES[-1]]
+    ax.loglog(lim, lim, "k--", lw=0.8, label="honest (actual = stated)")
+    ax.fill_between(lim, [0.75 * v for v in lim], [1.33 * v for v in lim], color="0.85", label="0.75-1.33")
+    for s, a, k in zip(stated, actual, n[m]):
+        ax.annotate(f"{k / 10 / 3600:.1f} h", (s, a), fontsize=6, xytext=(3, -8), textcoords="offset points")
+    ax.set_xlabel("stated horizontal accuracy (RMS in bin), m/s")
+    ax.set_ylabel("actual horizontal error (RMS in bin), m/s")
+    ax.set_title(f"calibration over {len(ok)} flights (10 Hz samples after start)")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    p2 = out / "calibration.png"
+    fig.savefig(p2, dpi=110)
+    plt.close(fig)
+    return [p1, p2]
+
+
+# ---------------------------------------------------------------- main
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="64 flights of 300 s (the default: 200 of 600 s)")
+    ap.add_argument("--flights", type=int, help="number of flights (quick: 64, else 200)")
+    ap.add_argument("--duration", type=float, help="simulated seconds per flight (quick: 300, else 600)")
+    ap.add_argument("--start", type=float, default=120.0, help="scoring starts here, s")
+    ap.add_argument("--out", default="out/envelope", help="output directory (default out/envelope)")
+    ap.add_argument("--serial", action="store_true", help="in this process, no Dask")
+    ap.add_argument("--workers", type=int, help="Dask workers (default: one per core)")
+    args = ap.parse_args(argv)
+    import pandas as pd
+
+    n = args.flights or (64 if args.quick else 200)
+    duration = args.duration or (300.0 if args.quick else 600.0)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    params = sample(n)
+    cs = cases(params, duration, args.start)
+    store = engine.Store(out / "parts")
+    t0 = time.perf_counter()
+    if args.serial:
+        rows, st = engine.run(cs, store, None, case_fn=envelope_case)
+    else:
+        with engine.dask_client(workers=args.workers) as client:
+            rows, st = engine.run(cs, store, client, case_fn=envelope_case)
+    wall = time.perf_counter() - t0
+    table = [{"flight": c.point["flight"], **{p: c.point[p] for p in PARAMS}, **rows[c.key]} for c in cs]
+    df = pd.DataFrame(table)
+    df.attrs["duration_s"] = duration
+    df.to_parquet(out / "flights.parquet", index=False)
+    df.to_csv(out / "flights.csv", index=False)
+    text, targets = summary(df)
+    head = (
+        f"envelope: {n} flights of {duration:g} s (scored from {args.start:g} s), base {BASE}, "
+        f"{'serial' if args.serial else f'{st.workers} Dask workers'}; {st.computed} computed, {st.reused} "
+        f"reused, {st.failed} failed; wall {wall:.0f} s (mean flight {st.case_s / max(st.computed, 1):.1f} s)"
+    )
+    worst = worst_flights(df)
+    pngs = plots(df, out)
+    doc = f"{head}\n\n{text}\n\nworst flights by |direction error|:\n\n{worst}\n"
+    (out / "summary.md").write_text(doc)
+    print(doc)
+    print("wrote " + ", ".join(str(p) for p in (out / "flights.parquet", out / "flights.csv", out / "summary.md",
+                                                  *pngs)))  # fmt: skip
+    return 0 if all(p for _, p in targets) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

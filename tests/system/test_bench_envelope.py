@@ -1,0 +1,86 @@
+"""benchmarks.bench_envelope: the fixed-seed sample (reproducible, covering, every balloon lifts its
+tether with 20 % spare), what reaches the firmware, the extra metrics, the summary's verdicts, one
+short real flight through the envelope's case function. Light: a few seconds."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+
+from balloon_core.config import lift_balance
+from benchmarks import bench_envelope as be
+from firmware_py.estimator.state import FilterConfig
+from study.spec import build
+
+
+def test_sample_is_fixed_and_covers_the_ranges():
+    a, b = be.sample(64), be.sample(64)
+    assert a == b
+    assert be.sample(64, seed=1) != a
+    df = pd.DataFrame(a)
+    assert df["from_deg"].between(0, 360).all() and df["mean_mps"].between(1, 8).all()
+    assert df["tether_m"].between(50, 150).all() and df["pressure_drift_hpa_h"].between(-3, 3).all()
+    assert df["bias_scale"].between(0, 1).all() and (df["radius_m"] <= be.MAX_RADIUS_M).all()
+    for col, cats in (("wind_kind", be.WIND_KINDS), ("rope_model", be.ROPES), ("sensor_grade", tuple(be.GRADES))):
+        assert set(df[col]) == set(cats)
+    # low discrepancy: every quarter of every continuous range holds close to a quarter of the points
+    u = be.halton(64, len(be.DIMS))
+    for j in range(u.shape[1]):
+        counts = np.histogram(u[:, j], bins=4, range=(0, 1))[0]
+        assert counts.min() >= 13, (j, counts)
+
+
+def test_every_design_lifts_its_tether_with_spare_and_the_firmware_gets_only_the_design():
+    for p in be.sample(40):
+        design, wind, truth, filt = build(be.sections_of(p))
+        buoy, skin, gas, rope, _ = lift_balance(design)
+        assert buoy >= 1.2 * (skin + gas + rope) - 1e-9
+        assert design.balloon.radius_m == p["radius_m"] and design.tether.length_m == p["tether_m"]
+        assert filt == FilterConfig()  # truth-only settings never reach the filter
+        assert truth.rope_model == p["rope_model"] and truth.pressure_drift_hpa_h == p["pressure_drift_hpa_h"]
+    r = be.min_radius(100.0)
+    assert 0.9 < r < 1.0
+
+
+def test_extra_metrics_on_a_known_error():
+    t = np.arange(0.0, 300.0, 0.01)
+    rows = np.column_stack([t, np.full_like(t, 3.0), np.full_like(t, 0.4), np.full_like(t, 0.1)])
+    truth = {"time_s": t, "wind_n": np.full_like(t, 3.0), "wind_e": np.zeros_like(t)}
+
+    class Est:
+        class counters:  # noqa: N801
+            taut_resets = 1
+
+    m = be.extra_metrics(rows, truth, Est, 120.0, 300.0)
+    assert math.isclose(m["dir60_max_deg"], math.degrees(math.atan2(0.4, 3.0)), rel_tol=1e-9)
+    assert m["beyond_3sigma_frac"] == 1.0  # 0.4 m/s off with 0.1 stated
+    assert m["taut_per_h"] == 12.0
+    assert sum(m[f"cal_n_{b}"] for b in range(len(be.CAL_EDGES) - 1)) == 1800
+
+
+def test_summary_verdicts():
+    n = 20
+    df = pd.DataFrame({
+        "status": ["ok"] * n, "speed_error_pct": [1.0] * n, "direction_error_deg": [0.5] * (n - 1) + [9.0],
+        "dir60_max_deg": [2.0] * n, "error_ratio": [1.0] * n, "beyond_3sigma_frac": [0.0] * n,
+        "taut_per_h": [0.0] * n, "taut_resets": [0.0] * n, "band_skill": [0.8] * n,
+        "wind_kind": ["kaimal"] * n,
+    })  # fmt: skip
+    df.attrs["duration_s"] = 600.0
+    text, targets = be.summary(df)
+    verdict = {t.split(" (")[0]: ok for t, ok in targets}
+    assert verdict["|dir| <= 3 deg in 95 % of flights"] and not verdict["|dir| <= 8 deg in all"]
+    assert (
+        verdict["|speed| <= 4 % in 95 % of flights"] and verdict["band skill >= 0.6 on fluctuating winds, every flight"]
+    )
+    assert "| |direction error| deg |" in text and "FAIL" in text
+
+
+def test_one_short_flight_through_the_envelope_case():
+    c = be.cases(be.sample(3), 100.0, 20.0)[1]
+    row = be.envelope_case(c.payload())
+    assert row["status"] == "ok", row["error"]
+    for k in ("direction_error_deg", "error_ratio", "dir60_max_deg", "beyond_3sigma_frac", "taut_per_h", "resets"):
+        assert math.isfinite(row[k]), k
