@@ -22,14 +22,16 @@ $(BENCH_STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install -q -e '.[all,test,bench]'
 	touch $(BENCH_STAMP) $(STAMP)
 
+# the suite: two workers for what runs in process or on files, then the UDP and terminal tests one at a time
 test: $(STAMP)
 	$(BIN)/ruff check balloon_core firmware_py sim_hil ground_station postflight sil study tests benchmarks tools
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n 2 -m "not network and not terminal"
+	$(BIN)/python -m pytest -m "network or terminal"
 
 # the quick loop: no slow, UDP, terminal or Dask tests (under 2 minutes)
 test-fast: $(STAMP)
 	$(BIN)/ruff check balloon_core firmware_py sim_hil ground_station postflight sil study tests benchmarks tools
-	$(BIN)/python -m pytest -m "not slow and not network and not terminal and not dask"
+	$(BIN)/python -m pytest -n 2 -m "not slow and not network and not terminal and not dask"
 
 demo: $(STAMP)
 	$(BIN)/balloon-sil --scenario paper-reference
