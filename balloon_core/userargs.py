@@ -249,3 +249,40 @@ def tlog_sink(spec: str) -> str:
     if not is_link(spec) and not spec.endswith(".tlog"):
         raise argparse.ArgumentTypeError(f"{spec}: expected a UDP endpoint, a serial port or FILE.tlog")
     return sink(spec)
+
+
+# ---------------------------------------------------------------- one rule for every output option
+
+
+def _same(a: str, b: str) -> bool:
+    """The same file: the same real path (through symlinks), or the same inode if both exist."""
+    if os.path.realpath(a) == os.path.realpath(b):
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def check_outputs(inputs: dict[str, str | None], outputs: dict[str, str | None]) -> None:
+    """Before any work: a UserError naming the option if an output (a) is an input of the same run,
+    (b) is another output of the same run or (c) cannot be written. Keys are how the user named the
+    file (``"--out"``, ``"--out (its 1 s averages)"``); values None (not given) and links (UDP, serial)
+    are skipped."""
+    ins = {k: v for k, v in inputs.items() if v and not is_link(v)}
+    outs = {k: v for k, v in outputs.items() if v and not is_link(v)}
+    seen: list[tuple[str, str]] = []
+    for name, path in outs.items():
+        if os.path.realpath(path).startswith("/proc/") or os.path.realpath(path) == "/proc":
+            raise UserError(f"{name} {path}: cannot be written (under /proc)")
+        try:
+            output_path(path)
+        except argparse.ArgumentTypeError as exc:
+            raise UserError(f"{name} {exc}") from None
+        for iname, ipath in ins.items():
+            if _same(path, ipath):
+                raise UserError(f"{name} {path} is the input {iname} {ipath}")
+        for oname, opath in seen:
+            if _same(path, opath):
+                raise UserError(f"{name} {path} is also the output {oname} {opath}")
+        seen.append((name, path))
