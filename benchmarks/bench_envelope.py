@@ -1,7 +1,8 @@
 """The operating envelope: many flights from a fixed-seed low-discrepancy sample of the conditions a
 user may meet, each run through the study engine, scored, summarised against the issue's targets.
 
-    .venv/bin/python -m benchmarks.bench_envelope [--quick] [--flights N] [--out DIR] [--serial]
+    .venv/bin/python -m benchmarks.bench_envelope [--quick] [--flights N] [--out DIR]
+        [--serial | --workers N | --scheduler tcp://HOST:PORT]
 
 Sampled per flight (a scrambled Halton sequence, fixed seed): wind direction 0-360 deg, mean speed
 1-8 m/s, wind kind (steady | multisine both axes | VdH + Kaimal with vertical | IEC class B gusts with
@@ -14,7 +15,7 @@ the design (balloon, tether, sensors); everything else is truth only, its [filte
 Per flight (after ``start_s``): the study metrics (``study.case.metrics``) plus the worst 60 s mean
 direction error, the share of samples whose horizontal error exceeds 3 x the reported accuracy,
 taut re-placements (``counters.taut_resets``) per hour, and binned stated-vs-actual error for the
-calibration plot. Writes flights.parquet, flights.csv, summary.md and PNG plots into ``--out``.
+calibration plot. Writes envelope.parquet, envelope.csv, envelope_summary.md and PNG plots into ``--out``.
 Finished flights are stored as parts (``DIR/parts``): a repeated run only computes what is missing.
 """
 
@@ -58,6 +59,8 @@ PARAMS = ("from_deg", "mean_mps", "wind_kind", "rope_model", "radius_m", "tether
 WINDOW_S = 60.0
 CAL_EDGES = np.geomspace(0.02, 5.0, 15)  # stated accuracy bins, m/s
 ENVELOPE_VERSION = 1
+#: the study's metric names as the envelope's table names them (one row per flight, envelope.csv)
+CONTRACT_NAMES = {"speed_error_pct": "speed_err_pct", "direction_error_deg": "dir_err_deg", "error_ratio": "err_acc"}
 
 # ---------------------------------------------------------------- the sample
 
@@ -187,13 +190,13 @@ def extra_metrics(rows, truth, est, start_s: float, duration_s: float) -> dict[s
         mean = lambda cs: (cs[n:] - cs[:-n]) / n  # noqa: E731 - sliding 60 s means, every 0.1 s
         d_est = np.degrees(np.arctan2(mean(c(ee)), mean(c(en))))
         d_true = np.degrees(np.arctan2(mean(c(te)), mean(c(tn))))
-        out["dir60_max_deg"] = float(np.max(np.abs((d_est - d_true + 180.0) % 360.0 - 180.0)))
+        out["worst_60s_dir_err_deg"] = float(np.max(np.abs((d_est - d_true + 180.0) % 360.0 - 180.0)))
     else:
-        out["dir60_max_deg"] = math.nan
+        out["worst_60s_dir_err_deg"] = math.nan
     err = np.hypot(en - tn, ee - te)
-    out["beyond_3sigma_frac"] = float(np.mean(err > 3.0 * ac))
+    out["beyond_3sigma"] = float(np.mean(err > 3.0 * ac))
     out["taut_resets"] = float(est.counters.taut_resets)
-    out["taut_per_h"] = float(est.counters.taut_resets) / (duration_s / 3600.0)
+    out["replacements_per_h"] = float(est.counters.taut_resets) / (duration_s / 3600.0)
     k = np.clip(np.digitize(ac, CAL_EDGES) - 1, 0, len(CAL_EDGES) - 2)
     for b in range(len(CAL_EDGES) - 1):
         m = k == b
@@ -213,7 +216,8 @@ def envelope_case(payload: dict[str, Any]) -> dict[str, Any]:
     try:
         design, wind, truth_cfg, filt = build(payload["sections"])
         rows, truth, est = fly(design, wind, truth_cfg, filt, payload["duration_s"], payload["seed"])
-        row.update(metrics(design, wind, rows, truth, est, payload["start_s"]))
+        m = metrics(design, wind, rows, truth, est, payload["start_s"])
+        row.update({CONTRACT_NAMES.get(k, k): v for k, v in m.items()})
         row.update(extra_metrics(rows, truth, est, payload["start_s"], payload["duration_s"]))
     except Exception as e:  # one broken flight must not stop the envelope
         row["status"], row["error"] = "failed", f"{type(e).__name__}: {e}"
@@ -234,12 +238,12 @@ def summary(df) -> tuple[str, list[tuple[str, bool]]]:
     """The markdown summary table (percentiles and worst) and the targets with pass/fail."""
     ok = df[df["status"] == "ok"]
     cols = {
-        "|speed error| %": ok["speed_error_pct"].abs(),
-        "|direction error| deg": ok["direction_error_deg"].abs(),
-        "worst 60 s mean |dir error| deg": ok["dir60_max_deg"],
-        "err/acc": ok["error_ratio"],
-        "share beyond 3 sigma %": 100.0 * ok["beyond_3sigma_frac"],
-        "taut re-placements /h": ok["taut_per_h"],
+        "|speed error| %": ok["speed_err_pct"].abs(),
+        "|direction error| deg": ok["dir_err_deg"].abs(),
+        "worst 60 s mean |dir error| deg": ok["worst_60s_dir_err_deg"],
+        "err/acc": ok["err_acc"],
+        "share beyond 3 sigma %": 100.0 * ok["beyond_3sigma"],
+        "taut re-placements /h": ok["replacements_per_h"],
         "band skill (fluctuating winds)": ok.loc[ok["wind_kind"] != "steady", "band_skill"],
     }
     lines = ["| metric | p50 | p90 | p95 | worst |", "|---|---:|---:|---:|---:|"]
@@ -283,10 +287,10 @@ def _far(s) -> float:
 
 def worst_flights(df, k: int = 5) -> str:
     ok = df[df["status"] == "ok"].copy()
-    ok["abs_dir"] = ok["direction_error_deg"].abs()
+    ok["abs_dir"] = ok["dir_err_deg"].abs()
     top = ok.sort_values("abs_dir", ascending=False).head(k)
-    cols = ["flight", *PARAMS, "direction_error_deg", "dir60_max_deg", "speed_error_pct", "error_ratio",
-            "beyond_3sigma_frac", "taut_resets", "band_skill"]  # fmt: skip
+    cols = ["flight", *PARAMS, "dir_err_deg", "worst_60s_dir_err_deg", "speed_err_pct", "err_acc",
+            "beyond_3sigma", "taut_resets", "band_skill"]  # fmt: skip
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for _, r in top.iterrows():
         lines.append("| " + " | ".join(f"{r[c]:.3g}" if isinstance(r[c], float) else str(r[c]) for c in cols) + " |")
@@ -306,7 +310,7 @@ def plots(df, out: Path) -> list[Path]:
     import matplotlib.pyplot as plt
 
     ok = df[df["status"] == "ok"]
-    y = ok["direction_error_deg"].abs()
+    y = ok["dir_err_deg"].abs()
     fig, axes = plt.subplots(2, 5, figsize=(18, 7), sharey=True)
     rng = np.random.default_rng(0)
     for ax, p in zip(axes.flat, PARAMS):
@@ -368,6 +372,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="out/envelope", help="output directory (default out/envelope)")
     ap.add_argument("--serial", action="store_true", help="in this process, no Dask")
     ap.add_argument("--workers", type=int, help="Dask workers (default: one per core)")
+    ap.add_argument("--scheduler", help="a running Dask scheduler, tcp://HOST:PORT (instead of local workers)")
     args = ap.parse_args(argv)
     import pandas as pd
 
@@ -382,14 +387,14 @@ def main(argv: list[str] | None = None) -> int:
     if args.serial:
         rows, st = engine.run(cs, store, None, case_fn=envelope_case)
     else:
-        with engine.dask_client(workers=args.workers) as client:
+        with engine.dask_client(workers=args.workers, scheduler=args.scheduler) as client:
             rows, st = engine.run(cs, store, client, case_fn=envelope_case)
     wall = time.perf_counter() - t0
     table = [{"flight": c.point["flight"], **{p: c.point[p] for p in PARAMS}, **rows[c.key]} for c in cs]
     df = pd.DataFrame(table)
     df.attrs["duration_s"] = duration
-    df.to_parquet(out / "flights.parquet", index=False)
-    df.to_csv(out / "flights.csv", index=False)
+    df.to_parquet(out / "envelope.parquet", index=False)
+    df.to_csv(out / "envelope.csv", index=False)
     text, targets = summary(df)
     head = (
         f"envelope: {n} flights of {duration:g} s (scored from {args.start:g} s), base {BASE}, "
@@ -399,10 +404,10 @@ def main(argv: list[str] | None = None) -> int:
     worst = worst_flights(df)
     pngs = plots(df, out)
     doc = f"{head}\n\n{text}\n\nworst flights by |direction error|:\n\n{worst}\n"
-    (out / "summary.md").write_text(doc)
+    (out / "envelope_summary.md").write_text(doc)
     print(doc)
-    print("wrote " + ", ".join(str(p) for p in (out / "flights.parquet", out / "flights.csv", out / "summary.md",
-                                                  *pngs)))  # fmt: skip
+    written = (out / "envelope.parquet", out / "envelope.csv", out / "envelope_summary.md", *pngs)
+    print("wrote " + ", ".join(str(p) for p in written))
     return 0 if all(p for _, p in targets) else 1
 
 

@@ -54,18 +54,18 @@ def test_extra_metrics_on_a_known_error():
             taut_resets = 1
 
     m = be.extra_metrics(rows, truth, Est, 120.0, 300.0)
-    assert math.isclose(m["dir60_max_deg"], math.degrees(math.atan2(0.4, 3.0)), rel_tol=1e-9)
-    assert m["beyond_3sigma_frac"] == 1.0  # 0.4 m/s off with 0.1 stated
-    assert m["taut_per_h"] == 12.0
+    assert math.isclose(m["worst_60s_dir_err_deg"], math.degrees(math.atan2(0.4, 3.0)), rel_tol=1e-9)
+    assert m["beyond_3sigma"] == 1.0  # 0.4 m/s off with 0.1 stated
+    assert m["replacements_per_h"] == 12.0
     assert sum(m[f"cal_n_{b}"] for b in range(len(be.CAL_EDGES) - 1)) == 1800
 
 
 def test_summary_verdicts():
     n = 20
     df = pd.DataFrame({
-        "status": ["ok"] * n, "speed_error_pct": [1.0] * n, "direction_error_deg": [0.5] * (n - 1) + [9.0],
-        "dir60_max_deg": [2.0] * n, "error_ratio": [1.0] * n, "beyond_3sigma_frac": [0.0] * n,
-        "taut_per_h": [0.0] * n, "taut_resets": [0.0] * n, "band_skill": [0.8] * n,
+        "status": ["ok"] * n, "speed_err_pct": [1.0] * n, "dir_err_deg": [0.5] * (n - 1) + [9.0],
+        "worst_60s_dir_err_deg": [2.0] * n, "err_acc": [1.0] * n, "beyond_3sigma": [0.0] * n,
+        "replacements_per_h": [0.0] * n, "taut_resets": [0.0] * n, "band_skill": [0.8] * n,
         "wind_kind": ["kaimal"] * n,
     })  # fmt: skip
     df.attrs["duration_s"] = 600.0
@@ -82,5 +82,5 @@ def test_one_short_flight_through_the_envelope_case():
     c = be.cases(be.sample(3), 100.0, 20.0)[1]
     row = be.envelope_case(c.payload())
     assert row["status"] == "ok", row["error"]
-    for k in ("direction_error_deg", "error_ratio", "dir60_max_deg", "beyond_3sigma_frac", "taut_per_h", "resets"):
+    for k in ("dir_err_deg", "err_acc", "worst_60s_dir_err_deg", "beyond_3sigma", "replacements_per_h", "resets"):
         assert math.isfinite(row[k]), k
