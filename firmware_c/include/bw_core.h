@@ -174,6 +174,7 @@ typedef struct {
     int32_t was_slack;
     int64_t height_above;
     bw_real accel_var_excess;
+    bw_real align_innov2, align_var_excess, a_align_innov; /* the alignment's noise (aid_tether.c) */
     /* barometer (control.py _init_baro) */
     bw_real p_ref_pa;
     int32_t zeroing;

@@ -51,7 +51,7 @@ void bw_enter_taut(bw_ekf_t *e, bw_real height_m, bw_real rho, int from_tilt)
     bw_ekf_reset(e, BW_RESET_TAUT);
 }
 
-static void fuse_taut(bw_estimator_t *est)
+static void fuse_taut(bw_estimator_t *est, bw_real align_var)
 {
     bw_ekf_t *e = &est->ekf;
     const bw_real *x = e->x;
@@ -81,23 +81,20 @@ static void fuse_taut(bw_estimator_t *est)
         return;
     {
         const bw_real s[BW_NCOL] = {pn, pe, pd, vn, ve, vd, x[12], x[13], x[14], x[15], x[16]};
-        bw_real n[BW_ROPE_DIRECTION_SIZE], r[9], z[3], dz[2][3];
+        bw_real n[BW_ROPE_DIRECTION_SIZE], r[9], z[3];
         if (e->m.rope_drag)
             bw_rope_direction(s, f->params, n);
         else
             bw_rope_direction_plain(s, f->params, n);
         bw_rotation(e->q, r);
         z[0] = r[2], z[1] = r[5], z[2] = r[8]; /* body down axis in NED */
-        /* d z / d att = -[z x], rows N and E */
-        dz[0][0] = BW_R(0.0), dz[0][1] = z[2], dz[0][2] = -z[1];
-        dz[1][0] = -z[2], dz[1][1] = BW_R(0.0), dz[1][2] = z[0];
         ncol = BW_NCOL - (e->learn_drag ? 0 : 1);
         for (cc = 0; cc < 2; cc++) {
+            /* the attitude is a parameter here (tether.py fuse_taut): no attitude columns */
             memset(e->h, 0, sizeof e->h);
-            e->h[BW_ATT_N] = dz[cc][0], e->h[BW_ATT_E] = dz[cc][1], e->h[BW_ATT_D] = dz[cc][2];
             for (j = 0; j < ncol; j++)
                 e->h[BW_MODEL_COLS[j]] = -n[2 + BW_NCOL * cc + j]; /* residual z - n(x) */
-            bw_ekf_fuse(e, n[cc] - z[cc], est->align_var, &est->taut_status[2 + cc], BW_R(0.0), 0);
+            bw_ekf_fuse(e, n[cc] - z[cc], align_var, &est->taut_status[2 + cc], BW_R(0.0), 0);
         }
     }
 }
@@ -128,9 +125,16 @@ void bw_control_tether(bw_estimator_t *est)
     bw_ekf_t *e = &est->ekf;
     if (e->mode == BW_MODE_TAUT && e->taut_phase == 0) {
         bw_status_t *an = &est->taut_status[2], *ae = &est->taut_status[3];
+        /* the alignment's noise follows its recent innovations (tether.py control_tether) */
+        bw_real var = BW_MAX(est->align_var, est->align_innov2);
+        est->align_var_excess = var - est->align_var;
         if (est->catenary)
             update_rope_shape(est);
-        fuse_taut(est);
+        fuse_taut(est, var);
+        if (an->time_test_us == e->time_us) {
+            bw_real i2 = BW_R(0.5) * (an->innov * an->innov + ae->innov * ae->innov);
+            est->align_innov2 += est->a_align_innov * (i2 - est->align_innov2);
+        }
         if (BW_MAX(an->consecutive_rejects, ae->consecutive_rejects) >= est->sched.align_reset) {
             est->counters.taut_resets += 1;
             an->consecutive_rejects = ae->consecutive_rejects = 0;

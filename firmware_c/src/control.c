@@ -80,6 +80,8 @@ static void init_clock(bw_estimator_t *est)
     est->was_slack = 0;
     est->height_above = 0;
     est->accel_var_excess = BW_R(0.0);
+    est->align_innov2 = BW_R(0.0);
+    est->align_var_excess = BW_R(0.0);
     bw_consistency_reset(&est->consistency);
 }
 
@@ -165,6 +167,7 @@ int bw_init(bw_estimator_t *est, const bw_config_t *cfg)
     est->n_confirm = steps_for(BW_CONFIRM_S * cfg->imu_rate_hz);
     est->a_accel = (bw_real)(1.0 / (BW_CONSISTENCY_S * cfg->imu_rate_hz));
     est->a_taut = (bw_real)(est->sched.taut_every / (BW_CONSISTENCY_S * cfg->imu_rate_hz));
+    est->a_align_innov = (bw_real)(est->sched.taut_every / (BW_ALIGN_INNOV_S * cfg->imu_rate_hz));
     est->a_baro = (bw_real)(1.0 / (BW_CONSISTENCY_S * BW_BARO_NOMINAL_HZ));
     est->a_confirm = (bw_real)(1.0 / (BW_CONFIRM_WINDOW_S * cfg->imu_rate_hz));
     for (i = 0; i < 3; i++)
@@ -388,10 +391,14 @@ static void monitor(bw_estimator_t *est)
             nis += st[i].innov * st[i].innov / BW_MAX(st[i].innov_var - ex, BW_R(1e-12));
         bw_consistency_add(mon, BW_ACCEL, nis / BW_R(3.0), est->a_accel);
     }
-    if (an->time_test_us == t && an->innov_var > BW_R(0.0) && ae->innov_var > BW_R(0.0))
+    if (an->time_test_us == t && an->innov_var > BW_R(0.0) && ae->innov_var > BW_R(0.0)) {
+        /* the alignment's noise follows its innovations too: judged against the nominal one */
+        bw_real ex = est->align_var_excess;
         bw_consistency_add(mon, BW_ALIGN,
-                           BW_R(0.5) * (an->innov * an->innov / an->innov_var + ae->innov * ae->innov / ae->innov_var),
+                           BW_R(0.5) * (an->innov * an->innov / BW_MAX(an->innov_var - ex, BW_R(1e-12)) +
+                                        ae->innov * ae->innov / BW_MAX(ae->innov_var - ex, BW_R(1e-12))),
                            taut_alpha);
+    }
     if (radius->time_test_us == t && radius->innov_var > BW_R(0.0))
         bw_consistency_add(mon, BW_RADIUS, radius->innov * radius->innov / radius->innov_var, taut_alpha);
     if (b->time_test_us == t && b->innov_var > BW_R(0.0))

@@ -30,6 +30,7 @@ from firmware_py.estimator.model import ADDED_MASS_COEFFICIENT, BalloonModel, Fo
 from firmware_py.estimator.params import (
     ACC_MAX,
     ACCEL_INNOV_S,
+    ALIGN_INNOV_S,
     BARO_MODEL_M,
     BARO_NOMINAL_HZ,
     CONFIRM_EXPLAINED,
@@ -142,7 +143,7 @@ class Estimator:
         self.mag_status = [FusionStatus(f"mag_{a}", sched.mag_recover) for a in "xyz"]
         # the magnetometer's model error: the field's direction is known to ~0.5 deg after the boot
         self.mag_var = self.mag_sigma**2 + MAG_MODEL_GAUSS**2
-        self.taut_status = [FusionStatus(n) for n in ("radius", "radial_rate", "align_n", "align_e")]
+        self.taut_status = [FusionStatus(n) for n in ("radius", "radial_rate", "align_along", "align_cross")]
         self.consistency = Consistency()
         m = self.model
         rope_half = 0.25 * m.rope_cn_d_m * m.tether_length_m  # a straight rope's half of its drag
@@ -179,6 +180,9 @@ class Estimator:
         self._was_slack = False
         self._height_above = 0
         self._accel_var_excess = 0.0
+        self._align_innov2 = [0.0, 0.0]  # along, cross (aid_sources/tether.py)
+        self._align_var_excess = [0.0, 0.0]
+        self._align_alpha = self.schedule.taut_every / (ALIGN_INNOV_S * self.cfg.imu_rate_hz)
         self.consistency.reset()
 
     def _init_baro(self) -> None:
@@ -329,7 +333,10 @@ class Estimator:
         taut_alpha = self.schedule.taut_every / (CONSISTENCY_S * rate)
         radius, _, an, ae = self.taut_status
         if an.time_test_us == t and an.innov_var > 0.0 and ae.innov_var > 0.0:
-            mon.add(ALIGN, 0.5 * (an.innov**2 / an.innov_var + ae.innov**2 / ae.innov_var), taut_alpha)
+            ex = self._align_var_excess
+            nis = 0.5 * (an.innov**2 / max(an.innov_var - ex[0], 1e-12)
+                         + ae.innov**2 / max(ae.innov_var - ex[1], 1e-12))  # fmt: skip
+            mon.add(ALIGN, nis, taut_alpha)
         if radius.time_test_us == t and radius.innov_var > 0.0:
             mon.add(RADIUS, radius.innov**2 / radius.innov_var, taut_alpha)
         b = self.baro_status

@@ -24,6 +24,12 @@ ROPE_WAVE_ALIGN_RAD = 0.016
 # the rope shape (chord, weight on the rod) follows the mean wind, slowly: a fast one feeds the
 # wind estimate back into the model (a 0.05 Hz resonance, gain 4 on the real rope)
 ROPE_SHAPE_S = 60.0
+# the rope's weight on the balloon seen from its lean and its chord (aid_sources/tether.py update_rope_shape):
+# the catenary's share is known to this fraction of the rope's weight (a rope unlike the design's), the
+# lean's mean to this (tilt from the accelerometer's bias, a few mg)
+ROPE_SHARE_SIGMA = 0.5
+LEAN_MEAN_SIGMA_RAD = 0.01
+ALIGN_INNOV_S = 5.0  # averaging time of the alignment's innovations that set its noise floor
 ALIGN_RESET_S = 2.0  # rejected alignment this long re-places the taut state
 JOIN_IN_FLIGHT_US = 10_000_000  # a first sample this long after the sender's boot: we restarted in flight
 # After a join in flight the balloon hypothesis is unconfirmed: the wind read from the tilt through the

@@ -12,6 +12,8 @@ from firmware_py.estimator.ekf import RESET_TAUT, FusionStatus, WindEkf
 from firmware_py.estimator.generated import rope_direction, rope_direction_plain
 from firmware_py.estimator.model import N_COLUMNS, ROPE_JAC
 from firmware_py.estimator.params import (
+    LEAN_MEAN_SIGMA_RAD,
+    ROPE_SHARE_SIGMA,
     TAUT_AZIMUTH_MIN_M,
     TAUT_LEAN_MIN_SIN,
     TAUT_POS_SIGMA_M,
@@ -20,9 +22,6 @@ from firmware_py.estimator.params import (
     UNGATED,
 )
 from firmware_py.estimator.state import (
-    ATT_D,
-    ATT_E,
-    ATT_N,
     DRAG,
     MODE_TAUT,
     MODEL_COLUMNS,
@@ -101,13 +100,20 @@ def enter_taut(ekf: WindEkf, height_m: float, rho: float, from_tilt: bool = Fals
 
 
 def fuse_taut(
-    ekf: WindEkf, radial_var: float, radial_rate_var: float, align_var: float, status: list[FusionStatus]
-) -> None:
+    ekf: WindEkf, radial_var: float, radial_rate_var: float, along_var: float, cross_var: float,
+    status: list[FusionStatus],
+) -> None:  # fmt: skip
     """Restricted radial motion (paper Sec. 2.3): the attachment point at the bottom of the sphere
     (Eq. 7; ``ekf.forces.attach_ned`` from the attitude) at |p_a| = L_c (the rope's chord) from the anchor, no radial
     velocity but the winch's reel (``ekf.rope.rate_mps``), and the balloon's down axis along the rope
     force (tension towards the anchor + the rope's weight, Eq. 5, + the rope's cross-flow drag if
-    modelled). The attitude enters the first two as a parameter (no attitude column: r / L ~ 1 %)."""
+    modelled). The attitude enters as a parameter (no attitude column: r / L ~ 1 % in the first two; in
+    the alignment, see below).
+
+    The alignment's horizontal residual is taken in two components about the balloon's azimuth from the
+    anchor: ``along`` (how far it leans: what the rope's shape, its weight on the balloon and the rocking
+    in the gusts all move) and ``cross`` (where it leans: the azimuth, which no rope model changes). Each
+    has its own noise (``control_tether``): a rope unlike the model must not cost the azimuth."""
     x = ekf.x
     pn, pe, pd, vn, ve, vd = x[:6].tolist()
     on, oe, od = ekf.forces.attach_ned
@@ -135,15 +141,21 @@ def fuse_taut(
     fn = rope_direction if ekf.model.rope_drag_m2 > 0.0 else rope_direction_plain
     n = fn(pn, pe, pd, vn, ve, vd, wn, we, rn, re, k, *f.params)
     r = rotation(*ekf.q.tolist())
-    z = (r[2], r[5], r[8])  # body down axis in NED
-    dz_datt = ((0.0, z[2], -z[1]), (-z[2], 0.0, z[0]))  # d z / d att = -[z x], rows N and E
+    zn, ze = r[2], r[5]  # body down axis in NED, horizontal part
+    horiz = math.hypot(pn, pe)
+    an, ae = (pn / horiz, pe / horiz) if horiz > 1e-3 else (1.0, 0.0)  # the azimuth (a parameter)
     ncol = len(MODEL_COLUMNS) - (0 if ekf.learn_drag else 1)
-    for c in range(2):
+    jn, je = ROPE_JAC, ROPE_JAC + N_COLUMNS
+    # the attitude is a parameter here too: gyro, accelerometer and magnetometer measure it, and the rope's
+    # alignment is the weakest model of all (the balloon rocks on its attachment, the rope waves). Let it
+    # rotate the attitude and a wrong taut state confirms itself: a rotation about the magnetic field is
+    # invisible to the magnetometer, and the alignment turns the attitude about it until the tilt points
+    # where the wrong state says (docs/estimator.md)
+    for cn, ce, var, st in ((an, ae, along_var, status[2]), (-ae, an, cross_var, status[3])):
         h.fill(0.0)
-        h[ATT_N], h[ATT_E], h[ATT_D] = dz_datt[c]
         for j in range(ncol):
-            h[MODEL_COLUMNS[j]] = -n[ROPE_JAC + N_COLUMNS * c + j]  # residual z - n(x)
-        ekf.fuse(n[c] - z[c], align_var, status[2 + c], recover=False)
+            h[MODEL_COLUMNS[j]] = -(cn * n[jn + j] + ce * n[je + j])  # residual c . (z - n(x))
+        ekf.fuse(cn * (n[0] - zn) + ce * (n[1] - ze), var, st, recover=False)
 
 
 def update_rope_shape(ekf: WindEkf, rho: float, alpha: float) -> None:
@@ -164,6 +176,23 @@ def update_rope_shape(ekf: WindEkf, rho: float, alpha: float) -> None:
     if not chord > 0.5 * m.tether_length_m:
         return  # no rope shape under this pull (lift gone): keep the last
     weight = effective_rod(fn, fe, fd, cn, ce, cd, m.rope_weight_n)
+    # what the balloon itself says of the share: its pull is along the body's down axis, its vertical
+    # part the balloon's own lift (in the mean), and the chord is the state's (the barometer's height on
+    # the tether's sphere): W_eff = N_b (1 - tan(lean) / tan(chord)). A rope unlike the design's (stiffer,
+    # heavier, the paper's rod with its whole weight on the balloon) is then not a contradiction between
+    # the tilt and the height that the filter settles with a wrong wind. Weighted against the catenary's
+    # share by how well the lean tells it: a steep chord (calm air) leaves it to the model.
+    r = rotation(*ekf.q.tolist())
+    zn, ze, zd = r[2], r[5], r[8]
+    on, oe, od = ekf.forces.attach_ned
+    qn, qe, qd = float(x[POS_N]) + on, float(x[POS_E]) + oe, float(x[POS_D]) + od
+    if zd > 0.1 and qd < 0.0 and weight == weight:
+        s = lift / zd
+        seen = effective_rod(s * zn, s * ze, s * zd, qn, qe, qd, m.rope_weight_n)
+        tan2 = (qn * qn + qe * qe) / (qd * qd)
+        t0 = lift * LEAN_MEAN_SIGMA_RAD / (ROPE_SHARE_SIGMA * m.rope_weight_n + 1e-9)
+        if seen == seen:
+            weight += tan2 / (tan2 + t0 * t0) * (seen - weight)
     rope = ekf.rope
     rope.chord_m += alpha * (chord - rope.chord_m)
     if weight == weight:  # NaN: a vertical chord tells no share, keep the last
@@ -178,9 +207,18 @@ def control_tether(est: Estimator) -> None:
         cfg = est.cfg
         if est.catenary:
             update_rope_shape(ekf, est.rho, est.schedule.rope_shape_alpha)
-        fuse_taut(ekf, cfg.radial_m**2, cfg.radial_rate_mps**2, est.align_var, est.taut_status)
-        align_n, align_e = est.taut_status[2], est.taut_status[3]
-        if max(align_n.consecutive_rejects, align_e.consecutive_rejects) >= est.schedule.align_reset:
+        # each alignment component's noise follows its recent innovations, as the accelerometer's does
+        # (aid_sources/accel.py): a balloon that rocks in gusts is not along its rope force to 0.01 rad,
+        # and a model error taken for a precise measurement is rejected, then re-placed, again and again
+        mean2 = est._align_innov2
+        along_var, cross_var = max(est.align_var, mean2[0]), max(est.align_var, mean2[1])
+        est._align_var_excess[0], est._align_var_excess[1] = along_var - est.align_var, cross_var - est.align_var
+        fuse_taut(ekf, cfg.radial_m**2, cfg.radial_rate_mps**2, along_var, cross_var, est.taut_status)
+        along, cross = est.taut_status[2], est.taut_status[3]
+        if along.time_test_us == ekf.time_us:
+            mean2[0] += est._align_alpha * (along.innov**2 - mean2[0])
+            mean2[1] += est._align_alpha * (cross.innov**2 - mean2[1])
+        if max(along.consecutive_rejects, cross.consecutive_rejects) >= est.schedule.align_reset:
             est.counters.taut_resets += 1
-            align_n.consecutive_rejects = align_e.consecutive_rejects = 0
+            along.consecutive_rejects = cross.consecutive_rejects = 0
             enter_taut(ekf, est._height_for_taut(), est.rho, from_tilt=True)
