@@ -97,7 +97,7 @@ function needle(line, deg) {          // the needle points to where the wind com
 // ---------------------------------------------------------------- the profile (SVG, error bars)
 
 function profileSvg(legs, key, errKey, unit, fixedMax) {
-  const W = 300, H = 220, L = 40, B = 24, T = 8, R = 8;
+  const W = 220, H = 200, L = 34, B = 24, T = 8, R = 8;
   const rows = legs.flatMap((g) => g.rows);
   const zmax = Math.max(10, ...rows.map((r) => r.z)) * 1.05;
   const xmax = fixedMax || Math.max(1, ...rows.map((r) => r[key] + (r[errKey] || 0))) * 1.05;
@@ -160,7 +160,7 @@ function card(sysid) {
     <h3>speed (m/s, band ±accuracy)</h3><div class="chart c-speed"></div>
     <h3>direction from (°)</h3><div class="chart c-from"></div>
     <div class="profile hidden"><h3>profile: <span class="legs"></span></h3>
-      <div class="p-speed"></div><div class="p-from"></div></div>`;
+      <div class="pair"><div class="p-speed"></div><div class="p-from"></div></div></div>`;
   const view = { sysid, root: c, k: {}, short: new Series(TEN_MIN_S), hour: new Series(HOUR_S), window: TEN_MIN_S,
                  stats: null, lastChart: 0, charts: [] };
   c.querySelectorAll("[data-k]").forEach((e) => { view.k[e.dataset.k] = e; });
@@ -294,7 +294,7 @@ async function loadProduct() {
     <p class="dim p-title"></p>
     <h3>speed (m/s): smoothed (zero-lag) and causal (real-time), bands ±1σ</h3><div class="chart pc-speed"></div>
     <h3>direction from (°)</h3><div class="chart pc-from"></div>
-    <div class="profile hidden"><h3>profile: <span class="legs"></span></h3><div class="p-speed"></div><div class="p-from"></div></div></div>`;
+    <div class="profile hidden"><h3>profile: <span class="legs"></span></h3><div class="pair"><div class="p-speed"></div><div class="p-from"></div></div></div></div>`;
   box.querySelector("a").textContent = p.name;
   box.querySelector(".p-title").textContent = p.title;
   const band = (v, e, cap) => [v.map((x, i) => x === null || e[i] === null ? null : Math.max(0, x - e[i])),
