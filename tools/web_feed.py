@@ -23,6 +23,8 @@ SENSORS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR
            | mavlink.MAV_SYS_STATUS_AHRS)  # fmt: skip
 GOOD = (mavlink.ESTIMATOR_ATTITUDE | mavlink.ESTIMATOR_VELOCITY_HORIZ | mavlink.ESTIMATOR_VELOCITY_VERT
         | mavlink.ESTIMATOR_POS_HORIZ_REL | mavlink.ESTIMATOR_POS_VERT_AGL)  # fmt: skip
+WINCH_HEALTHY, WINCH_MOVING, WINCH_CLUTCH = (mavlink.MAV_WINCH_STATUS_HEALTHY, mavlink.MAV_WINCH_STATUS_MOVING,
+                                              mavlink.MAV_WINCH_STATUS_CLUTCH_ENGAGED)  # fmt: skip
 WINCH_SYSID = 250  # the winch: a component of the ground's system
 MODE_TAUT = 2
 WINCH_SPEED_MPS = 1.0  # the reel's speed while a leg runs
@@ -92,8 +94,9 @@ class Feed(threading.Thread):
                 with self.lock:
                     if reel is not None and k % per_second == 0:
                         w = self.winch_mav
+                        status = WINCH_HEALTHY | WINCH_CLUTCH | (WINCH_MOVING if reel else 0)
                         frames.append(pack(w, w.winch_status_encode(t_us, self.line_m, reel, math.nan, math.nan,
-                                                                    math.nan, 0, 1 | 8 | (4 if reel else 0))))  # fmt: skip
+                                                                    math.nan, 0, status)))  # fmt: skip
                     for b in self.balloons.values():
                         if not b.silent:
                             frames += self._balloon_frames(b, k, t_us, per_second, k * period)

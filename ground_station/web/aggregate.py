@@ -85,21 +85,25 @@ def gust(t: np.ndarray, speed: np.ndarray, start: float, window_s: float = GUST_
 
 
 class Decimator:
-    """At most one sample per slot of ``1 / max_hz`` seconds (the first in each): never more than ``max_hz``
-    a second, and a stream at ``max_hz`` or slower passes nearly whole."""
+    """At most ``max_hz`` samples a second: a sample is taken when it is due (one interval after the last
+    due time) or at most ``JITTER`` of an interval early, so that a stream at ``max_hz`` whose arrival times
+    jitter passes whole; any faster stream is thinned to ``max_hz``. Over any ``W`` seconds at most
+    ``W * max_hz + 2`` are taken."""
+
+    JITTER = 0.25  # of an interval
 
     def __init__(self, max_hz: float = PUSH_HZ) -> None:
         self.interval_s = 1.0 / max_hz
-        self._slot: int | None = None
+        self.early_s = self.JITTER * self.interval_s
+        self._due: float | None = None
         self.taken = 0
         self.dropped = 0
 
     def take(self, t: float) -> bool:
-        slot = math.floor(t / self.interval_s)
-        if slot == self._slot:
+        if self._due is not None and t < self._due - self.early_s:
             self.dropped += 1
             return False
-        self._slot = slot
+        self._due = (t if self._due is None else max(self._due, t - self.early_s)) + self.interval_s
         self.taken += 1
         return True
 
