@@ -1,4 +1,5 @@
-"""A scripted MAVLink feed for ``balloon-gs web`` (tests, benchmarks/bench_web.py, the README's screenshot):
+"""A scripted MAVLink feed for ``balloon-gs web`` (tests, benchmarks/bench_web.py, the README's screenshot),
+and the means to run the program and a browser on it (``WebServer``, ``launch_chromium``):
 balloons as balloon-fw sends them (WIND_COV at ``rate_hz``, HEARTBEAT + SYS_STATUS + ESTIMATOR_STATUS once a
 second) over loopback UDP, each of whose state a test can change while it runs (sensors silent, a misfit, the
 link dead), and optionally a winch (WINCH_STATUS) paying out and reeling in.
@@ -9,7 +10,12 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
+import shutil
+import signal
 import socket
+import subprocess
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -137,6 +143,82 @@ class Feed(threading.Thread):
         b.sent += 1
         b.last = (n, e, b.acc)
         return out
+
+
+PY = sys.executable
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+                 "--disable-sync", "--no-first-run"]  # fmt: skip
+START_TIMEOUT_S = 30.0
+
+
+def have_browser() -> bool:
+    if not (os.path.exists(CHROMIUM) or shutil.which("chromium")):
+        return False
+    try:
+        import playwright.sync_api  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def free_tcp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class WebServer:
+    """``balloon-gs web ARGS --bind 127.0.0.1:PORT`` as a subprocess; ``url`` once it serves."""
+
+    def __init__(self, *args: str, port: int = 0, host: str = "127.0.0.1") -> None:
+        self.args = [PY, "-m", "ground_station", "web", *args, "--bind", f"{host}:{port}"]
+        self.proc = subprocess.Popen(self.args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        line = self.proc.stdout.readline()  # "balloon-gs web: http://HOST:PORT/ (read-only; ...)"
+        if not line.startswith("balloon-gs web: http://"):
+            self.proc.kill()
+            out, err = self.proc.communicate(timeout=10)
+            raise RuntimeError(f"balloon-gs web did not start: {line}{out}{err}")
+        self.url = line.split()[2]
+        self.port = int(self.url.rstrip("/").rsplit(":", 1)[1])
+
+    def stats(self) -> dict:
+        import json
+        import urllib.request
+
+        with urllib.request.urlopen(self.url + "api/stats", timeout=5) as r:
+            return json.load(r)
+
+    def stop(self, sig: int = signal.SIGINT, timeout_s: float = 20.0) -> tuple[int, str]:
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        try:
+            _, err = self.proc.communicate(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            _, err = self.proc.communicate()
+        return self.proc.returncode, err
+
+
+def wait_until(cond, timeout_s: float, every_s: float = 0.1):
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        v = cond()
+        if v:
+            return v
+        time.sleep(every_s)
+    return cond()
+
+
+def launch_chromium(playwright):
+    exe = CHROMIUM if os.path.exists(CHROMIUM) else shutil.which("chromium")
+    return playwright.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
 
 
 def main(argv: list[str] | None = None) -> int:

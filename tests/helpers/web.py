@@ -1,94 +1,23 @@
-"""``balloon-gs web`` under test: start it on free ports, read its URL, stop it; a small synthetic product
-(and its profile) to show; Debian's chromium through Playwright (the browser tests skip without it)."""
+"""``balloon-gs web`` under test: the server runner, the feed and the browser from tools/web_feed.py; a small
+synthetic product (and its profile) to show."""
 
 from __future__ import annotations
 
 import math
-import os
-import shutil
-import signal
-import socket
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
-PY = sys.executable
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-                 "--disable-sync", "--no-first-run"]  # fmt: skip
-START_TIMEOUT_S = 30.0
-
-
-def have_browser() -> bool:
-    if not (os.path.exists(CHROMIUM) or shutil.which("chromium")):
-        return False
-    try:
-        import playwright.sync_api  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def free_tcp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-class WebServer:
-    """``balloon-gs web ARGS --bind 127.0.0.1:PORT`` as a subprocess; ``url`` once it serves."""
-
-    def __init__(self, *args: str, port: int = 0, host: str = "127.0.0.1") -> None:
-        self.args = [PY, "-m", "ground_station", "web", *args, "--bind", f"{host}:{port}"]
-        self.proc = subprocess.Popen(self.args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        line = self.proc.stdout.readline()  # "balloon-gs web: http://HOST:PORT/ (read-only; ...)"
-        if not line.startswith("balloon-gs web: http://"):
-            self.proc.kill()
-            out, err = self.proc.communicate(timeout=10)
-            raise RuntimeError(f"balloon-gs web did not start: {line}{out}{err}")
-        self.url = line.split()[2]
-        self.port = int(self.url.rstrip("/").rsplit(":", 1)[1])
-
-    def stats(self) -> dict:
-        import json
-        import urllib.request
-
-        with urllib.request.urlopen(self.url + "api/stats", timeout=5) as r:
-            return json.load(r)
-
-    def stop(self, sig: int = signal.SIGINT, timeout_s: float = 20.0) -> tuple[int, str]:
-        if self.proc.poll() is None:
-            self.proc.send_signal(sig)
-        try:
-            _, err = self.proc.communicate(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            _, err = self.proc.communicate()
-        return self.proc.returncode, err
-
-
-def wait_until(cond, timeout_s: float, every_s: float = 0.1):
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        v = cond()
-        if v:
-            return v
-        time.sleep(every_s)
-    return cond()
-
-
-def launch_chromium(playwright):
-    exe = CHROMIUM if os.path.exists(CHROMIUM) else shutil.which("chromium")
-    return playwright.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
+from tools.web_feed import (  # noqa: F401 - re-exported for the tests
+    CHROMIUM,
+    PY,
+    WebServer,
+    free_tcp_port,
+    free_udp_port,
+    have_browser,
+    launch_chromium,
+    wait_until,
+)
 
 
 def write_product(path: Path) -> Path:
