@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import json
 import mimetypes
+import os
 import sys
 import threading
 import time
@@ -205,7 +206,8 @@ class WebStation:
             try:
                 await site.start()
             except OSError as exc:
-                raise OSError(f"cannot serve on {host}:{port}: {exc.strerror or exc}") from None
+                why = os.strerror(exc.errno).lower() if exc.errno else str(exc)
+                raise OSError(f"cannot serve on {host}:{port}: {why}") from None
             bound = site._server.sockets[0].getsockname()[1] if site._server and site._server.sockets else port
             for t in self._threads:
                 t.start()
