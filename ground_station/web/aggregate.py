@@ -134,8 +134,8 @@ class Leg:
             b = self.bins[k]
             sp, frm = speed_from(b.n / b.count, b.e / b.count)
             acc = math.sqrt(b.acc2 / b.count)
-            out.append({"z": (k + 0.5) * bin_m, "speed": sp, "speed_err": acc, "from": frm,
-                        "from_err": direction_sigma_deg(sp, acc), "count": b.count})  # fmt: skip
+            out.append({"z": (k + 0.5) * bin_m, "speed": _num(sp), "speed_err": _num(acc), "from": _num(frm, 1),
+                        "from_err": _num(direction_sigma_deg(sp, acc), 1), "count": b.count})  # fmt: skip
         return out
 
 
