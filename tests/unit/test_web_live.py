@@ -105,3 +105,23 @@ def test_receiver_is_what_listen_runs():
     finally:
         rx.close()
     assert seen == ["WIND_COV"] and gs.vehicles[5].wind_count == 1
+
+
+def test_every_file_the_page_loads_ships_as_package_data():
+    """pyproject.toml's package-data globs cover every file under ground_station/web/static (uPlot and its
+    licence included): an installed balloon-gs web serves the same page as the checkout."""
+    import fnmatch
+    import tomllib
+    from pathlib import Path
+
+    from ground_station.web.server import STATIC_DIR, static_files
+
+    root = Path(__file__).resolve().parents[2]
+    globs = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
+    web = globs["ground_station.web"]
+    files = static_files()
+    assert {"index.html", "app.js", "app.css", "vendor/uplot/uPlot.iife.min.js", "vendor/uplot/uPlot.min.css",
+            "vendor/uplot/LICENSE"} <= set(files)  # fmt: skip
+    for rel in files:
+        path = (STATIC_DIR / rel).relative_to(STATIC_DIR.parent).as_posix()
+        assert any(fnmatch.fnmatch(path, g) and path.count("/") == g.count("/") for g in web), path
