@@ -6,8 +6,8 @@ over a WebSocket (a page that connects gets a snapshot first). Read-only: nothin
 the link; a page's message that is not one of ``CLIENT_MESSAGES`` is dropped and counted.
 
 Every file the page loads is served from ``static/`` by this program (uPlot vendored, no CDN): only the
-files that are there at start, by exact name; with ``--product`` only that file and its profile, by exact
-name. Anything else is 404."""
+files that are there at start, by exact name; with ``--product`` only that file, by its exact name (its
+profile's legs are in ``/product/data.json``). Anything else is 404."""
 
 from __future__ import annotations
 
@@ -132,7 +132,7 @@ class WebStation:
         return web.Response(body=self.product_json, content_type="application/json")
 
     async def _product_file(self, request: web.Request) -> web.StreamResponse:
-        path = self.product_files.get(request.match_info["name"])  # the given file and its profile, by name
+        path = self.product_files.get(request.match_info["name"])  # the given file, by its exact name
         if path is None:
             raise web.HTTPNotFound()
         return web.FileResponse(path, headers={"Content-Disposition": f'attachment; filename="{path.name}"'})
@@ -245,12 +245,10 @@ def run(endpoints: list[str], host: str, port: int, product_path: str | None, st
     """Load the product (if any), open the links, serve until stopped; the station (for its summary)."""
     product = files = None
     if product_path is not None:
-        from ground_station.web.product import load_product, profile_path
+        from ground_station.web.product import load_product
 
-        product = load_product(product_path)
-        files = {Path(product_path).name: Path(product_path).resolve()}
-        if product["profile"] is not None:
-            files[Path(profile_path(product_path)).name] = Path(profile_path(product_path)).resolve()
+        product = load_product(product_path)  # with its profile's legs, if <stem>_profile.nc lies beside it
+        files = {Path(product_path).name: Path(product_path).resolve()}  # the one file served as a file
     station = WebStation(endpoints, product, files)
 
     def announce(url: str) -> None:

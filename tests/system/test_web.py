@@ -139,7 +139,7 @@ def test_only_its_own_files_and_the_given_product_are_served(product):
         code, _, data = get(srv.url, "/product/flight.nc")
         assert code == 200 and data.startswith(b"\x89HDF")
         code, _, data = get(srv.url, "/product/flight_profile.nc")
-        assert code == 200
+        assert code == 404  # its legs are in data.json; the one file served is the one given
         code, _, data = get(srv.url, "/product/data.json")
         p = json.loads(data)
         assert code == 200 and p["name"] == "flight.nc" and len(p["profile"]["legs"]) >= 2
