@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import math
 
+import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from balloon_core.wire import Decoder, LinkStats, pack
@@ -82,6 +83,7 @@ def test_a_winch_splits_the_samples_into_legs():
     assert model.snapshot(240.0)["winch"]["reel_mps"] == -1.0
 
 
+@pytest.mark.network
 def test_receiver_is_what_listen_runs():
     """``listen`` and ``web`` share one receiver (ground_station.listen.Receiver): a UDP endpoint bound
     here takes a frame into the station."""
