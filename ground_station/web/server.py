@@ -30,6 +30,7 @@ from ground_station.web.live import LiveModel
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 RECV_TIMEOUT_S = 0.1  # a receiver thread looks at the stop flag at least this often
 STOP_POLL_S = 0.1
+SEND_TIMEOUT_S = 2.0  # a page that takes longer to take one update is dropped (it reconnects by itself)
 CLIENT_MESSAGES = ("hello", "ping")  # all a page may say (its JSON {"type": ...}); nothing commands the balloon
 MAX_CLIENT_MESSAGE_BYTES = 4096
 LOOPBACK = "127.0.0.1"
@@ -192,10 +193,11 @@ class WebStation:
                 if ws.closed:
                     continue
                 try:
-                    await ws.send_str(text)
+                    await asyncio.wait_for(ws.send_str(text), SEND_TIMEOUT_S)
                     self.counters.pushed += 1
-                except (ConnectionError, RuntimeError):
+                except (ConnectionError, RuntimeError, TimeoutError):  # gone, or too slow: the others go on
                     self.clients.discard(ws)
+                    asyncio.ensure_future(ws.close())
 
     async def serve(self, host: str, port: int, stop, announce=print) -> None:
         """Serve until ``stop()`` (or a receiver fails); ``announce`` gets the URL once listening."""
