@@ -18,6 +18,8 @@ SERIES = {  # the page's key: the product's variable
     "causal_speed": "wind_speed_causal", "causal_speed_err": "wind_speed_causal_uncertainty",
     "causal_from": "wind_from_direction_causal", "causal_from_err": "wind_from_direction_causal_uncertainty",
 }  # fmt: skip
+PROFILE_VARS = {"speed": "wind_speed", "speed_err": "wind_speed_uncertainty", "from": "wind_from_direction",
+                "from_err": "wind_from_direction_uncertainty"}  # fmt: skip
 
 
 def profile_path(path: str) -> str:
@@ -69,19 +71,25 @@ def load_profile(path: str) -> dict:
     except (OSError, ValueError) as exc:
         raise userargs.UserError(f"{path}: not a NetCDF profile ({' '.join(str(exc).split())})") from None
     with ds:
-        z = np.asarray(ds["z"].values, float)
-        legs = []
-        for k in range(ds.sizes["profile"]):
-            rows = []
-            for j, zj in enumerate(z):
-                sp = float(ds["wind_speed"].values[k, j])
-                if not math.isfinite(sp):
-                    continue
-                rows.append({"z": float(zj), "speed": sp,
-                             "speed_err": float(ds["wind_speed_uncertainty"].values[k, j]),
-                             "from": float(ds["wind_from_direction"].values[k, j]),
-                             "from_err": float(ds["wind_from_direction_uncertainty"].values[k, j]),
-                             "count": int(ds["sample_count"].values[k, j])})  # fmt: skip
-            legs.append({"ascent": bool(ds["leg_direction"].values[k] > 0), "rows": rows})
-        bin_m = float(z[1] - z[0]) if z.size > 1 else math.nan
-        return {"name": os.path.basename(path), "bin_m": bin_m, "legs": legs}
+        try:
+            return _profile_legs(ds, path)
+        except (KeyError, IndexError, ValueError) as exc:
+            raise userargs.UserError(f"{path}: not a balloon-gs reprocess profile (no {exc})") from None
+
+
+def _profile_legs(ds, path: str) -> dict:
+    """The legs of an open profile dataset (KeyError if a variable is missing)."""
+    z = np.asarray(ds["z"].values, float)
+    cols = {key: np.asarray(ds[var].values, float) for key, var in PROFILE_VARS.items()}
+    count = np.asarray(ds["sample_count"].values, int)
+    up = np.asarray(ds["leg_direction"].values) > 0
+    legs = []
+    for k in range(ds.sizes["profile"]):
+        rows = []
+        for j, zj in enumerate(z):
+            if math.isfinite(cols["speed"][k, j]):  # a bin with too few samples is NaN: left out
+                vals = {key: _values(c[k, j : j + 1])[0] for key, c in cols.items()}
+                rows.append({"z": round(float(zj), 1), **vals, "count": int(count[k, j])})
+        legs.append({"ascent": bool(up[k]), "rows": rows})
+    bin_m = float(z[1] - z[0]) if z.size > 1 else math.nan
+    return {"name": os.path.basename(path), "bin_m": _values([bin_m], 1)[0], "legs": legs}

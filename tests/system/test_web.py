@@ -11,7 +11,6 @@ import re
 import signal
 import socket
 import subprocess
-import sys
 import urllib.request
 
 import pytest
@@ -211,5 +210,7 @@ def test_stats_endpoint_is_json():
         srv.stop(signal.SIGTERM)
 
 
-if __name__ == "__main__":
-    sys.exit(pytest.main([__file__, "-q"]))
+def test_a_profile_given_as_the_product_is_a_user_error(product):
+    r = web("--product", str(product.with_name("flight_profile.nc")), "--bind", "127.0.0.1:0")
+    one_line_error(r)
+    assert "not a balloon-gs reprocess product" in r.stderr
