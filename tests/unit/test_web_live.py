@@ -127,3 +127,21 @@ def test_every_file_the_page_loads_ships_as_package_data():
     for rel in files:
         path = (STATIC_DIR / rel).relative_to(STATIC_DIR.parent).as_posix()
         assert any(fnmatch.fnmatch(path, g) and path.count("/") == g.count("/") for g in web), path
+
+
+@pytest.mark.parametrize(("text", "want"), [("127.0.0.1:8000", ("127.0.0.1", 8000)), ("[::1]:0", ("::1", 0)),
+                                            ("0.0.0.0:65535", ("0.0.0.0", 65535))])  # fmt: skip
+def test_bind_is_host_and_port(text, want):
+    from balloon_core.userargs import bind
+
+    assert bind(text) == want
+
+
+@pytest.mark.parametrize("text", ["8000", ":8000", "host:", "host:port", "h:65536", "h:-1"])
+def test_a_bad_bind_is_refused(text):
+    import argparse
+
+    from balloon_core.userargs import bind
+
+    with pytest.raises(argparse.ArgumentTypeError):
+        bind(text)
