@@ -68,7 +68,8 @@ def stop_flag() -> StopFlag:
 
 
 # what each optional part needs; `pip install balloon-wind` brings the firmware, simulator and live station
-EXTRAS = {"postflight": ("pyulog", "xarray", "netCDF4"), "study": ("dask", "distributed", "pyarrow")}
+EXTRAS = {"postflight": ("pyulog", "xarray", "netCDF4"), "study": ("dask", "distributed", "pyarrow"),
+          "web": ("aiohttp",)}
 
 
 def require_extra(extra: str) -> None:
@@ -189,6 +190,15 @@ def link(spec: str) -> str:
     if "://" in spec:
         return spec
     raise argparse.ArgumentTypeError(f"{spec}: not a UDP endpoint (udpin:HOST:PORT, udpout:HOST:PORT) or serial port")
+
+
+def bind(text: str) -> tuple[str, int]:
+    """``HOST:PORT`` to listen on (``[::1]:8000`` for IPv6; port 0: any free one)."""
+    host, sep, port = text.rpartition(":")
+    host = host.removeprefix("[").removesuffix("]")
+    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise argparse.ArgumentTypeError(f"expected HOST:PORT (e.g. 127.0.0.1:8000), got {text!r}")
+    return host, int(port)
 
 
 def output_path(path: str) -> str:

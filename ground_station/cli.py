@@ -1,4 +1,5 @@
-"""``balloon-gs``: listen (live view + logs), report (score + plot) and reprocess (post-flight products)."""
+"""``balloon-gs``: listen (live view + logs), web (the same in a browser), report (score + plot) and reprocess
+(post-flight products)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import sys
 from balloon_core import userargs
 
 PROG = "balloon-gs"
+DEFAULT_BIND = ("127.0.0.1", 8000)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -22,6 +24,13 @@ def main(argv: list[str] | None = None) -> int:
                          "link each second as the ground reference")  # fmt: skip
     li.add_argument("--ground-sysid", type=int, default=255, help="this ground station's MAVLink system id "
                     "([site] ground_sysid of the firmware's design file)")  # fmt: skip
+    we = sub.add_parser("web", help="the ground station in a browser: live WIND_COV of every balloon, or a product")
+    we.add_argument("endpoint", nargs="*", type=userargs.link, help="as for listen; one or more (or none with "
+                    "--product)")  # fmt: skip
+    we.add_argument("--bind", type=userargs.bind, default=DEFAULT_BIND, metavar="HOST:PORT",
+                    help=f"serve the page here (default {DEFAULT_BIND[0]}:{DEFAULT_BIND[1]}: this machine only)")
+    we.add_argument("--product", type=userargs.input_file, metavar="FILE.nc",
+                    help="also show this balloon-gs reprocess product (and its <stem>_profile.nc)")
     rp = sub.add_parser("report", help="score a WIND_COV log against a truth CSV and plot it")
     rp.add_argument(
         "file",
@@ -51,6 +60,8 @@ def main(argv: list[str] | None = None) -> int:
         except KeyboardInterrupt:
             print(f"{PROG} reprocess: interrupted; nothing written", file=sys.stderr)
             return 130
+    if args.cmd == "web":
+        return _web(args)
     if args.cmd == "listen":
         from ground_station.listen import GroundStation, listen
 
@@ -79,6 +90,32 @@ def main(argv: list[str] | None = None) -> int:
     print(format_score(s))
     if args.plot:
         print(f"plot: {args.plot}")
+    return 0
+
+
+def _web(args) -> int:
+    prog = f"{PROG} web"
+    if not args.endpoint and args.product is None:
+        return userargs.fail(prog, "give one or more ENDPOINTs to listen to, or --product FILE.nc")
+    try:
+        userargs.require_extra("web")
+    except userargs.UserError as exc:
+        return userargs.fail(prog, exc)
+    from ground_station.web.server import LOOPBACK, run
+
+    host, port = args.bind
+    if host != LOOPBACK:
+        print(f"{prog}: warning: serving on {host}:{port}, not {LOOPBACK}: anyone who can reach it sees the "
+              "balloons (read-only)", file=sys.stderr)  # fmt: skip
+    stop = userargs.stop_flag()
+    try:
+        gs = run(args.endpoint, host, port, args.product, stop)
+    except (ValueError, OSError, userargs.UserError) as exc:
+        return userargs.fail(prog, exc)
+    print(gs.summary(), file=sys.stderr)
+    if stop.interrupted:  # as listen: Ctrl-C (not SIGTERM) says the run did not finish
+        print(f"{prog}: interrupted (Ctrl-C)", file=sys.stderr)
+        return 130
     return 0
 
 

@@ -17,6 +17,7 @@ then clears every sensor's health bit, the gyro's too (which a misfit never clea
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
 import sys
@@ -61,6 +62,8 @@ COLUMNS = {
     "alt": ("alt m", "right"), "mode": ("mode", "left"), "hz": ("Hz", "right"), "rst": ("rst", "right"),
     "lost": ("lost", "right"), "in": ("in%", "right"), "hb": ("hb", "right"), "state": ("state", "left"),
 }  # fmt: skip
+STATE_STYLES = {"WAIT": "yellow", "STALE": "bold white on red", "SENSORS LOST": "bold white on red",
+                "MISFIT": "bold yellow", "OK": "green"}  # fmt: skip
 WIDE_HEADERS = {"wind": "wind m/s", "from": "from °"}
 # the richest that fits wins; the last always does (80 columns)
 LAYOUTS = (
@@ -96,6 +99,7 @@ class Vehicle:
     text_severity: int = mavlink.MAV_SEVERITY_INFO
     text_at: float | None = None  # monotonic time of the last STATUSTEXT
     wind_count: int = 0
+    estimator_flags: int | None = None  # the last ESTIMATOR_STATUS flags (ESTIMATOR_STATUS_FLAGS)
     times: deque = field(default_factory=deque)  # WIND_COV arrival times within RATE_WINDOW_S
     history: deque = field(default_factory=lambda: deque(maxlen=240))  # (arrival time, speed) each second
 
@@ -171,6 +175,29 @@ class Vehicle:
         """The last STATUSTEXT is a warning (or worse) and the balloon still reports a misfit."""
         return self.text is not None and self.text_severity <= mavlink.MAV_SEVERITY_WARNING and bool(self.misfit())
 
+    def state(self, now: float) -> str:
+        """The one state every view shows, the worst first: ``WAIT`` (no WIND_COV yet), ``STALE`` (none for
+        ``STALE_S``), ``SENSORS LOST``, ``MISFIT`` or ``OK``."""
+        if self.last is None:
+            return "WAIT"
+        if self.stale(now):
+            return "STALE"
+        if self.sensors_lost():
+            return "SENSORS LOST"
+        if self.misfit():
+            return "MISFIT"
+        return "OK"
+
+
+@dataclass(frozen=True)
+class Winch:
+    """The last WINCH_STATUS: when it came (monotonic s), the paid-out line (m), the reel's speed (m/s,
+    positive paying out)."""
+
+    at: float
+    line_length_m: float
+    speed_mps: float
+
 
 class GroundStation:
     def __init__(self, csv_path: str | None = None, tlog_path: str | None = None, out=sys.stdout,
@@ -190,6 +217,7 @@ class GroundStation:
         if self._csv:
             self._csv.writerow(CSV_COLUMNS + LOSS_COLUMNS)
         self._tlog = TlogSink(tlog_path) if tlog_path else None
+        self.winch: Winch | None = None  # the last WINCH_STATUS (any system: the site has one winch)
         self.duplicates = 0  # frames received twice (a relay or a radio repeating), dropped
         self._recent: deque[bytes] = deque()
         self._recent_set: set[bytes] = set()
@@ -213,10 +241,11 @@ class GroundStation:
             self._recent_set.discard(self._recent.popleft())
         return False
 
-    def handle(self, m, now: float) -> None:
+    def handle(self, m, now: float) -> bool:
+        """Take one decoded message; False if it was a duplicate (dropped)."""
         frame = bytes(m.get_msgbuf())
         if self._duplicate(frame):
-            return
+            return False
         if self._tlog:
             self._tlog.send(frame)
         t = m.get_type()
@@ -242,6 +271,11 @@ class GroundStation:
         elif t == "STATUSTEXT":
             v = self.vehicle(m.get_srcSystem())
             v.text, v.text_severity, v.text_at = m.text, m.severity, now
+        elif t == "ESTIMATOR_STATUS":
+            self.vehicle(m.get_srcSystem()).estimator_flags = int(m.flags)
+        elif t == "WINCH_STATUS":  # the site's winch (a component of the ground's system, docs/protocol.md)
+            self.winch = Winch(now, float(m.line_length), float(m.speed))
+        return True
 
     def heartbeat(self) -> bytes:
         return pack(self.mav, self.mav.heartbeat_encode(
@@ -416,16 +450,9 @@ class GroundStation:
         c["in"] = Text("-" if in_pct is None else f"{in_pct:.1f}", style="red bold" if in_pct else "")
         late = hb_age is None or hb_age > HB_LATE_S
         c["hb"] = Text("-" if hb_age is None else f"{hb_age:.0f}s", style="red bold" if late else "")
-        if r is None:
-            c["state"] = Text("WAIT", style="yellow")
-        elif v.stale(now):
-            c["state"] = Text(f"STALE {v.age(now):.0f}s", style="bold white on red")
-        elif v.sensors_lost():
-            c["state"] = Text("SENSORS LOST", style="bold white on red")
-        elif v.misfit():
-            c["state"] = Text("MISFIT", style="bold yellow")
-        else:
-            c["state"] = Text("OK", style="green")
+        state = v.state(now)
+        label = f"STALE {v.age(now):.0f}s" if state == "STALE" else state
+        c["state"] = Text(label, style=STATE_STYLES[state])
         return c
 
     def close(self) -> None:
@@ -486,10 +513,42 @@ class GroundReferenceFile:
         return hpa, temp
 
 
+class Receiver:
+    """One link into a ``GroundStation``: each ``step`` waits for data at most ``timeout_s``, decodes it into
+    the station, and sends the station's HEARTBEAT (and ground reference) once a second. ``lock`` (any
+    context manager) guards the station when another thread reads it (``balloon-gs web``)."""
+
+    def __init__(self, endpoint: str, gs: GroundStation, lock=None, on_message=None) -> None:
+        self.link = open_link(endpoint)
+        self.endpoint = endpoint
+        self.gs = gs
+        self.dec = Decoder(gs.stats)
+        self.lock = lock if lock is not None else contextlib.nullcontext()
+        self.on_message = on_message  # called with (message, now) for each one the station took, under lock
+        self._next_hb = time.monotonic()
+
+    def step(self, timeout_s: float) -> None:
+        data = self.link.recv(timeout_s)
+        now = time.monotonic()
+        with self.lock:
+            if data:
+                for m in self.dec.feed(data):
+                    if self.gs.handle(m, now) and self.on_message is not None:
+                        self.on_message(m, now)
+            if now >= self._next_hb:
+                self.link.send(self.gs.heartbeat())
+                ground = self.gs.ground_reference()
+                if ground is not None:
+                    self.link.send(ground)
+                self._next_hb = now + 1.0
+
+    def close(self) -> None:
+        self.link.close()
+
+
 def listen(endpoint: str, gs: GroundStation, stop, duration_s: float | None = None) -> None:
-    link = open_link(endpoint)
+    rx = Receiver(endpoint, gs)
     gs.endpoint = endpoint
-    dec = Decoder(gs.stats)
     tty = stream_is_terminal(gs.out)
     live = None
     if tty:
@@ -501,22 +560,14 @@ def listen(endpoint: str, gs: GroundStation, stop, duration_s: float | None = No
                     redirect_stderr=False, vertical_overflow="ellipsis")  # fmt: skip
         live.start()
     t0 = time.monotonic()
-    next_show = next_hb = t0
+    next_show = t0
     try:
         while not stop():
             now = time.monotonic()
             if duration_s is not None and now - t0 >= duration_s:
                 break
-            data = link.recv(0.1)
-            if data:
-                for m in dec.feed(data):
-                    gs.handle(m, now)
-            if now >= next_hb:
-                link.send(gs.heartbeat())
-                ground = gs.ground_reference()
-                if ground is not None:
-                    link.send(ground)
-                next_hb = now + 1.0
+            rx.step(0.1)
+            now = time.monotonic()
             if now >= next_show:
                 if live is not None:
                     live.update(gs.view(now, live.console.size.width), refresh=True)
@@ -527,7 +578,7 @@ def listen(endpoint: str, gs: GroundStation, stop, duration_s: float | None = No
                     gs.out.flush()
                     next_show = now + 1.0
     finally:
-        link.close()
+        rx.close()
         if live is not None:
             live.update(gs.view(time.monotonic(), live.console.size.width), refresh=True)
             live.stop()

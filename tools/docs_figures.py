@@ -6,9 +6,11 @@
 - ``balloon-study examples/quick-study.toml --workers 2``: its tables replace the example in ``docs/study.md``;
 - ``python -m postflight.logs tests/data/FILE --estimate`` on the two PX4 multicopter logs: the last wind and
   accuracy the estimator gives, which ``docs/usage.md`` quotes;
+- ``python -m tools.web_screenshot``: the browser ground station's picture, ``docs/web.png`` (skipped, the old
+  picture kept, without chromium);
 and writes what they printed to ``docs/figures.json``. ``--check`` (and ``tests/unit/test_docs_figures.py``)
 compare the docs against that record without running anything: exit 1 and the differences if they disagree.
-``--only sil|study|ulog`` reruns one part (the others keep their record).
+``--only sil|study|ulog|web`` reruns one part (the others keep their record).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 RECORD = DOCS / "figures.json"
 SIL_PNG = DOCS / "sil.png"
+WEB_PNG = DOCS / "web.png"
 STUDY_MD = DOCS / "study.md"
 USAGE_MD = DOCS / "usage.md"
 STUDY_SPEC = "examples/quick-study.toml"
@@ -62,6 +65,19 @@ def sil() -> dict:
     return {"command": "balloon-sil --scenario paper-reference", "score_line": line, "loss_line": loss,
             "png_sha256": hashlib.sha256(SIL_PNG.read_bytes()).hexdigest(),
             **{k: float(v) for k, v in m.groupdict().items()}}  # fmt: skip
+
+
+def web() -> dict:
+    """``balloon-gs web``'s picture (tools/web_screenshot.py); the record kept as it was without chromium."""
+    r = subprocess.run([sys.executable, "-m", "tools.web_screenshot", "--out", str(WEB_PNG)], cwd=ROOT,
+                       capture_output=True, text=True)  # fmt: skip
+    if r.returncode == 2:
+        print(f"docs_figures: web skipped: {r.stderr.strip()}", file=sys.stderr)
+        old = json.loads(RECORD.read_text()) if RECORD.exists() else {}
+        return old.get("web", {})
+    if r.returncode != 0:
+        raise SystemExit(f"docs_figures: tools/web_screenshot.py failed (exit {r.returncode}):\n{r.stderr[-2000:]}")
+    return {"command": "python -m tools.web_screenshot", "png_sha256": hashlib.sha256(WEB_PNG.read_bytes()).hexdigest()}
 
 
 def study() -> dict:
@@ -110,6 +126,9 @@ def check(record: dict) -> list[str]:
         bad.append("docs/sil.png is not the figure balloon-sil made (run make docs-figures)")
     if study_block(STUDY_MD.read_text()) != record["study"]["stdout"]:
         bad.append("docs/study.md: the quick-study tables are not what balloon-study printed")
+    web_rec = record.get("web", {})
+    if web_rec and (not WEB_PNG.exists() or hashlib.sha256(WEB_PNG.read_bytes()).hexdigest() != web_rec["png_sha256"]):
+        bad.append("docs/web.png is not the picture tools/web_screenshot.py made (run make docs-figures)")
     usage = USAGE_MD.read_text()
     for start, phrases in ulog_phrases(record["ulog"]).items():
         para = usage[usage.index(start) :].split("\n- ", 1)[0]
@@ -120,11 +139,11 @@ def check(record: dict) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--check", action="store_true", help="compare the docs with docs/figures.json, run nothing")
-    ap.add_argument("--only", choices=("sil", "study", "ulog"), action="append", help="rerun only this part")
+    ap.add_argument("--only", choices=("sil", "study", "ulog", "web"), action="append", help="rerun only this part")
     args = ap.parse_args(argv)
     record = json.loads(RECORD.read_text()) if RECORD.exists() else {}
     if not args.check:
-        for part, make in (("sil", sil), ("study", study), ("ulog", ulog)):
+        for part, make in (("sil", sil), ("study", study), ("ulog", ulog), ("web", web)):
             if args.only is None or part in args.only:
                 print(f"docs_figures: {part} ...", file=sys.stderr, flush=True)
                 record[part] = make()
