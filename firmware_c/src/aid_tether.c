@@ -51,7 +51,7 @@ void bw_enter_taut(bw_ekf_t *e, bw_real height_m, bw_real rho, int from_tilt)
     bw_ekf_reset(e, BW_RESET_TAUT);
 }
 
-static void fuse_taut(bw_estimator_t *est, bw_real align_var)
+static void fuse_taut(bw_estimator_t *est, bw_real along_var, bw_real cross_var)
 {
     bw_ekf_t *e = &est->ekf;
     const bw_real *x = e->x;
@@ -81,20 +81,36 @@ static void fuse_taut(bw_estimator_t *est, bw_real align_var)
         return;
     {
         const bw_real s[BW_NCOL] = {pn, pe, pd, vn, ve, vd, x[12], x[13], x[14], x[15], x[16]};
-        bw_real n[BW_ROPE_DIRECTION_SIZE], r[9], z[3];
+        bw_real n[BW_ROPE_DIRECTION_SIZE], r[9], zn, ze, zd, horiz, an, ae, c[2][2], var[2];
         if (e->m.rope_drag)
             bw_rope_direction(s, f->params, n);
         else
             bw_rope_direction_plain(s, f->params, n);
         bw_rotation(e->q, r);
-        z[0] = r[2], z[1] = r[5], z[2] = r[8]; /* body down axis in NED */
+        zn = r[2], ze = r[5], zd = r[8]; /* body down axis in NED */
+        horiz = BW_HYPOT(pn, pe);
+        if (horiz > BW_R(1e-3))
+            an = pn / horiz, ae = pe / horiz; /* the azimuth (a parameter) */
+        else
+            an = BW_R(1.0), ae = BW_R(0.0);
+        c[0][0] = an, c[0][1] = ae, c[1][0] = -ae, c[1][1] = an; /* along, cross */
+        var[0] = along_var, var[1] = cross_var;
         ncol = BW_NCOL - (e->learn_drag ? 0 : 1);
         for (cc = 0; cc < 2; cc++) {
-            /* the attitude is a parameter here (tether.py fuse_taut): no attitude columns */
+            /* the attitude is a parameter (tether.py fuse_taut): no attitude columns; its uncertainty along
+             * the component, c . d z / d att P_att (..)^T, is added to the noise */
+            const bw_real cn = c[cc][0], ce = c[cc][1];
+            const bw_real g0 = -ce * zd, g1 = cn * zd, g2 = ce * zn - cn * ze;
+            const bw_real var_att =
+                g0 * (g0 * e->P[BW_ATT_N][BW_ATT_N] +
+                      BW_R(2.0) * (g1 * e->P[BW_ATT_N][BW_ATT_E] + g2 * e->P[BW_ATT_N][BW_ATT_D])) +
+                g1 * (g1 * e->P[BW_ATT_E][BW_ATT_E] + BW_R(2.0) * g2 * e->P[BW_ATT_E][BW_ATT_D]) +
+                g2 * g2 * e->P[BW_ATT_D][BW_ATT_D];
             memset(e->h, 0, sizeof e->h);
             for (j = 0; j < ncol; j++)
-                e->h[BW_MODEL_COLS[j]] = -n[2 + BW_NCOL * cc + j]; /* residual z - n(x) */
-            bw_ekf_fuse(e, n[cc] - z[cc], align_var, &est->taut_status[2 + cc], BW_R(0.0), 0);
+                e->h[BW_MODEL_COLS[j]] = -(cn * n[2 + j] + ce * n[2 + BW_NCOL + j]); /* residual c . (z - n(x)) */
+            bw_ekf_fuse(e, cn * (n[0] - zn) + ce * (n[1] - ze), var[cc] + var_att, &est->taut_status[2 + cc],
+                        BW_R(0.0), 0);
         }
     }
 }
@@ -115,6 +131,23 @@ static void update_rope_shape(bw_estimator_t *est)
     if (!(chord > BW_R(0.5) * length))
         return; /* no rope shape under this pull (lift gone): keep the last */
     weight = bw_effective_rod(fn, fe, fd, ch[0], ch[1], ch[2], m->rope_weight_n);
+    {
+        /* the share the balloon's lean and the state's chord say (tether.py update_rope_shape) */
+        bw_real r[9], zn, ze, zd, qn, qe, qd;
+        bw_rotation(e->q, r);
+        zn = r[2], ze = r[5], zd = r[8];
+        qn = x[BW_POS_N] + e->forces.attach_ned[0];
+        qe = x[BW_POS_E] + e->forces.attach_ned[1];
+        qd = x[BW_POS_D] + e->forces.attach_ned[2];
+        if (zd > BW_R(0.1) && qd < BW_R(0.0) && weight == weight) {
+            bw_real s = lift / zd, seen, tan2, t0;
+            seen = bw_effective_rod(s * zn, s * ze, s * zd, qn, qe, qd, m->rope_weight_n);
+            tan2 = (qn * qn + qe * qe) / (qd * qd);
+            t0 = lift * (bw_real)BW_LEAN_BIAS_RAD / ((bw_real)BW_ROPE_SHARE_SIGMA * m->rope_weight_n + BW_R(1e-9));
+            if (seen == seen)
+                weight += tan2 / (tan2 + t0 * t0) * (seen - weight);
+        }
+    }
     e->rope_chord_m += alpha * (chord - e->rope_chord_m);
     if (weight == weight)
         e->rope_weight_n += alpha * (weight - e->rope_weight_n);
@@ -125,15 +158,18 @@ void bw_control_tether(bw_estimator_t *est)
     bw_ekf_t *e = &est->ekf;
     if (e->mode == BW_MODE_TAUT && e->taut_phase == 0) {
         bw_status_t *an = &est->taut_status[2], *ae = &est->taut_status[3];
-        /* the alignment's noise follows its recent innovations (tether.py control_tether) */
-        bw_real var = BW_MAX(est->align_var, est->align_innov2);
-        est->align_var_excess = var - est->align_var;
+        /* each alignment component's noise follows its recent innovations, the azimuth's no more than a
+         * rocking balloon's (tether.py control_tether) */
+        bw_real *mean2 = est->align_innov2, along_var, cross_var;
         if (est->catenary)
             update_rope_shape(est);
-        fuse_taut(est, var);
+        along_var = BW_MAX(est->align_var, mean2[0]);
+        cross_var = BW_MAX(est->align_var, BW_MIN(mean2[1], (bw_real)BW_ALIGN_CROSS_VAR_MAX));
+        est->align_var_excess[0] = along_var - est->align_var, est->align_var_excess[1] = cross_var - est->align_var;
+        fuse_taut(est, along_var, cross_var);
         if (an->time_test_us == e->time_us) {
-            bw_real i2 = BW_R(0.5) * (an->innov * an->innov + ae->innov * ae->innov);
-            est->align_innov2 += est->a_align_innov * (i2 - est->align_innov2);
+            mean2[0] += est->a_align_innov * (an->innov * an->innov - mean2[0]);
+            mean2[1] += est->a_align_innov * (ae->innov * ae->innov - mean2[1]);
         }
         if (BW_MAX(an->consecutive_rejects, ae->consecutive_rejects) >= est->sched.align_reset) {
             est->counters.taut_resets += 1;

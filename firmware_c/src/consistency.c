@@ -33,10 +33,21 @@ void bw_consistency_evaluate(bw_consistency_t *m)
     m->inflation = BW_SQRT(worst);
 }
 
-bw_real bw_systematic_variance(bw_real speed_mps, bw_real drag_scale, bw_real drag_scale_var, bw_real rope_drag_share)
+bw_real bw_systematic_variance(bw_real speed_mps, bw_real drag_scale, bw_real drag_scale_var, bw_real rope_drag_share,
+                               bw_real lean_wind_mps)
 {
     bw_real k = BW_MAX(drag_scale, BW_R(1e-3));
     bw_real rel_k = BW_R(0.5) * BW_SQRT(drag_scale_var) / k;
     bw_real rel_rope = BW_R(0.5) * rope_drag_share * (bw_real)BW_ROPE_CD_REL_SIGMA;
-    return speed_mps * speed_mps * (rel_k * rel_k + rel_rope * rel_rope);
+    return speed_mps * speed_mps * (rel_k * rel_k + rel_rope * rel_rope) + lean_wind_mps * lean_wind_mps;
+}
+
+/* consistency.py lean_bias_wind: the wind error of a tilt error on the taut balloon */
+bw_real bw_lean_bias_wind(bw_real speed_mps, bw_real lift_n, bw_real drag_per_speed2, bw_real lean_bias_rad)
+{
+    bw_real v;
+    if (!(drag_per_speed2 > BW_R(0.0) && lift_n > BW_R(0.0)))
+        return BW_R(0.0);
+    v = BW_R(1.118033988749895) * lift_n * lean_bias_rad / (drag_per_speed2 * BW_MAX(speed_mps, BW_R(1e-3)));
+    return BW_MIN(v, BW_MAX(speed_mps, BW_R(0.5)));
 }

@@ -80,8 +80,9 @@ static void init_clock(bw_estimator_t *est)
     est->was_slack = 0;
     est->height_above = 0;
     est->accel_var_excess = BW_R(0.0);
-    est->align_innov2 = BW_R(0.0);
-    est->align_var_excess = BW_R(0.0);
+    est->align_innov2[0] = est->align_innov2[1] = BW_R(0.0);
+    est->align_var_excess[0] = est->align_var_excess[1] = BW_R(0.0);
+    est->drag_prior[0] = BW_R(1.0), est->drag_prior[1] = BW_R(0.0);
     bw_consistency_reset(&est->consistency);
 }
 
@@ -332,7 +333,17 @@ static void update_mode(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
     bw_real pn, pe, pd, dist, length;
     est->dwell += 1;
     dwell_ok = est->dwell >= est->n_dwell;
-    e->learn_drag = e->mode == BW_MODE_FREE && est->dwell >= est->n_learn_drag;
+    {
+        int learning = e->mode == BW_MODE_FREE && est->dwell >= est->n_learn_drag;
+        if (learning != e->learn_drag) {
+            if (learning)
+                est->drag_prior[0] = e->x[BW_DRAG], est->drag_prior[1] = e->P[BW_DRAG][BW_DRAG];
+            else
+                bw_ekf_cap_information(e, BW_DRAG, est->drag_prior[0], est->drag_prior[1],
+                                       (bw_real)(BW_DRAG_ASCENT_SIGMA * BW_DRAG_ASCENT_SIGMA));
+        }
+        e->learn_drag = learning;
+    }
     if (e->mode == BW_MODE_GROUND) {
         int lifted = BW_FABS(BW_SQRT(ax * ax + ay * ay + az * az) - (bw_real)BW_G0) > cfg->release_accel_mps2;
         bw_real hb = est->height_baro;
@@ -393,10 +404,10 @@ static void monitor(bw_estimator_t *est)
     }
     if (an->time_test_us == t && an->innov_var > BW_R(0.0) && ae->innov_var > BW_R(0.0)) {
         /* the alignment's noise follows its innovations too: judged against the nominal one */
-        bw_real ex = est->align_var_excess;
+        const bw_real *ex = est->align_var_excess;
         bw_consistency_add(mon, BW_ALIGN,
-                           BW_R(0.5) * (an->innov * an->innov / BW_MAX(an->innov_var - ex, BW_R(1e-12)) +
-                                        ae->innov * ae->innov / BW_MAX(ae->innov_var - ex, BW_R(1e-12))),
+                           BW_R(0.5) * (an->innov * an->innov / BW_MAX(an->innov_var - ex[0], BW_R(1e-12)) +
+                                        ae->innov * ae->innov / BW_MAX(ae->innov_var - ex[1], BW_R(1e-12))),
                            taut_alpha);
     }
     if (radius->time_test_us == t && radius->innov_var > BW_R(0.0))
@@ -538,8 +549,14 @@ bw_real bw_wind_accuracy(const bw_estimator_t *est)
     const bw_ekf_t *e = &est->ekf;
     bw_real wn = e->x[BW_WIND_N], we = e->x[BW_WIND_E], speed = BW_SQRT(wn * wn + we * we), sys_var = BW_R(0.0), acc,
             w = bw_ekf_wind_accuracy(e);
-    if (e->mode != BW_MODE_GROUND)
-        sys_var = bw_systematic_variance(speed, e->x[BW_DRAG], e->P[BW_DRAG][BW_DRAG], est->rope_drag_share);
+    if (e->mode != BW_MODE_GROUND) {
+        const bw_model_t *m = &e->m;
+        bw_real lean = e->mode == BW_MODE_TAUT
+                           ? bw_lean_bias_wind(speed, (est->rho * m->volume_m3 - m->mass_kg) * (bw_real)BW_G0,
+                                               e->x[BW_DRAG] * est->rho * m->half_cd_area_m2, (bw_real)BW_LEAN_BIAS_RAD)
+                           : BW_R(0.0);
+        sys_var = bw_systematic_variance(speed, e->x[BW_DRAG], e->P[BW_DRAG][BW_DRAG], est->rope_drag_share, lean);
+    }
     acc = BW_SQRT(w * w + sys_var) * est->consistency.inflation;
     if (est->unconfirmed)
         acc = BW_MAX(acc, BW_SQRT(wn * wn + we * we + BW_R(1.0)));

@@ -453,6 +453,22 @@ static void inhibit(bw_ekf_t *e, int i)
     e->P[i][i] = v;
 }
 
+/* ekf.py cap_information: what the data told state i since the prior is worth at most a measurement of
+ * variance data_var_min (a model error taken for information is given back) */
+void bw_ekf_cap_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_var, bw_real data_var_min)
+{
+    bw_real var = e->P[i][i], info, data, cap, v;
+    info = var > BW_R(0.0) && prior_var > BW_R(0.0) ? BW_R(1.0) / var - BW_R(1.0) / prior_var : BW_R(0.0);
+    if (!(info > BW_R(1.0) / data_var_min))
+        return;
+    data = (e->x[i] / var - prior / prior_var) / info;
+    cap = BW_R(1.0) / data_var_min;
+    v = BW_R(1.0) / (BW_R(1.0) / prior_var + cap);
+    inhibit(e, i);
+    e->x[i] = v * (prior / prior_var + cap * data);
+    e->P[i][i] = v;
+}
+
 int bw_ekf_end_update(bw_ekf_t *e)
 {
     int i;

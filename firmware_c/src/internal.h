@@ -50,13 +50,16 @@ int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_
 int bw_ekf_end_update(bw_ekf_t *e);
 void bw_ekf_fix_covariance(bw_ekf_t *e);
 bw_real bw_ekf_wind_accuracy(const bw_ekf_t *e);
+void bw_ekf_cap_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_var, bw_real data_var_min);
 void bw_status_init(bw_status_t *st, int32_t recover_after);
 
 /* consistency.py */
 void bw_consistency_reset(bw_consistency_t *m);
 void bw_consistency_add(bw_consistency_t *m, int source, bw_real nis, bw_real alpha);
 void bw_consistency_evaluate(bw_consistency_t *m);
-bw_real bw_systematic_variance(bw_real speed_mps, bw_real drag_scale, bw_real drag_scale_var, bw_real rope_drag_share);
+bw_real bw_systematic_variance(bw_real speed_mps, bw_real drag_scale, bw_real drag_scale_var, bw_real rope_drag_share,
+                               bw_real lean_wind_mps);
+bw_real bw_lean_bias_wind(bw_real speed_mps, bw_real lift_n, bw_real drag_per_speed2, bw_real lean_bias_rad);
 
 /* aid sources */
 void bw_control_accel(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az);

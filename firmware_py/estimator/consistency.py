@@ -71,11 +71,25 @@ class Consistency:
         return [name for i, name in enumerate(SOURCES) if self.flags >> i & 1]
 
 
-def systematic_variance(speed_mps: float, drag_scale: float, drag_scale_var: float, rope_drag_share: float) -> float:
+def systematic_variance(
+    speed_mps: float, drag_scale: float, drag_scale_var: float, rope_drag_share: float, lean_wind_mps: float = 0.0
+) -> float:  # fmt: skip
     """Variance of the horizontal wind from what the filter's P does not hold, (m/s)^2: the drag
-    scale's uncertainty (F ~ k |w|^2: dw / w = dk / 2k) and the rope's drag coefficient (the rope's
-    share of the horizontal drag, times its relative uncertainty, halved for the square law)."""
+    scale's uncertainty (F ~ k |w|^2: dw / w = dk / 2k), the rope's drag coefficient (the rope's
+    share of the horizontal drag, times its relative uncertainty, halved for the square law) and the
+    tilt's systematic error ``lean_wind_mps`` (``lean_bias_wind``), which no averaging removes."""
     k = max(drag_scale, 1e-3)
     rel_k = 0.5 * (drag_scale_var**0.5) / k
     rel_rope = 0.5 * rope_drag_share * ROPE_CD_REL_SIGMA
-    return speed_mps * speed_mps * (rel_k * rel_k + rel_rope * rel_rope)
+    return speed_mps * speed_mps * (rel_k * rel_k + rel_rope * rel_rope) + lean_wind_mps * lean_wind_mps
+
+
+def lean_bias_wind(speed_mps: float, lift_n: float, drag_per_speed2: float, lean_bias_rad: float) -> float:
+    """The wind error (m/s, horizontal) of a tilt error ``lean_bias_rad`` on the taut balloon: its lean is the
+    pull, tan(lean) = D / N_b with D = c |w|^2, so across the wind dw = N_b d / (c |w|) (the azimuth turns by
+    d / lean) and along it half that (the square law): sqrt(5/4) N_b d / (c |w|). Large in calm air, where
+    the lean is a degree; bounded by a wind whose direction is unknown (its own speed, or 0.5 m/s)."""
+    if not (drag_per_speed2 > 0.0 and lift_n > 0.0):
+        return 0.0
+    v = 1.118033988749895 * lift_n * lean_bias_rad / (drag_per_speed2 * max(speed_mps, 1e-3))
+    return min(v, max(speed_mps, 0.5))

@@ -23,6 +23,7 @@ from firmware_py.estimator.consistency import (
     MAG,
     RADIUS,
     Consistency,
+    lean_bias_wind,
     systematic_variance,
 )
 from firmware_py.estimator.ekf import FusionStatus, WindEkf
@@ -37,9 +38,11 @@ from firmware_py.estimator.params import (
     CONFIRM_MOTION_MPS2,
     CONFIRM_S,
     CONFIRM_WINDOW_S,
+    DRAG_ASCENT_SIGMA,
     FALSE_RELEASE_S,
     GYRO_MAX,
     JOIN_IN_FLIGHT_US,
+    LEAN_BIAS_RAD,
     LEARN_DRAG_AFTER_S,
     MAG_MAX,
     MAG_MODEL_GAUSS,
@@ -181,6 +184,7 @@ class Estimator:
         self._height_above = 0
         self._accel_var_excess = 0.0
         self._align_innov2 = [0.0, 0.0]  # along, cross (aid_sources/tether.py)
+        self._drag_prior = (1.0, 0.0)  # the drag scale and its variance when a free ascent starts to learn it
         self._align_var_excess = [0.0, 0.0]
         self._align_alpha = self.schedule.taut_every / (ALIGN_INNOV_S * self.cfg.imu_rate_hz)
         self.consistency.reset()
@@ -459,7 +463,13 @@ class Estimator:
         cfg = self.cfg
         self._dwell += 1
         dwell_ok = self._dwell >= cfg.mode_dwell_s * cfg.imu_rate_hz
-        ekf.learn_drag = ekf.mode == MODE_FREE and self._dwell >= LEARN_DRAG_AFTER_S * cfg.imu_rate_hz
+        learning = ekf.mode == MODE_FREE and self._dwell >= LEARN_DRAG_AFTER_S * cfg.imu_rate_hz
+        if learning != ekf.learn_drag:
+            if learning:
+                self._drag_prior = (float(ekf.x[DRAG]), float(ekf.P[DRAG, DRAG]))
+            else:
+                ekf.cap_information(DRAG, *self._drag_prior, DRAG_ASCENT_SIGMA**2)
+        ekf.learn_drag = learning
         if ekf.mode == MODE_GROUND:
             lifted = abs(math.sqrt(ax * ax + ay * ay + az * az) - G0) > cfg.release_accel_mps2
             self._release_count = self._release_count + 1 if lifted else 0
@@ -508,9 +518,15 @@ class Estimator:
         unconfirmed at least sqrt(|w|^2 + 1)."""
         ekf = self.ekf
         wn, we = self.wind()
-        sys_var = systematic_variance(
-            math.sqrt(wn * wn + we * we), float(ekf.x[DRAG]), float(ekf.P[DRAG, DRAG]), self.rope_drag_share
-        ) if ekf.mode != MODE_GROUND else 0.0  # fmt: skip
+        sys_var = 0.0
+        if ekf.mode != MODE_GROUND:
+            m = self.model
+            speed = math.sqrt(wn * wn + we * we)
+            lean = lean_bias_wind(speed, (self.rho * m.volume_m3 - m.mass_kg) * G0,
+                                  float(ekf.x[DRAG]) * self.rho * m.half_cd_area_m2,
+                                  LEAN_BIAS_RAD) if ekf.mode == MODE_TAUT else 0.0  # fmt: skip
+            sys_var = systematic_variance(speed, float(ekf.x[DRAG]), float(ekf.P[DRAG, DRAG]), self.rope_drag_share,
+                                          lean)  # fmt: skip
         acc = math.sqrt(ekf.wind_accuracy() ** 2 + sys_var) * self.consistency.inflation
         if self.unconfirmed:
             acc = max(acc, math.sqrt(wn * wn + we * we + 1.0))

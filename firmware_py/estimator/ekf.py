@@ -507,6 +507,23 @@ class WindEkf:
         np.add.reduce(self.P_diag, out=self._r)
         return finite and math.isfinite(float(self._r))
 
+    def cap_information(self, i: int, prior: float, prior_var: float, data_var_min: float) -> None:
+        """What the data told state i since it was ``prior`` +- sqrt(``prior_var``) is worth at most a
+        measurement of variance ``data_var_min``: a model error (not noise) that the fusions took for
+        information is given back. The data's own estimate, (x / P - prior / P0) / (1 / P - 1 / P0), is
+        combined with the prior at the capped weight; the state's correlations are cut (``inhibit``)."""
+        var = float(self.P[i, i])
+        info = 1.0 / var - 1.0 / prior_var if var > 0.0 and prior_var > 0.0 else 0.0
+        if not info > 1.0 / data_var_min:
+            return
+        x = float(self.x[i])
+        data = (x / var - prior / prior_var) / info
+        cap = 1.0 / data_var_min
+        v = 1.0 / (1.0 / prior_var + cap)
+        self.inhibit(i)
+        self.x[i] = v * (prior / prior_var + cap * data)
+        self.P[i, i] = v
+
     def inhibit(self, i: int) -> None:
         """Hold state i where it is (PX4's state inhibition): no correction, no correlations; its
         variance stays. The drag scale is learnt only in established free ascent (the climb rate

@@ -25,11 +25,16 @@ ROPE_WAVE_ALIGN_RAD = 0.016
 # wind estimate back into the model (a 0.05 Hz resonance, gain 4 on the real rope)
 ROPE_SHAPE_S = 60.0
 # the rope's weight on the balloon seen from its lean and its chord (aid_sources/tether.py update_rope_shape):
-# the catenary's share is known to this fraction of the rope's weight (a rope unlike the design's), the
-# lean's mean to this (tilt from the accelerometer's bias, a few mg)
+# the catenary's share is known to this fraction of the rope's weight (a rope unlike the design's)
 ROPE_SHARE_SIGMA = 0.5
-LEAN_MEAN_SIGMA_RAD = 0.01
+# the tilt's systematic error (accelerometer bias 1-3 mg, the learnt field's direction): what no averaging
+# removes from the lean, so from the wind in calm air, where the lean is a degree (consistency.py)
+LEAN_BIAS_RAD = 0.0035
+# the drag scale learnt in a free ascent is worth at most this (1-sigma, relative): the ascent's model leaves
+# out the rope's pull as it is lifted off the ground, its drag and the gusts (+-20 % seen on the real rope)
+DRAG_ASCENT_SIGMA = 0.1
 ALIGN_INNOV_S = 5.0  # averaging time of the alignment's innovations that set its noise floor
+ALIGN_CROSS_VAR_MAX = 0.05**2  # rad^2: the most a rocking balloon's azimuth departs from its rope's
 ALIGN_RESET_S = 2.0  # rejected alignment this long re-places the taut state
 JOIN_IN_FLIGHT_US = 10_000_000  # a first sample this long after the sender's boot: we restarted in flight
 # After a join in flight the balloon hypothesis is unconfirmed: the wind read from the tilt through the

@@ -12,7 +12,8 @@ from firmware_py.estimator.ekf import RESET_TAUT, FusionStatus, WindEkf
 from firmware_py.estimator.generated import rope_direction, rope_direction_plain
 from firmware_py.estimator.model import N_COLUMNS, ROPE_JAC
 from firmware_py.estimator.params import (
-    LEAN_MEAN_SIGMA_RAD,
+    ALIGN_CROSS_VAR_MAX,
+    LEAN_BIAS_RAD,
     ROPE_SHARE_SIGMA,
     TAUT_AZIMUTH_MIN_M,
     TAUT_LEAN_MIN_SIN,
@@ -22,6 +23,9 @@ from firmware_py.estimator.params import (
     UNGATED,
 )
 from firmware_py.estimator.state import (
+    ATT_D,
+    ATT_E,
+    ATT_N,
     DRAG,
     MODE_TAUT,
     MODEL_COLUMNS,
@@ -141,7 +145,7 @@ def fuse_taut(
     fn = rope_direction if ekf.model.rope_drag_m2 > 0.0 else rope_direction_plain
     n = fn(pn, pe, pd, vn, ve, vd, wn, we, rn, re, k, *f.params)
     r = rotation(*ekf.q.tolist())
-    zn, ze = r[2], r[5]  # body down axis in NED, horizontal part
+    zn, ze, zd = r[2], r[5], r[8]  # body down axis in NED
     horiz = math.hypot(pn, pe)
     an, ae = (pn / horiz, pe / horiz) if horiz > 1e-3 else (1.0, 0.0)  # the azimuth (a parameter)
     ncol = len(MODEL_COLUMNS) - (0 if ekf.learn_drag else 1)
@@ -151,11 +155,21 @@ def fuse_taut(
     # rotate the attitude and a wrong taut state confirms itself: a rotation about the magnetic field is
     # invisible to the magnetometer, and the alignment turns the attitude about it until the tilt points
     # where the wrong state says (docs/estimator.md)
+    # where the attitude is uncertain, so is the measured lean: its variance along the component (the
+    # attitude a "consider" parameter, d z / d att = -[z x]) is added to the noise. In calm air the lean
+    # is a degree or two and a tenth of a degree of tilt turns its azimuth by several degrees
+    P = ekf.P
     for cn, ce, var, st in ((an, ae, along_var, status[2]), (-ae, an, cross_var, status[3])):
+        g0, g1, g2 = -ce * zd, cn * zd, ce * zn - cn * ze  # c . d z / d att, over ATT_N, ATT_E, ATT_D
+        var_att = (
+            g0 * (g0 * P[ATT_N, ATT_N] + 2.0 * (g1 * P[ATT_N, ATT_E] + g2 * P[ATT_N, ATT_D]))
+            + g1 * (g1 * P[ATT_E, ATT_E] + 2.0 * g2 * P[ATT_E, ATT_D])
+            + g2 * g2 * P[ATT_D, ATT_D]
+        )
         h.fill(0.0)
         for j in range(ncol):
             h[MODEL_COLUMNS[j]] = -(cn * n[jn + j] + ce * n[je + j])  # residual c . (z - n(x))
-        ekf.fuse(cn * (n[0] - zn) + ce * (n[1] - ze), var, st, recover=False)
+        ekf.fuse(cn * (n[0] - zn) + ce * (n[1] - ze), var + float(var_att), st, recover=False)
 
 
 def update_rope_shape(ekf: WindEkf, rho: float, alpha: float) -> None:
@@ -190,7 +204,7 @@ def update_rope_shape(ekf: WindEkf, rho: float, alpha: float) -> None:
         s = lift / zd
         seen = effective_rod(s * zn, s * ze, s * zd, qn, qe, qd, m.rope_weight_n)
         tan2 = (qn * qn + qe * qe) / (qd * qd)
-        t0 = lift * LEAN_MEAN_SIGMA_RAD / (ROPE_SHARE_SIGMA * m.rope_weight_n + 1e-9)
+        t0 = lift * LEAN_BIAS_RAD / (ROPE_SHARE_SIGMA * m.rope_weight_n + 1e-9)
         if seen == seen:
             weight += tan2 / (tan2 + t0 * t0) * (seen - weight)
     rope = ekf.rope
@@ -211,7 +225,10 @@ def control_tether(est: Estimator) -> None:
         # (aid_sources/accel.py): a balloon that rocks in gusts is not along its rope force to 0.01 rad,
         # and a model error taken for a precise measurement is rejected, then re-placed, again and again
         mean2 = est._align_innov2
-        along_var, cross_var = max(est.align_var, mean2[0]), max(est.align_var, mean2[1])
+        # the azimuth's noise no more than a rocking balloon's: beyond it the state, not the model, is off,
+        # and the rejections re-place it from the tilt (a noise that followed such innovations would let
+        # a wrong azimuth wander on; the gusty flights' cross component stays within 0.05 rad)
+        along_var, cross_var = max(est.align_var, mean2[0]), max(est.align_var, min(mean2[1], ALIGN_CROSS_VAR_MAX))
         est._align_var_excess[0], est._align_var_excess[1] = along_var - est.align_var, cross_var - est.align_var
         fuse_taut(ekf, cfg.radial_m**2, cfg.radial_rate_mps**2, along_var, cross_var, est.taut_status)
         along, cross = est.taut_status[2], est.taut_status[3]
