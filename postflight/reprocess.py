@@ -315,9 +315,11 @@ def run_reprocess(args, argv: list[str] | None) -> int:
     """``balloon-gs reprocess FLIGHT --out FILE.nc [--config] [--plot] [--quiet]``."""
     import shlex
 
+    from balloon_core.atomic import Products, sigterm_raises
     from balloon_core.userargs import require_extra
 
     require_extra("postflight")  # before any work: a missing extra is one line, exit 2
+    sigterm_raises()  # SIGTERM ends the run like Ctrl-C: its temporary files are removed
 
     from balloon_core.config import ConfigError, design_from_dict, load_toml
     from balloon_core.progress import Progress
@@ -373,8 +375,10 @@ def run_reprocess(args, argv: list[str] | None) -> int:
         })  # fmt: skip
         words = argv if argv is not None else sys.argv[1:]
         history = "balloon-gs " + " ".join(shlex.quote(a) for a in words)
-        paths = write_products(product, args.out, args.plot, history)
-        paths += _write_profile(product, args.out, args.plot, history)
+        with Products() as products:  # every product under a temporary name, all renamed when all are written
+            paths = write_products(product, args.out, args.plot, history, products)
+            paths += _write_profile(product, args.out, args.plot, history, products)
+            products.commit()
     finally:
         bar.close()
     if loss_notes(meta) or segment_note(meta) or not args.quiet:  # a loss is told under --quiet too
@@ -423,7 +427,7 @@ def _with_ground_csv(flight, path: str):
                               np.asarray(g.temperature_c))  # fmt: skip
 
 
-def _write_profile(product: WindProduct, out: str, plot: str | None, history: str) -> list[str]:
+def _write_profile(product: WindProduct, out: str, plot: str | None, history: str, products) -> list[str]:
     """With winch legs: ``<out stem>_profile.nc`` (CF featureType profile) and, with ``--plot``, the
     profile's plot beside the product's (``<plot stem>_profile<ext>``)."""
     from postflight.profile import plot_profile, wind_profile, write_profile
@@ -433,11 +437,11 @@ def _write_profile(product: WindProduct, out: str, plot: str | None, history: st
         return []
     stem = os.path.splitext(out)[0]
     paths = [f"{stem}_profile.nc"]
-    write_profile(prof, product, paths[0], history)
+    write_profile(prof, product, products.path(paths[0]), history)
     if plot:
         base, ext = os.path.splitext(plot)
         paths.append(f"{base}_profile{ext}")
-        plot_profile(prof, paths[-1])
+        plot_profile(prof, products.path(paths[-1]))
     print(f"profile: {len(prof.legs)} legs, power-law exponent {prof.alpha:.3f} +- {prof.sigma_alpha:.3f}, "
           f"veer {prof.veer_deg_100m:+.1f} +- {prof.sigma_veer_deg_100m:.1f} deg per 100 m")  # fmt: skip
     return paths
