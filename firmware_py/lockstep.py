@@ -100,7 +100,8 @@ def _discrete(est) -> tuple:
     e = est.ekf
     counters = est.counters.as_dict()
     return (e.mode, e.reset_count, tuple(e.reset_counts), tuple(counters[n] for n in COUNTER_NAMES),
-            est.consistency.flags, bool(est.unconfirmed), est.winch_samples, est.ground_samples)  # fmt: skip
+            est.consistency.flags, bool(est.unconfirmed), est.winch_samples, est.ground_samples,
+            est.winch_rejected, est.ground_rejected, est.winch_reject_reason, est.ground_reject_reason)  # fmt: skip
 
 
 def run(design: Design, cfg: FilterConfig, samples: Iterable[Sample], coast_every: int = 0) -> Report:
