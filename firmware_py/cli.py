@@ -153,7 +153,7 @@ def _main(prog: str, args, products: Products) -> int:
     except BuildError as exc:
         if sink is not None:
             sink.close()
-        return userargs.fail(prog, exc)
+        return userargs.fail(prog, f"{exc}; or run the Python core: --core py")
     stop = userargs.stop_flag()
     if is_file:
         bar = Progress("balloon-fw", total=os.path.getsize(args.source) / 1e6, unit="MB", quiet=args.quiet)

@@ -113,6 +113,13 @@ def main(argv: list[str] | None = None) -> int:
         sc = resolve(args.scenario, args.config)
     except ConfigError as exc:
         return userargs.fail(PROG, exc)
+    if sc.filter.core == "c":  # the firmware's C core, built before anything starts (balloon-sil has no --core)
+        from firmware_c.build import BuildError, library
+
+        try:
+            library("float" if sc.filter.float32 else "double")
+        except BuildError as exc:
+            return userargs.fail(PROG, f'{exc}; or run the Python core: [filter] core = "py" in the --config file')
     with atomic_open(design) as fh:
         fh.write(sc.to_toml())
     cfg = ["--config", design]
