@@ -309,9 +309,38 @@ def _number(where: str, val: Any, rule: Rule) -> float:
     return x
 
 
-def validate_document(data: dict[str, Any]) -> dict[str, dict[str, Any]]:
+def check_winch_schedule(times_s, lengths_m, max_speed_mps: float) -> None:
+    """A [winch] schedule every program refuses alike (ConfigError): as many times as lengths, the times
+    increasing, no slope faster than ``max_speed_mps``."""
+    t, lengths = tuple(times_s), tuple(lengths_m)
+    if len(t) != len(lengths):
+        raise ConfigError(f"[winch] times_s and lengths_m must have as many entries ({len(t)} and {len(lengths)})")
+    if any(b <= a for a, b in zip(t, t[1:])):
+        raise ConfigError("[winch] times_s must increase")
+    for i in range(1, len(t)):
+        speed = abs(lengths[i] - lengths[i - 1]) / (t[i] - t[i - 1])
+        if speed > max_speed_mps * (1.0 + 1e-9):
+            raise ConfigError(
+                f"[winch] from {t[i - 1]:g} s to {t[i]:g} s the schedule reels at {speed:.3g} m/s, faster than "
+                f"max_speed_mps = {max_speed_mps:g}"
+            )
+
+
+def check_winch_reach(lengths_m, tether_length_m: float) -> None:
+    """With a winch, ``[tether] length_m`` is the rope on the drum: the longest line it can pay out, and
+    the length the lift is checked at. A schedule beyond it is refused (ConfigError)."""
+    longest = max(lengths_m, default=0.0)
+    if longest > tether_length_m:
+        raise ConfigError(
+            f"[winch] lengths_m reaches {longest:g} m, beyond [tether] length_m = {tether_length_m:g} m (the rope on "
+            "the drum, the longest line it can pay out, and where the lift is checked): a longer [tether] length_m"
+        )
+
+
+def validate_document(data: dict[str, Any], whole: bool = True) -> dict[str, dict[str, Any]]:
     """The whole parsed file checked against ``SCHEMA`` (every section, whichever program reads it),
-    plus the checks that involve two keys. Returns the values with numbers as floats."""
+    plus the checks that involve two keys. Returns the values with numbers as floats. ``whole`` False:
+    one section on its own (``build_section``), not checked against the others' defaults."""
     out: dict[str, dict[str, Any]] = {}
     for section, values in data.items():
         if section not in SCHEMA:
@@ -338,6 +367,11 @@ def validate_document(data: dict[str, Any]) -> dict[str, dict[str, Any]]:
         skin = balloon.get("skin_and_avionics_kg", BalloonConfig.skin_and_avionics_kg)
         if truth.get("avionics_kg", SIM_DEFAULTS["truth.avionics_kg"]) > skin:
             raise ConfigError("[truth] avionics_kg must not exceed [balloon] skin_and_avionics_kg")
+    winch = out.get("winch")
+    if winch is not None:
+        check_winch_schedule(winch.get("times_s", ()), winch.get("lengths_m", ()), winch.get("max_speed_mps", 1.0))
+        if whole:
+            check_winch_reach(winch.get("lengths_m", ()), out.get("tether", {}).get("length_m", TetherConfig.length_m))
     return out
 
 
@@ -345,7 +379,7 @@ def build_section(cls: type, section: str, values: dict[str, Any]) -> Any:
     """Instantiate a frozen dataclass from a TOML table checked against ``SCHEMA``."""
     if not isinstance(values, dict):
         raise ConfigError(f"[{section}] must be a table")
-    checked = validate_document({section: values})[section]
+    checked = validate_document({section: values}, whole=False)[section]
     return cls(**checked)
 
 

@@ -10,12 +10,16 @@ A header row, then one row per reading:
 - ``pressure_hpa`` (required): the ground's absolute pressure, hPa;
 - ``temperature_c`` (optional, may be empty): the ground's air temperature, degC.
 
-Other columns are ignored. A row whose values do not parse is an error naming its line."""
+Other columns are ignored. A row whose values do not parse is an error naming its line. A UTF-8
+byte-order mark is accepted. The file is read as a stream (``ground_rows``): memory does not grow with it.
+A reading outside a ground station's weather (300-1100 hPa, -80 to 60 C) is not an error here: the
+estimator rejects and counts it (firmware_py/estimator/aid_sources/ground_ref.py)."""
 
 from __future__ import annotations
 
 import csv
 import math
+from collections.abc import Iterator
 from typing import NamedTuple
 
 TIME_COLUMNS = ("time_s", "time_unix_s")
@@ -60,21 +64,58 @@ def check_header(header: list[str], path: str) -> str:
     return tcol
 
 
-def read_ground_csv(path: str) -> GroundReadings:
-    """The whole file; ValueError (one line) if it is not a ground-pressure CSV."""
+def ground_rows(path: str) -> tuple[str, Iterator[tuple[float, float, float]]]:
+    """(the time column, the rows as (time s, pressure hPa, temperature degC or NaN)), read as a stream:
+    one row at a time, memory flat in the file's length. A UTF-8 byte-order mark (a spreadsheet's
+    export) is skipped. ValueError (one line) for a file that is not a ground-pressure CSV or a row that
+    does not parse, naming its line (raised by the iterator when it reaches that row)."""
     try:
-        with open(path, newline="") as fh:
-            rows = list(csv.reader(fh))
-    except (OSError, UnicodeDecodeError) as exc:
+        fh = open(path, newline="", encoding="utf-8-sig")
+    except OSError as exc:
         raise ValueError(f"{path}: cannot read: {exc}") from None
-    if not rows:
+    try:
+        reader = csv.reader(fh)
+        header = next(reader, None)
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        fh.close()
+        raise ValueError(f"{path}: cannot read: {exc}") from None
+    if header is None:
+        fh.close()
         raise ValueError(f"{path}: empty file")
-    tcol = check_header(rows[0], path)
+    try:
+        tcol = check_header(header, path)
+    except ValueError:
+        fh.close()
+        raise
+
+    def rows() -> Iterator[tuple[float, float, float]]:
+        with fh:
+            try:
+                for row in reader:
+                    if row and "".join(row).strip():
+                        yield parse_row(header, row, f"{path} line {reader.line_num}")
+            except (OSError, UnicodeDecodeError, csv.Error) as exc:
+                raise ValueError(f"{path} line {reader.line_num}: cannot read: {exc}") from None
+
+    return tcol, rows()
+
+
+def scan_ground_csv(path: str) -> tuple[str, int]:
+    """(the time column, the number of readings): the whole file checked, a row at a time, before any
+    work; ValueError (one line) if it is not a ground-pressure CSV or holds no reading."""
+    tcol, rows = ground_rows(path)
+    n = sum(1 for _ in rows)
+    if n == 0:
+        raise ValueError(f"{path}: no readings")
+    return tcol, n
+
+
+def read_ground_csv(path: str) -> GroundReadings:
+    """The whole file in lists (for small files and tests; reprocessing streams it: ``ground_rows``);
+    ValueError (one line) if it is not a ground-pressure CSV."""
+    tcol, rows = ground_rows(path)
     out = GroundReadings(tcol, [], [], [])
-    for n, row in enumerate(rows[1:], start=2):
-        if not row or not "".join(row).strip():
-            continue
-        t, p, temp = parse_row(rows[0], row, f"{path} line {n}")
+    for t, p, temp in rows:
         out.time_s.append(t)
         out.pressure_hpa.append(p)
         out.temperature_c.append(temp)

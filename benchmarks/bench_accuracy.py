@@ -28,6 +28,8 @@ from multiprocessing import Pool
 
 import numpy as np
 
+from balloon_core import userargs
+from balloon_core.atomic import atomic_open
 from balloon_core.progress import Progress
 from balloon_core.score import describe
 from benchmarks.common import attitude_errors, fly, response_flight, score_flight
@@ -239,6 +241,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--quiet", action="store_true", help="no progress bar / per-flight lines on stderr")
     ap.add_argument("--json", metavar="FILE", help="write every flight's results here")
     args = ap.parse_args(argv)
+    try:  # the one rule for output options, before any flight is flown
+        userargs.check_outputs({}, {"--json": args.json})
+    except userargs.UserError as exc:
+        raise SystemExit(userargs.fail("bench_accuracy", exc)) from None
 
     names, skipped = [], []
     for n in dict.fromkeys(args.scenarios):
@@ -276,7 +282,7 @@ def main(argv: list[str] | None = None) -> None:
                            "band_skill_min_reduced": SKILL_MIN_REDUCED, "speed_err_max_pct": SPEED_MAX_PCT,
                            "dir_err_max_deg": DIR_MAX_DEG, "error_ratio_range": list(RATIO_RANGE)},
                "skipped": skipped, "results": [jsonable(r) for r in results]}  # fmt: skip
-        with open(args.json, "w") as fh:
+        with atomic_open(args.json) as fh:
             json.dump(doc, fh, indent=1)
         print(f"wrote {args.json}")
 

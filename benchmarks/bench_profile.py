@@ -24,6 +24,9 @@ from multiprocessing import Pool
 
 import numpy as np
 
+from balloon_core import userargs
+from balloon_core.atomic import atomic_open
+
 PY = sys.executable
 
 
@@ -114,6 +117,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--dir", default="/tmp/bench_profile")
     ap.add_argument("--json")
     args = ap.parse_args(argv)
+    try:  # the one rule for output options, before any flight is flown
+        userargs.check_outputs({}, {"--json": args.json})
+    except userargs.UserError as exc:
+        raise SystemExit(userargs.fail("bench_profile", exc)) from None
     from sim_hil.scenarios import SCENARIOS
 
     sc = SCENARIOS[args.scenario]
@@ -131,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{za:+.1f}) [{r['truth_bins_alpha']:.3f}]  {r['veer_deg_100m']:+6.1f} ({dv:+.1f}, {zv:+.1f}) "
               f"[{r['truth_bins_veer']:+.1f}]")  # fmt: skip
     if args.json:
-        with open(args.json, "w") as fh:
+        with atomic_open(args.json) as fh:
             json.dump(rows, fh, indent=1)
     return 0
 

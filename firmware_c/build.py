@@ -51,7 +51,7 @@ def library(real: str = "float", extra: tuple[str, ...] = ()) -> Path:
             return d / name
     cc = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
     if cc is None:
-        raise BuildError("the C core needs a C compiler (cc or gcc) to build; or use the Python core (--core py)")
+        raise BuildError("the C core needs a C compiler (cc or gcc, or $CC) to build, and none was found")
     last = ""
     for d in _build_dirs():
         try:
@@ -63,7 +63,11 @@ def library(real: str = "float", extra: tuple[str, ...] = ()) -> Path:
             continue
         cmd = [cc, *FLAGS, *REALS[real], *extra, f"-I{HERE / 'include'}", f"-I{HERE / 'src'}", "-o", tmp,
                *map(str, SOURCES), "-lm"]  # fmt: skip
-        r = subprocess.run(cmd, capture_output=True, text=True)
+        try:
+            r = subprocess.run(cmd, capture_output=True, text=True)
+        except OSError as e:  # $CC names no program
+            os.unlink(tmp)
+            raise BuildError(f"the C core needs a C compiler to build, and {cc} cannot be run ({e.strerror})") from None
         if r.returncode != 0:
             os.unlink(tmp)
             first = (r.stderr.strip().splitlines() or ["no message"])[0]

@@ -29,6 +29,8 @@ from balloon_core.samples import BaroSample, GroundBaroSample, GroundSample, Mav
 from balloon_core.score import direction_from_deg, wind_unknown
 from balloon_core.wire import LinkStats, pack
 from firmware_py.core_c import new_core
+from firmware_py.estimator.aid_sources.ground_ref import ground_counts
+from firmware_py.estimator.aid_sources.winch import winch_counts
 from firmware_py.estimator.consistency import ACCEL, ALIGN, BARO, FLAG_NIS, MAG, RADIUS, SOURCES
 from firmware_py.estimator.state import MODE_GROUND, MODE_TAUT, POS_D, POS_E, POS_N, FilterConfig
 from firmware_py.streams import InputPipeline, feed, feed_ground, print_warning
@@ -381,7 +383,8 @@ class Firmware:
             f"{c.baro_resets} baro, {c.false_releases} false release, {c.mode_switches} mode switches, "
             f"{self.wind_cov_sent} WIND_COV sent, {self.wind_sent} WIND sent, final mode {self.est.mode_name}, "
             f"filter at {self.est.cfg.imu_rate_hz:g} Hz{self._rate_note()} on the {self._core_name()}, "
-            f"input packets {self.stats.loss_summary()}, {self.imu_missing} IMU samples missing by time"
+            f"input packets {self.stats.loss_summary()}, {self.imu_missing} IMU samples missing by time, "
+            f"{winch_counts(self.est)}, {ground_counts(self.est)}"
             f"{self._consistency_note()}" + (self.streams.summary() if self.streams is not None else "")
         )
 

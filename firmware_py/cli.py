@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import math
 import os
@@ -10,6 +9,7 @@ import sys
 import time
 
 from balloon_core import userargs
+from balloon_core.atomic import Products
 from balloon_core.config import ConfigError, design_from_dict, load_toml
 from balloon_core.progress import Progress, RateMeter
 from balloon_core.wire import Decoder, capture_messages, open_link, open_sink
@@ -125,14 +125,27 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration", type=userargs.duration,
                     help="a live source: stop after this many seconds (wall clock), exit 0")  # fmt: skip
     args = ap.parse_args(argv)
+    try:  # the one rule for output options, before any work
+        userargs.check_outputs({"--in": args.source, "--config": args.config}, {"--out": args.sink})
+    except userargs.UserError as exc:
+        return userargs.fail(prog, exc)
+    with Products() as products:  # a tlog under a temporary name, renamed when the run ends well
+        return _main(prog, args, products)
+
+
+def _main(prog: str, args, products: Products) -> int:
     try:
         design, fcfg = load_config(args.config)
     except ConfigError as exc:
         return userargs.fail(prog, exc)
     if args.core is not None:
         fcfg = dataclasses.replace(fcfg, core=args.core)
+    is_file = os.path.isfile(args.source)
+    if is_file and args.duration is not None:
+        return userargs.fail(prog, f"--duration is for a live source; {args.source} is a file (read to its end)")
     try:
-        sink = open_sink(args.sink) if args.sink else None
+        to_file = args.sink is not None and not userargs.is_link(args.sink)
+        sink = open_sink(products.path(args.sink) if to_file else args.sink) if args.sink else None
     except (ValueError, OSError) as exc:
         return userargs.fail(prog, exc)
     try:
@@ -140,15 +153,12 @@ def main(argv: list[str] | None = None) -> int:
     except BuildError as exc:
         if sink is not None:
             sink.close()
-        return userargs.fail(prog, exc)
+        return userargs.fail(prog, f"{exc}; or run the Python core: --core py")
     stop = userargs.stop_flag()
-    is_file = os.path.isfile(args.source)
     if is_file:
         bar = Progress("balloon-fw", total=os.path.getsize(args.source) / 1e6, unit="MB", quiet=args.quiet)
     else:
         bar = Progress("balloon-fw", unit="frames", quiet=args.quiet, interval_s=5.0)
-    if is_file and args.duration is not None:
-        return userargs.fail(prog, f"--duration is for a live source; {args.source} is a file (read to its end)")
     finished = True
     try:
         if is_file:
@@ -159,14 +169,13 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, OSError, userargs.UserError) as exc:
         bar.close()
         if sink is not None:
-            sink.close()
-            if args.sink.endswith(".tlog"):  # no half-written output beside an error
-                with contextlib.suppress(OSError):
-                    os.remove(args.sink)
+            sink.close()  # the temporary tlog is removed: no half-written output beside an error
         return userargs.fail(prog, exc)
     bar.close()
     if sink is not None:
         sink.close()
+    if finished or not is_file:  # a whole file, or a live run however it was stopped: what came is the log
+        products.commit()
     print(fw.summary(), file=sys.stderr)
     if is_file and not finished:
         print(f"{prog}: interrupted before the end of {args.source}", file=sys.stderr)

@@ -147,7 +147,8 @@ def _structs(real):
         ("zero_sum", real), ("zero_n", i32), ("join_height", real), ("rho", real), ("height_baro", real),
         ("baro_pending", i32), ("winch_samples", i64), ("winch_t_us", i64), ("winch_tension_n", real),
         ("ground_samples", i64), ("ground_t_us", i64), ("ground_p_pa", real), ("ground_p0_pa", real),
-        ("p_ref0_pa", real),
+        ("p_ref0_pa", real), ("winch_rejected", i64), ("ground_rejected", i64), ("winch_reject_reason", i32),
+        ("ground_reject_reason", i32),
     ]  # fmt: skip
 
     class Estimator(C.Structure):
@@ -327,6 +328,22 @@ class CEstimator:
     @property
     def ground_samples(self) -> int:
         return self._s.ground_samples
+
+    @property
+    def winch_rejected(self) -> int:
+        return self._s.winch_rejected
+
+    @property
+    def ground_rejected(self) -> int:
+        return self._s.ground_rejected
+
+    @property
+    def winch_reject_reason(self) -> int:
+        return self._s.winch_reject_reason
+
+    @property
+    def ground_reject_reason(self) -> int:
+        return self._s.ground_reject_reason
 
     @property
     def winch_tension_n(self) -> float:

@@ -100,7 +100,8 @@ def _discrete(est) -> tuple:
     e = est.ekf
     counters = est.counters.as_dict()
     return (e.mode, e.reset_count, tuple(e.reset_counts), tuple(counters[n] for n in COUNTER_NAMES),
-            est.consistency.flags, bool(est.unconfirmed), est.winch_samples, est.ground_samples)  # fmt: skip
+            est.consistency.flags, bool(est.unconfirmed), est.winch_samples, est.ground_samples,
+            est.winch_rejected, est.ground_rejected, est.winch_reject_reason, est.ground_reject_reason)  # fmt: skip
 
 
 def run(design: Design, cfg: FilterConfig, samples: Iterable[Sample], coast_every: int = 0) -> Report:
@@ -252,13 +253,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--config", type=userargs.input_file)
     ap.add_argument("--float32", action="store_true", help="the float build against the Python float32 mode")
     args = ap.parse_args(argv)
-    design, cfg = load_config(args.config)
-    cfg = dataclasses.replace(cfg, float32=args.float32)
+    from balloon_core.config import ConfigError
+    from firmware_c.build import BuildError, library
+
     try:
+        design, cfg = load_config(args.config)
+        cfg = dataclasses.replace(cfg, float32=args.float32)
+        library("float" if args.float32 else "double")  # before any work: the harness runs the C core
         samples, cfg = flight_samples(args.flight, cfg)
-    except ValueError as exc:
+        rep = run(design, cfg, samples)
+    except BuildError as exc:
+        return userargs.fail("lockstep", f"{exc} (the harness runs the C core beside the Python one)")
+    except (ConfigError, ValueError, OSError) as exc:
         return userargs.fail("lockstep", exc)
-    rep = run(design, cfg, samples)
     print("\n".join(rep.lines()))
     return 0 if rep.equal else 1
 

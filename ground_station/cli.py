@@ -6,6 +6,7 @@ from __future__ import annotations
 import sys
 
 from balloon_core import userargs
+from balloon_core.atomic import Products
 
 PROG = "balloon-gs"
 DEFAULT_BIND = ("127.0.0.1", 8000)
@@ -50,6 +51,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="the ground reference's readings (time_s or time_unix_s, pressure_hpa, temperature_c): "
                          "height as a difference of two barometers")  # fmt: skip
     args = ap.parse_args(argv)
+    prog = f"{PROG} {args.cmd}"
+    try:  # the one rule for output options (an input, another output, unwritable), before any work
+        userargs.check_outputs(*_files(args))
+    except userargs.UserError as exc:
+        return userargs.fail(prog, exc)
     if args.cmd == "reprocess":
         try:
             from postflight.reprocess import run_reprocess
@@ -66,16 +72,20 @@ def main(argv: list[str] | None = None) -> int:
         from ground_station.listen import GroundStation, listen
 
         stop = userargs.stop_flag()
-        try:
-            gs = GroundStation(args.csv, args.tlog, ground_pressure=args.ground_pressure, sysid=args.ground_sysid)
-        except OSError as exc:
-            return userargs.fail(PROG, exc)
-        try:
-            listen(args.endpoint, gs, stop, args.duration)
-        except (ValueError, OSError) as exc:
+        with Products() as products:  # the logs under temporary names, renamed when listening stops
+            try:
+                gs = GroundStation(args.csv and products.path(args.csv), args.tlog and products.path(args.tlog),
+                                   ground_pressure=args.ground_pressure, sysid=args.ground_sysid)  # fmt: skip
+                gs.csv_path, gs.tlog_path = args.csv, args.tlog  # what the view names
+            except OSError as exc:
+                return userargs.fail(PROG, exc)
+            try:
+                listen(args.endpoint, gs, stop, args.duration)
+            except (ValueError, OSError) as exc:
+                gs.close()
+                return userargs.fail(PROG, exc)
             gs.close()
-            return userargs.fail(PROG, exc)
-        gs.close()
+            products.commit()  # a live log is whole however listening stopped (Ctrl-C, SIGTERM, --duration)
         print(gs.summary(), file=sys.stderr)
         if stop.interrupted:  # Ctrl-C (not --duration, not SIGTERM): the run did not finish
             print(f"{PROG}: interrupted (Ctrl-C) on {args.endpoint}", file=sys.stderr)
@@ -84,7 +94,9 @@ def main(argv: list[str] | None = None) -> int:
     from ground_station.report import format_score, report
 
     try:
-        s = report(args.file, args.truth, args.plot, args.start)
+        with Products() as products:
+            s = report(args.file, args.truth, args.plot and products.path(args.plot), args.start)
+            products.commit()
     except (ValueError, OSError, userargs.UserError) as exc:
         return userargs.fail(f"{PROG} report", exc)
     print(format_score(s))
@@ -117,6 +129,20 @@ def _web(args) -> int:
         print(f"{prog}: interrupted (Ctrl-C)", file=sys.stderr)
         return 130
     return 0
+
+
+def _files(args) -> tuple[dict[str, str | None], dict[str, str | None]]:
+    """(inputs, outputs) of a ``balloon-gs`` command, by the names the user gave them."""
+    if args.cmd == "web":  # read-only: it writes nothing
+        return {"--product": args.product}, {}
+    if args.cmd == "listen":
+        return {"--ground-pressure": args.ground_pressure}, {"--csv": args.csv, "--tlog": args.tlog}
+    if args.cmd == "report":
+        return {"file": args.file, "--truth": args.truth}, {"--plot": args.plot}
+    from postflight.netcdf import product_paths
+
+    ins = {"FLIGHT": args.flight, "--config": args.config, "--ground-pressure": args.ground_pressure}
+    return ins, product_paths(args.out, args.plot)
 
 
 if __name__ == "__main__":

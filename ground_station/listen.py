@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import math
+import os
 import sys
 import time
 from collections import deque
@@ -480,6 +481,9 @@ def sparkline(values: list[float]) -> str:
     return "".join(SPARK[min(len(SPARK) - 1, int((x - lo) / span * len(SPARK)))] for x in values)
 
 
+TAIL_BYTES = 4096  # the end of a ground-barometer CSV read each second (its newest rows)
+
+
 class GroundReferenceFile:
     """A ground-barometer CSV that a logger appends to (balloon_core/groundref.py): its newest row, once."""
 
@@ -489,24 +493,34 @@ class GroundReferenceFile:
         self._last: tuple | None = None
 
     def newest(self) -> tuple[float, float] | None:
-        """(hPa, degC or NaN) of the last complete row if it is new since the last call; None otherwise."""
+        """(hPa, degC or NaN) of the last complete row if it is new since the last call; None otherwise.
+        Only the header and the file's last few kB are read: memory and time flat in the file's length."""
         from balloon_core.groundref import check_header, parse_row
 
         try:
-            with open(self.path, newline="") as fh:
-                lines = fh.read().splitlines()
+            with open(self.path, "rb") as fh:
+                if self.header is None:
+                    first = fh.readline().decode("utf-8-sig", "replace")
+                    if not first.endswith("\n"):
+                        return None  # the header is being written
+                    header = next(csv.reader([first]))
+                    check_header(header, self.path)
+                    self.header = header
+                size = fh.seek(0, os.SEEK_END)
+                fh.seek(max(0, size - TAIL_BYTES))
+                tail = fh.read().decode("utf-8-sig", "replace")
         except OSError:
             return None
-        rows = [r for r in csv.reader(lines) if r and "".join(r).strip()]
-        if len(rows) < 2:
+        lines = tail.split("\n")[:-1]  # complete lines only (a row being written has no newline yet)
+        if size > TAIL_BYTES:
+            lines = lines[1:]  # the first may be cut
+        rows = [r for r in csv.reader(lines) if r and "".join(r).strip() and r != self.header]
+        if not rows:
             return None
-        if self.header is None:
-            check_header(rows[0], self.path)
-            self.header = rows[0]
         try:
             t, hpa, temp = parse_row(self.header, rows[-1], self.path)
         except ValueError:
-            return None  # a row being written
+            return None  # not a reading
         if self._last == (t, hpa):
             return None
         self._last = (t, hpa)

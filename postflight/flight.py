@@ -129,6 +129,34 @@ class Flight:
         return Flight(kind[order], t[order], None, self.meta, stream=merged)
 
 
+    def with_ground_rows(self, rows: Callable[[], Iterator[tuple[int, float, float]]]) -> Flight:
+        """As ``with_ground``, the reference given as ``rows()``: a fresh iterator of (time us, hPa,
+        degC) each call, in the order the logger wrote them. A streamed flight merges them as it is read
+        (memory flat in the reference's length: nothing of it is held); a flight in arrays takes them in."""
+        if self.stream is None:
+            got = list(rows())
+            cols = [np.array(c) for c in zip(*got)] if got else [np.zeros(0, np.int64), np.zeros(0), np.zeros(0)]
+            return self.with_ground(*cols)
+        own = self.kind != KIND_GROUND
+        src = self.stream
+
+        def merged() -> Iterator[Sample | GroundSample]:
+            it = rows()
+            nxt = next(it, None)
+            for smp in src():
+                if type(smp) is GroundBaroSample:
+                    continue  # the flight's own reference is replaced
+                while nxt is not None and nxt[0] < smp.t_us:
+                    yield GroundBaroSample(*nxt)
+                    nxt = next(it, None)
+                yield smp
+            while nxt is not None:
+                yield GroundBaroSample(*nxt)
+                nxt = next(it, None)
+
+        return Flight(self.kind[own], self.t_us[own], None, self.meta, stream=merged)
+
+
 # ------------------------------------------------------------------------------------------ helpers
 
 

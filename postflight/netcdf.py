@@ -14,10 +14,10 @@ import datetime as dt
 import importlib.metadata
 import os
 import re
-import tempfile
 
 import numpy as np
 
+from balloon_core.atomic import Products
 from balloon_core.score import direction_from_deg
 from firmware_py.estimator.consistency import CONSISTENCY_S, FLAG_NIS
 from postflight.averages import AVERAGE_FIELDS, product_averages, speed_direction_sigma
@@ -263,15 +263,24 @@ def _sample_interval(product: WindProduct) -> float:
     return float(np.median(np.diff(product.time_s))) if len(product.time_s) > 1 else 0.0
 
 
-def write_averages(product: WindProduct, stem: str, history: str | None = None) -> list[str]:
-    """``<stem>_avg_1s.{nc,csv}`` and ``<stem>_avg_10min.{nc,csv}``; returns the paths written."""
+def write_averages(product: WindProduct, stem: str, history: str | None = None,
+                   products: Products | None = None) -> list[str]:  # fmt: skip
+    """``<stem>_avg_1s.{nc,csv}`` and ``<stem>_avg_10min.{nc,csv}``; returns the paths (final names). Each
+    under a temporary name, renamed when all are written (or joining ``products``: the caller commits)."""
+    if products is None:
+        with Products() as own:
+            finals = write_averages(product, stem, history, own)
+            own.commit()
+        return finals
     paths = []
     os.makedirs(os.path.dirname(stem) or ".", exist_ok=True)
     for name, period in AVERAGE_PERIODS_S.items():
         ds = avg_dataset(product, period, history)
-        nc = f"{stem}_{name}.nc"
-        ds.to_netcdf(nc, engine="netcdf4", format="NETCDF4", encoding=_float_encoding(ds, "time_bnds"))
-        paths += [nc, _write_avg_csv(product, product_averages(product, period), f"{stem}_{name}.csv")]
+        nc, csv_path = f"{stem}_{name}.nc", f"{stem}_{name}.csv"
+        ds.to_netcdf(products.path(nc), engine="netcdf4", format="NETCDF4",
+                     encoding=_float_encoding(ds, "time_bnds"))  # fmt: skip
+        _write_avg_csv(product, product_averages(product, period), products.path(csv_path))
+        paths += [nc, csv_path]
     return paths
 
 
@@ -290,37 +299,46 @@ def _write_avg_csv(product: WindProduct, a: dict[str, np.ndarray], path: str) ->
     return path
 
 
+def product_paths(nc_path: str, plot_path: str | None = None) -> dict[str, str | None]:
+    """Every file ``balloon-gs reprocess --out NC_PATH [--plot PLOT_PATH]`` may write, by the option it
+    comes from (for ``userargs.check_outputs``: none may be an input or another output): the NetCDF, the
+    averages beside it, the winch profile ``<stem>_profile.nc``, the plot and the profile's plot."""
+    stem = os.path.splitext(nc_path)[0]
+    paths: dict[str, str | None] = {"--out": nc_path}
+    for name in AVERAGE_PERIODS_S:
+        paths[f"--out (its {name} averages)"] = f"{stem}_{name}.nc"
+        paths[f"--out (its {name} averages CSV)"] = f"{stem}_{name}.csv"
+    paths["--out (its winch profile)"] = f"{stem}_profile.nc"
+    paths["--plot"] = plot_path
+    if plot_path:
+        base, ext = os.path.splitext(plot_path)
+        paths["--plot (the winch profile's)"] = f"{base}_profile{ext}"
+    return paths
+
+
 def write_products(product: WindProduct, nc_path: str, plot_path: str | None = None,
-                   history: str | None = None) -> list[str]:  # fmt: skip
+                   history: str | None = None, products: Products | None = None) -> list[str]:  # fmt: skip
     """Everything ``balloon-gs reprocess`` writes: the NetCDF, the averages beside it (``write_averages`` with
-    the NetCDF's name less ``.nc`` as stem) and, if asked, the plot. Returns the paths written.
+    the NetCDF's name less ``.nc`` as stem) and, if asked, the plot. Returns the paths (final names).
 
-    Each file is written under a temporary name in its own directory and all are renamed only once every
-    one is complete: an error (or Ctrl-C) on the way leaves none of them, old or half-written."""
-    nc_dir = os.path.dirname(os.path.abspath(nc_path))
-    os.makedirs(nc_dir, exist_ok=True)
-    done: list[tuple[str, str]] = []  # (temporary, final)
-    with tempfile.TemporaryDirectory(dir=nc_dir, prefix=".reprocess-") as tmp:
-        tmp_nc = os.path.join(tmp, os.path.basename(nc_path))
-        write_netcdf(product, tmp_nc, history)
-        stem = os.path.splitext(os.path.basename(nc_path))[0]
-        written = [tmp_nc, *write_averages(product, os.path.join(tmp, stem), history)]
-        done = [(w, os.path.join(nc_dir, os.path.basename(w))) for w in written]
-        plot_tmp = None
-        try:
-            if plot_path:
-                from postflight.plot import plot_product  # matplotlib only when a plot is asked for
+    Each file is written under a temporary name beside its final one (balloon_core/atomic.py); all are
+    renamed only once every one is complete: an error (or Ctrl-C) on the way leaves none of them, old or
+    half-written. With ``products`` given, they join it and the caller commits."""
+    if products is None:
+        with Products() as own:
+            finals = write_products(product, nc_path, plot_path, history, own)
+            own.commit()
+        return finals
+    os.makedirs(os.path.dirname(os.path.abspath(nc_path)), exist_ok=True)
+    stem = os.path.splitext(nc_path)[0]
+    write_netcdf(product, products.path(nc_path), history)
+    finals = [nc_path, *write_averages(product, stem, history, products)]
+    if plot_path:
+        from postflight.plot import plot_product  # matplotlib only when a plot is asked for
 
-                base, ext = os.path.splitext(os.path.abspath(plot_path))
-                plot_tmp = f"{os.path.dirname(base)}/.{os.path.basename(base)}.part-{os.getpid()}{ext}"
-                plot_product(product, plot_tmp)
-                done.append((plot_tmp, plot_path))
-            for src, dst in done:
-                os.replace(src, dst)
-        finally:
-            if plot_tmp is not None and os.path.exists(plot_tmp):
-                os.remove(plot_tmp)
-    return [nc_path, *(dst for _, dst in done[1:])]
+        plot_product(product, products.path(plot_path))
+        finals.append(plot_path)
+    return finals
 
 
 def read_netcdf_wind(path: str) -> dict[str, np.ndarray]:

@@ -79,12 +79,14 @@ def reprocess(
     # the smoother works in float64 and records every step of the filter: the Python core's recorder hooks
     cfg = dataclasses.replace(cfg or FilterConfig(), float32=False, core="py")
     parts: list[WindProduct] = []
+    tally = _SourceTally()
     seg = _Segment(design, cfg, rate_explicit, grid_hz, store_dir)
     newest = None  # the newest sample time in this segment
     for i, s in enumerate(samples):
         t = s.t_us  # IMU and barometer alike: one clock (a barometer sample of the new boot comes first)
         if newest is not None and (t < newest - CLOCK_BACK_US or t > newest + CLOCK_JUMP_US):
             parts.append(seg.finish(warn))
+            tally.add(seg.run.est)
             seg = _Segment(design, cfg, rate_explicit, grid_hz, store_dir)
             newest = t
         elif newest is None or t > newest:
@@ -93,9 +95,41 @@ def reprocess(
         if progress is not None and i % 10_000 == 0:
             progress(i)
     parts.append(seg.finish(warn))
+    tally.add(seg.run.est)
     product = join_segments([p for p in parts if len(p.time_s)], grid_hz)
     product.attrs["design_toml"] = design_toml(design, seg.pipe.cfg)
+    product.attrs.update(tally.attrs())
     return product
+
+
+class _SourceTally:
+    """What the estimators of all segments made of the optional sources (the winch, the ground
+    reference): used and rejected as implausible, and why the last rejection was."""
+
+    def __init__(self) -> None:
+        self.winch = [0, 0, 0]  # used, rejected, the last reason
+        self.ground = [0, 0, 0]
+
+    def add(self, est: Estimator | None) -> None:
+        if est is None:
+            return
+        for acc, (used, rejected, reason) in ((self.winch, (est.winch_samples, est.winch_rejected,
+                                                            est.winch_reject_reason)),
+                                              (self.ground, (est.ground_samples, est.ground_rejected,
+                                                             est.ground_reject_reason))):  # fmt: skip
+            acc[0] += used
+            acc[1] += rejected
+            acc[2] = reason or acc[2]
+
+    def attrs(self) -> dict[str, str]:
+        """The counts as the product's global attributes, and the line the summary and notes say."""
+        from firmware_py.estimator.aid_sources import ground_ref, winch
+
+        line = (winch.counts_text("winch", "WINCH_STATUS", *self.winch, winch.REJECT_WORDS) + "; "
+                + winch.counts_text("ground reference", "ground reference", *self.ground, ground_ref.REJECT_WORDS))
+        return {"winch_status_used": str(self.winch[0]), "winch_status_rejected": str(self.winch[1]),
+                "ground_reference_used": str(self.ground[0]), "ground_reference_rejected": str(self.ground[1]),
+                "optional_sources": line}  # fmt: skip
 
 
 class _Segment:
@@ -315,9 +349,11 @@ def run_reprocess(args, argv: list[str] | None) -> int:
     """``balloon-gs reprocess FLIGHT --out FILE.nc [--config] [--plot] [--quiet]``."""
     import shlex
 
+    from balloon_core.atomic import Products, sigterm_raises
     from balloon_core.userargs import require_extra
 
     require_extra("postflight")  # before any work: a missing extra is one line, exit 2
+    sigterm_raises()  # SIGTERM ends the run like Ctrl-C: its temporary files are removed
 
     from balloon_core.config import ConfigError, design_from_dict, load_toml
     from balloon_core.progress import Progress
@@ -363,6 +399,8 @@ def run_reprocess(args, argv: list[str] | None) -> int:
         if len(product.time_s) == 0:
             raise ValueError(f"{args.flight}: the estimator never started (no usable IMU + magnetometer sample)")
         product.utc_start_s = meta.utc_start_s
+        meta.notes.append(product.attrs["optional_sources"])
+        bar.log(f"{prog}: {product.attrs['optional_sources']}")
         product.attrs.update({
             "design_toml": f"# {given}\n" + product.attrs["design_toml"] + (to_toml(other, "")[1:] if other else ""),
             "source_log": meta.source,
@@ -373,8 +411,10 @@ def run_reprocess(args, argv: list[str] | None) -> int:
         })  # fmt: skip
         words = argv if argv is not None else sys.argv[1:]
         history = "balloon-gs " + " ".join(shlex.quote(a) for a in words)
-        paths = write_products(product, args.out, args.plot, history)
-        paths += _write_profile(product, args.out, args.plot, history)
+        with Products() as products:  # every product under a temporary name, all renamed when all are written
+            paths = write_products(product, args.out, args.plot, history, products)
+            paths += _write_profile(product, args.out, args.plot, history, products)
+            products.commit()
     finally:
         bar.close()
     if loss_notes(meta) or segment_note(meta) or not args.quiet:  # a loss is told under --quiet too
@@ -409,21 +449,26 @@ def loss_line(meta) -> str:
 def _with_ground_csv(flight, path: str):
     """The flight with the ground reference of a ``--ground-pressure`` CSV (balloon_core/groundref.py)
     merged in by time: on the sensor clock (``time_s``) as it is, UNIX time (``time_unix_s``) through the
-    log's UTC."""
-    from balloon_core.groundref import read_ground_csv
+    log's UTC. The file is checked whole first, then read again as the flight is (a stream: memory flat in
+    its length); it is only read, never written."""
+    from balloon_core.groundref import ground_rows, scan_ground_csv
 
-    g = read_ground_csv(path)
-    t = np.asarray(g.time_s, float)
-    if g.time_column == "time_unix_s":
+    tcol, _ = scan_ground_csv(path)
+    shift = 0.0
+    if tcol == "time_unix_s":
         if flight.meta.utc_start_s is None:
             raise ValueError(f"{path}: time_unix_s needs the log's UTC, and {flight.meta.source} has none: "
                              "give time_s on the sensor clock")  # fmt: skip
-        t = t - flight.meta.utc_start_s
-    return flight.with_ground(np.round(t * 1e6).astype(np.int64), np.asarray(g.pressure_hpa),
-                              np.asarray(g.temperature_c))  # fmt: skip
+        shift = flight.meta.utc_start_s
+
+    def rows():
+        for t, p, temp in ground_rows(path)[1]:
+            yield round((t - shift) * 1e6), p, temp
+
+    return flight.with_ground_rows(rows)
 
 
-def _write_profile(product: WindProduct, out: str, plot: str | None, history: str) -> list[str]:
+def _write_profile(product: WindProduct, out: str, plot: str | None, history: str, products) -> list[str]:
     """With winch legs: ``<out stem>_profile.nc`` (CF featureType profile) and, with ``--plot``, the
     profile's plot beside the product's (``<plot stem>_profile<ext>``)."""
     from postflight.profile import plot_profile, wind_profile, write_profile
@@ -433,11 +478,11 @@ def _write_profile(product: WindProduct, out: str, plot: str | None, history: st
         return []
     stem = os.path.splitext(out)[0]
     paths = [f"{stem}_profile.nc"]
-    write_profile(prof, product, paths[0], history)
+    write_profile(prof, product, products.path(paths[0]), history)
     if plot:
         base, ext = os.path.splitext(plot)
         paths.append(f"{base}_profile{ext}")
-        plot_profile(prof, paths[-1])
+        plot_profile(prof, products.path(paths[-1]))
     print(f"profile: {len(prof.legs)} legs, power-law exponent {prof.alpha:.3f} +- {prof.sigma_alpha:.3f}, "
           f"veer {prof.veer_deg_100m:+.1f} +- {prof.sigma_veer_deg_100m:.1f} deg per 100 m")  # fmt: skip
     return paths

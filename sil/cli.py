@@ -17,6 +17,7 @@ import threading
 import time
 
 from balloon_core import userargs
+from balloon_core.atomic import Products, atomic_open
 
 
 def free_port() -> int:
@@ -85,15 +86,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--start", type=userargs.start_time,
                     help="score from this time since boot [s] (default 120, earlier for a short run)")
     args = ap.parse_args(argv)
-    try:
-        os.makedirs(args.outdir, exist_ok=True)
-    except OSError as exc:
-        return userargs.fail(PROG, exc)
     tag = f"{args.scenario}-seed{args.seed}"
     truth = os.path.join(args.outdir, f"{tag}-truth.csv")
     gs_csv = os.path.join(args.outdir, f"{tag}-wind.csv")
     gs_tlog = os.path.join(args.outdir, f"{tag}-gs.tlog")
     plot = os.path.join(args.outdir, f"{tag}.png")
+    design = os.path.join(args.outdir, f"{tag}-design.toml")
+    try:  # the one rule for output options: what it writes in --outdir is none of its inputs
+        if os.path.realpath(args.outdir).startswith("/proc/"):
+            raise userargs.UserError(f"--outdir {args.outdir}: cannot be written (under /proc)")
+        if os.path.isdir(args.outdir):  # (a directory still to be made holds no input)
+            userargs.check_outputs({"--config": args.config}, {f"--outdir ({os.path.basename(p)})": p
+                                                               for p in (truth, gs_csv, gs_tlog, plot, design)})
+        os.makedirs(args.outdir, exist_ok=True)
+    except userargs.UserError as exc:
+        return userargs.fail(PROG, exc)
+    except OSError as exc:
+        return userargs.fail(PROG, f"--outdir {args.outdir}: {exc.strerror or exc}")
     p_fw, p_gs = free_port(), free_port()
     # one design file for both: the scenario with the user's file applied (the firmware must be told
     # what the scenario's balloon, tether and sensors are, and how to filter)
@@ -104,8 +113,14 @@ def main(argv: list[str] | None = None) -> int:
         sc = resolve(args.scenario, args.config)
     except ConfigError as exc:
         return userargs.fail(PROG, exc)
-    design = os.path.join(args.outdir, f"{tag}-design.toml")
-    with open(design, "w") as fh:
+    if sc.filter.core == "c":  # the firmware's C core, built before anything starts (balloon-sil has no --core)
+        from firmware_c.build import BuildError, library
+
+        try:
+            library("float" if sc.filter.float32 else "double")
+        except BuildError as exc:
+            return userargs.fail(PROG, f'{exc}; or run the Python core: [filter] core = "py" in the --config file')
+    with atomic_open(design) as fh:
         fh.write(sc.to_toml())
     cfg = ["--config", design]
     kids = Children()
@@ -183,7 +198,9 @@ def main(argv: list[str] | None = None) -> int:
               f"settled estimates); logs: {gs_csv}, {gs_tlog}   truth: {truth}")  # fmt: skip
         return 0
     try:
-        s = report(gs_csv, truth, plot, start)
+        with Products() as products:
+            s = report(gs_csv, truth, products.path(plot), start)
+            products.commit()
     except ValueError as exc:
         print(f"{PROG}: cannot score: {exc}", file=sys.stderr)
         return 1

@@ -7,6 +7,7 @@ import time
 
 from balloon_core import userargs
 from balloon_core.atmosphere import ground_conditions
+from balloon_core.atomic import Products, sigterm_raises
 from balloon_core.config import ConfigError
 from balloon_core.progress import Progress
 from balloon_core.wire import TlogWriter
@@ -50,6 +51,11 @@ def build_parser() -> userargs.Parser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    try:  # the one rule for output options (an input, another output, unwritable), before any work
+        userargs.check_outputs({"--config": args.config},
+                               {"--out": args.out, "--truth": args.truth, "--ground-csv": args.ground_csv})  # fmt: skip
+    except userargs.UserError as exc:
+        return userargs.fail(PROG, exc)
     if args.list_scenarios:
         for name, sc in SCENARIOS.items():
             print(f"{name:20s} {sc.description}")
@@ -67,17 +73,27 @@ def main(argv: list[str] | None = None) -> int:
                           truth.pressure_drift_hpa_h, truth.temperature_drift_k_h, args.duration)  # fmt: skip
     except ValueError as exc:
         return userargs.fail(PROG, exc)
-    try:
-        truth_csv = TruthCsvWriter(args.truth) if args.truth else None
-        return _run(args, sc, truth_csv)
-    except (OSError, ValueError) as exc:
-        return userargs.fail(PROG, exc)
-    except KeyboardInterrupt:  # Ctrl-C before the paced run took the signal over (or in a file run)
-        print(f"{PROG}: interrupted", file=sys.stderr)
-        return 130
+    if args.ground_csv and sc.truth.ground_baro_hz <= 0.0:
+        return userargs.fail(PROG, f"--ground-csv {args.ground_csv}: this design has no ground reference to write "
+                             "(set [truth] ground_baro_hz > 0 in the --config file)")  # fmt: skip
+    # every file under a temporary name, renamed only when the whole flight is written (balloon_core/atomic.py)
+    with Products() as products:
+        try:
+            if not (args.out and userargs.is_link(args.out)):
+                sigterm_raises()  # a file run: SIGTERM ends it like Ctrl-C, its temporary files removed
+            truth_csv = TruthCsvWriter(products.path(args.truth)) if args.truth else None
+            code = _run(args, sc, truth_csv, products)
+            if code == 0:
+                products.commit()
+            return code
+        except (OSError, ValueError) as exc:
+            return userargs.fail(PROG, exc)
+        except KeyboardInterrupt:  # Ctrl-C before the paced run took the signal over (or in a file run)
+            print(f"{PROG}: interrupted; nothing written", file=sys.stderr)
+            return 130
 
 
-def _run(args, sc, truth_csv: TruthCsvWriter | None) -> int:
+def _run(args, sc, truth_csv: TruthCsvWriter | None, products: Products) -> int:
     sim = Simulation(sc.design, sc.wind, sc.truth, args.duration, args.seed, keep_truth=False, truth_sink=truth_csv,
                      winch=sc.winch)  # fmt: skip
     enc = SensorPacketEncoder(ground_sysid=sc.design.site.ground_sysid)
@@ -86,14 +102,14 @@ def _run(args, sc, truth_csv: TruthCsvWriter | None) -> int:
     out = args.out
     bar = Progress(PROG, total=args.duration, unit="s simulated", quiet=args.quiet)
     if args.ground_csv:
-        sim = _GroundCsv(sim, args.ground_csv)
+        sim = _GroundCsv(sim, products.path(args.ground_csv))
     try:
         if out and userargs.is_link(out):
             from sim_hil.link import stream_udp  # network edge, only when asked for
 
             n = stream_udp(sim, enc, out, args, bar)
         elif out:
-            with open(out, "wb") as fh:
+            with products.open(out, "wb") as fh:
                 tlog = out.endswith(".tlog")
                 w = TlogWriter(fh)
                 for s in sim.samples():

@@ -205,6 +205,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quiet", action="store_true", help="no progress bar / status lines (the final line stays)")
     args = ap.parse_args(argv)
     lockstep = args.lockstep if args.lockstep is not None else args.speed == 0
+    try:  # the one rule for output options (--out is a link: a serial device is never the capture itself)
+        userargs.check_outputs({"file": args.file}, {"--out": args.out})
+    except userargs.UserError as exc:
+        return userargs.fail(prog, exc)
     try:
         frames, sample = first_sample(args.file)
         if frames == 0:

@@ -19,6 +19,7 @@ from balloon_core.config import (
     ConfigError,
     Design,
     SensorsConfig,
+    check_winch_reach,
     design_from_dict,
     load_toml,
     section_values,
@@ -210,11 +211,12 @@ def winch_profile(low_m: float, high_m: float, speed_mps: float, hold_s: float, 
 
 
 # the profile's world: 3 m/s at 100 m, power law 0.14, veering 10 deg per 100 m, on a winch between 30
-# and 150 m. The r = 1.15 m balloon lifts 150 m of the reference rope with 23 N to spare (the reference
+# and 150 m: the drum holds 150 m of rope ([tether] length_m, the longest line, where the lift is
+# checked). The r = 1.15 m balloon lifts 150 m of the reference rope with 23 N to spare (the reference
 # one only 2 N); ten segments keep the lumped rope's shortest (3 m) stable at 400 Hz.
 _PROFILE_TRUTH = TruthConfig(shear_exponent=0.14, shear_reference_m=100.0, veer_deg_per_100m=10.0,
                              rope_segments=10, physics_hz=400.0)  # fmt: skip
-_PROFILE_DESIGN = _with(balloon=replace(_B, radius_m=1.15))
+_PROFILE_DESIGN = _with(balloon=replace(_B, radius_m=1.15), tether=replace(_REF.tether, length_m=150.0))
 _PROFILE_SCENARIOS = (
     Scenario(
         "profile",
@@ -262,6 +264,8 @@ def resolve(name: str, config_path: str | None = None, wind_choice: str | None =
             filter=FilterConfig.from_dict({**section_values(sc.filter), **data.get("filter", {})}),
             winch=WinchConfig.from_dict({**section_values(sc.winch), **data.get("winch", {})}),
         )
+    if sc.winch.enabled:  # the drum's rope holds the longest line (as balloon-fw and reprocess check the file)
+        check_winch_reach(sc.winch.lengths_m, sc.design.tether.length_m)
     if wind_choice:
         if wind_choice not in WIND_CHOICES:
             raise ConfigError(f"unknown --wind '{wind_choice}'; known: {', '.join(WIND_CHOICES)}")

@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass
 
 from balloon_core.atmosphere import G0
-from balloon_core.config import ConfigError, build_section
+from balloon_core.config import build_section, check_winch_schedule
 
 WINCH_STATUS_HEALTHY = 1  # MAV_WINCH_STATUS_FLAG: HEALTHY
 WINCH_STATUS_MOVING = 4  # MOVING
@@ -35,18 +35,7 @@ class WinchConfig:
     tension_measured: bool = True  # False: the winch has no load cell (tension NaN)
 
     def __post_init__(self) -> None:
-        t, lengths = self.times_s, self.lengths_m
-        if len(t) != len(lengths):
-            raise ConfigError(f"[winch] times_s and lengths_m must have as many entries ({len(t)} and {len(lengths)})")
-        if any(b <= a for a, b in zip(t, t[1:])):
-            raise ConfigError("[winch] times_s must increase")
-        for i in range(1, len(t)):
-            speed = abs(lengths[i] - lengths[i - 1]) / (t[i] - t[i - 1])
-            if speed > self.max_speed_mps * (1.0 + 1e-9):
-                raise ConfigError(
-                    f"[winch] from {t[i - 1]:g} s to {t[i]:g} s the schedule reels at {speed:.3g} m/s, faster than "
-                    f"max_speed_mps = {self.max_speed_mps:g}"
-                )
+        check_winch_schedule(self.times_s, self.lengths_m, self.max_speed_mps)  # as every program checks it
 
     @property
     def enabled(self) -> bool:

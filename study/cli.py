@@ -11,6 +11,7 @@ Exit 0 done (failed cases are rows, not errors), 2 a user error (one line), 130 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from dataclasses import replace
 from importlib import resources
@@ -99,10 +100,9 @@ def _main(argv: list[str] | None) -> int:
         require_extra("study")
         if args.workers is not None and args.workers < 0:
             raise UsageError(f"--workers must be >= 0, got {args.workers}")
-        spec = load(args)
         out = Path(args.out)
-        if out.exists() and not out.is_dir():
-            raise UsageError(f"--out {out} exists and is not a directory")
+        _check_out(args, out)  # the one rule for output options, before any work
+        spec = load(args)
         out.mkdir(parents=True, exist_ok=True)
     except (UsageError, ConfigError, UserError) as e:
         print(f"balloon-study: error: {e}", file=sys.stderr)
@@ -119,6 +119,23 @@ def _main(argv: list[str] | None) -> int:
     except SchedulerUnreachable as e:
         print(f"balloon-study: error: cannot reach the Dask scheduler {args.scheduler}: {e}", file=sys.stderr)
         return 2
+
+
+def _check_out(args, out: Path) -> None:
+    """--out is a directory that can be written (or made), and what the study writes in it is not the
+    study file (``userargs.check_outputs``)."""
+    from balloon_core import userargs
+
+    if os.path.realpath(out) == "/proc" or os.path.realpath(out).startswith("/proc/"):
+        raise UsageError(f"--out {out}: cannot be written (under /proc)")
+    try:
+        userargs.output_dir(str(out))
+    except argparse.ArgumentTypeError as exc:
+        raise UsageError(f"--out {exc}") from None
+    if out.is_dir():  # (a directory still to be made holds no input)
+        userargs.check_outputs({"SPEC": args.spec},
+                               {f"--out ({name})": str(out / name) for name in ("cases.parquet", "cases.csv",
+                                                                               "summary.csv")})  # fmt: skip
 
 
 class SchedulerUnreachable(Exception):

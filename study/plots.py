@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from balloon_core.atomic import Products
 from study.spec import Spec
 
 MAX_LINES = 6  # more combinations of the other axes than this: pooled into one line
@@ -87,7 +88,9 @@ def axis_plots(spec: Spec, rows: list[dict[str, Any]], out: Path) -> list[Path]:
                          f"{len(spec.seeds)} seed(s), {spec.duration_s:g} s", fontsize=10)  # fmt: skip
             fig.tight_layout()
             path = out / f"{sw.name}-{safe(a)}.png"
-            fig.savefig(path, dpi=90)
+            with Products() as products:
+                fig.savefig(products.path(str(path)), dpi=90)
+                products.commit()
             plt.close(fig)
             made.append(path)
     return made
@@ -135,7 +138,9 @@ def maps(spec: Spec, summ: list[dict[str, Any]], out: Path) -> list[Path]:
                      fontsize=9)  # fmt: skip
         fig.tight_layout()
         path = out / f"{sw.name}-map-{metric}.png"
-        fig.savefig(path, dpi=90)
+        with Products() as products:
+            fig.savefig(products.path(str(path)), dpi=90)
+            products.commit()
         plt.close(fig)
         made.append(path)
     return made

@@ -12,6 +12,7 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
+from balloon_core.atomic import Products
 from study.metrics import METRICS, rule_of, worst
 from study.spec import Case, Spec
 
@@ -85,9 +86,11 @@ def write(out_dir: Path, spec: Spec, cases: list[Case], results: dict[str, dict[
     rows = case_rows(spec, cases, results)
     summ = summary_rows(spec, rows)
     t = table(rows)
-    pq.write_table(t, out_dir / "cases.parquet")
-    pacsv.write_csv(t, out_dir / "cases.csv")
-    pacsv.write_csv(table(summ), out_dir / "summary.csv")
+    with Products() as products:  # under temporary names, renamed when all three are written
+        pq.write_table(t, products.path(str(out_dir / "cases.parquet")))
+        pacsv.write_csv(t, products.path(str(out_dir / "cases.csv")))
+        pacsv.write_csv(table(summ), products.path(str(out_dir / "summary.csv")))
+        products.commit()
     return rows, summ
 
 

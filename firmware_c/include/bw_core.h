@@ -188,6 +188,9 @@ typedef struct {
     bw_real winch_tension_n;
     int64_t ground_samples, ground_t_us;
     bw_real ground_p_pa, ground_p0_pa, p_ref0_pa;
+    /* implausible WINCH_STATUS and ground references, rejected and counted; why the last one was */
+    int64_t winch_rejected, ground_rejected;
+    int32_t winch_reject_reason, ground_reject_reason;
 } bw_estimator_t;
 
 /* the defaults of the design file and of [filter] (the paper's reference balloon) */

@@ -60,8 +60,19 @@ FIELD_LEARN_S = 1.0  # at least this much magnetometer on the ground (all of the
 MAG_MODEL_GAUSS = 0.004  # field direction model error (~0.5 deg of a 0.5 G field: soft iron, anomalies)
 
 # the winch (aid_sources/winch.py) and the ground reference (aid_sources/ground_ref.py)
-WINCH_LENGTH_MIN_M, WINCH_LENGTH_MAX_M = 1.0, 5000.0  # a WINCH_STATUS line length outside is rejected
-WINCH_SPEED_MAX_MPS = 10.0  # a reel speed beyond this is not a winch's: taken as 0
+# a WINCH_STATUS is rejected (and counted) when its line length is not finite, below WINCH_LENGTH_MIN_M or
+# beyond the design's tether (the rope on the drum) + WINCH_LENGTH_MARGIN_M, shorter than the balloon's
+# barometric height less WINCH_HEIGHT_TOL_M, or its reel speed not finite or beyond WINCH_SPEED_MAX_MPS
+WINCH_LENGTH_MIN_M = 1.0
+WINCH_LENGTH_MARGIN_M = 5.0  # the winch's length counter against the drum's rope
+WINCH_HEIGHT_TOL_M = 15.0  # the barometric height's error (weather, noise) the length check allows
+WINCH_SPEED_MAX_MPS = 10.0  # a reel speed beyond this is not a winch's
+# why the last WINCH_STATUS / ground reference was rejected (the summary says it in words)
+WINCH_REJECT_LENGTH, WINCH_REJECT_HEIGHT, WINCH_REJECT_SPEED = 1, 2, 3
+GROUND_REJECT_PRESSURE, GROUND_REJECT_TEMPERATURE = 1, 2
+# a ground reference outside these is rejected (and counted): a ground station's weather
+GROUND_P_MIN_HPA, GROUND_P_MAX_HPA = 300.0, 1100.0
+GROUND_T_MIN_C, GROUND_T_MAX_C = -80.0, 60.0
 WINCH_TIMEOUT_S = 1.0  # no WINCH_STATUS this long: the reel is taken to have stopped
 GROUND_REF_S = 10.0  # low-pass of the ground reference's pressure (its noise; the weather is slower)
 

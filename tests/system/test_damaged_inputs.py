@@ -229,7 +229,7 @@ def test_reprocess_of_mutants_leaves_no_partial_product(capture, capsys, tmp_pat
                 assert products == [], products
             else:
                 assert out.name in products and f"{out.stem}_avg_1s.csv" in products
-            assert not list(tmp_path.glob(".reprocess-*")), "no temporary left behind"
+            assert not list(tmp_path.glob(".*.part-*")), "no temporary left behind"
 
 
 def test_a_failing_write_leaves_nothing(capture, capsys, tmp_path, monkeypatch):

@@ -180,3 +180,15 @@ def test_winch_and_ground_reference(float32):
     samples = samples_of(sim.samples())
     assert any(type(s) is WinchSample for s in samples) and any(type(s) is GroundBaroSample for s in samples)
     check(lockstep.run(sc.design, dataclasses.replace(sc.filter, float32=float32), samples))
+
+
+@pytest.mark.parametrize("float32", [False, True])
+def test_implausible_winch_and_ground_reference_lockstep(float32):
+    """WINCH_STATUS and ground references that are not plausible (length, height, speed; pressure,
+    temperature): both cores reject the same ones, count them alike, and stay equal step by step."""
+    from tests.system.test_source_plausibility import profile_flight, spoiled
+
+    sc, samples, _ = profile_flight()
+    bad, exp_w, exp_g = spoiled(samples, sc.design.tether.length_m)
+    assert exp_w and exp_g
+    check(lockstep.run(sc.design, dataclasses.replace(sc.filter, float32=float32), samples_of(bad)))

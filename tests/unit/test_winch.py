@@ -14,6 +14,7 @@ from balloon_core.config import ConfigError, Design
 from balloon_core.samples import BaroSample, GroundBaroSample, ImuSample, MavlinkSampler, WinchSample
 from balloon_core.wire import Decoder, LinkStats
 from firmware_py.estimator.control import Estimator
+from firmware_py.estimator.params import WINCH_REJECT_LENGTH, WINCH_REJECT_SPEED
 from firmware_py.estimator.state import MODE_TAUT, FilterConfig
 from sim_hil.dynamics import TruthConfig
 from sim_hil.packets import SensorPacketEncoder
@@ -175,11 +176,19 @@ def test_estimator_tether_length_follows_winch_status():
     assert est.ekf.rope.weight_n == pytest.approx(0.6 * weight0)
     assert est.ekf.rope.rate_mps == pytest.approx(0.5 * est.ekf.rope.chord_m / 60.0)
     assert est.model.rope_weight_n == pytest.approx(0.6 * m0.rope_weight_n)
-    # a length that is no winch's is refused; a silly speed counts as none
+    # a length that is no winch's, or a speed no winch reels at, is refused and counted: the model keeps
+    # the last plausible one
+    rate = est.ekf.rope.rate_mps
     assert not est.on_winch(2000, math.nan, 0.0, 1.0)
     assert not est.on_winch(2000, -5.0, 0.0, 1.0)
-    assert est.on_winch(2000, 60.0, 1e9, 20.0) and est.ekf.rope.rate_mps == 0.0
-    assert est.winch_tension_n == 20.0
+    assert not est.on_winch(2000, 106.0, 0.0, 1.0)  # beyond the drum's 100 m rope + 5 m
+    assert est.winch_reject_reason == WINCH_REJECT_LENGTH
+    assert not est.on_winch(2000, 60.0, 1e9, 20.0) and not est.on_winch(2000, 60.0, math.inf, 20.0)
+    assert est.winch_reject_reason == WINCH_REJECT_SPEED
+    assert est.model.tether_length_m == 60.0 and est.ekf.rope.rate_mps == rate
+    assert (est.winch_samples, est.winch_rejected) == (1, 5)
+    assert est.on_winch(2000, 104.0, 0.0, 20.0)  # within the margin
+    assert est.winch_tension_n == 20.0 and est.model.tether_length_m == 104.0
 
 
 @pytest.mark.slow

@@ -16,7 +16,15 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING
 
-from firmware_py.estimator.params import GROUND_REF_S, P_MAX_HPA, P_MIN_HPA, T_MAX_C, T_MIN_C
+from firmware_py.estimator.params import (
+    GROUND_P_MAX_HPA,
+    GROUND_P_MIN_HPA,
+    GROUND_REF_S,
+    GROUND_REJECT_PRESSURE,
+    GROUND_REJECT_TEMPERATURE,
+    GROUND_T_MAX_C,
+    GROUND_T_MIN_C,
+)
 
 if TYPE_CHECKING:
     from firmware_py.estimator.control import Estimator
@@ -24,17 +32,48 @@ if TYPE_CHECKING:
 
 def init_ground_ref(est: Estimator) -> None:
     """No ground reference yet (and after a reboot: the zero is taken again)."""
-    est.ground_samples = 0
+    est.ground_samples = 0  # references used
+    est.ground_rejected = 0  # ... rejected as implausible (ground_plausible)
+    est.ground_reject_reason = 0  # why the last one was (GROUND_REJECT_*; 0: none yet)
     est.ground_t_us = -1  # the sensor clock when the last reference arrived (-1: never)
     est.ground_p_pa = math.nan  # low-passed ground pressure
     est.ground_p0_pa = math.nan  # ... at the first reference after the zero
     est.p_ref0_pa = math.nan  # the barometer's zero then
 
 
+def ground_plausible(pressure_hpa: float, temperature_c: float) -> int:
+    """0 if a ground reference is a ground station's weather, else why not (GROUND_REJECT_*): the
+    pressure finite and within [GROUND_P_MIN_HPA, GROUND_P_MAX_HPA], the temperature NaN (not measured)
+    or within [GROUND_T_MIN_C, GROUND_T_MAX_C]."""
+    if not (math.isfinite(pressure_hpa) and GROUND_P_MIN_HPA <= pressure_hpa <= GROUND_P_MAX_HPA):
+        return GROUND_REJECT_PRESSURE
+    if not (math.isnan(temperature_c) or GROUND_T_MIN_C <= temperature_c <= GROUND_T_MAX_C):
+        return GROUND_REJECT_TEMPERATURE
+    return 0
+
+
+# why a ground reference was rejected, in words (the summary, when the reference is ignored wholesale)
+REJECT_WORDS = {
+    GROUND_REJECT_PRESSURE: f"pressure not plausible (outside {GROUND_P_MIN_HPA:g}-{GROUND_P_MAX_HPA:g} hPa)",
+    GROUND_REJECT_TEMPERATURE: f"temperature not plausible (outside {GROUND_T_MIN_C:g} to {GROUND_T_MAX_C:g} C)",
+}
+
+
+def ground_counts(est: Estimator) -> str:
+    """What the estimator made of the ground reference it was given (either core: the same counters)."""
+    from firmware_py.estimator.aid_sources.winch import counts_text
+
+    return counts_text("ground reference", "ground reference", est.ground_samples, est.ground_rejected,
+                       est.ground_reject_reason, REJECT_WORDS)  # fmt: skip
+
+
 def ground_baro_sample(est: Estimator, t_us: int, pressure_hpa: float, temperature_c: float) -> bool:
     """A ground reference (``t_us`` on the sensor clock: when it arrived): low-pass its pressure, move
-    the barometer's zero with it once the zero is taken."""
-    if not (math.isfinite(pressure_hpa) and P_MIN_HPA <= pressure_hpa <= P_MAX_HPA):
+    the barometer's zero with it once the zero is taken. An implausible one is rejected and counted."""
+    why = ground_plausible(pressure_hpa, temperature_c)
+    if why:
+        est.ground_rejected += 1
+        est.ground_reject_reason = why
         return False
     p = pressure_hpa * 100.0
     if est.ground_t_us < 0 or t_us < est.ground_t_us:
@@ -46,7 +85,7 @@ def ground_baro_sample(est: Estimator, t_us: int, pressure_hpa: float, temperatu
     est.ground_samples += 1
     if est._zeroing or not math.isfinite(est.p_ref_pa):
         return True  # the zero is not taken yet
-    if math.isfinite(temperature_c) and T_MIN_C <= temperature_c <= T_MAX_C:
+    if math.isfinite(temperature_c):
         est.t_ref_k = temperature_c + 273.15
     if not math.isfinite(est.ground_p0_pa):
         est.ground_p0_pa = est.ground_p_pa

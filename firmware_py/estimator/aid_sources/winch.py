@@ -18,7 +18,16 @@ import math
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
-from firmware_py.estimator.params import WINCH_LENGTH_MAX_M, WINCH_LENGTH_MIN_M, WINCH_SPEED_MAX_MPS, WINCH_TIMEOUT_S
+from firmware_py.estimator.params import (
+    WINCH_HEIGHT_TOL_M,
+    WINCH_LENGTH_MARGIN_M,
+    WINCH_LENGTH_MIN_M,
+    WINCH_REJECT_HEIGHT,
+    WINCH_REJECT_LENGTH,
+    WINCH_REJECT_SPEED,
+    WINCH_SPEED_MAX_MPS,
+    WINCH_TIMEOUT_S,
+)
 
 if TYPE_CHECKING:
     from firmware_py.estimator.control import Estimator
@@ -26,7 +35,9 @@ if TYPE_CHECKING:
 
 def init_winch(est: Estimator) -> None:
     """No winch heard yet: the design's length (the model as built)."""
-    est.winch_samples = 0
+    est.winch_samples = 0  # WINCH_STATUS used
+    est.winch_rejected = 0  # ... rejected as implausible (winch_plausible)
+    est.winch_reject_reason = 0  # why the last one was (WINCH_REJECT_*; 0: none yet)
     est.winch_t_us = -1  # the sensor clock when the last WINCH_STATUS arrived (-1: never)
     est.winch_tension_n = math.nan  # the pull at the anchor, N (NaN: not measured)
 
@@ -45,20 +56,60 @@ def set_line_length(est: Estimator, length_m: float) -> None:
     rope.calm_weight_n *= scale
 
 
+def winch_plausible(est: Estimator, line_length_m: float, speed_mps: float) -> int:
+    """0 if a WINCH_STATUS is plausible, else why not (WINCH_REJECT_*): the line length finite, within
+    [WINCH_LENGTH_MIN_M, the design's tether length (the rope on the drum) + WINCH_LENGTH_MARGIN_M] and
+    not shorter than the balloon's barometric height less WINCH_HEIGHT_TOL_M (no height yet: not checked);
+    the reel speed finite and within WINCH_SPEED_MAX_MPS."""
+    drum_m = est.design.tether.length_m
+    if not (math.isfinite(line_length_m) and WINCH_LENGTH_MIN_M <= line_length_m <= drum_m + WINCH_LENGTH_MARGIN_M):
+        return WINCH_REJECT_LENGTH
+    if line_length_m < est.height_baro - WINCH_HEIGHT_TOL_M:  # (NaN before the barometer's zero: False)
+        return WINCH_REJECT_HEIGHT
+    if not (math.isfinite(speed_mps) and abs(speed_mps) <= WINCH_SPEED_MAX_MPS):
+        return WINCH_REJECT_SPEED
+    return 0
+
+
 def winch_sample(est: Estimator, t_us: int, line_length_m: float, speed_mps: float, tension_n: float) -> bool:
-    """A WINCH_STATUS (``t_us`` on the sensor clock: when it arrived). A length outside
-    [WINCH_LENGTH_MIN_M, WINCH_LENGTH_MAX_M] or not finite is rejected; a speed that is not finite or
-    beyond WINCH_SPEED_MAX_MPS counts as 0."""
-    if not (math.isfinite(line_length_m) and WINCH_LENGTH_MIN_M <= line_length_m <= WINCH_LENGTH_MAX_M):
+    """A WINCH_STATUS (``t_us`` on the sensor clock: when it arrived); an implausible one
+    (``winch_plausible``) is rejected and counted."""
+    why = winch_plausible(est, line_length_m, speed_mps)
+    if why:
+        est.winch_rejected += 1
+        est.winch_reject_reason = why
         return False
     est.winch_samples += 1
     est.winch_t_us = t_us
     est.winch_tension_n = tension_n if math.isfinite(tension_n) and tension_n >= 0.0 else math.nan
     set_line_length(est, line_length_m)
     rope = est.ekf.rope
-    speed = speed_mps if math.isfinite(speed_mps) and abs(speed_mps) <= WINCH_SPEED_MAX_MPS else 0.0
-    rope.rate_mps = speed * rope.chord_m / line_length_m
+    rope.rate_mps = speed_mps * rope.chord_m / line_length_m
     return True
+
+
+# why a WINCH_STATUS was rejected, in words (the summary, when the winch is ignored wholesale)
+REJECT_WORDS = {
+    WINCH_REJECT_LENGTH: "line length not plausible (not finite, under 1 m or beyond [tether] length_m, the rope "
+                         "on the drum)",
+    WINCH_REJECT_HEIGHT: "line length shorter than the balloon's barometric height",
+    WINCH_REJECT_SPEED: "reel speed not plausible (not finite or beyond a winch's)",
+}  # fmt: skip
+
+
+def counts_text(what: str, ignored: str, used: int, rejected: int, reason: int, words: dict[int, str]) -> str:
+    """``winch: 12 used, 3 rejected``; a source rejected wholesale says why: ``winch: 0 used, 120
+    rejected (WINCH_STATUS ignored: line length not plausible ...)``."""
+    text = f"{what}: {used} used, {rejected} rejected"
+    if rejected and not used:
+        text += f" ({ignored} ignored: {words.get(reason, 'not plausible')})"
+    return text
+
+
+def winch_counts(est: Estimator) -> str:
+    """What the estimator made of the WINCH_STATUS it was given (either core: the same counters)."""
+    return counts_text("winch", "WINCH_STATUS", est.winch_samples, est.winch_rejected, est.winch_reject_reason,
+                       REJECT_WORDS)  # fmt: skip
 
 
 def control_winch(est: Estimator) -> None:
