@@ -21,12 +21,13 @@ import numpy as np
 
 from balloon_core.atmosphere import G0, ISA_EXP, LAPSE_K_M, R_AIR
 from sim_hil.dynamics import BalloonPhysics
-from sim_hil.rope import GROUND_FRICTION_RATIO, GROUND_STIFFNESS_N_M
+from sim_hil.rope import AIRBORNE_BELOW_M, GROUND_FRICTION_RATIO, GROUND_STIFFNESS_N_M
 
 HERE = Path(__file__).resolve().parent
 SOURCES = [HERE / "csrc" / "truth.c"]
 # no fused multiply-add: each operation rounds as Python's does
-FLAGS = ("-std=c99", "-O2", "-fPIC", "-shared", "-Wall", "-Wextra", "-Werror", "-Wshadow", "-ffp-contract=off")
+FLAGS = ("-std=c99", "-O2", "-fPIC", "-shared", "-Wall", "-Wextra", "-Werror", "-Wshadow", "-ffp-contract=off",
+         "-fno-builtin-pow")  # pow(x, 2.0) stays libm's pow, as Python's x ** 2 is, not x * x
 DISABLE_ENV = "BALLOON_SIM_REFERENCE"  # set (to anything but "" or "0"): the Python reference path everywhere
 
 # truth.c's sim_params, in its order
@@ -47,7 +48,10 @@ ROPE_FIELDS = (  # (C name, LumpedRope attribute)
 
 
 class SimParams(C.Structure):
-    _fields_ = [(n, C.c_double) for n in (*CONSTANT_FIELDS, *PHYSICS_FIELDS, "has_rope", *(c for c, _ in ROPE_FIELDS))]
+    _fields_ = [
+        (n, C.c_double)
+        for n in (*CONSTANT_FIELDS, *PHYSICS_FIELDS, "has_rope", *(c for c, _ in ROPE_FIELDS), "airborne_below_m")
+    ]
 
 
 _LIB: C.CDLL | None = None
@@ -73,8 +77,10 @@ def _load() -> C.CDLL | None:
     dp = C.POINTER(C.c_double)
     lib.bw_sim_derivative.argtypes = [C.POINTER(SimParams), dp, dp, dp]
     lib.bw_sim_derivative.restype = C.c_double
-    lib.bw_sim_step.argtypes = [C.POINTER(SimParams), dp, C.c_int, C.c_double, dp, C.c_int, dp]
+    lib.bw_sim_step.argtypes = [C.POINTER(SimParams), dp, C.c_int, C.c_double, dp, C.c_int, dp, dp]
     lib.bw_sim_step.restype = C.c_double
+    lib.bw_sim_steps.argtypes = [C.POINTER(SimParams), dp, C.c_int, C.c_double, dp, C.c_int, C.c_int, dp, dp]
+    lib.bw_sim_steps.restype = C.c_double
     _LIB = lib
     return lib
 
@@ -103,22 +109,28 @@ def params(ph: BalloonPhysics) -> SimParams:
         p.has_rope = 1.0
         for cname, attr in ROPE_FIELDS:
             setattr(p, cname, float(getattr(ph.rope, attr)))
+        p.airborne_below_m = AIRBORNE_BELOW_M
     return p
 
 
 class NativeStepper:
     """RK4 steps of one flight in C: the state lives in ``self.s`` (numpy float64, the layout of
-    ``dynamics.resting_state``), the derivative at the step's start in ``self.k1``."""
+    ``dynamics.resting_state``), the derivative at the step's start in ``self.k1``; ``step_keep`` also
+    keeps the state before the step in ``self.pre`` with the rope's anchor tension and airborne flag
+    after it (``rope.anchor_tension_n``, ``rope.rope_airborne``)."""
 
     def __init__(self, ph: BalloonPhysics, state: list[float]) -> None:
         lib = _load()
         if lib is None:
             raise RuntimeError(f"the simulator's C physics are not available: {_WHY_NOT}")
         self._step = lib.bw_sim_step
+        self._steps = lib.bw_sim_steps
         self._deriv = lib.bw_sim_derivative
         self.s = np.array(state, dtype=np.float64)
         self.k1 = np.zeros_like(self.s)
+        self.pre = np.zeros(len(self.s) + 2)
         dp = C.POINTER(C.c_double)
+        self._pre_p = self.pre.ctypes.data_as(dp)
         self._s_p = self.s.ctypes.data_as(dp)
         self._k1_p = self.k1.ctypes.data_as(dp)
         self._n = C.c_int(len(self.s))
@@ -138,7 +150,15 @@ class NativeStepper:
     def step(self, h: float, j: int) -> float:
         """k1 at the state, then one RK4 step of ``h`` with the wind rows of step ``j``; the tension at the
         state before the step."""
-        return self._step(self._params_p, self._s_p, self._n, h, self._wind_p, j, self._k1_p)
+        return self._step(self._params_p, self._s_p, self._n, h, self._wind_p, j, self._k1_p, None)
+
+    def step_keep(self, h: float, j: int) -> float:
+        """``step``, the state before it (and the rope's anchor tension and airborne flag) kept in ``pre``."""
+        return self._step(self._params_p, self._s_p, self._n, h, self._wind_p, j, self._k1_p, self._pre_p)
+
+    def steps_keep(self, h: float, j: int, count: int) -> float:
+        """``step_keep`` then ``count - 1`` more steps (j + 1, ...), in one call."""
+        return self._steps(self._params_p, self._s_p, self._n, h, self._wind_p, j, count, self._k1_p, self._pre_p)
 
     def derivative(self, w: tuple[float, ...]) -> float:
         """k1 (into ``self.k1``) at the state without stepping: the tension."""

@@ -159,6 +159,7 @@ class Simulation:
             ph = base.at_length(*paid)
         aux = self._aux_rng
         stepper = self._stepper = native.NativeStepper(ph, s) if self.native else None
+        skip = 0  # physics steps already done by the C stepper (a whole IMU period in one call)
         for c0 in range(0, n_steps, CHUNK_STEPS):
             n = min(CHUNK_STEPS, n_steps - c0)
             wind_rows = self._wind_chunk(c0, n)
@@ -166,6 +167,9 @@ class Simulation:
             if stepper is not None:
                 stepper.set_wind(wind_rows)
             for j in range(n):
+                if skip:
+                    skip -= 1
+                    continue
                 step = c0 + j
                 w0 = wind[2 * j]
                 if winch is not None:
@@ -177,15 +181,24 @@ class Simulation:
                             stepper.set_physics(ph)
                 held = step < release_step
                 at_imu = step % spi == 0
+                rope_now = None  # (anchor tension, airborne) when the C step gave them
                 if stepper is not None:  # k1 and the step in one call: the state before it kept for the IMU
-                    if at_imu:
-                        s = stepper.s.tolist()
                     if held:
                         k1, tension = zero, 0.0
-                    else:
-                        tension = stepper.step(h, j)
                         if at_imu:
-                            k1 = stepper.k1.tolist()
+                            s = stepper.s.tolist()
+                    elif at_imu:
+                        if winch is None and spi > 1 and j + spi <= n:  # the physics stay: the whole period
+                            tension = stepper.steps_keep(h, j, spi)
+                            skip = spi - 1
+                        else:
+                            tension = stepper.step_keep(h, j)
+                        s = stepper.pre.tolist()  # the state, then the rope's anchor tension and airborne flag
+                        k1 = stepper.k1[:13].tolist()
+                        if ph.rope is not None:
+                            rope_now = s[-2], s[-1] != 0.0
+                    else:
+                        stepper.step(h, j)
                 elif held:
                     k1, tension = zero, 0.0
                 else:
@@ -217,8 +230,13 @@ class Simulation:
                     else:
                         sf = shear_factor(ph.shear_exponent, ph.shear_reference_m, height)
                         wtn, wte = sf * w0[0], sf * w0[1]
-                    taut = tension > 0.0 and (ph.rope is None or rope_airborne(ph.rope, s[13:]))
-                    anchor = anchor_tension_n(ph.rope, s[13:]) if ph.rope is not None else tension
+                    if ph.rope is None:
+                        taut, anchor = tension > 0.0, tension
+                    elif rope_now is not None:
+                        taut, anchor = tension > 0.0 and rope_now[1], rope_now[0]
+                    else:
+                        taut = tension > 0.0 and rope_airborne(ph.rope, s[13:])
+                        anchor = anchor_tension_n(ph.rope, s[13:])
                     if not keep and i - self._truth_base == chunk_rows:
                         self.flush_truth()
                     truth[i - self._truth_base if not keep else i] = (

@@ -23,6 +23,7 @@ typedef struct {
     /* LumpedRope (has_rope 0: the paper's rope) */
     double has_rope, segments, seg_length_m, node_mass_kg, seg_k_n_m, seg_c_ns_m, rope_drag_factor_m2;
     double rope_shear_exponent, rope_shear_reference_m, ground_c_ns_m, seg_rate_mps, rope_veer_rad_m;
+    double airborne_below_m;
 } sim_params;
 
 #define MAX_SEGMENTS 200
@@ -327,13 +328,41 @@ double bw_sim_derivative(const sim_params *ph, const double *s, const double *w,
     return tension;
 }
 
+/* rope.py anchor_tension_n: the bottom segment's pull on the anchor */
+static double anchor_tension(const sim_params *ph, const double *nodes) {
+    int n = (int)ph->segments - 1;
+    double x = nodes[0], y = nodes[1], z = nodes[2];
+    double length = sqrt(x * x + y * y + z * z);
+    if (length <= ph->seg_length_m || length < 1e-9) return 0.0;
+    double rate = (x * nodes[3 * n] + y * nodes[3 * n + 1] + z * nodes[3 * n + 2]) / length - ph->seg_rate_mps;
+    double t = ph->seg_k_n_m * (length - ph->seg_length_m) + ph->seg_c_ns_m * rate;
+    return t > 0.0 ? t : 0.0;
+}
+
+/* rope.py rope_airborne: every node off the ground */
+static int rope_airborne(const sim_params *ph, const double *nodes) {
+    int n = (int)ph->segments - 1;
+    for (int i = 0; i < n; i++)
+        if (!(nodes[3 * i + 2] < ph->airborne_below_m)) return 0;
+    return 1;
+}
+
 /* dynamics.py rk4_step with its k1 computed here (``k1`` out): step j of a wind table whose rows (n, e, d,
  * dn, de, dd) are at half steps, rows 2j, 2j + 1, 2j + 2 the wind at t, t + h/2, t + h. s is advanced in
- * place; returns the tension at the state before the step. */
-double bw_sim_step(const sim_params *ph, double *s, int n_state, double h, const double *wind, int j, double *k1) {
+ * place; returns the tension at the state before the step. With ``pre`` (else NULL) the state before the
+ * step is copied there, followed by the lumped rope's anchor tension and whether it is airborne (1, 0)
+ * there (the truth table's columns; 0, 0 with the paper's rope). */
+double bw_sim_step(const sim_params *ph, double *s, int n_state, double h, const double *wind, int j, double *k1,
+                   double *pre) {
     double k2[MAX_STATE], k3[MAX_STATE], k4[MAX_STATE], tmp[MAX_STATE];
     const double *w0 = wind + 12 * (size_t)j, *wm = w0 + 6, *w1 = w0 + 12;
     double tension = bw_sim_derivative(ph, s, w0, k1);
+    if (pre != NULL) {
+        for (int i = 0; i < n_state; i++) pre[i] = s[i];
+        int rope = ph->has_rope != 0.0;
+        pre[n_state] = rope ? anchor_tension(ph, s + 13) : 0.0;
+        pre[n_state + 1] = rope ? rope_airborne(ph, s + 13) : 0.0;
+    }
     double h2 = 0.5 * h;
     for (int i = 0; i < n_state; i++) tmp[i] = s[i] + h2 * k1[i];
     bw_sim_derivative(ph, tmp, wm, k2);
@@ -348,5 +377,14 @@ double bw_sim_step(const sim_params *ph, double *s, int n_state, double h, const
     s[7] *= nrm;
     s[8] *= nrm;
     s[9] *= nrm;
+    return tension;
+}
+
+/* ``count`` steps (j, j + 1, ...) of bw_sim_step, k1 and ``pre`` from the first: one IMU period in one call */
+double bw_sim_steps(const sim_params *ph, double *s, int n_state, double h, const double *wind, int j, int count,
+                    double *k1, double *pre) {
+    double tension = bw_sim_step(ph, s, n_state, h, wind, j, k1, pre);
+    double k[MAX_STATE];
+    for (int i = 1; i < count; i++) bw_sim_step(ph, s, n_state, h, wind, j + i, k, NULL);
     return tension;
 }
