@@ -48,7 +48,7 @@ def replay_file(fw: Firmware, path: str, progress: Progress | None = None, stop=
 def _replay(fw: Firmware, path: str, progress: Progress | None, stop) -> bool:
     tlog = path.endswith(".tlog")
     st = fw.stats
-    msgs = capture_messages(path, st)
+    msgs = capture_messages(path, st, fast=True)  # the sensor messages by fastmav (same messages, same counts)
     try:
         for k, m in enumerate(msgs):
             fw.handle(m)
