@@ -14,8 +14,6 @@ package (pymavlink's own accelerator) there is no fast path: everything goes to 
 
 from __future__ import annotations
 
-import operator
-
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 try:
@@ -36,17 +34,16 @@ MESSAGES = (
 )  # fmt: skip
 
 
-HEADER_FIELDS = ("src_system", "src_component", "seq")
+HEADER_FIELDS = ("_sys", "_comp", "_seq")
 
 
-class FastMessage(tuple):
-    """A decoded frame: its fields (wire order) then ``HEADER_FIELDS``, a named tuple per message
-    (``_classes``) with pymavlink's accessors."""
+class FastMessage:
+    """A decoded frame: its fields and ``HEADER_FIELDS`` in the instance's dict (the cheapest attribute
+    reads), one subclass per message (``_classes``) with pymavlink's accessors."""
 
-    __slots__ = ()
     _type = ""
     _id = -1
-    _fields: tuple[str, ...] = ()
+    _names: tuple[str, ...] = ()
 
     def get_type(self) -> str:
         return self._type
@@ -55,32 +52,29 @@ class FastMessage(tuple):
         return self._id
 
     def get_srcSystem(self) -> int:  # noqa: N802
-        return self[-3]
+        return self._sys
 
     def get_srcComponent(self) -> int:  # noqa: N802
-        return self[-2]
+        return self._comp
 
     def get_seq(self) -> int:
-        return self[-1]
+        return self._seq
 
     def to_dict(self) -> dict:
-        return {"mavpackettype": self._type, **dict(zip(self._fields[:-3], self))}
+        return {"mavpackettype": self._type, **{n: getattr(self, n) for n in self._names}}
 
 
 def _classes() -> dict[int, tuple]:
-    """msg id -> (CRC_EXTRA byte, payload size, struct unpacker, the message's class)."""
+    """msg id -> (CRC_EXTRA byte, payload size, struct unpacker, the message's class, its names in wire
+    order then ``HEADER_FIELDS``)."""
     out = {}
     for m in MESSAGES:
         assert sum(m.lengths) == len(m.lengths), m.msgname  # no array fields: one value per field
         wire = [""] * len(m.fieldnames)
         for i, name in enumerate(m.fieldnames):  # pymavlink: field i of the declaration is t[orders[i]]
             wire[m.orders[i]] = name
-        assert not set(wire) & set(HEADER_FIELDS), m.msgname
-        fields = (*wire, *HEADER_FIELDS)
-        ns = {"__slots__": (), "_type": m.msgname, "_id": m.id, "_fields": fields}
-        ns.update({name: property(operator.itemgetter(i)) for i, name in enumerate(fields)})
-        cls = type(f"Fast_{m.msgname}", (FastMessage,), ns)
-        out[m.id] = (bytes((m.crc_extra,)), m.unpacker.size, m.unpacker.unpack, cls)
+        cls = type(f"Fast_{m.msgname}", (FastMessage,), {"_type": m.msgname, "_id": m.id, "_names": tuple(wire)})
+        out[m.id] = (bytes((m.crc_extra,)), m.unpacker.size, m.unpacker.unpack, cls, (*wire, *HEADER_FIELDS))
     return out
 
 
@@ -112,7 +106,7 @@ def decode(frame: bytes) -> FastMessage | None:
     mlen = frame[1]
     if spec is None or mlen != n - hl - tail:
         return None
-    extra, size, unpack, cls = spec
+    extra, size, unpack, cls, names = spec
     end = n - tail
     if mcrf4xx(extra, mcrf4xx(frame[1:end], CRC_INIT)) != frame[end] | frame[end + 1] << 8:
         return None
@@ -121,4 +115,6 @@ def decode(frame: bytes) -> FastMessage | None:
         payload += bytes(size - mlen)
     elif mlen > size:  # extensions this dialect does not know
         payload = payload[:size]
-    return tuple.__new__(cls, unpack(payload) + (sysid, compid, seq))
+    m = cls()
+    m.__dict__ = dict(zip(names, unpack(payload) + (sysid, compid, seq)))
+    return m
