@@ -5,8 +5,10 @@ floor of that step (its dense algebra's flops at the machine's measured matmul r
 as a process), the simulator on both ropes (sensors, MAVLink packets, truth), and study cases per hour.
 
 Where a faster path replaced a slower one the slower is timed beside it in the same run ("before"): the
-simulator's Python reference physics (``Simulation(reference=True)``) and pymavlink's decoding of the
-sensor messages (``tlog_messages(fast=False)``). The machine is shared: compare rows of one run.
+simulator's Python reference physics (``Simulation(reference=True)``) and the replay's pymavlink decoding
+with one C call a sample. Rates ("x") are simulated seconds per second of the program's own CPU time
+(``CPU``: process time, the children's for a process), which other work on a shared machine disturbs
+far less than wall time; the step times are medians of wall-clock steps. Compare rows of one run.
 
     .venv/bin/python -m benchmarks.bench_speed [--quick]
 """
@@ -17,6 +19,7 @@ import argparse
 import importlib.util
 import io
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -36,6 +39,7 @@ from sim_hil.scenarios import SCENARIOS
 from sim_hil.simulator import Simulation, TruthCsvWriter
 
 ROOT = Path(__file__).resolve().parents[1]
+CPU = time.process_time  # this process's CPU time: what the rates are per
 HOUR_S = 3600.0
 # targets (issue 25)
 TARGET_SIM_X = 200.0  # the lumped rope
@@ -147,6 +151,12 @@ def small_matmul_flops_per_s(n: int = N_STATES, repeats: int = 20000) -> float:
     return 2.0 * n**3 * repeats / t
 
 
+def children_cpu() -> float:
+    """CPU time (user + system) of the finished child processes."""
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
 def _timed(fn) -> float:
     t0 = time.perf_counter()
     fn()
@@ -164,16 +174,41 @@ def write_tlog(samples, path: str) -> None:
 
 def replay_rate(tlog: str, duration_s: float, core: str = "c", fast: bool = True, repeats: int = 2) -> float:
     """What ``balloon-fw --core CORE --in TLOG`` does per message, in process (no start-up, no output
-    file): tlog records decoded (``fast``: the sensor messages by fastmav, else all by pymavlink), each
+    file): tlog records decoded (``fast``: the sensor messages by fastmav, the samples to the C core a
+    block at a time, as the program does; else all by pymavlink, one C call a sample: before), each
     message through the firmware. Simulated seconds per wall second, the best of ``repeats``."""
     best = np.inf
     for _ in range(repeats):
         fw = Firmware(Design(), FilterConfig(core=core), sink=None)
-        t0 = time.perf_counter()
+        if fast:
+            fw.use_batches()
+        t0 = CPU()
         for m in tlog_messages(tlog, LinkStats(), fast=fast):
             fw.handle(m)
         fw.flush()
-        best = min(best, time.perf_counter() - t0)
+        best = min(best, CPU() - t0)
+    return duration_s / best
+
+
+def c_batch_rate(samples, duration_s: float, repeats: int = 2) -> float:
+    """The replay's ceiling: the samples, already decoded and in one block, through the C core (float64,
+    balloon-fw's default) in one ``CEstimator.on_batch`` call: the estimator's own cost, nothing in Python."""
+    from firmware_py.core_c import SampleBlock
+
+    n = len(samples) + sum(1 for s in samples if s.baro)
+    blk = SampleBlock(n)
+    for s in samples:
+        if s.baro:
+            blk.add(s.time_usec, SampleBlock.KIND_BARO, (*s.baro, *(0.0,) * 7))
+        blk.add(s.time_usec, SampleBlock.KIND_IMU, (*s.accel, *s.gyro, *s.mag))
+    blk.ready()
+    best = np.inf
+    for _ in range(repeats):
+        est = new_core(Design(), FilterConfig(core="c"))[0]
+        t0 = CPU()
+        done = est.on_batch(blk, 0, 2**62, est.consistency.flags, 2**62)
+        best = min(best, CPU() - t0)
+        assert done == n
     return duration_s / best
 
 
@@ -184,12 +219,12 @@ def sim_rate(scenario: str, duration_s: float, reference: bool) -> float:
     sim = Simulation(sc.design, sc.wind, sc.truth, duration_s, 1, keep_truth=False, truth_sink=truth,
                      reference=reference)  # fmt: skip
     enc, w = SensorPacketEncoder(), TlogWriter(io.BytesIO())
-    t0 = time.perf_counter()
+    t0 = CPU()
     for s in sim.samples():
         for frame in enc.encode(s):
             w.write(s.time_usec, frame)
     sim.flush_truth()
-    wall = time.perf_counter() - t0
+    wall = CPU() - t0
     truth.close()
     return duration_s / wall
 
@@ -201,10 +236,10 @@ def reprocess_rate(duration_s: float) -> float:
         subprocess.run([sys.executable, "-m", "sim_hil", "--scenario", "paper-reference", "--duration",
                         str(duration_s), "--seed", "1", "--out", tlog, "--quiet"], check=True,
                        capture_output=True)  # fmt: skip
-        t0 = time.perf_counter()
+        t0 = children_cpu()
         subprocess.run([sys.executable, "-m", "ground_station", "reprocess", tlog, "--out", f"{t}/f.nc", "--quiet"],
                        check=True, capture_output=True)  # fmt: skip
-        return duration_s / (time.perf_counter() - t0)
+        return duration_s / (children_cpu() - t0)
 
 
 def study_case_s(duration_s: float) -> float:
@@ -212,9 +247,10 @@ def study_case_s(duration_s: float) -> float:
     from benchmarks.bench_study import cases
     from study.case import run_case
 
+    t0 = CPU()
     row = run_case(cases(duration_s, 1)[0].payload())
     assert row["status"] == "ok", row["error"]
-    return row["wall_time_s"]
+    return CPU() - t0
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -255,12 +291,15 @@ def main(argv: list[str] | None = None) -> None:
     with tempfile.TemporaryDirectory() as t:
         tlog = f"{t}/flight.tlog"
         write_tlog(samples, tlog)
-        for core, fast, label in (("c", True, "replay balloon-fw --core c (fastmav)"),
+        for core, fast, label in (("c", True, "replay balloon-fw --core c (fastmav, blocks)"),
                                   ("c", False, "replay balloon-fw --core c (pymavlink: before)"),
                                   ("py", True, "replay balloon-fw --core py (fastmav)")):  # fmt: skip
             x = replay_rate(tlog, duration, core, fast, repeats=2 if core == "c" else 1)
             note = f"target >= {TARGET_REPLAY_X:.0f}x" if (core, fast) == ("c", True) else ""
             rows.append((label, f"{x:.0f}x", note))
+    x = c_batch_rate(samples, duration)
+    rows.append(("replay's ceiling: the C core alone (float64)", f"{x:.0f}x",
+                 f"{duration / x / len(samples) * 1e6:.1f} us an IMU sample: decoded samples, one call"))  # fmt: skip
     x = reprocess_rate(reprocess_s)
     rows.append((f"reprocess balloon-gs ({reprocess_s:.0f} s flight, process)", f"{x:.0f}x",
                  f"a 1 h flight in {HOUR_S / x:.0f} s (the Python core: the smoother records its steps)"))  # fmt: skip
@@ -272,10 +311,10 @@ def main(argv: list[str] | None = None) -> None:
             rows.append((label, f"{x:.0f}x", note))
     t_case = study_case_s(case_s)
     rows.append((f"study: {case_s:.0f} s paper-reference cases per hour", f"{HOUR_S / t_case:.0f}/h",
-                 f"one worker, in process ({t_case:.1f} s a case); x workers on as many free cores"))  # fmt: skip
+                 f"one worker, in process ({t_case:.1f} CPU s a case); x workers on as many free cores"))  # fmt: skip
 
     print(f"balloon-wind speed, one run ({duration:.0f} s paper-reference stream for the filter and replay; "
-          f"simulator {sim_s:.0f} s)")  # fmt: skip
+          f"simulator {sim_s:.0f} s; x = simulated s per CPU s)")  # fmt: skip
     w = max(len(r[0]) for r in rows)
     print(f"{'what':{w}s}  {'figure':>9s}  note")
     for what, fig, note in rows:
