@@ -104,9 +104,12 @@ def study_block(text: str, prompt: str = STUDY_PROMPT) -> list[str]:
 
 
 def write_study(lines: list[str], path: Path = STUDY_MD, prompt: str = STUDY_PROMPT) -> None:
+    """Replace the lines after ``prompt`` up to the closing fence (``study_block``) with ``lines``."""
     text = path.read_text()
-    old = "\n".join(study_block(text, prompt))
-    path.write_text(text.replace(f"{prompt}\n{old}\n", f"{prompt}\n" + "\n".join(lines) + "\n", 1))
+    old = text.splitlines()
+    i = old.index(prompt) + 1
+    j = old.index("```", i)
+    path.write_text("\n".join(old[:i] + lines + old[j:]) + ("\n" if text.endswith("\n") else ""))
 
 
 def ulog_phrases(rec: dict) -> dict[str, list[str]]:
