@@ -1,5 +1,6 @@
 """MAVLink I/O at the program's edge: endpoints (tlog / raw capture / UDP / serial) to decoded
-messages, and sinks (tlog / UDP). Parsing is pymavlink's; bad frames are counted, never raised."""
+messages, and sinks (tlog / UDP). Parsing is pymavlink's (a replay's sensor messages: ``fastmav``'s, which
+takes only what pymavlink takes alike); bad frames are counted, never raised."""
 
 from __future__ import annotations
 
