@@ -153,3 +153,19 @@ def test_reference_everywhere_when_asked(monkeypatch):
     assert not native.available() and native.DISABLE_ENV in native.why_not()
     sc = SCENARIOS["field-rope"]
     assert not Simulation(sc.design, sc.wind, sc.truth, 1.0, 1).native
+
+
+def test_no_compiler_falls_back_to_the_python_reference(monkeypatch):
+    import firmware_c.build as build
+
+    def fail(*args, **kwargs):
+        raise build.BuildError("the simulator's C physics needs a C compiler (cc or gcc) to build")
+
+    monkeypatch.setattr(build, "shared_library", fail)
+    monkeypatch.setattr(native, "_LIB", None)
+    monkeypatch.setattr(native, "_WHY_NOT", "")
+    assert not native.available() and "C compiler" in native.why_not()
+    sc = SCENARIOS["paper-reference"]
+    sim = Simulation(sc.design, sc.wind, sc.truth, 8.0, 2)
+    assert not sim.native
+    assert sim.run() == 800
