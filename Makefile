@@ -14,6 +14,7 @@ $(BIN)/python:
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install -q -e '.[all,test]'
 	$(BIN)/python -m firmware_c.build >/dev/null  # the C core for this host (else built at first use)
+	$(BIN)/python -m sim_hil.native >/dev/null || true  # the simulator's C physics (else Python)
 	# MAVProxy for the test that it shows our WIND: its headless core only (its GUI needs opencv and vtk)
 	$(BIN)/python -m pip install -q --no-deps 'MAVProxy>=1.8' defusedxml || true
 	touch $(STAMP)

@@ -1,5 +1,6 @@
 """MAVLink I/O at the program's edge: endpoints (tlog / raw capture / UDP / serial) to decoded
-messages, and sinks (tlog / UDP). Parsing is pymavlink's; bad frames are counted, never raised."""
+messages, and sinks (tlog / UDP). Parsing is pymavlink's (a replay's sensor messages: ``fastmav``'s, which
+takes only what pymavlink takes alike); bad frames are counted, never raised."""
 
 from __future__ import annotations
 
@@ -12,6 +13,8 @@ from collections.abc import Iterator
 from typing import BinaryIO
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from balloon_core import fastmav
 
 TLOG_HEADER = 8
 MAGIC_V2, MAGIC_V1 = 0xFD, 0xFE
@@ -190,12 +193,15 @@ def message_time_us(msg) -> int | None:
 
 
 class Decoder:
-    """Byte stream -> MAVLink messages with pymavlink's robust parser."""
+    """Byte stream -> MAVLink messages with pymavlink's robust parser. ``fast``: whole frames
+    (``decode_frame``) of the sensor messages go through ``balloon_core.fastmav`` first (light message
+    objects with the same fields, for the firmware's replay), every other one through pymavlink."""
 
-    def __init__(self, stats: LinkStats) -> None:
+    def __init__(self, stats: LinkStats, fast: bool = False) -> None:
         self.mav = mavlink.MAVLink(None)
         self.mav.robust_parsing = True
         self.stats = stats
+        self.fast = fastmav.decode if fast else None
 
     def feed(self, data: bytes) -> list:
         self.stats.bytes += len(data)
@@ -226,6 +232,12 @@ class Decoder:
     def decode_frame(self, frame: bytes):
         """One complete frame (from a tlog record); None and counted if it is corrupt."""
         self.stats.bytes += len(frame)
+        if self.fast is not None:
+            m = self.fast(frame)
+            if m is not None:
+                self.stats.frames += 1
+                self.stats.sequence(m)
+                return m
         try:
             m = self.mav.decode(bytearray(frame))
         except Exception:  # pymavlink raises MAVError and struct/index errors on corrupt frames
@@ -247,12 +259,12 @@ def frame_length(buf: bytes, i: int) -> int:
     return 0
 
 
-def tlog_messages(path: str, stats: LinkStats, chunk: int = 1 << 20) -> Iterator:
+def tlog_messages(path: str, stats: LinkStats, chunk: int = 1 << 20, fast: bool = False) -> Iterator:
     """Messages of a telemetry log: [8-byte big-endian us timestamp][frame] records, read a chunk at a
     time (memory does not grow with the file). A corrupt record is skipped by resynchronising on the
     next plausible record start; a file that ends inside a frame counts it as a bad frame
-    (``stats.truncated``)."""
-    dec = Decoder(stats)
+    (``stats.truncated``). ``fast``: the sensor messages as ``fastmav`` messages (``Decoder``)."""
+    dec = Decoder(stats, fast)
     with open(path, "rb") as fh:
         buf, i, eof = b"", 0, False
         while True:
@@ -301,11 +313,12 @@ def raw_messages(fh: BinaryIO, stats: LinkStats, chunk: int = 65536) -> Iterator
     dec.finish()
 
 
-def capture_messages(path: str, stats: LinkStats) -> Iterator:
+def capture_messages(path: str, stats: LinkStats, fast: bool = False) -> Iterator:
     """The one way to open a capture by its name: a ``.tlog`` is a telemetry log, anything else raw
-    MAVLink bytes as they came off a serial port. The file is closed when the iteration ends or stops."""
+    MAVLink bytes as they came off a serial port. The file is closed when the iteration ends or stops.
+    ``fast``: a tlog's sensor messages as ``fastmav`` messages (``Decoder``)."""
     if path.endswith(".tlog"):
-        yield from tlog_messages(path, stats)
+        yield from tlog_messages(path, stats, fast=fast)
         return
     with open(path, "rb") as fh:
         yield from raw_messages(fh, stats)

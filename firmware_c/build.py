@@ -18,7 +18,8 @@ import tempfile
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-SOURCES = sorted((HERE / "src").glob("*.c"))
+# the core as flashed, and the host's own entry points (host/: the batch hand-over of a replay)
+SOURCES = sorted((HERE / "src").glob("*.c")) + sorted((HERE / "host").glob("*.c"))
 HEADERS = sorted((HERE / "src").glob("*.h")) + sorted((HERE / "include").glob("*.h"))
 FLAGS = ("-std=c99", "-O3", "-fPIC", "-shared", "-Wall", "-Wextra", "-Werror", "-Wshadow")
 REALS = {"float": ("-Wdouble-promotion",), "double": ("-DBW_DOUBLE",)}
@@ -26,14 +27,6 @@ REALS = {"float": ("-Wdouble-promotion",), "double": ("-DBW_DOUBLE",)}
 
 class BuildError(RuntimeError):
     """The C core could not be built (no compiler, or it failed): a one-line reason."""
-
-
-def _digest(real: str, extra: tuple[str, ...]) -> str:
-    h = hashlib.sha256(" ".join(FLAGS + REALS[real] + extra).encode())
-    for p in SOURCES + HEADERS:
-        h.update(p.name.encode())
-        h.update(p.read_bytes())
-    return h.hexdigest()[:16]
 
 
 def _build_dirs() -> list[Path]:
@@ -45,13 +38,29 @@ def library(real: str = "float", extra: tuple[str, ...] = ()) -> Path:
     """The path of the host library for ``real`` ("float" or "double"), compiled if not yet built."""
     if real not in REALS:
         raise ValueError(f"real type {real!r}: 'float' or 'double'")
-    name = f"libbwcore_{real}-{_digest(real, extra)}.so"
+    return shared_library(f"libbwcore_{real}", SOURCES, HEADERS, FLAGS + REALS[real] + extra, "the C core",
+                          "", (HERE / "include", HERE / "src"))  # fmt: skip
+
+
+def shared_library(
+    stem: str, sources: list[Path], headers: list[Path], flags: tuple[str, ...], what: str, hint: str = "",
+    includes: tuple[Path, ...] = (),
+) -> Path:
+    """``stem``-<hash>.so built from ``sources`` with ``flags`` (the hash covers the flags, the sources and
+    ``headers``): found in a build directory, else compiled there (the C core's, or another host helper's:
+    sim_hil/native.py); an older build of the same stem is removed. ``what`` names it in errors, ``hint``
+    ends the one about a missing compiler."""
+    h = hashlib.sha256(" ".join(flags).encode())
+    for p in list(sources) + list(headers):
+        h.update(p.name.encode())
+        h.update(p.read_bytes())
+    name = f"{stem}-{h.hexdigest()[:16]}.so"
     for d in _build_dirs():
         if (d / name).exists():
             return d / name
     cc = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
     if cc is None:
-        raise BuildError("the C core needs a C compiler (cc or gcc, or $CC) to build, and none was found")
+        raise BuildError(f"{what} needs a C compiler (cc or gcc, or $CC) to build, and none was found{hint}")
     last = ""
     for d in _build_dirs():
         try:
@@ -61,23 +70,22 @@ def library(real: str = "float", extra: tuple[str, ...] = ()) -> Path:
         except OSError as e:
             last = str(e)
             continue
-        cmd = [cc, *FLAGS, *REALS[real], *extra, f"-I{HERE / 'include'}", f"-I{HERE / 'src'}", "-o", tmp,
-               *map(str, SOURCES), "-lm"]  # fmt: skip
+        cmd = [cc, *flags, *(f"-I{i}" for i in includes), "-o", tmp, *map(str, sources), "-lm"]
         try:
             r = subprocess.run(cmd, capture_output=True, text=True)
         except OSError as e:  # $CC names no program
             os.unlink(tmp)
-            raise BuildError(f"the C core needs a C compiler to build, and {cc} cannot be run ({e.strerror})") from None
+            raise BuildError(f"{what} needs a C compiler to build, and {cc} cannot be run ({e.strerror})") from None
         if r.returncode != 0:
             os.unlink(tmp)
             first = (r.stderr.strip().splitlines() or ["no message"])[0]
-            raise BuildError(f"the C core did not compile ({cc}): {first}")
+            raise BuildError(f"{what} did not compile ({cc}): {first}")
         os.replace(tmp, d / name)  # atomic: a parallel build of the same sources writes the same file
-        for old in d.glob(f"libbwcore_{real}-*.so"):
+        for old in d.glob(f"{stem}-*.so"):
             if old.name != name:
                 old.unlink(missing_ok=True)
         return d / name
-    raise BuildError(f"no writable place for the C core's build: {last}")
+    raise BuildError(f"no writable place for {what}'s build: {last}")
 
 
 def main() -> int:

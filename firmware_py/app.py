@@ -28,7 +28,7 @@ from balloon_core.config import Design
 from balloon_core.samples import BaroSample, GroundBaroSample, GroundSample, MavlinkSampler, Sample, WinchSample
 from balloon_core.score import direction_from_deg, wind_unknown
 from balloon_core.wire import LinkStats, pack
-from firmware_py.core_c import new_core
+from firmware_py.core_c import SampleBlock, new_core
 from firmware_py.estimator.aid_sources.ground_ref import ground_counts
 from firmware_py.estimator.aid_sources.winch import winch_counts
 from firmware_py.estimator.consistency import ACCEL, ALIGN, BARO, FLAG_NIS, MAG, RADIUS, SOURCES
@@ -58,6 +58,8 @@ TEXT_INTERVAL_US = 1_000_000  # at most one consistency STATUSTEXT a second (sen
 # a cleared gyro bit says "silent", never "misfit")
 SILENT_HEALTH_BITS = SENSOR_BITS & ~mavlink.MAV_SYS_STATUS_AHRS
 RECENT_IMU = 256  # IMU sample times remembered to tell a late sample from a copy (2.5 s at 100 Hz)
+BATCH_SAMPLES = 256  # a file replay's samples handed to the C core at most in one call (``use_batches``)
+_BARO_PAD = (0.0,) * 7  # a barometer sample's unused values in a SampleBlock row
 CONSISTENT_TEXT = "wind model consistent again"
 RESTARTED_TEXT = "wind model check restarted (filter reset)"
 
@@ -147,6 +149,16 @@ class Firmware:
         self._next_text_us = 0
         self.silent = False  # the sensors fell silent (``coast``): SYS_STATUS and ESTIMATOR_STATUS say so
         self.wind_sent = 0
+        self._block: SampleBlock | None = None  # samples waiting for the C core (``use_batches``)
+        self._block_t_us = -1  # the newest IMU sample's time put in the block
+
+    def use_batches(self) -> None:
+        """A file replay on the C core: the samples go to it a block at a time (``SampleBlock``, one call),
+        handed over whenever an output may be due (the outputs then carry the same state and the same link
+        statistics as one call a sample would give: the same bytes) and read back for the bookkeeping of
+        each step. Whatever reads the estimator first runs what waits (``drain``)."""
+        if hasattr(self.est, "on_batch"):
+            self._block = SampleBlock(BATCH_SAMPLES)
 
     # ----------------------------------------------------------------- input
 
@@ -161,6 +173,7 @@ class Firmware:
     def push(self, s: Sample | GroundSample) -> None:
         """One sample from any source: through the input pipeline into the estimator."""
         if type(s) is WinchSample or type(s) is GroundBaroSample:
+            self.drain()
             feed_ground(self.est, s)
             return
         self.silent = False
@@ -186,6 +199,7 @@ class Firmware:
             self._configure()
         for r in out:
             self._step(r)
+        self.drain()
 
     @property
     def _live(self) -> bool:
@@ -200,9 +214,26 @@ class Firmware:
         if d.warning:
             self.warn(d.warning)
         if self.pipe.cfg.imu_rate_hz != self.est.cfg.imu_rate_hz:
+            self.drain()
             self.est, self.out = new_core(self.design, self.pipe.cfg)
+            if self._block is not None and not hasattr(self.est, "on_batch"):
+                self._block = None
 
     def _step(self, s: Sample) -> None:
+        blk = self._block
+        if blk is not None:
+            if type(s) is BaroSample:
+                blk.add(s.t_us, SampleBlock.KIND_BARO, (s.pressure_hpa, s.temperature_c, *_BARO_PAD))
+                if len(blk) >= BATCH_SAMPLES:
+                    self.drain()
+            else:
+                t = s.t_us
+                blk.add(t, SampleBlock.KIND_IMU, s[1:])
+                back = t < self._block_t_us  # time going back may be a reboot: the outputs start again
+                self._block_t_us = t
+                if t >= self._next_wind_us or t >= self._next_hb_us or back or len(blk) >= BATCH_SAMPLES:
+                    self.drain()  # its outputs may be due: now, with this message's link statistics
+            return
         est = self.est
         if type(s) is BaroSample:
             est.on_baro(s.t_us, s.pressure_hpa, s.temperature_c)
@@ -213,25 +244,62 @@ class Firmware:
             self.out.update(est, s.t_us)
             self.emit_due(s.t_us)
         if est.counters.time_resets != resets:
-            self.out.reset()
-            self._next_wind_us = self._next_hb_us = self._next_text_us = 0
-            self._last_step = est.step
-            if self._told_flags and not est.consistency.flags:  # the reboot forgot the misfit: say so
-                self.statustext(mavlink.MAV_SEVERITY_INFO, RESTARTED_TEXT, s.t_us)
-                self._told_flags = 0
+            self._time_reset(s.t_us)
+
+    def _time_reset(self, t_us: int) -> None:
+        """The estimator counted a reboot of the sender: the outputs start again."""
+        est = self.est
+        self.out.reset()
+        self._next_wind_us = self._next_hb_us = self._next_text_us = 0
+        self._last_step = est.step
+        if self._told_flags and not est.consistency.flags:  # the reboot forgot the misfit: say so
+            self.statustext(mavlink.MAV_SEVERITY_INFO, RESTARTED_TEXT, t_us)
+            self._told_flags = 0
+
+    def drain(self) -> None:
+        """The samples waiting in the block (``use_batches``) through the C core, in pieces that end where
+        the firmware must act (``CEstimator.on_batch``): each step counted as ``_judge`` counts it, and at
+        the piece's last sample what ``_step`` does after ``feed`` (the output's update is the C call's)."""
+        blk = self._block
+        if blk is None or not len(blk):
+            return
+        blk.ready()
+        est = self.est
+        i, n = 0, blk.n
+        while i < n:
+            end = i + est.on_batch(blk, i, min(self._next_wind_us, self._next_hb_us), self._told_flags,
+                                   self._next_text_us)  # fmt: skip
+            stepped = blk.stepped[i:end].tolist()
+            steps, modes, flags = blk.steps[i:end].tolist(), blk.modes[i:end].tolist(), blk.flags[i:end].tolist()
+            last = end - i - 1
+            for k in range(last):
+                if stepped[k] & 1:
+                    self._count(steps[k], modes[k], flags[k])
+            t = int(blk.t[end - 1])
+            if stepped[last] & 1:
+                self._judge(t)
+                self.emit_due(t)
+            if stepped[last] & 2:
+                self._time_reset(t)
+            i = end
+        blk.clear()
+
+    def _count(self, step: int, mode: int, flags: int) -> None:
+        """The steps since the last count, in flight and with each source flagged."""
+        steps = max(0, step - self._last_step)
+        self._last_step = step
+        if mode != MODE_GROUND:  # the monitor judges in flight only
+            self.flight_steps += steps
+            for i in range(len(SOURCES)):
+                if flags >> i & 1:
+                    self.misfit_steps[i] += steps
 
     def _judge(self, t_us: int) -> None:
         """After a filter step: count the steps in flight with each source flagged, and tell a change of
         the flags (STATUSTEXT, at most one a second: a change within the second is told after it)."""
         est = self.est
-        steps = max(0, est.step - self._last_step)
-        self._last_step = est.step
         flags = est.consistency.flags
-        if est.ekf.mode != MODE_GROUND:  # the monitor judges in flight only
-            self.flight_steps += steps
-            for i in range(len(SOURCES)):
-                if flags >> i & 1:
-                    self.misfit_steps[i] += steps
+        self._count(est.step, est.ekf.mode, flags)
         if flags == self._told_flags or t_us < self._next_text_us:
             return
         self._told_flags = flags
@@ -360,6 +428,7 @@ class Firmware:
 
     def coast(self, now_s: float) -> None:
         """Sensors silent: keep talking (WIND_COV every call, HEARTBEAT each second), honestly."""
+        self.drain()
         self.est.coast(0.1)
         self.silent = True
         t = max(self.est.t_last_us, 0)
@@ -369,6 +438,7 @@ class Firmware:
         self.wind_cov(t)
 
     def summary(self) -> str:
+        self.drain()
         c = self.est.counters
         return (
             f"balloon-fw: {c.imu_samples} IMU samples, {c.baro_samples} baro samples, "
@@ -416,6 +486,7 @@ class Firmware:
     def status(self) -> str:
         """Health and estimate at a glance (the live status line): input loss first (what a narrow
         terminal must show), then mode, wind, accuracy."""
+        self.drain()
         est = self.est
         if not est.initialised:
             return f"waiting for the sensors, {self.stats.lost} lost"

@@ -37,6 +37,7 @@ def replay_file(fw: Firmware, path: str, progress: Progress | None = None, stop=
     """Every message of a capture; a file without a single sensor sample in it (no MAVLink at all, or
     none from an IMU or a barometer) is a UserError. Returns False if ``stop()`` said to stop before the
     end (Ctrl-C)."""
+    fw.use_batches()  # a file: the samples to the C core a block at a time (the same outputs)
     done = _replay(fw, path, progress, stop)
     if done and fw.stats.frames == 0:
         raise userargs.UserError(f"{path}: no MAVLink frame in this file (not a capture of a MAVLink link?)")
@@ -48,7 +49,7 @@ def replay_file(fw: Firmware, path: str, progress: Progress | None = None, stop=
 def _replay(fw: Firmware, path: str, progress: Progress | None, stop) -> bool:
     tlog = path.endswith(".tlog")
     st = fw.stats
-    msgs = capture_messages(path, st)
+    msgs = capture_messages(path, st, fast=True)  # the sensor messages by fastmav (same messages, same counts)
     try:
         for k, m in enumerate(msgs):
             fw.handle(m)

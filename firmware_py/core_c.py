@@ -193,6 +193,8 @@ def load(real: str = "float"):
     lib.bw_wind_accuracy.argtypes = [P]
     lib.bw_wind_accuracy.restype = ct
     lib.bw_config_default.argtypes = [C.POINTER(Config)]
+    vp = C.c_void_p
+    lib.bw_on_batch.argtypes = [P, C.c_int, vp, vp, vp, C.c_int64, C.c_int32, C.c_int64, vp, vp, vp, vp]
     _LIBS[real] = (lib, Config, Est, WindCov)
     return _LIBS[real]
 
@@ -315,6 +317,18 @@ class CEstimator:
     def on_baro(self, t_us: int, pressure_hpa: float, temperature_c: float) -> bool:
         return self._baro(self._p, t_us, pressure_hpa, temperature_c) == 1
 
+    def on_batch(self, block: SampleBlock, start: int, stop_us: int, told_flags: int, text_us: int) -> int:
+        """Samples ``start ..`` of ``block`` through ``bw_on_batch`` (firmware_c/host/batch.c): each as
+        ``on_imu`` (and the WIND_COV output's ``update`` after a step) or ``on_baro`` would take it, until one
+        the caller must act on (an IMU step at or after ``stop_us``, or with consistency flags other than
+        ``told_flags`` at or after ``text_us``, or a time reset). Returns how many were done; ``block``'s
+        out arrays hold each one's result (``SampleBlock``)."""
+        n = block.n - start
+        b = block
+        return self._lib.bw_on_batch(self._p, n, b.t_p + 8 * start, b.kind_p + 4 * start, b.v_p + 72 * start,
+                                     stop_us, told_flags, text_us, b.stepped_p + 4 * start, b.steps_p + 8 * start,
+                                     b.modes_p + 4 * start, b.flags_p + 4 * start)  # fmt: skip
+
     def on_winch(self, t_us: int, line_length_m: float, speed_mps: float, tension_n: float) -> bool:
         return self._lib.bw_on_winch(self._p, t_us, line_length_m, speed_mps, tension_n) == 1
 
@@ -402,6 +416,53 @@ class CEstimator:
     def struct(self):
         """The whole bw_estimator_t (the lockstep harness compares its fields)."""
         return self._s
+
+
+class SampleBlock:
+    """Samples for ``CEstimator.on_batch``, filled one by one (``imu``, ``baro``) and handed over together:
+    times, kinds (``KIND_IMU``, ``KIND_BARO``) and 9 values a sample in; per sample out ``stepped`` (bit 0:
+    the filter stepped, bit 1: a time reset), and after it the step count, the mode and the consistency
+    flags."""
+
+    KIND_IMU, KIND_BARO = 0, 1
+
+    def __init__(self, capacity: int) -> None:
+        self.capacity = capacity
+        self.n = 0
+        self.t = np.zeros(capacity, np.int64)
+        self.kind = np.zeros(capacity, np.int32)
+        self.v = np.zeros((capacity, 9))
+        self.stepped = np.zeros(capacity, np.int32)
+        self.steps = np.zeros(capacity, np.int64)
+        self.modes = np.zeros(capacity, np.int32)
+        self.flags = np.zeros(capacity, np.int32)
+        self.t_p, self.kind_p, self.v_p = self.t.ctypes.data, self.kind.ctypes.data, self.v.ctypes.data
+        self.stepped_p, self.steps_p = self.stepped.ctypes.data, self.steps.ctypes.data
+        self.modes_p, self.flags_p = self.modes.ctypes.data, self.flags.ctypes.data
+        self._t: list[int] = []  # filled here, copied into the arrays by ``ready``
+        self._kind: list[int] = []
+        self._v: list[float] = []
+
+    def add(self, t_us: int, kind: int, values) -> None:
+        self._t.append(t_us)
+        self._kind.append(kind)
+        self._v.extend(values)
+
+    def __len__(self) -> int:
+        return len(self._t)
+
+    def ready(self) -> None:
+        """The samples added since the last ``clear`` into the arrays (``n`` of them)."""
+        n = self.n = len(self._t)
+        self.t[:n] = self._t
+        self.kind[:n] = self._kind
+        self.v.reshape(-1)[: 9 * n] = self._v
+
+    def clear(self) -> None:
+        self.n = 0
+        self._t.clear()
+        self._kind.clear()
+        self._v.clear()
 
 
 class CWindCovOutput:

@@ -43,7 +43,7 @@ def mavlink_samples(
     stats = stats if stats is not None else LinkStats()
     sampler = MavlinkSampler(ground_sysid)
     last_t = 0
-    msgs = capture_messages(path, stats)
+    msgs = capture_messages(path, stats, fast=True)  # the sensor messages by fastmav: the same, faster
     try:
         for m in msgs:
             out = sampler.convert(m)

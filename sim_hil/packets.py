@@ -5,6 +5,7 @@ SCALED_PRESSURE from the ground station's system, when the simulation has them."
 from __future__ import annotations
 
 import math
+import struct
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -20,6 +21,24 @@ GROUND_SYSID = 255  # the ground station's system ([site] ground_sysid's default
 GROUND_COMPID = mavlink.MAV_COMP_ID_MISSIONPLANNER
 WINCH_SYSID = GROUND_SYSID  # the winch stands at the ground station: a component of its system
 WINCH_COMPID = mavlink.MAV_COMP_ID_WINCH
+_HEADER_V2 = struct.Struct("<BBBBBBBHB")
+_CRC = struct.Struct("<H")
+_HIGHRES = mavlink.MAVLink_highres_imu_message
+
+
+def _frame(mav: mavlink.MAVLink, msg_id: int, crc_extra: int, payload: bytes) -> bytes:
+    """The frame ``pack(mav, msg)`` makes of a message with this payload (pymavlink's ``_pack``: MAVLink 2,
+    trailing zeros cut, unsigned), without building the message object: the per-sample HIGHRES_IMU."""
+    plen = len(payload)
+    while plen > 1 and payload[plen - 1] == 0:
+        plen -= 1
+    buf = _HEADER_V2.pack(253, plen, 0, 0, mav.seq, mav.srcSystem, mav.srcComponent, msg_id & 0xFFFF, msg_id >> 16)
+    buf += payload[:plen]
+    crc = mavlink.x25crc(buf[1:])
+    crc.accumulate(bytes((crc_extra,)))
+    mav.seq = (mav.seq + 1) % 256
+    mav.total_packets_sent += 1
+    return buf + _CRC.pack(crc.crc)
 
 
 class SensorPacketEncoder:
@@ -47,9 +66,14 @@ class SensorPacketEncoder:
             updated |= HIGHRES_ABS_PRESSURE | HIGHRES_TEMPERATURE
         hpa, temp_c = self._last_baro
         a, g, m = s.accel, s.gyro, s.mag
-        out.append(pack(mav, mav.highres_imu_encode(
-            s.time_usec, a[0], a[1], a[2], g[0], g[1], g[2], m[0], m[1], m[2], hpa, 0.0, 0.0, temp_c, updated, 0
-        )))  # fmt: skip
+        if mav.signing.sign_outgoing:  # never in the simulator: pymavlink's whole path
+            out.append(pack(mav, mav.highres_imu_encode(
+                s.time_usec, a[0], a[1], a[2], g[0], g[1], g[2], m[0], m[1], m[2], hpa, 0.0, 0.0, temp_c, updated, 0
+            )))  # fmt: skip
+        else:
+            out.append(_frame(mav, _HIGHRES.id, _HIGHRES.crc_extra, _HIGHRES.unpacker.pack(
+                s.time_usec, a[0], a[1], a[2], g[0], g[1], g[2], m[0], m[1], m[2], hpa, 0.0, 0.0, temp_c, updated, 0
+            )))  # fmt: skip
         if s.baro is not None:
             temp_cdeg = int(round(temp_c * 100.0))
             out.append(pack(mav, mav.scaled_pressure_encode(s.time_usec // 1000, hpa, 0.0, temp_cdeg, 0)))

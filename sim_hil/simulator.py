@@ -15,6 +15,7 @@ import numpy as np
 from balloon_core.atmosphere import G0
 from balloon_core.config import Design
 from balloon_core.rotation import euler_from_quat
+from sim_hil import native
 from sim_hil.dynamics import (
     BalloonPhysics,
     TruthConfig,
@@ -73,9 +74,12 @@ class Simulation:
         keep_truth: bool = True,
         truth_sink: Callable[[np.ndarray], None] | None = None,
         winch: WinchConfig | None = None,
+        reference: bool = False,
     ) -> None:
         """``keep_truth``: the whole flight's truth table in ``self.truth`` (memory grows with the
-        duration); otherwise it is handed to ``truth_sink`` in chunks of rows and not kept."""
+        duration); otherwise it is handed to ``truth_sink`` in chunks of rows and not kept.
+        ``reference``: integrate with the Python functions (dynamics.py, rope.py) even where their
+        compiled twin (sim_hil/native.py, the default when it builds) is available."""
         if not (0.0 < duration_s < math.inf):
             raise ValueError(f"duration must be finite and > 0, got {duration_s}")
         self.design, self.truth_cfg = design, truth
@@ -89,7 +93,9 @@ class Simulation:
             wind, duration_s + 1.0, seed, 2.0 * design.balloon.radius_m if truth.spatial_filter else 0.0
         )
         self.sensors = SensorSuite(design, truth, imu_hz, seed)
-        self.state = resting_state(self.physics, math.radians(truth.initial_yaw_deg))
+        self._state = resting_state(self.physics, math.radians(truth.initial_yaw_deg))
+        self.native = not reference and native.available()
+        self._stepper: native.NativeStepper | None = None
         self.keep_truth = keep_truth
         self.truth_sink = truth_sink
         rows = self.n_imu if keep_truth else min(self.n_imu, TRUTH_CHUNK_ROWS)
@@ -116,8 +122,13 @@ class Simulation:
             self.truth_sink(self.truth[:k])
         self._truth_base = self._truth_rows
 
-    def _wind_chunk(self, step0: int, n: int) -> list[list[float]]:
-        """Wind (n, e, d, dn, de, dd) at physics half-steps step0*h ... (step0+n)*h, as plain floats."""
+    @property
+    def state(self) -> list[float]:
+        """The truth's state (dynamics.resting_state's layout) after the last physics step done."""
+        return self._stepper.s.tolist() if self._stepper is not None else self._state
+
+    def _wind_chunk(self, step0: int, n: int) -> np.ndarray:
+        """Wind (n, e, d, dn, de, dd) at physics half-steps step0*h ... (step0+n)*h."""
         t = (step0 + np.arange(2 * n + 1) * 0.5) * self.h
         dt = self.wind.dt_s
         i0 = int(t[0] / dt)
@@ -125,13 +136,13 @@ class Simulation:
         grid = (i0 + np.arange(len(ned))) * dt
         cols = [np.interp(t, grid, ned[:, k]) for k in range(3)]
         cols += [np.interp(t, grid, rate[:, k]) for k in range(3)]
-        return np.column_stack(cols).tolist()
+        return np.column_stack(cols)
 
     def samples(self) -> Iterator[SensorSample]:
         ph = self.physics
         h = self.h
         release_step = int(round(self.truth_cfg.release_s / h))
-        s = self.state
+        s = self._state
         spi = self.steps_per_imu
         n_steps = self.n_imu * spi
         truth = self.truth
@@ -153,10 +164,18 @@ class Simulation:
         # step is half the IMU's: 1.2 m/s^2 of false vertical acceleration on a 54 m rope of 12 segments
         v_prev: tuple[float, float, float] | None = None
         dt_imu = spi * h
+        stepper = self._stepper = native.NativeStepper(ph, s) if self.native else None
+        skip = 0  # physics steps already done by the C stepper (a whole IMU period in one call)
         for c0 in range(0, n_steps, CHUNK_STEPS):
             n = min(CHUNK_STEPS, n_steps - c0)
-            wind = self._wind_chunk(c0, n)
+            wind_rows = self._wind_chunk(c0, n)
+            wind = wind_rows.tolist()
+            if stepper is not None:
+                stepper.set_wind(wind_rows)
             for j in range(n):
+                if skip:
+                    skip -= 1
+                    continue
                 step = c0 + j
                 w0 = wind[2 * j]
                 if winch is not None:
@@ -164,12 +183,33 @@ class Simulation:
                     if now != paid:
                         paid = now
                         ph = base.at_length(*paid)
+                        if stepper is not None:
+                            stepper.set_physics(ph)
                 held = step < release_step
-                if held:
+                at_imu = step % spi == 0
+                rope_now = None  # (anchor tension, airborne) when the C step gave them
+                if stepper is not None:  # k1 and the step in one call: the state before it kept for the IMU
+                    if held:
+                        k1, tension = zero, 0.0
+                        if at_imu:
+                            s = stepper.s.tolist()
+                    elif at_imu:
+                        if winch is None and spi > 1 and j + spi <= n:  # the physics stay: the whole period
+                            tension = stepper.steps_keep(h, j, spi)
+                            skip = spi - 1
+                        else:
+                            tension = stepper.step_keep(h, j)
+                        s = stepper.pre.tolist()  # the state, then the rope's anchor tension and airborne flag
+                        k1 = stepper.k1[:13].tolist()
+                        if ph.rope is not None:
+                            rope_now = s[-2], s[-1] != 0.0
+                    else:
+                        stepper.step(h, j)
+                elif held:
                     k1, tension = zero, 0.0
                 else:
                     k1, tension = derivative(s, *w0, ph)
-                if step % spi == 0:
+                if at_imu:
                     i = step // spi
                     if not (abs(s[3]) + abs(s[4]) + abs(s[5]) < MAX_SPEED_MPS and -s[2] < MAX_HEIGHT_M
                             and abs(s[10]) + abs(s[11]) + abs(s[12]) < MAX_RATE_RPS):  # fmt: skip
@@ -201,8 +241,13 @@ class Simulation:
                     else:
                         sf = shear_factor(ph.shear_exponent, ph.shear_reference_m, height)
                         wtn, wte = sf * w0[0], sf * w0[1]
-                    taut = tension > 0.0 and (ph.rope is None or rope_airborne(ph.rope, s[13:]))
-                    anchor = anchor_tension_n(ph.rope, s[13:]) if ph.rope is not None else tension
+                    if ph.rope is None:
+                        taut, anchor = tension > 0.0, tension
+                    elif rope_now is not None:
+                        taut, anchor = tension > 0.0 and rope_now[1], rope_now[0]
+                    else:
+                        taut = tension > 0.0 and rope_airborne(ph.rope, s[13:])
+                        anchor = anchor_tension_n(ph.rope, s[13:])
                     if not keep and i - self._truth_base == chunk_rows:
                         self.flush_truth()
                     truth[i - self._truth_base if not keep else i] = (
@@ -220,9 +265,10 @@ class Simulation:
                     if self.ground_every and i % self.ground_every == 0:
                         ground = self._ground_reading(step * h, aux)
                     yield SensorSample(round(step * h * 1e6), acc, gyro, mag, baro, report, ground)
-                if not held:
-                    s = rk4_step(s, h, w0, wind[2 * j + 1], wind[2 * j + 2], ph, k1)
-                self.state = s
+                if stepper is None:
+                    if not held:
+                        s = rk4_step(s, h, w0, wind[2 * j + 1], wind[2 * j + 2], ph, k1)
+                    self._state = s
 
     def _ground_reading(self, time_s: float, rng: np.random.Generator) -> tuple[float, float]:
         """The ground reference at the anchor: the weather's ground pressure and temperature (the truth's

@@ -8,9 +8,11 @@
   accuracy the estimator gives, which ``docs/usage.md`` quotes;
 - ``python -m tools.web_screenshot``: the browser ground station's picture, ``docs/web.png`` (skipped, the old
   picture kept, without chromium);
+- ``python -m benchmarks.bench_speed``: its table replaces the speed tables of ``docs/estimator.md`` and
+  ``docs/porting.md`` (about 90 s; the figures are this machine's at that moment);
 and writes what they printed to ``docs/figures.json``. ``--check`` (and ``tests/unit/test_docs_figures.py``)
 compare the docs against that record without running anything: exit 1 and the differences if they disagree.
-``--only sil|study|ulog|web`` reruns one part (the others keep their record).
+``--only sil|study|ulog|web|speed`` reruns one part (the others keep their record).
 """
 
 from __future__ import annotations
@@ -35,6 +37,8 @@ USAGE_MD = DOCS / "usage.md"
 STUDY_SPEC = "examples/quick-study.toml"
 STUDY_PROMPT = f"$ balloon-study {STUDY_SPEC} --out results/quick --workers 2"
 # the logs docs/usage.md quotes, and the first words of the paragraph that quotes each
+SPEED_PROMPT = "$ .venv/bin/python -m benchmarks.bench_speed"
+SPEED_DOCS = (DOCS / "estimator.md", DOCS / "porting.md")  # each quotes the table after SPEED_PROMPT
 ULOGS = {"pyulog-sample.ulg": "- PX4 AUAV-X2.1 multicopter flight", "pyulog-sample_log_small.ulg": "- PX4 CubeOrange"}
 SCORE = re.compile(
     r"band RMSE \(<0\.05 Hz\) (?P<band_rmse_mps>[-\d.]+) m/s, skill (?P<band_skill>[-\d.]+) \| raw RMSE "
@@ -100,18 +104,28 @@ def ulog() -> dict:
     return rec
 
 
-def study_block(text: str) -> list[str]:
-    """The lines of docs/study.md's quick-study example after its prompt, up to the closing fence."""
+def speed() -> dict:
+    """The speed table, as ``benchmarks.bench_speed`` prints it."""
+    out = _run("-m", "benchmarks.bench_speed")
+    return {"command": SPEED_PROMPT[2:], "stdout": out.rstrip("\n").splitlines()}
+
+
+def study_block(text: str, prompt: str = STUDY_PROMPT) -> list[str]:
+    """The lines of a doc's example after its prompt (docs/study.md's quick study by default), up to the
+    closing fence."""
     lines = text.splitlines()
-    i = lines.index(STUDY_PROMPT) + 1
+    i = lines.index(prompt) + 1
     j = lines.index("```", i)
     return lines[i:j]
 
 
-def write_study(lines: list[str]) -> None:
-    text = STUDY_MD.read_text()
-    old = "\n".join(study_block(text))
-    STUDY_MD.write_text(text.replace(f"{STUDY_PROMPT}\n{old}\n", f"{STUDY_PROMPT}\n" + "\n".join(lines) + "\n", 1))
+def write_study(lines: list[str], path: Path = STUDY_MD, prompt: str = STUDY_PROMPT) -> None:
+    """Replace the lines after ``prompt`` up to the closing fence (``study_block``) with ``lines``."""
+    text = path.read_text()
+    old = text.splitlines()
+    i = old.index(prompt) + 1
+    j = old.index("```", i)
+    path.write_text("\n".join(old[:i] + lines + old[j:]) + ("\n" if text.endswith("\n") else ""))
 
 
 def ulog_phrases(rec: dict) -> dict[str, list[str]]:
@@ -129,6 +143,9 @@ def check(record: dict) -> list[str]:
     web_rec = record.get("web", {})
     if web_rec and (not WEB_PNG.exists() or hashlib.sha256(WEB_PNG.read_bytes()).hexdigest() != web_rec["png_sha256"]):
         bad.append("docs/web.png is not the picture tools/web_screenshot.py made (run make docs-figures)")
+    for path in SPEED_DOCS:
+        if study_block(path.read_text(), SPEED_PROMPT) != record["speed"]["stdout"]:
+            bad.append(f"docs/{path.name}: the speed table is not what benchmarks.bench_speed printed")
     usage = USAGE_MD.read_text()
     for start, phrases in ulog_phrases(record["ulog"]).items():
         para = usage[usage.index(start) :].split("\n- ", 1)[0]
@@ -139,15 +156,18 @@ def check(record: dict) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--check", action="store_true", help="compare the docs with docs/figures.json, run nothing")
-    ap.add_argument("--only", choices=("sil", "study", "ulog", "web"), action="append", help="rerun only this part")
+    ap.add_argument("--only", choices=("sil", "study", "ulog", "web", "speed"), action="append",
+                    help="rerun only this part")
     args = ap.parse_args(argv)
     record = json.loads(RECORD.read_text()) if RECORD.exists() else {}
     if not args.check:
-        for part, make in (("sil", sil), ("study", study), ("ulog", ulog), ("web", web)):
+        for part, make in (("sil", sil), ("study", study), ("ulog", ulog), ("web", web), ("speed", speed)):
             if args.only is None or part in args.only:
                 print(f"docs_figures: {part} ...", file=sys.stderr, flush=True)
                 record[part] = make()
         write_study(record["study"]["stdout"])
+        for path in SPEED_DOCS:
+            write_study(record["speed"]["stdout"], path, SPEED_PROMPT)
         RECORD.write_text(json.dumps(record, indent=1, ensure_ascii=False) + "\n")
         print(f"docs_figures: {record['sil']['score_line']}")
     bad = check(record)
