@@ -141,7 +141,7 @@ def _structs(real):
         ("unconfirmed", i32), ("acc_mean", real * 3), ("acc_var", real), ("confirm_count", i64),
         ("field_ned", real * 3), ("dwell", i64), ("accel_innov2", real), ("innov_alpha", real), ("mean_speed", real),
         ("speed_alpha", real), ("slack", i64), ("pulling", i64), ("was_slack", i32), ("height_above", i64),
-        ("accel_var_excess", real), ("align_innov2", real * 2), ("align_var_excess", real * 2),
+        ("accel_var_excess", real), ("align_innov2", real * 2),
         ("a_align_innov", real), ("drag_prior", real * 2),
         ("p_ref_pa", real), ("zeroing", i32), ("ref_pos_d", real), ("t_ref_k", real),
         ("zero_sum", real), ("zero_n", i32), ("join_height", real), ("rho", real), ("height_baro", real),

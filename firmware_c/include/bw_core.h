@@ -174,7 +174,7 @@ typedef struct {
     int32_t was_slack;
     int64_t height_above;
     bw_real accel_var_excess;
-    bw_real align_innov2[2], align_var_excess[2], a_align_innov; /* the alignment's noise, along and cross */
+    bw_real align_innov2[2], a_align_innov; /* the alignment's noise, along and cross (aid_tether.c) */
     bw_real drag_prior[2];        /* the drag scale and its variance when a free ascent starts to learn it */
     /* barometer (control.py _init_baro) */
     bw_real p_ref_pa;

@@ -81,16 +81,19 @@ static void fuse_taut(bw_estimator_t *est, bw_real along_var, bw_real cross_var)
         return;
     {
         const bw_real s[BW_NCOL] = {pn, pe, pd, vn, ve, vd, x[12], x[13], x[14], x[15], x[16]};
-        bw_real n[BW_ROPE_DIRECTION_SIZE], r[9], zn, ze, zd, horiz, an, ae, c[2][2], var[2];
+        bw_real n[BW_ROPE_DIRECTION_SIZE], r[9], zn, ze, zd, horiz, lean, an, ae, c[2][2], var[2];
         if (e->m.rope_drag)
             bw_rope_direction(s, f->params, n);
         else
             bw_rope_direction_plain(s, f->params, n);
         bw_rotation(e->q, r);
         zn = r[2], ze = r[5], zd = r[8]; /* body down axis in NED */
-        horiz = BW_HYPOT(pn, pe);
-        if (horiz > BW_R(1e-3))
-            an = pn / horiz, ae = pe / horiz; /* the azimuth (a parameter) */
+        /* the azimuth: the balloon's lean, in calm air the state's (both parameters; tether.py fuse_taut) */
+        lean = BW_HYPOT(zn, ze), horiz = BW_HYPOT(pn, pe);
+        if (lean > (bw_real)BW_TAUT_LEAN_MIN_SIN)
+            an = -zn / lean, ae = -ze / lean;
+        else if (horiz > BW_R(1e-3))
+            an = pn / horiz, ae = pe / horiz;
         else
             an = BW_R(1.0), ae = BW_R(0.0);
         c[0][0] = an, c[0][1] = ae, c[1][0] = -ae, c[1][1] = an; /* along, cross */
@@ -165,7 +168,6 @@ void bw_control_tether(bw_estimator_t *est)
             update_rope_shape(est);
         along_var = BW_MAX(est->align_var, mean2[0]);
         cross_var = BW_MAX(est->align_var, BW_MIN(mean2[1], (bw_real)BW_ALIGN_CROSS_VAR_MAX));
-        est->align_var_excess[0] = along_var - est->align_var, est->align_var_excess[1] = cross_var - est->align_var;
         fuse_taut(est, along_var, cross_var);
         if (an->time_test_us == e->time_us) {
             mean2[0] += est->a_align_innov * (an->innov * an->innov - mean2[0]);

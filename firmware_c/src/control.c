@@ -81,7 +81,6 @@ static void init_clock(bw_estimator_t *est)
     est->height_above = 0;
     est->accel_var_excess = BW_R(0.0);
     est->align_innov2[0] = est->align_innov2[1] = BW_R(0.0);
-    est->align_var_excess[0] = est->align_var_excess[1] = BW_R(0.0);
     est->drag_prior[0] = BW_R(1.0), est->drag_prior[1] = BW_R(0.0);
     bw_consistency_reset(&est->consistency);
 }
@@ -402,14 +401,11 @@ static void monitor(bw_estimator_t *est)
             nis += st[i].innov * st[i].innov / BW_MAX(st[i].innov_var - ex, BW_R(1e-12));
         bw_consistency_add(mon, BW_ACCEL, nis / BW_R(3.0), est->a_accel);
     }
-    if (an->time_test_us == t && an->innov_var > BW_R(0.0) && ae->innov_var > BW_R(0.0)) {
-        /* the alignment's noise follows its innovations too: judged against the nominal one */
-        const bw_real *ex = est->align_var_excess;
+    if (an->time_test_us == t && an->innov_var > BW_R(0.0) && ae->innov_var > BW_R(0.0))
+        /* against the noise it was fused with (control.py _monitor) */
         bw_consistency_add(mon, BW_ALIGN,
-                           BW_R(0.5) * (an->innov * an->innov / BW_MAX(an->innov_var - ex[0], BW_R(1e-12)) +
-                                        ae->innov * ae->innov / BW_MAX(ae->innov_var - ex[1], BW_R(1e-12))),
+                           BW_R(0.5) * (an->innov * an->innov / an->innov_var + ae->innov * ae->innov / ae->innov_var),
                            taut_alpha);
-    }
     if (radius->time_test_us == t && radius->innov_var > BW_R(0.0))
         bw_consistency_add(mon, BW_RADIUS, radius->innov * radius->innov / radius->innov_var, taut_alpha);
     if (b->time_test_us == t && b->innov_var > BW_R(0.0))

@@ -146,8 +146,15 @@ def fuse_taut(
     n = fn(pn, pe, pd, vn, ve, vd, wn, we, rn, re, k, *f.params)
     r = rotation(*ekf.q.tolist())
     zn, ze, zd = r[2], r[5], r[8]  # body down axis in NED
-    horiz = math.hypot(pn, pe)
-    an, ae = (pn / horiz, pe / horiz) if horiz > 1e-3 else (1.0, 0.0)  # the azimuth (a parameter)
+    # the azimuth the components are taken about: the balloon's lean (from the attitude, a parameter), or in
+    # calm air, where it leans less than a few degrees, the state's azimuth (taken as a parameter too)
+    lean, horiz = math.hypot(zn, ze), math.hypot(pn, pe)
+    if lean > TAUT_LEAN_MIN_SIN:
+        an, ae = -zn / lean, -ze / lean
+    elif horiz > 1e-3:
+        an, ae = pn / horiz, pe / horiz
+    else:
+        an, ae = 1.0, 0.0
     ncol = len(MODEL_COLUMNS) - (0 if ekf.learn_drag else 1)
     jn, je = ROPE_JAC, ROPE_JAC + N_COLUMNS
     # the attitude is a parameter here too: gyro, accelerometer and magnetometer measure it, and the rope's
@@ -229,7 +236,6 @@ def control_tether(est: Estimator) -> None:
         # and the rejections re-place it from the tilt (a noise that followed such innovations would let
         # a wrong azimuth wander on; the gusty flights' cross component stays within 0.05 rad)
         along_var, cross_var = max(est.align_var, mean2[0]), max(est.align_var, min(mean2[1], ALIGN_CROSS_VAR_MAX))
-        est._align_var_excess[0], est._align_var_excess[1] = along_var - est.align_var, cross_var - est.align_var
         fuse_taut(ekf, cfg.radial_m**2, cfg.radial_rate_mps**2, along_var, cross_var, est.taut_status)
         along, cross = est.taut_status[2], est.taut_status[3]
         if along.time_test_us == ekf.time_us:
