@@ -292,10 +292,31 @@ def tlog_messages(path: str, stats: LinkStats, chunk: int = 1 << 20, fast: bool 
                 if k >= n and eof:
                     break
                 continue
-            m = dec.decode_frame(buf[j : j + ln])
-            i = j + ln
+            end = j + ln
+            orphan = end + TLOG_HEADER < n and not frame_length(buf, end + TLOG_HEADER)
+            if orphan and fastmav.decode(buf[j:end]) is None:
+                # no record follows this "frame": a magic byte in garbage whose length runs over the next good
+                # record's start, if a frame starts within its reach that a record does follow
+                k = _chained_magic(buf, j + 1, end + TLOG_HEADER)
+                if k:
+                    stats.garbage_bytes += k - j
+                    i = k - TLOG_HEADER
+                    continue
+            m = dec.decode_frame(buf[j:end])
+            i = end
             if m is not None:
                 yield m
+
+
+def _chained_magic(buf: bytes, k: int, stop: int) -> int:
+    """The first frame start in buf[k:stop] that a record follows (or the buffer ends after), 0 if none."""
+    while (k := _next_magic(buf, k)) < stop:
+        ln = frame_length(buf, k)
+        after = k + ln + TLOG_HEADER
+        if ln and (after >= len(buf) or frame_length(buf, after)):
+            return k
+        k += 1
+    return 0
 
 
 def _next_magic(buf: bytes, k: int) -> int:
