@@ -134,23 +134,6 @@ static void update_rope_shape(bw_estimator_t *est)
     if (!(chord > BW_R(0.5) * length))
         return; /* no rope shape under this pull (lift gone): keep the last */
     weight = bw_effective_rod(fn, fe, fd, ch[0], ch[1], ch[2], m->rope_weight_n);
-    {
-        /* the share the balloon's lean and the state's chord say (tether.py update_rope_shape) */
-        bw_real r[9], zn, ze, zd, qn, qe, qd;
-        bw_rotation(e->q, r);
-        zn = r[2], ze = r[5], zd = r[8];
-        qn = x[BW_POS_N] + e->forces.attach_ned[0];
-        qe = x[BW_POS_E] + e->forces.attach_ned[1];
-        qd = x[BW_POS_D] + e->forces.attach_ned[2];
-        if (zd > BW_R(0.1) && qd < BW_R(0.0) && weight == weight) {
-            bw_real s = lift / zd, seen, tan2, t0;
-            seen = bw_effective_rod(s * zn, s * ze, s * zd, qn, qe, qd, m->rope_weight_n);
-            tan2 = (qn * qn + qe * qe) / (qd * qd);
-            t0 = lift * (bw_real)BW_LEAN_BIAS_RAD / ((bw_real)BW_ROPE_SHARE_SIGMA * m->rope_weight_n + BW_R(1e-9));
-            if (seen == seen)
-                weight += tan2 / (tan2 + t0 * t0) * (seen - weight);
-        }
-    }
     e->rope_chord_m += alpha * (chord - e->rope_chord_m);
     if (weight == weight)
         e->rope_weight_n += alpha * (weight - e->rope_weight_n);

@@ -24,9 +24,6 @@ ROPE_WAVE_ALIGN_RAD = 0.016
 # the rope shape (chord, weight on the rod) follows the mean wind, slowly: a fast one feeds the
 # wind estimate back into the model (a 0.05 Hz resonance, gain 4 on the real rope)
 ROPE_SHAPE_S = 60.0
-# the rope's weight on the balloon seen from its lean and its chord (aid_sources/tether.py update_rope_shape):
-# the catenary's share is known to this fraction of the rope's weight (a rope unlike the design's)
-ROPE_SHARE_SIGMA = 0.5
 # the tilt's systematic error (accelerometer bias 1-3 mg, the learnt field's direction): what no averaging
 # removes from the lean, so from the wind in calm air, where the lean is a degree (consistency.py)
 LEAN_BIAS_RAD = 0.0035

@@ -149,14 +149,16 @@ def hostile_streams(draw):
     return s, draw(st.integers(0, 1)) * draw(st.integers(50, 2000))
 
 
-# derandomized: the same eight hostile streams on every run (a chaotic float32 transient on one random draw
-# in many would make the suite flaky, not stricter)
+# derandomized: the same eight hostile streams on every run. The double build only: a float32 pair on a hostile
+# stream can take a threshold decision (the taut switch, a gate) one sample apart, since the Python reference's
+# float32 matmuls go through numpy's BLAS kernels, which differ in the last bit with the CPU and the process's
+# state; after that they are two different filters. The float32 pair is held equal on real flights (above).
 @settings(max_examples=8, deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
-@given(hostile_streams(), st.booleans())
-def test_hypothesis_sequences(case, float32):
+@given(hostile_streams())
+def test_hypothesis_sequences(case):
     samples, coast_every = case
-    rep = lockstep.run(Design(), FilterConfig(float32=float32), samples, coast_every=coast_every)
+    rep = lockstep.run(Design(), FilterConfig(float32=False), samples, coast_every=coast_every)
     check(rep)
 
 

@@ -13,8 +13,6 @@ from firmware_py.estimator.generated import rope_direction, rope_direction_plain
 from firmware_py.estimator.model import N_COLUMNS, ROPE_JAC
 from firmware_py.estimator.params import (
     ALIGN_CROSS_VAR_MAX,
-    LEAN_BIAS_RAD,
-    ROPE_SHARE_SIGMA,
     TAUT_AZIMUTH_MIN_M,
     TAUT_LEAN_MIN_SIN,
     TAUT_POS_SIGMA_M,
@@ -197,23 +195,6 @@ def update_rope_shape(ekf: WindEkf, rho: float, alpha: float) -> None:
     if not chord > 0.5 * m.tether_length_m:
         return  # no rope shape under this pull (lift gone): keep the last
     weight = effective_rod(fn, fe, fd, cn, ce, cd, m.rope_weight_n)
-    # what the balloon itself says of the share: its pull is along the body's down axis, its vertical
-    # part the balloon's own lift (in the mean), and the chord is the state's (the barometer's height on
-    # the tether's sphere): W_eff = N_b (1 - tan(lean) / tan(chord)). A rope unlike the design's (stiffer,
-    # heavier, the paper's rod with its whole weight on the balloon) is then not a contradiction between
-    # the tilt and the height that the filter settles with a wrong wind. Weighted against the catenary's
-    # share by how well the lean tells it: a steep chord (calm air) leaves it to the model.
-    r = rotation(*ekf.q.tolist())
-    zn, ze, zd = r[2], r[5], r[8]
-    on, oe, od = ekf.forces.attach_ned
-    qn, qe, qd = float(x[POS_N]) + on, float(x[POS_E]) + oe, float(x[POS_D]) + od
-    if zd > 0.1 and qd < 0.0 and weight == weight:
-        s = lift / zd
-        seen = effective_rod(s * zn, s * ze, s * zd, qn, qe, qd, m.rope_weight_n)
-        tan2 = (qn * qn + qe * qe) / (qd * qd)
-        t0 = lift * LEAN_BIAS_RAD / (ROPE_SHARE_SIGMA * m.rope_weight_n + 1e-9)
-        if seen == seen:
-            weight += tan2 / (tan2 + t0 * t0) * (seen - weight)
     rope = ekf.rope
     rope.chord_m += alpha * (chord - rope.chord_m)
     if weight == weight:  # NaN: a vertical chord tells no share, keep the last
