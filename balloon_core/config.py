@@ -139,6 +139,8 @@ SCHEMA: dict[str, dict[str, Rule]] = {
         "drag_coefficient": num(0.01, 3.0),
     },
     "tether": {"length_m": num(1.0, 5000.0), "linear_density_kg_m": num(0.0, 1.0)},
+    # what the firmware sends besides WIND_COV (firmware_py.app.OutputConfig)
+    "outputs": {"qgc_direction": one_of("to", "from")},
     "site": {
         "altitude_amsl_m": num(-500.0, 9000.0),
         "mag_declination_deg": num(-180.0, 180.0),

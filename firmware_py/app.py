@@ -20,11 +20,12 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from dataclasses import dataclass
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from balloon_core.config import Design
+from balloon_core.config import Design, build_section
 from balloon_core.samples import BaroSample, GroundBaroSample, GroundSample, MavlinkSampler, Sample, WinchSample
 from balloon_core.score import direction_from_deg, wind_unknown
 from balloon_core.wire import LinkStats, pack
@@ -117,12 +118,27 @@ def estimator_flags(initialised: bool, silent: bool, mode: int, flags: int, wind
     return bits
 
 
+@dataclass(frozen=True)
+class OutputConfig:
+    """The ``[outputs]`` section. ``qgc_direction``: QGroundControl shows the wind's direction from whichever
+    of WIND_COV (where the air goes TO) and WIND (where it comes FROM) came last. "to" (default): WIND before
+    every tenth WIND_COV, so QGC holds WIND_COV's; "from": WIND after every WIND_COV, so QGC holds the
+    meteorological direction (MAVProxy, Mission Planner and balloon-gs are the same either way)."""
+
+    qgc_direction: str = "to"
+
+    @classmethod
+    def from_dict(cls, values: dict) -> OutputConfig:
+        return build_section(cls, "outputs", values)
+
+
 class Firmware:
     def __init__(
         self, design: Design, cfg: FilterConfig | None = None, sink=None, wind_cov_hz: float = 10.0,
-        rate_explicit: bool = False, warn=print_warning,
+        rate_explicit: bool = False, warn=print_warning, outputs: OutputConfig | None = None,
     ) -> None:  # fmt: skip
         self.design = design
+        self.wind_after_each = (outputs or OutputConfig()).qgc_direction == "from"
         self.est, self.out = new_core(design, cfg or FilterConfig())
         self.sinks = [sink] if sink is not None else []
         self.mav = mavlink.MAVLink(None, srcSystem=FW_SYSID, srcComponent=FW_COMPID)
@@ -413,11 +429,14 @@ class Firmware:
         self.texts_sent += 1
 
     def wind_cov(self, t_us: int) -> None:
-        """WIND_COV, and before every ``WIND_EVERY``-th one WIND (once the filter has started)."""
-        if self.wind_cov_sent % WIND_EVERY == 0 and self.est.initialised:
+        """WIND_COV, and before every ``WIND_EVERY``-th one WIND (once the filter has started); with
+        ``[outputs] qgc_direction = "from"`` WIND after every one instead (``OutputConfig``)."""
+        if not self.wind_after_each and self.wind_cov_sent % WIND_EVERY == 0 and self.est.initialised:
             self.wind(t_us)
         self._send(pack(self.mav, self.mav.wind_cov_encode(*self.out.fields(self.est))), t_us)
         self.wind_cov_sent += 1
+        if self.wind_after_each and self.est.initialised:
+            self.wind(t_us)
 
     def _send(self, frame: bytes, t_us: int) -> None:
         for sink in self.sinks:

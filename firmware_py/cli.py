@@ -14,18 +14,20 @@ from balloon_core.config import ConfigError, design_from_dict, load_toml
 from balloon_core.progress import Progress, RateMeter
 from balloon_core.wire import Decoder, capture_messages, open_link, open_sink
 from firmware_c.build import BuildError
-from firmware_py.app import Firmware
+from firmware_py.app import Firmware, OutputConfig
 from firmware_py.estimator.state import FilterConfig
 from firmware_py.streams import StreamRequester
 
 
 def load_config(path: str | None):
+    """(design, [filter], [outputs]) of a design file (the defaults without one)."""
     if path is None:
         from balloon_core.config import Design
 
-        return Design(), FilterConfig()
+        return Design(), FilterConfig(), OutputConfig()
     data = load_toml(path)
-    return design_from_dict(data), FilterConfig.from_dict(data.get("filter", {}))
+    return (design_from_dict(data), FilterConfig.from_dict(data.get("filter", {})),
+            OutputConfig.from_dict(data.get("outputs", {})))  # fmt: skip
 
 
 def rate_is_explicit(path: str | None) -> bool:
@@ -136,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(prog: str, args, products: Products) -> int:
     try:
-        design, fcfg = load_config(args.config)
+        design, fcfg, outputs = load_config(args.config)
     except ConfigError as exc:
         return userargs.fail(prog, exc)
     if args.core is not None:
@@ -150,7 +152,7 @@ def _main(prog: str, args, products: Products) -> int:
     except (ValueError, OSError) as exc:
         return userargs.fail(prog, exc)
     try:
-        fw = Firmware(design, fcfg, sink, rate_explicit=rate_is_explicit(args.config))
+        fw = Firmware(design, fcfg, sink, rate_explicit=rate_is_explicit(args.config), outputs=outputs)
     except BuildError as exc:
         if sink is not None:
             sink.close()

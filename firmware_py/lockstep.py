@@ -257,7 +257,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from firmware_c.build import BuildError, library
 
     try:
-        design, cfg = load_config(args.config)
+        design, cfg, _ = load_config(args.config)
         cfg = dataclasses.replace(cfg, float32=args.float32)
         library("float" if args.float32 else "double")  # before any work: the harness runs the C core
         samples, cfg = flight_samples(args.flight, cfg)

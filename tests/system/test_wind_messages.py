@@ -129,6 +129,34 @@ def test_firmware_sends_wind_and_estimator_status_at_1_hz(flight):
     assert all(m.onboard_control_sensors_health & GYRO for _, m in sink.of("SYS_STATUS"))
 
 
+def test_qgc_direction_from_sends_wind_after_every_wind_cov(flight):
+    """``[outputs] qgc_direction = "from"``: WIND follows every WIND_COV, so a ground station that holds the
+    last of the two (QGroundControl) holds where the wind comes FROM; the WIND_COV stream is unchanged."""
+    from firmware_py.app import OutputConfig
+
+    tlog, _, base = flight
+    sink = Sink()
+    fw = Firmware(Design(), sink=sink, outputs=OutputConfig.from_dict({"qgc_direction": "from"}))
+    for m in tlog_messages(str(tlog), fw.stats):
+        fw.handle(m)
+    fw.flush()
+    kinds = [m.get_type() for _, m in sink.sent]
+    covs = [i for i, k in enumerate(kinds) if k == "WIND_COV"]
+    assert len(covs) == len(base.of("WIND_COV")) and len(sink.of("WIND")) == pytest.approx(len(covs), abs=5)
+    late = [i for i in covs if sink.sent[i][0] > 10.0]
+    assert late and all(kinds[i + 1] == "WIND" for i in late if i + 1 < len(kinds))
+    for i in late[:50]:  # the same estimate: WIND's FROM is WIND_COV's air velocity turned by 180 deg
+        cov, w = sink.sent[i][1], sink.sent[i + 1][1]
+        rad = math.radians(w.direction)
+        assert -w.speed * math.cos(rad) == pytest.approx(cov.wind_x, abs=1e-4)
+        assert -w.speed * math.sin(rad) == pytest.approx(cov.wind_y, abs=1e-4)
+    assert [m.wind_x for _, m in sink.of("WIND_COV")] == [m.wind_x for _, m in base.of("WIND_COV")]
+    from balloon_core.config import ConfigError
+
+    with pytest.raises(ConfigError):
+        OutputConfig.from_dict({"qgc_direction": "north"})
+
+
 @pytest.mark.slow
 def test_silent_sensors_are_told_and_the_ground_station_shows_them(flight):
     tlog, _, _ = flight
