@@ -50,19 +50,25 @@ def evaluate(stem: str, seed: int) -> dict:
     """The metrics of one reprocessed flight (``<stem>_profile.nc``) against its truth (``<stem>.csv``)."""
     import xarray as xr
 
+    from postflight.profile import QC_FEW_SAMPLES
+
     truth = np.genfromtxt(f"{stem}.csv", delimiter=",", names=True)
     ds = xr.open_dataset(f"{stem}_profile.nc", decode_times=False)
     z = ds["z"].values
-    half = 0.5 * float(z[1] - z[0])
+    half = 0.5 * float(ds["z_bnds"].values[0, 1] - ds["z_bnds"].values[0, 0])
     t_clock = ds["leg_start"].values - ds["leg_start"].values  # sensor clock: no UTC in a simulated tlog
     errs = {"speed": [], "dir": [], "vec": [], "ratio": []}
     tz, tspeed, tdir, tsig = [], [], [], []  # the truth's own bins: what the atmosphere did on these legs
+    sizes = ds["row_size"].values.astype(int)
+    starts = np.r_[0, np.cumsum(sizes)[:-1]]
+    qc = ds["qc_profile"].values.astype(int)
     for k in range(ds.sizes["profile"]):
         t0, t1 = float(ds["leg_start"][k] + t_clock[k]), float(ds["leg_end"][k] + t_clock[k])
         leg = (truth["time_s"] >= t0) & (truth["time_s"] <= t1)
-        for j, zc in enumerate(z):
-            u, v = float(ds["eastward_wind"][k, j]), float(ds["northward_wind"][k, j])
-            if not (math.isfinite(u) and math.isfinite(v)):
+        for j in range(starts[k], starts[k] + sizes[k]):
+            zc = float(z[j])
+            u, v = float(ds["eastward_wind"][j]), float(ds["northward_wind"][j])
+            if not (math.isfinite(u) and math.isfinite(v)) or qc[j] & QC_FEW_SAMPLES:
                 continue
             sel = leg & (np.abs(truth["height_m"] - zc) <= half)
             if sel.sum() < 20:
@@ -71,8 +77,8 @@ def evaluate(stem: str, seed: int) -> dict:
             tz.append(zc)
             tspeed.append(math.hypot(tu, tv))
             tdir.append(math.degrees(math.atan2(-tu, -tv)) % 360.0)
-            tsig.append((float(ds["wind_speed_uncertainty"][k, j]), float(ds["wind_from_direction_uncertainty"][k, j])))
-            su, sv = float(ds["eastward_wind_uncertainty"][k, j]), float(ds["northward_wind_uncertainty"][k, j])
+            tsig.append((float(ds["wind_speed_uncertainty"][j]), float(ds["wind_from_direction_uncertainty"][j])))
+            su, sv = float(ds["eastward_wind_uncertainty"][j]), float(ds["northward_wind_uncertainty"][j])
             errs["speed"].append(math.hypot(u, v) - math.hypot(tu, tv))
             d = math.degrees(math.atan2(-u, -v)) - math.degrees(math.atan2(-tu, -tv))
             errs["dir"].append((d + 180.0) % 360.0 - 180.0)

@@ -48,6 +48,9 @@ class WindProduct:
     # speed, m/s (positive paying out); NaN before the first WINCH_STATUS
     line_length_m: np.ndarray | None = None
     reel_mps: np.ndarray | None = None
+    # WINCH_STATUS records the estimator rejected as implausible since the estimate before (int32; None: not
+    # known, the flight's count is then only the ``winch_status_rejected`` attribute)
+    winch_rejected: np.ndarray | None = None
     # a log in segments (the sensor clock went back, a reboot, or jumped): each segment its own filter and
     # smoother run. ``segment`` numbers them from 0; ``time_since_boot_s`` is the sensor clock, and ``time_s``
     # then runs on: a segment whose clock starts before the previous one ended is shifted to follow it

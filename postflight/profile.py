@@ -26,8 +26,32 @@ from postflight.product import FLAG_WIND_UNKNOWN, WindProduct
 REEL_MIN_MPS = 0.02  # the winch reels (a leg) above this speed
 LEG_MIN_M = 20.0  # a leg changes the length by at least this much
 BIN_M = 10.0  # default height bin
-BIN_MIN_SAMPLES = 20  # a bin with fewer samples is left empty (NaN)
+# a bin with fewer samples is flagged (QC_FEW_SAMPLES) and left out of the power-law and veer fits: 20
+# samples are 2 s of the 10 Hz product; a 10 m bin crossed at the tethersonde practice's 0.5-1 m/s holds
+# 100-200, so fewer means a bin only grazed (the top of a leg) or mostly not taut / wind_unknown
+BIN_MIN_SAMPLES = 20
+# the reel speed (m/s, mean |reel| over the bin's samples) above which a bin is flagged QC_WINCH_FAST:
+# tethersonde practice reels 0.5-1 m/s; faster, a 10 m bin is under 10 s of a turbulent wind
+WINCH_FAST_MPS = 1.0
 MODE_TAUT = 2
+
+# bits of the profile's ``qc_profile`` (CF flag_masks, flag_method "bit"; ARM style bit_N_description)
+QC_FEW_SAMPLES = 1  # fewer than BIN_MIN_SAMPLES samples in the bin
+QC_WINCH_FAST = 2  # the winch reeled faster than WINCH_FAST_MPS during the bin
+QC_INCONSISTENT = 4  # the real-time filter's consistency monitor flagged a source during the bin
+QC_WINCH_REJECTED = 8  # WINCH_STATUS records were rejected as implausible during the leg
+QC_BITS = (
+    (QC_FEW_SAMPLES, "too_few_samples", "Bad",
+     f"fewer than {BIN_MIN_SAMPLES} estimates in the bin: its mean is left out of the power-law and veer fits"),
+    (QC_WINCH_FAST, "winch_too_fast", "Indeterminate",
+     f"the winch reeled faster than {WINCH_FAST_MPS:g} m/s (mean |reel speed| over the bin's estimates)"),
+    (QC_INCONSISTENT, "estimate_inconsistent", "Indeterminate",
+     "the real-time filter's consistency monitor flagged an aid source (consistency_flags_causal non-zero) "
+     "at one or more of the bin's estimates"),
+    (QC_WINCH_REJECTED, "winch_data_rejected", "Indeterminate",
+     "WINCH_STATUS records were rejected as implausible during the leg (during the flight, when the product "
+     "does not say when)"),
+)  # fmt: skip
 
 
 @dataclass
@@ -46,6 +70,12 @@ class Leg:
     sigma_direction: np.ndarray
     time_s: np.ndarray  # middle time of the bin's samples
     count: np.ndarray  # samples in the bin
+    # per bin: the samples' own spread (population standard deviation) of the speed, m/s, and of the
+    # direction about the bin's mean direction, degree; NaN in an empty bin
+    speed_spread: np.ndarray
+    direction_spread: np.ndarray
+    reel_mps: np.ndarray  # mean |reel speed| over the bin's samples, m/s (NaN: empty or not known)
+    qc: np.ndarray  # QC_* bits per bin (0 in an empty bin: empty bins are not written)
 
 
 @dataclass
@@ -83,27 +113,59 @@ def _bin_leg(p: WindProduct, a: int, b: int, ascent: bool, edges: np.ndarray) ->
     h = p.height_m[a:b]
     ok = ((p.flags[a:b] & FLAG_WIND_UNKNOWN) == 0) & (p.mode[a:b] == MODE_TAUT) & np.isfinite(h)
     k = len(edges) - 1
-    cols = {name: np.full(k, np.nan) for name in ("u", "v", "su", "sv", "t")}
+    cols = {name: np.full(k, np.nan) for name in ("u", "v", "su", "sv", "t", "ss", "sd", "reel")}
     count = np.zeros(k, int)
+    qc = np.zeros(k, np.int8)
     idx = np.digitize(h, edges) - 1
+    we, wn = p.wind_e[a:b], p.wind_n[a:b]
+    reel = None if p.reel_mps is None else np.abs(p.reel_mps[a:b])
+    cons = None if p.consistency_flags is None else p.consistency_flags[a:b]
+    rejected = _winch_rejected(p, a, b)
     for j in range(k):
         sel = ok & (idx == j)
         m = int(sel.sum())
         count[j] = m
-        if m < BIN_MIN_SAMPLES:
+        if m == 0:
             continue
-        cols["u"][j] = p.wind_e[a:b][sel].mean()
-        cols["v"][j] = p.wind_n[a:b][sel].mean()
+        u, v = float(we[sel].mean()), float(wn[sel].mean())
+        cols["u"][j], cols["v"][j] = u, v
         cols["su"][j] = math.sqrt(np.mean(p.sigma_e[a:b][sel] ** 2))
         cols["sv"][j] = math.sqrt(np.mean(p.sigma_n[a:b][sel] ** 2))
         cols["t"][j] = p.time_s[a:b][sel].mean()
+        cols["ss"][j], cols["sd"][j] = bin_spread(wn[sel], we[sel])
+        if reel is not None and np.any(np.isfinite(reel[sel])):
+            cols["reel"][j] = float(np.nanmean(reel[sel]))
+        qc[j] = (QC_FEW_SAMPLES * (m < BIN_MIN_SAMPLES) | QC_WINCH_FAST * bool(cols["reel"][j] > WINCH_FAST_MPS)
+                 | QC_INCONSISTENT * bool(cons is not None and np.any(cons[sel] != 0))
+                 | QC_WINCH_REJECTED * rejected)  # fmt: skip
     speed = np.hypot(cols["u"], cols["v"])
     s_speed, s_dir = speed_direction_sigma(cols["v"], cols["u"], cols["sv"], cols["su"])
     return Leg(
         float(p.time_s[a]), float(p.time_s[b - 1]), ascent, cols["u"], cols["v"], cols["su"], cols["sv"], speed,
         np.asarray(s_speed, float), direction_from_deg(cols["v"], cols["u"]), np.asarray(s_dir, float), cols["t"],
-        count,
+        count, cols["ss"], cols["sd"], cols["reel"], qc,
     )  # fmt: skip
+
+
+def bin_spread(wind_n: np.ndarray, wind_e: np.ndarray) -> tuple[float, float]:
+    """The spread of a bin's samples: the population standard deviation of their speeds (m/s) and the RMS
+    of their directions' differences from the direction of the bin's mean wind (degree, wrapped to
+    +-180)."""
+    speed_spread = float(np.std(np.hypot(wind_n, wind_e)))
+    mean_dir = direction_from_deg(np.mean(wind_n), np.mean(wind_e))
+    d = (direction_from_deg(wind_n, wind_e) - mean_dir + 180.0) % 360.0 - 180.0
+    return speed_spread, float(np.sqrt(np.mean(np.square(d))))
+
+
+def _winch_rejected(p: WindProduct, a: int, b: int) -> bool:
+    """WINCH_STATUS rejected during the samples a:b (``WindProduct.winch_rejected``); a product that only
+    says how many in the whole flight (the ``winch_status_rejected`` attribute): any in the flight."""
+    if p.winch_rejected is not None:
+        return bool(np.any(p.winch_rejected[a:b] > 0))
+    try:
+        return int(p.attrs.get("winch_status_rejected", "0")) > 0
+    except ValueError:
+        return False
 
 
 def _fit_line(x: np.ndarray, y: np.ndarray, s: np.ndarray) -> tuple[float, float, float]:
@@ -137,12 +199,13 @@ def wind_profile(p: WindProduct, bin_m: float = BIN_M) -> Profile | None:
     s_speed = np.concatenate([g.sigma_speed for g in legs])
     direction = np.concatenate([g.direction for g in legs])
     s_dir = np.concatenate([g.sigma_direction for g in legs])
-    good = np.isfinite(speed) & (speed > 0.1)
+    enough = np.concatenate([g.count >= BIN_MIN_SAMPLES for g in legs])
+    good = np.isfinite(speed) & (speed > 0.1) & enough
     z_ref = float(np.exp(np.mean(np.log(z[good])))) if good.any() else math.nan
     a, alpha, s_alpha = _fit_line(np.log(z[good] / z_ref), np.log(speed[good]), s_speed[good] / speed[good])
     # direction unwrapped about its circular mean before the line
-    mean_dir = math.degrees(math.atan2(np.nanmean(np.sin(np.radians(direction))),
-                                       np.nanmean(np.cos(np.radians(direction)))))  # fmt: skip
+    mean_dir = math.degrees(math.atan2(np.nanmean(np.sin(np.radians(direction[good]))),
+                                       np.nanmean(np.cos(np.radians(direction[good])))))  # fmt: skip
     rel = (direction - mean_dir + 180.0) % 360.0 - 180.0
     _, veer, s_veer = _fit_line(z[good] / 100.0, rel[good], s_dir[good])
     return Profile(centres, bin_m, legs, alpha, s_alpha, veer, s_veer, z_ref, math.exp(a) if a == a else math.nan)
@@ -152,48 +215,73 @@ def wind_profile(p: WindProduct, bin_m: float = BIN_M) -> Profile | None:
 
 
 def profile_dataset(prof: Profile, p: WindProduct, history: str | None = None):
-    """The profile as CF-1.8 discrete sampling geometry, featureType ``profile`` (the orthogonal
-    multidimensional representation: every leg on the same height bins), as an xarray Dataset."""
+    """The profile as CF-1.8 discrete sampling geometry, featureType ``profile``, as an xarray Dataset:
+    the contiguous ragged array representation (CF-1.8 9.3.3), each leg's bins with data one after the
+    other along ``obs`` (``row_size`` of them per leg, upward in height); a bin without a sample is not
+    written. Per bin: the means, their 1-sigma, the samples' count and spread, the reel speed and the
+    ``qc_profile`` bits (QC_*)."""
     import xarray as xr
 
     from postflight.netcdf import _time_attrs, _time_values, global_attrs
 
     legs = prof.legs
     k = len(legs)
-    stack = lambda name: np.stack([getattr(g, name) for g in legs])  # noqa: E731
+    rows = [np.flatnonzero(g.count > 0) for g in legs]
+    cat = lambda name: np.concatenate([getattr(g, name)[r] for g, r in zip(legs, rows)])  # noqa: E731
+    z = np.concatenate([prof.heights_m[r] for r in rows])
     t_mid = _time_values(p, np.array([0.5 * (g.start_s + g.end_s) for g in legs]))
     t_attrs = _time_attrs(p.utc_start_s)
     t_attrs["long_name"] = "middle of the leg, " + t_attrs["long_name"]
-    dims = ("profile", "z")
+    dims = ("obs",)
+    anc_common = "sample_count qc_profile"
 
-    def var(data, units, long, sname=None, anc=None):
-        attrs = {"long_name": long, "units": units, "coordinates": "time z"}
-        if sname:
-            attrs["standard_name"] = sname
-        if anc:
-            attrs["ancillary_variables"] = anc
+    def var(data, units, long, sname, anc):
+        attrs = {"long_name": long, "units": units, "coordinates": "time z", "standard_name": sname,
+                 "ancillary_variables": f"{anc} {anc_common}"}  # fmt: skip
         return dims, data, attrs
 
     def unc(data, units, long, sname):
         return dims, data, {"long_name": f"1-sigma uncertainty of the bin's mean {long}", "units": units,
                             "standard_name": f"{sname} standard_error", "coordinates": "time z"}  # fmt: skip
 
+    qc_attrs = {
+        "long_name": "quality of the bin's mean wind (bit field)", "coordinates": "time z",
+        "flag_masks": np.array([m for m, *_ in QC_BITS], np.int8),
+        "flag_meanings": " ".join(name for _, name, *_ in QC_BITS), "flag_method": "bit",
+        "comment": "0: none of the tests failed. A bin is written only when it holds at least one estimate.",
+    }  # fmt: skip
+    for n, (_, _, assessment, description) in enumerate(QC_BITS, 1):
+        qc_attrs[f"bit_{n}_description"] = description
+        qc_attrs[f"bit_{n}_assessment"] = assessment
     data = {
-        "eastward_wind": var(stack("u"), "m s-1", "eastward wind, mean over the height bin", "eastward_wind",
+        "row_size": (("profile",), np.array([len(r) for r in rows], np.int32),
+                     {"long_name": "number of height bins with data in the leg", "sample_dimension": "obs"}),
+        "eastward_wind": var(cat("u"), "m s-1", "eastward wind, mean over the height bin", "eastward_wind",
                              "eastward_wind_uncertainty"),
-        "eastward_wind_uncertainty": unc(stack("sigma_u"), "m s-1", "eastward wind", "eastward_wind"),
-        "northward_wind": var(stack("v"), "m s-1", "northward wind, mean over the height bin", "northward_wind",
+        "eastward_wind_uncertainty": unc(cat("sigma_u"), "m s-1", "eastward wind", "eastward_wind"),
+        "northward_wind": var(cat("v"), "m s-1", "northward wind, mean over the height bin", "northward_wind",
                               "northward_wind_uncertainty"),
-        "northward_wind_uncertainty": unc(stack("sigma_v"), "m s-1", "northward wind", "northward_wind"),
-        "wind_speed": var(stack("speed"), "m s-1", "horizontal wind speed of the bin's mean wind", "wind_speed",
-                          "wind_speed_uncertainty"),
-        "wind_speed_uncertainty": unc(stack("sigma_speed"), "m s-1", "wind speed", "wind_speed"),
-        "wind_from_direction": var(stack("direction"), "degree", "direction the bin's mean wind blows from, "
-                                   "clockwise from north", "wind_from_direction", "wind_from_direction_uncertainty"),
-        "wind_from_direction_uncertainty": unc(stack("sigma_direction"), "degree", "wind direction",
+        "northward_wind_uncertainty": unc(cat("sigma_v"), "m s-1", "northward wind", "northward_wind"),
+        "wind_speed": var(cat("speed"), "m s-1", "horizontal wind speed of the bin's mean wind", "wind_speed",
+                          "wind_speed_uncertainty wind_speed_spread"),
+        "wind_speed_uncertainty": unc(cat("sigma_speed"), "m s-1", "wind speed", "wind_speed"),
+        "wind_speed_spread": (dims, cat("speed_spread"), {
+            "long_name": "standard deviation of the speeds of the bin's estimates (population, about their mean)",
+            "units": "m s-1", "coordinates": "time z"}),
+        "wind_from_direction": var(cat("direction"), "degree", "direction the bin's mean wind blows from, "
+                                   "clockwise from north", "wind_from_direction",
+                                   "wind_from_direction_uncertainty wind_from_direction_spread"),
+        "wind_from_direction_uncertainty": unc(cat("sigma_direction"), "degree", "wind direction",
                                                "wind_from_direction"),
-        "sample_count": (dims, stack("count").astype(np.int32), {"long_name": "estimates averaged in the bin",
-                                                                 "units": "1", "coordinates": "time z"}),
+        "wind_from_direction_spread": (dims, cat("direction_spread"), {
+            "long_name": "RMS difference of the directions of the bin's estimates from the direction of the "
+                         "bin's mean wind (wrapped to +-180 degree)", "units": "degree", "coordinates": "time z"}),
+        "sample_count": (dims, cat("count").astype(np.int32), {"long_name": "estimates averaged in the bin",
+                                                               "units": "1", "coordinates": "time z"}),
+        "reel_speed": (dims, cat("reel_mps"), {
+            "long_name": "winch reel speed during the bin: mean of its magnitude over the bin's estimates",
+            "units": "m s-1", "coordinates": "time z"}),
+        "qc_profile": (dims, cat("qc").astype(np.int8), qc_attrs),
         "leg_direction": (("profile",), np.array([1 if g.ascent else -1 for g in legs], np.int8),
                           {"long_name": "winch leg: 1 ascent (paying out), -1 descent (reeling in)",
                            "flag_values": np.array([-1, 1], np.int8), "flag_meanings": "descent ascent"}),
@@ -218,18 +306,20 @@ def profile_dataset(prof: Profile, p: WindProduct, history: str | None = None):
         "profile": ("profile", np.arange(k, dtype=np.int32), {"long_name": "winch leg number", "cf_role":
                     "profile_id"}),
         "time": ("profile", t_mid, t_attrs),
-        "z": ("z", prof.heights_m, {"standard_name": "height", "long_name": "middle of the height bin, above "
+        "z": ("obs", z, {"standard_name": "height", "long_name": "middle of the height bin, above "
               "the tether anchor", "units": "m", "positive": "up", "axis": "Z", "bounds": "z_bnds"}),
     }  # fmt: skip
-    data["z_bnds"] = (("z", "nv"), np.stack([prof.heights_m - 0.5 * prof.bin_m, prof.heights_m + 0.5 * prof.bin_m],
-                                            axis=1), {})  # fmt: skip
+    data["z_bnds"] = (("obs", "nv"), np.stack([z - 0.5 * prof.bin_m, z + 0.5 * prof.bin_m], axis=1), {})
     ds = xr.Dataset(data, coords=coords)
     ds.attrs.update(global_attrs(p, history))
     ds.attrs["featureType"] = "profile"
     ds.attrs["title"] = f"Wind profiles of the winch legs, {ds.attrs['title']}"
     ds.attrs["comment"] = (f"Each profile is one winch leg (ascent or descent); the smoothed wind averaged in "
                            f"{prof.bin_m:g} m height bins (samples flagged wind_unknown and outside taut flight left "
-                           f"out). No horizontal position: the site's, the anchor's.")  # fmt: skip
+                           f"out), stored as a contiguous ragged array: row_size bins of each leg in turn along obs, "
+                           f"only bins holding an estimate. qc_profile flags each bin. No horizontal position: the "
+                           f"site's, the anchor's.")  # fmt: skip
+    ds.attrs["height_bin"] = f"{prof.bin_m:g} m"
     return ds
 
 
@@ -239,7 +329,7 @@ def write_profile(prof: Profile, p: WindProduct, path: str, history: str | None 
 
     ds = profile_dataset(prof, p, history)
     enc = _float_encoding(ds, "leg_start", "leg_end", "z", "z_bnds")
-    for name in ("leg_direction", "sample_count", "profile"):
+    for name in ("leg_direction", "sample_count", "profile", "row_size", "qc_profile"):
         enc[name] = {"dtype": ds[name].dtype.name}
     ds.to_netcdf(path, engine="netcdf4", format="NETCDF4", encoding=enc)
 
@@ -257,10 +347,12 @@ def plot_profile(prof: Profile, path: str) -> None:
     for i, g in enumerate(prof.legs):
         c = colours[i % len(colours)]
         label = f"leg {i} {'up' if g.ascent else 'down'}"
-        ax_s.errorbar(g.speed, z, xerr=g.sigma_speed, fmt="o-", color=c, ms=3, capsize=2, label=label)
-        ax_d.errorbar(g.direction, z, xerr=g.sigma_direction, fmt="o-", color=c, ms=3, capsize=2, label=label)
+        few = g.count < BIN_MIN_SAMPLES  # flagged too_few_samples: not drawn (nor fitted)
+        speed, direction = np.where(few, np.nan, g.speed), np.where(few, np.nan, g.direction)
+        ax_s.errorbar(speed, z, xerr=g.sigma_speed, fmt="o-", color=c, ms=3, capsize=2, label=label)
+        ax_d.errorbar(direction, z, xerr=g.sigma_direction, fmt="o-", color=c, ms=3, capsize=2, label=label)
     if prof.alpha == prof.alpha:
-        have = np.any([np.isfinite(g.speed) for g in prof.legs], axis=0)
+        have = np.any([np.isfinite(g.speed) & (g.count >= BIN_MIN_SAMPLES) for g in prof.legs], axis=0)
         zz = np.linspace(z[have].min(), z[have].max(), 50) if have.any() else z
         ax_s.plot(prof.reference_speed_mps * (zz / prof.reference_height_m) ** prof.alpha, zz, "k--",
                   label=f"power law alpha = {prof.alpha:.3f} +- {prof.sigma_alpha:.3f}")  # fmt: skip

@@ -162,6 +162,7 @@ class _Segment:
         if run.winch_seen:
             product.line_length_m = np.array(run.line, float)
             product.reel_mps = np.array(run.reel, float)
+            product.winch_rejected = np.array(run.rejected, np.int32)
         return product
 
 
@@ -221,6 +222,8 @@ class _Run:
         self.winch_seen = False
         self.line: list[float] = []  # the winch's length and reel speed the filter used at each grid point
         self.reel: list[float] = []
+        self.rejected: list[int] = []  # WINCH_STATUS rejected since the grid point before
+        self._rejected_before = 0
 
     def ground(self, s: GroundSample) -> None:
         """A sample from the ground (the winch, the ground reference): into the estimator as it arrives."""
@@ -272,6 +275,8 @@ class _Run:
             heard = est.winch_samples > 0
             self.line.append(est.model.tether_length_m if heard else math.nan)
             self.reel.append(est.ekf.rope.rate_mps if heard else math.nan)
+            self.rejected.append(est.winch_rejected - self._rejected_before)
+            self._rejected_before = est.winch_rejected
 
 
 def _unconfirmed_segments(segment_start: np.ndarray, unconfirmed: np.ndarray) -> np.ndarray:

@@ -10,6 +10,7 @@ import os
 import numpy as np
 
 from balloon_core import userargs
+from postflight.profile import QC_FEW_SAMPLES
 
 MAX_POINTS = 4000  # the series are thinned to at most this many points (a long flight at 10 Hz is 36 000 an hour)
 SERIES = {  # the page's key: the product's variable
@@ -78,18 +79,23 @@ def load_profile(path: str) -> dict:
 
 
 def _profile_legs(ds, path: str) -> dict:
-    """The legs of an open profile dataset (KeyError if a variable is missing)."""
+    """The legs of an open profile dataset (KeyError if a variable is missing): a contiguous ragged
+    array, ``row_size`` bins of each leg in turn (only bins with data are written)."""
     z = np.asarray(ds["z"].values, float)
     cols = {key: np.asarray(ds[var].values, float) for key, var in PROFILE_VARS.items()}
     count = np.asarray(ds["sample_count"].values, int)
+    qc = np.asarray(ds["qc_profile"].values, int) if "qc_profile" in ds else np.zeros(len(z), int)
     up = np.asarray(ds["leg_direction"].values) > 0
+    sizes = np.asarray(ds["row_size"].values, int)
+    starts = np.r_[0, np.cumsum(sizes)[:-1]]
     legs = []
     for k in range(ds.sizes["profile"]):
         rows = []
-        for j, zj in enumerate(z):
-            if math.isfinite(cols["speed"][k, j]):  # a bin with too few samples is NaN: left out
-                vals = {key: _values(c[k, j : j + 1])[0] for key, c in cols.items()}
-                rows.append({"z": round(float(zj), 1), **vals, "count": int(count[k, j])})
+        for j in range(starts[k], starts[k] + sizes[k]):
+            if qc[j] & QC_FEW_SAMPLES:  # too few samples for a mean worth drawing: left out
+                continue
+            vals = {key: _values(c[j : j + 1])[0] for key, c in cols.items()}
+            rows.append({"z": round(float(z[j]), 1), **vals, "count": int(count[j]), "qc": int(qc[j])})
         legs.append({"ascent": bool(up[k]), "rows": rows})
-    bin_m = float(z[1] - z[0]) if z.size > 1 else math.nan
+    bin_m = float(ds["z_bnds"].values[0, 1] - ds["z_bnds"].values[0, 0]) if z.size else math.nan
     return {"name": os.path.basename(path), "bin_m": _values([bin_m], 1)[0], "legs": legs}
