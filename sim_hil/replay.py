@@ -7,7 +7,12 @@ are sent exactly as captured, garbage included.
 Lockstep (the default with --speed 0): like balloon-sim --lockstep, a sample is sent only once the
 firmware's WIND_COV says it has digested the samples up to half a second before it, so nothing is
 dropped however fast. The last line says what the firmware reported it lost (its SYS_STATUS), or
-that nothing came back to say."""
+that nothing came back to say.
+
+A recorded wind: a firmware output log (a .tlog of WIND_COV, WIND, ESTIMATOR_STATUS, HEARTBEAT, ... and no
+sensor sample) is played as it was recorded, every record at its time (or N times faster), to any MAVLink
+endpoint: a past flight shown in MAVProxy, QGroundControl or balloon-gs. There is no firmware to wait for:
+no lockstep."""
 
 from __future__ import annotations
 
@@ -102,6 +107,7 @@ class ReplayResult:
     fw_time_s: float = -1.0  # the newest sample time the firmware's WIND_COV acknowledged
     sent_time_s: float = -1.0  # the newest sample time sent
     interrupted: bool = False
+    records_sent: int = 0  # tlog records or raw chunks sent
 
     def final_line(self, out: str, speed: float) -> str:
         head = f"balloon-replay: {self.imu_sent} IMU samples ({self.bytes_sent} bytes) sent to {out}"
@@ -156,6 +162,7 @@ def replay(path: str, out: str, speed: float, stop=lambda: False, lockstep: bool
                 ls.poll(0.0)  # drain what comes back (and keep the firmware's SYS_STATUS)
             link.send(data)
             res.bytes_sent += len(data)
+            res.records_sent += 1
             if progress is not None:
                 progress.done = res.bytes_sent / 1e6
         if not res.interrupted and (lockstep or ls.fw_status is not None):
@@ -171,20 +178,22 @@ def replay(path: str, out: str, speed: float, stop=lambda: False, lockstep: bool
     return res
 
 
-def first_sample(path: str) -> tuple[int, bool]:
-    """(MAVLink frames read, whether a sensor sample came) up to the first sensor sample (IMU or
-    barometer) of a capture, without reading further."""
+def first_sample(path: str) -> tuple[int, bool, bool]:
+    """(MAVLink frames read, whether a sensor sample came, whether a WIND_COV came) up to the first sensor
+    sample (IMU or barometer) of a capture, without reading further."""
     from balloon_core.samples import MavlinkSampler
 
     stats, sampler = LinkStats(), MavlinkSampler()
     msgs = capture_messages(path, stats)
+    wind = False
     try:
         for m in msgs:
             if sampler.convert(m):
-                return stats.frames, True
+                return stats.frames, True, wind
+            wind = wind or m.get_type() == "WIND_COV"
     finally:
         msgs.close()
-    return stats.frames, False
+    return stats.frames, False, wind
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -210,13 +219,20 @@ def main(argv: list[str] | None = None) -> int:
     except userargs.UserError as exc:
         return userargs.fail(prog, exc)
     try:
-        frames, sample = first_sample(args.file)
+        frames, sample, wind = first_sample(args.file)
         if frames == 0:
             return userargs.fail(prog, f"{args.file}: no MAVLink frame in this file (not a capture of a MAVLink link?)")
-        if not sample:
-            return userargs.fail(prog, f"{args.file}: {frames} MAVLink frames but no sensor sample (IMU or barometer)")
+        recorded_wind = not sample and wind and args.file.endswith(".tlog")
+        if not sample and not recorded_wind:
+            return userargs.fail(prog, f"{args.file}: {frames} MAVLink frames but no sensor sample (IMU or barometer)"
+                                 + (" and no WIND_COV" if not wind else " (a recorded wind replays from a .tlog)"))
+        if recorded_wind and args.lockstep:
+            return userargs.fail(prog, f"{args.file} is a recorded wind (no sensor sample): --lockstep has no "
+                                 "firmware to wait for")  # fmt: skip
     except OSError as exc:
         return userargs.fail(prog, exc)
+    if recorded_wind:
+        lockstep = False
     stop = userargs.stop_flag()
     try:
         size = os.path.getsize(args.file)
@@ -230,7 +246,12 @@ def main(argv: list[str] | None = None) -> int:
         bar.close()
         return userargs.fail(prog, exc)
     bar.close()
-    print(res.final_line(args.out, args.speed), file=sys.stderr)
+    if recorded_wind:
+        pace = "flat out" if args.speed == 0 else f"at {args.speed:g}x"
+        print(f"{prog}: a recorded wind, {res.records_sent} records ({res.bytes_sent} bytes) sent to {args.out} {pace}"
+              + (", interrupted" if res.interrupted else ""), file=sys.stderr)  # fmt: skip
+    else:
+        print(res.final_line(args.out, args.speed), file=sys.stderr)
     return 130 if res.interrupted else 0
 
 
