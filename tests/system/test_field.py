@@ -72,8 +72,9 @@ def test_real_rope_is_measured_and_a_paper_rope_filter_is_not(field_rope_flights
     assert 0.5 < ratio < 1.6 and beyond <= 0.05, (ratio, beyond)
     assert est.counters.taut_resets <= 1
     # the same flight through the paper's rope: it thrashes between placements or is off and confident
+    # (error beyond twice its stated accuracy: outside the envelope's honesty band, 0.5-2)
     (p_speed, p_ang, p_ratio, p_beyond), p_est = field_rope_flights["paper", seed]
-    assert p_est.counters.taut_resets >= 3 or abs(p_speed) > 0.1 or p_ratio > 3.0 or p_beyond > 0.2
+    assert p_est.counters.taut_resets >= 3 or abs(p_speed) > 0.1 or p_ratio > 2.0 or p_beyond > 0.2
 
 
 @pytest.mark.slow

@@ -129,7 +129,9 @@ def test_the_ground_station_shows_the_misfit(gusty):
     for m in tlog_messages(str(out), LinkStats()):
         gs.handle(m, 100.0)
     v = gs.vehicles[1]
-    assert v.misfit() == ["accel", "tether"] and v.warning_active()
+    # the accelerometer's misfit (the alignment's noise follows the rocking, which P then holds: it is
+    # flagged only beyond that, docs/estimator.md)
+    assert v.misfit() == ["accel"] and v.warning_active()
     for width in (80, 120, 200):
         con = Console(width=width, record=True, file=io.StringIO(), force_terminal=True)
         con.print(gs.view(100.0, width))
@@ -138,9 +140,10 @@ def test_the_ground_station_shows_the_misfit(gusty):
         row = next(ln for ln in lines if ln.split() and ln.split()[0] == "1")
         assert "MISFIT" in row
         said = [ln for ln in lines if ln.startswith("sys 1: ")]
-        assert len(said) == 1 and "misfit accel,align" in said[0] and "WARNING" in said[0], lines
+        assert len(said) == 1 and "misfit accel" in said[0] and "WARNING" in said[0], lines
     plain = gs.status_lines(100.0)
-    assert "MISFIT accel,tether" in plain[0] and "said: wind uncertain: misfit accel,align" in plain[0]
+    assert "MISFIT accel" in plain[0]
+    assert re.search(r"said: wind uncertain: (model )?misfit accel", plain[0]), plain[0]
 
 
 @pytest.mark.slow

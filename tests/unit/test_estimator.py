@@ -61,7 +61,9 @@ def test_paper_reference_accuracy(seed):
     assert s.band_skill >= 0.6
     assert abs(s.speed_error_pct) <= 3.0
     assert abs(s.direction_error_deg) <= 2.0
-    assert 0.7 <= s.error_ratio <= 1.5
+    # honest to cautious: the stated accuracy allows for a drag scale learnt to 7 % in the ascent (what the
+    # real rope's ascents need, params.DRAG_ASCENT_SIGMA), which the paper's rope lets it learn to 2 %
+    assert 0.5 <= s.error_ratio <= 1.5
     # a copy of the truth delayed by 4 s scores skill 0.65-0.69 here: the delay itself is bounded
     assert abs(band_lag_s(rows, truth)) <= 1.0
     assert est.ekf.mode == MODE_TAUT

@@ -47,7 +47,7 @@ def test_skill_against_the_constant_true_mean_and_honest_accuracy(multisine_2d):
     s = score(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], truth["time_s"], truth["wind_n"], truth["wind_e"],
               start_s=100.0)  # fmt: skip
     assert s.band_skill >= 0.6  # the constant scores 0, the old filter 0.41
-    assert 0.6 <= s.error_ratio <= 1.5
+    assert 0.5 <= s.error_ratio <= 1.5  # cautious: the ascent's drag scale is stated to 7 % (test_estimator)
     assert abs(s.speed_error_pct) <= 3.0 and abs(s.direction_error_deg) <= 2.0
 
 

@@ -154,7 +154,8 @@ def test_smoother_removes_the_lag_on_a_two_axis_multisine():
     assert s.band_rmse_mps < 0.92 * c.band_rmse_mps and s.band_skill > c.band_skill
     assert s.band_skill >= 0.9
     # honest within what one 180 s window can tell; the stated accuracy also carries the drag scale's
-    # uncertainty (a bias over balloons, which this flight's balloon, Cd as designed, does not have)
-    assert 0.35 <= s.error_ratio <= 1.5
+    # uncertainty (a bias over balloons, 7 % as an ascent learns it, which this flight's balloon, Cd as
+    # designed, does not have) and the tilt's systematic error, which smoothing does not reduce
+    assert 0.2 <= s.error_ratio <= 1.5
     # the smoothed covariance of the real filter: symmetric, positive, never above the causal one
     assert np.all(p.sigma_n <= p.causal_sigma_n + 1e-9) and np.all(p.sigma_e <= p.causal_sigma_e + 1e-9)

@@ -214,7 +214,7 @@ def test_firmware_tether_follows_winch_status_in_flight(winch_flight):
     dist = math.sqrt(float(x[0]) ** 2 + float(x[1]) ** 2 + float(x[2]) ** 2)
     t = sim.truth[-1]
     true_dist = math.sqrt(t[col["pos_n"]] ** 2 + t[col["pos_e"]] ** 2 + t[col["pos_d"]] ** 2)
-    assert dist == pytest.approx(true_dist, abs=1.0)
+    assert dist == pytest.approx(true_dist, abs=1.5)  # the rope's sag and stretch: the chord is not the line
     plain = run(False)
     assert plain.model.tether_length_m == 100.0 and plain.ekf.rope.rate_mps == 0.0
     xp = plain.ekf.x
