@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 from balloon_core.config import SCHEMA, SIM_DEFAULTS, BalloonConfig, SensorsConfig, SiteConfig, TetherConfig
 from balloon_core.wire import frame_length
 from firmware_py import cli as fw_cli
+from firmware_py.app import OutputConfig
 from firmware_py.estimator.state import FilterConfig
 from ground_station import cli as gs_cli
 from ground_station.wind import CSV_COLUMNS
@@ -174,7 +175,8 @@ def test_one_verdict_for_one_file(files, capsys):
 
 def test_schema_names_every_key_the_programs_read():
     classes = {"balloon": BalloonConfig, "tether": TetherConfig, "site": SiteConfig, "sensors": SensorsConfig,
-               "wind": WindConfig, "truth": TruthConfig, "filter": FilterConfig, "winch": WinchConfig}  # fmt: skip
+               "wind": WindConfig, "truth": TruthConfig, "filter": FilterConfig, "winch": WinchConfig,
+               "outputs": OutputConfig}  # fmt: skip
     assert set(SCHEMA) == set(classes)
     for name, cls in classes.items():
         assert set(SCHEMA[name]) == {f.name for f in dataclasses.fields(cls)}, name
