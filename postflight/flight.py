@@ -227,6 +227,18 @@ def describe_error(exc: BaseException) -> str:
     return f"{text} ({type(exc).__name__})" if text else f"the file is damaged ({type(exc).__name__})"
 
 
+def sensor_span_s(t_us: np.ndarray) -> float:
+    """The time a log's samples span on the sensor clock, s: each segment's first to last sample, summed (the
+    clock going back or jumping ahead starts a segment, as ``imu_losses`` cuts them): two flights in one
+    file are both counted, not the longer one's span."""
+    t = np.asarray(t_us, np.int64)
+    if len(t) < 2:
+        return 0.0
+    d = np.diff(t)
+    brk = np.flatnonzero((d < -CLOCK_BACK_US) | (d > CLOCK_JUMP_US)) + 1
+    return float(sum(int(p.max()) - int(p.min()) for p in np.split(t, brk) if len(p))) * 1e-6
+
+
 def imu_losses(imu_t: np.ndarray, rate_hz: float | None) -> tuple[int, int, int]:
     """(IMU samples missing, gaps, clock breaks) from the IMU sample times in file order: at the
     measured rate, a hole of k steps is k - 1 missing samples (a late sample fills its hole, a copy
@@ -311,7 +323,7 @@ def build_flight(path: str, fmt: str, imu_t, imu, baro_t, baro, sensors, notes, 
     meta = FlightMeta(
         source=os.path.basename(path), sha256=sha256_of(path), format=fmt, has_imu=True, has_mag=n_mag > 0,
         has_baro=len(baro_t) > 0, imu_rate_hz=first_rate_hz(np.asarray(imu_t)), n_imu=len(imu_t),
-        n_baro=len(baro_t), n_mag=n_mag, duration_s=(float(t.max()) - float(t.min())) * 1e-6,
+        n_baro=len(baro_t), n_mag=n_mag, duration_s=sensor_span_s(t),
         utc_start_s=utc[0] if utc else None, utc_source=utc[1] if utc else None, sensors=sensors, notes=notes,
     )  # fmt: skip
     if not meta.has_baro:

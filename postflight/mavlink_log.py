@@ -29,6 +29,7 @@ from postflight.flight import (
     imu_losses,
     loss_notes,
     segment_note,
+    sensor_span_s,
     sha256_of,
 )
 
@@ -123,7 +124,7 @@ def read_mavlink(path: str, ground_sysid: int = GROUND_SYSID) -> Flight:
     meta = FlightMeta(
         source=os.path.basename(path), sha256=sha256_of(path), format=fmt, has_imu=True, has_mag=n_mag > 0,
         has_baro=n_baro > 0, imu_rate_hz=first_rate_hz(imu_t), n_imu=int(imu.sum()), n_baro=n_baro,
-        n_mag=int(n_mag), duration_s=(float(t[sensor].max()) - float(t[sensor].min())) * 1e-6,
+        n_mag=int(n_mag), duration_s=sensor_span_s(t[sensor]),
         utc_start_s=utc[0] if utc else None, utc_source=utc[1] if utc else None, sensors=sensors, notes=notes,
         bad_frames=stats.bad_frames, truncated=stats.truncated,
     )  # fmt: skip
