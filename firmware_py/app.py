@@ -54,6 +54,8 @@ TEXT_MAX = 50  # STATUSTEXT's text field, characters
 # WIND (168) goes out just before every WIND_EVERY-th WIND_COV (1 Hz at the default 10 Hz): a ground station
 # that reads both (QGroundControl) is left holding WIND_COV's value, never one or the other at random
 WIND_EVERY = 10
+# the optional sources' counts, as NAMED_VALUE_INT names (at most 10 characters): WINCH_STATUS, ground reference
+SOURCE_COUNTS = (("winch_used", "winch_rej"), ("gref_used", "gref_rej"))
 TEXT_INTERVAL_US = 1_000_000  # at most one consistency STATUSTEXT a second (sensor clock)
 # the sensors' own health bits: all cleared while the sensors are silent (the gyro has no innovation, so
 # a cleared gyro bit says "silent", never "misfit")
@@ -367,6 +369,19 @@ class Firmware:
         self.sys_status(t_us)
         if self.est.initialised:
             self.estimator_status(t_us)
+            self.source_counts(t_us)
+
+    def source_counts(self, t_us: int) -> None:
+        """What the filter made of each optional source it was given (``SOURCE_COUNTS``), as NAMED_VALUE_INT
+        once a second: the live view shows ``winch: N used, M rejected`` as the summary does."""
+        est = self.est
+        for (name_used, name_rej), (used, rej) in zip(SOURCE_COUNTS, (
+            (est.winch_samples, est.winch_rejected), (est.ground_samples, est.ground_rejected),
+        )):  # fmt: skip
+            if used or rej:
+                ms = (t_us // 1000) & 0xFFFFFFFF
+                for name, value in ((name_used, used), (name_rej, rej)):
+                    self._send(pack(self.mav, self.mav.named_value_int_encode(ms, name.encode(), int(value))), t_us)
 
     def sys_status(self, t_us: int) -> None:
         """SYS_STATUS with each HEARTBEAT: the health a ground station (or a lockstep sender) shows.

@@ -38,6 +38,8 @@ from balloon_core.wire import Decoder, LinkStats, TlogSink, open_link, pack
 from ground_station.wind import CSV_COLUMNS, WindRecord
 
 MODE_NAMES = {0: "ground", 1: "free", 2: "taut"}  # balloon-fw's HEARTBEAT custom_mode
+# what balloon-fw says of its optional sources (its NAMED_VALUE_INT counts, firmware_py.app.SOURCE_COUNTS)
+SOURCES_SAID = (("winch", "winch_used", "winch_rej"), ("ground reference", "gref_used", "gref_rej"))
 # balloon-fw's SYS_STATUS health bits that its consistency monitor clears (docs/protocol.md, "Model misfit")
 MISFIT_BITS = (
     (mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL, "accel"), (mavlink.MAV_SYS_STATUS_AHRS, "tether"),
@@ -101,6 +103,7 @@ class Vehicle:
     text_at: float | None = None  # monotonic time of the last STATUSTEXT
     wind_count: int = 0
     estimator_flags: int | None = None  # the last ESTIMATOR_STATUS flags (ESTIMATOR_STATUS_FLAGS)
+    named: dict = field(default_factory=dict)  # NAMED_VALUE_INT by name (balloon-fw: its sources' counts)
     times: deque = field(default_factory=deque)  # WIND_COV arrival times within RATE_WINDOW_S
     history: deque = field(default_factory=lambda: deque(maxlen=240))  # (arrival time, speed) each second
 
@@ -274,6 +277,8 @@ class GroundStation:
             v.text, v.text_severity, v.text_at = m.text, m.severity, now
         elif t == "ESTIMATOR_STATUS":
             self.vehicle(m.get_srcSystem()).estimator_flags = int(m.flags)
+        elif t == "NAMED_VALUE_INT":
+            self.vehicle(m.get_srcSystem()).named[str(m.name).rstrip("\x00")] = int(m.value)
         elif t == "WINCH_STATUS":  # the site's winch (a component of the ground's system, docs/protocol.md)
             self.winch = Winch(now, float(m.line_length), float(m.speed))
         return True
@@ -333,6 +338,8 @@ class GroundStation:
             said = v.said(now)
             loss = v.input_loss()
             health += f"balloon input {loss}, " if loss else ""
+            health += "".join(f"{what}: {v.named[a]} used, {v.named[b]} rejected, " for what, a, b in SOURCES_SAID
+                              if a in v.named and b in v.named)  # fmt: skip
             lines.append(
                 f"sys {v.sysid}: t={r.time_usec * 1e-6:7.1f}s {wind} ±{r.horiz_accuracy:4.2f} var {var} "
                 f"alt {r.wind_alt:6.1f} m mode {v.mode}{stale} | {v.rate(now):4.1f} msg/s, {health}"
