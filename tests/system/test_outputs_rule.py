@@ -25,6 +25,7 @@ from ground_station import cli as gs_cli
 from sil import cli as sil_cli
 from sim_hil import cli as sim_cli
 from study import cli as study_cli
+from tests.helpers.cli import run_main
 
 MAINS: dict[str, Callable[[list[str]], int]] = {
     "balloon-sim": sim_cli.main,
@@ -112,12 +113,7 @@ def inputs(tmp_path_factory) -> Path:
 
 
 def run(prog: str, argv: list[str], capsys) -> tuple[int, str]:
-    capsys.readouterr()
-    try:
-        code = MAINS[prog](argv)
-    except SystemExit as exc:
-        code = exc.code
-    return code, capsys.readouterr().err
+    return run_main(MAINS[prog], argv, capsys)
 
 
 def snapshot(d: Path) -> dict[str, bytes]:

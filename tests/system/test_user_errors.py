@@ -26,6 +26,7 @@ from sim_hil import replay as replay_cli
 from sim_hil.dynamics import TruthConfig
 from sim_hil.winch import WinchConfig
 from sim_hil.wind import WindConfig
+from tests.helpers.cli import run_main
 
 MAINS = {"sim": sim_cli.main, "fw": fw_cli.main, "gs": gs_cli.main, "sil": sil_cli.main, "replay": replay_cli.main}
 NOWHERE = "/no/such/dir"
@@ -58,12 +59,7 @@ def toml(d, name: str, text: str) -> str:
 
 
 def run(prog: str, argv: list[str], capsys) -> tuple[int, str]:
-    capsys.readouterr()
-    try:
-        code = MAINS[prog](argv)
-    except SystemExit as exc:
-        code = exc.code
-    return code, capsys.readouterr().err
+    return run_main(MAINS[prog], argv, capsys)
 
 
 CONFIGS = {
