@@ -169,7 +169,7 @@ typedef struct {
     int64_t confirm_count;
     bw_real field_ned[3];
     int64_t dwell;
-    bw_real accel_innov2, innov_alpha, mean_speed, speed_alpha;
+    bw_real accel_innov2, innov_alpha, mean_speed, speed_alpha, speed_var;
     int64_t slack, pulling;
     int32_t was_slack;
     int64_t height_above;

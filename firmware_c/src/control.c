@@ -52,6 +52,15 @@ static bw_real vertical_gust_var(const bw_estimator_t *est, bw_real mean_speed_m
     return a * a;
 }
 
+/* control.py _turbulence_excess: below BW_LIGHT_AIR_SIGMA_U_MPS the filter's own turbulence raises the wind's
+ * noise when larger than sigma_u = TI U (light air meanders), as a variance ratio >= 1 */
+static bw_real turbulence_excess(const bw_estimator_t *est)
+{
+    bw_real expected = est->ekf.m.turbulence_intensity * BW_MAX(est->mean_speed, BW_R(0.5));
+    bw_real seen = BW_MIN(est->speed_var, (bw_real)(BW_LIGHT_AIR_SIGMA_U_MPS * BW_LIGHT_AIR_SIGMA_U_MPS));
+    return BW_MAX(BW_R(1.0), seen / (expected * expected));
+}
+
 static void init_clock(bw_estimator_t *est)
 {
     est->initialised = 0;
@@ -75,6 +84,8 @@ static void init_clock(bw_estimator_t *est)
     est->innov_alpha = (bw_real)(1.0 / (BW_ACCEL_INNOV_S * est->cfg->imu_rate_hz));
     est->mean_speed = (bw_real)est->cfg->expected_wind_mps;
     est->speed_alpha = (bw_real)(1.0 / (BW_MEAN_WIND_S * est->cfg->imu_rate_hz));
+    est->speed_var = (bw_real)(est->cfg->turbulence_intensity * est->cfg->expected_wind_mps
+                               * est->cfg->turbulence_intensity * est->cfg->expected_wind_mps);
     est->slack = 0;
     est->pulling = 0;
     est->was_slack = 0;
@@ -523,11 +534,13 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
         monitor(est);
     if (e->mode == BW_MODE_TAUT) {
         bw_real wn = e->x[BW_WIND_N], we = e->x[BW_WIND_E];
-        est->mean_speed += est->speed_alpha * (BW_SQRT(wn * wn + we * we) - est->mean_speed);
+        bw_real dev = BW_SQRT(wn * wn + we * we) - est->mean_speed;
+        est->mean_speed += est->speed_alpha * dev;
+        est->speed_var += est->speed_alpha * (dev * dev - est->speed_var);
         if (e->noise_phase == 0) {
             bw_real misfit;
             est->vertical_gust_var = vertical_gust_var(est, est->mean_speed, est->rho);
-            misfit = BW_MAX(BW_R(1.0), est->accel_innov2 / est->accel_taut_var);
+            misfit = BW_MAX(BW_R(1.0), est->accel_innov2 / est->accel_taut_var) * turbulence_excess(est);
             bw_ekf_adapt_wind_noise(e, est->mean_speed, misfit);
         }
     }

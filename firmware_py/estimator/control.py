@@ -44,6 +44,7 @@ from firmware_py.estimator.params import (
     JOIN_IN_FLIGHT_US,
     LEAN_BIAS_RAD,
     LEARN_DRAG_AFTER_S,
+    LIGHT_AIR_SIGMA_U_MPS,
     MAG_MAX,
     MAG_MODEL_GAUSS,
     MEAN_WIND_S,
@@ -178,6 +179,8 @@ class Estimator:
         self._innov_alpha = 1.0 / (ACCEL_INNOV_S * self.cfg.imu_rate_hz)
         self._mean_speed = self.cfg.expected_wind_mps  # the filter's own mean wind (60 s), for its noise
         self._speed_alpha = 1.0 / (MEAN_WIND_S * self.cfg.imu_rate_hz)
+        # the turbulence the filter sees: its wind speed's variance about that mean (60 s)
+        self._speed_var = (self.cfg.turbulence_intensity * self.cfg.expected_wind_mps) ** 2
         self._slack = 0
         self._pulling = 0
         self._was_slack = False
@@ -302,12 +305,24 @@ class Estimator:
             self._monitor()
         if ekf.mode == MODE_TAUT:
             wn, we = self.wind()
-            self._mean_speed += self._speed_alpha * (math.sqrt(wn * wn + we * we) - self._mean_speed)
+            dev = math.sqrt(wn * wn + we * we) - self._mean_speed
+            self._mean_speed += self._speed_alpha * dev
+            self._speed_var += self._speed_alpha * (dev * dev - self._speed_var)
             if self.step % self.schedule.wind_noise_every == 0:
                 self.vertical_gust_var = self._vertical_gust_var(self._mean_speed, self.rho)
-                misfit = max(1.0, self._accel_innov2 / self.accel_taut_var)
+                misfit = max(1.0, self._accel_innov2 / self.accel_taut_var) * self._turbulence_excess()
                 ekf.adapt_wind_noise(self._mean_speed, misfit)
         return True
+
+    def _turbulence_excess(self) -> float:
+        """The wind's process noise is sized for sigma_u = TI U (adapt_wind_noise). Light air does not calm
+        in proportion: it meanders, sigma_u near 0.3-0.5 m/s at any mean speed. So below
+        ``LIGHT_AIR_SIGMA_U_MPS`` the filter's own turbulence, its speed's variance about the 60 s mean, raises
+        the noise when larger (a variance ratio >= 1). Never above that: in a strong wind TI U holds, and a
+        noise that followed the estimate's own scatter would feed on it."""
+        expected = self.cfg.turbulence_intensity * max(self._mean_speed, 0.5)
+        seen = min(self._speed_var, LIGHT_AIR_SIGMA_U_MPS * LIGHT_AIR_SIGMA_U_MPS)
+        return max(1.0, seen / (expected * expected))
 
     def _vertical_gust_var(self, mean_speed_mps: float, rho: float) -> float:
         """The vertical air the model leaves out (its wind is horizontal), as the acceleration it puts

@@ -52,6 +52,9 @@ FIELD_FLIGHT_S = 60.0  # magnetometer averaged this long in flight when there wa
 ACCEL_INNOV_S = 2.0  # averaging time of the accelerometer's innovations that set its noise floor
 TAUT_PULL_S = 1.0  # after a slack spell the rope must pull this long before the filter is taut again
 MEAN_WIND_S = 60.0  # averaging time of the mean wind that scales the wind's process noise
+# light air meanders: sigma_u stays near 0.3-0.5 m/s however low the mean wind (low-wind meandering), so where
+# TI U is below this the filter's own turbulence (its speed's variance) may raise the wind's noise up to it
+LIGHT_AIR_SIGMA_U_MPS = 0.5
 WIND_NOISE_PERIOD_S = 1.0  # time between updates of that noise
 FIELD_LEARN_S = 1.0  # at least this much magnetometer on the ground (all of the ground time is used)
 MAG_MODEL_GAUSS = 0.004  # field direction model error (~0.5 deg of a 0.5 G field: soft iron, anomalies)

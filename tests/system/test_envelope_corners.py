@@ -1,7 +1,8 @@
 """The envelope's corners (benchmarks/bench_envelope.py found them failing), kept short, judged by their
 worst case: every wind direction of one multisine flight on the paper's and the real rope (one in nine
 locked 100 deg off at the taut entry), a balloon near its lift limit on a short real rope (a stiff rope's
-modes aliased into the accelerometer), a calm steady wind (a degree of lean: honest, not confident).
+modes aliased into the accelerometer), a calm steady wind (a degree of lean: honest, not confident), a
+multisine in light air (the wind meanders by half its speed: followed, and honestly stated).
 
 Each judgement is also passed through two references that must fail it: the constant true mean and the
 truth delayed by 4 s, both with the filter's own stated accuracy. The C core and the compiled truth: a
@@ -114,3 +115,28 @@ def test_a_calm_steady_wind_is_honest():
     assert honest(m["estimate"]), m["estimate"]
     assert math.isnan(m["estimate"]["skill"])  # a steady wind has no band to be skilful in
     assert not honest(m["constant"]) and not honest(m["delayed"])
+
+
+LIGHT_AIR = {
+    "lumped 1.13 m/s": dict(from_deg=127.97, mean_mps=1.131, rope_model="lumped", radius_m=1.5175, tether_m=79.44,
+                            pressure_drift_hpa_h=-1.907, bias_scale=0.0364, sensor_grade="table2", seed=840974),
+    "paper 1.48 m/s": dict(from_deg=208.13, mean_mps=1.477, radius_m=1.006, tether_m=93.64,
+                           pressure_drift_hpa_h=-0.744, bias_scale=0.7927, sensor_grade="tactical", seed=820760),
+    "paper 1.39 m/s": dict(from_deg=285.47, mean_mps=1.39, radius_m=1.4487, tether_m=88.31,
+                           pressure_drift_hpa_h=-1.139, bias_scale=0.8785, sensor_grade="mems", seed=565112),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("name", LIGHT_AIR)
+def test_a_multisine_in_light_air(name):
+    """The multisine's 0.3 m/s lines in a 1.1-1.5 m/s mean: the wind meanders by half its speed, where the
+    filter's noise for sigma_u = TI U expects a fifth. It once lagged (band skill 0, 24 % low), and said
+    so too little (error/accuracy 1.8, 14 % beyond 3 sigma); its own turbulence now raises the noise."""
+
+    def ok(x: dict[str, float]) -> bool:
+        return (x["dir"] <= 5.0 and x["speed"] <= 12.0 and x["skill"] >= 0.4 and 0.5 <= x["err_acc"] <= 1.6
+                and x["beyond_3sigma"] <= 0.03)  # fmt: skip
+
+    m = flights(base(**LIGHT_AIR[name]))
+    assert ok(m["estimate"]), m["estimate"]
+    assert not ok(m["constant"]) and not ok(m["delayed"])
