@@ -1,0 +1,177 @@
+"""``balloon-fw``'s file replay of a tlog on the C core, with the host library's tlog scanner
+(firmware_c/host/tlog.c, ``bw_tlog_scan``): the records framed and checked in C, and the common sensor
+frames (the IMU's HIGHRES_IMU, the balloon's SCALED_PRESSURE, each the next packet of its sender) taken
+through what the firmware does with them (``LinkStats.sequence``, ``MavlinkSampler.convert``,
+``Firmware.push`` with the rate decided and no averaging) straight into the C core's sample block, without
+a Python message each. Every other frame (other messages, anything unusual: a lost or late packet, a new
+sender, a time going back, the rate still being measured) comes back here in file order and goes the
+ordinary way (``Decoder.decode_frame``: fastmav or pymavlink, then ``Firmware.handle``), so the outputs,
+their bytes and every count are those of the Python path (tests/unit/test_replay_scan.py).
+
+The Python objects hold the state: it is copied into the scanner's state array before each call and back
+after it (``_Lane``). Without the C core's library (or without fastcrc: no fast decoding either),
+``replay_tlog`` returns None and the caller replays the ordinary way."""
+
+from __future__ import annotations
+
+import ctypes as C
+from collections.abc import Callable
+
+import numpy as np
+
+from balloon_core import fastmav
+from balloon_core.wire import TLOG_HEADER, Decoder, LinkStats, SenderSeq
+from firmware_py.app import BATCH_SAMPLES, Firmware
+
+# the state array's fields (firmware_c/host/tlog.c)
+(S_I, S_N, S_EOF, S_LANE, S_J, S_END, S_BYTES, S_FRAMES, S_GARBAGE, S_BAD, S_TRUNC, S_IMU_MID, S_IMU_SYS,
+ S_IMU_COMP, S_IMU_ID, S_HAVE_IMU, S_EMBEDDED, S_OTHERS, S_IGNORED, S_BESIDE, S_HAVE_BARO, S_BARO_MID,
+ S_BARO_SYS, S_BARO_COMP, S_GROUND, S_SAMPLES, S_MISSING, S_PREV, S_BLOCK_T, S_DT, S_NEXT_WIND, S_NEXT_HB,
+ S_LEN, S_BATCH, S_ROWS, S_RECENT, S_NSEND) = range(37)  # fmt: skip
+S_SENDERS, Q_SIZE, MAX_SENDERS = 40, 16, 16
+R_MORE, R_END, R_FRAME, R_DRAIN = range(4)
+SENDER_FIELDS = ("received", "_newest", "_behind", "_t0", "_i0", "_t_mid", "_i_mid", "_t_last", "_i_last")
+CHUNK = 1 << 20
+
+
+def scanner():
+    """``bw_tlog_scan`` of the host library (float build: the scanner does not depend on the real type),
+    or None where there is none (no compiler) or no fast decoding (no fastcrc)."""
+    if not fastmav.TABLE:
+        return None
+    try:
+        from firmware_py.core_c import load
+
+        lib = load("float")[0]
+    except Exception:  # no C core on this host: the ordinary path
+        return None
+    f = lib.bw_tlog_scan
+    vp = C.c_void_p
+    f.argtypes = [C.c_char_p, vp, vp, vp, vp, vp, vp]
+    f.restype = C.c_int
+    return f
+
+
+class _Lane:
+    """The scanner's arrays, and the firmware's state copied into them (``load``) and back (``store``)."""
+
+    def __init__(self, fw: Firmware) -> None:
+        self.fw = fw
+        self.S = np.zeros(S_SENDERS + Q_SIZE * MAX_SENDERS, np.int64)
+        self.D = np.zeros(1)
+        self.rt = np.zeros(BATCH_SAMPLES + 2, np.int64)
+        self.rk = np.zeros(BATCH_SAMPLES + 2, np.int32)
+        self.rv = np.zeros((BATCH_SAMPLES + 2) * 9)
+        self.recent = np.zeros(BATCH_SAMPLES + 2, np.int64)
+        self.ptrs = [a.ctypes.data for a in (self.S, self.D, self.rt, self.rk, self.rv, self.recent)]
+        self.senders: list[SenderSeq] = []
+
+    def load(self, i: int, n: int, eof: bool) -> None:
+        fw, S = self.fw, self.S
+        s = fw.sampler
+        lane = (fw._block is not None and fw.pipe.decided and fw.pipe.resampler is None and fw.streams is None
+                and s.imu_key is not None and s.imu_key[0] == fastmav.mavlink.MAVLINK_MSG_ID_HIGHRES_IMU)  # fmt: skip
+        S[:S_SENDERS] = 0
+        S[S_I], S[S_N], S[S_EOF], S[S_LANE] = i, n, eof, lane
+        self.senders = []
+        if not lane:
+            return
+        S[S_IMU_MID], S[S_IMU_SYS], S[S_IMU_COMP], S[S_IMU_ID] = s.imu_key
+        S[S_HAVE_IMU] = 1
+        S[S_EMBEDDED], S[S_OTHERS] = s.embedded_baro, s._others
+        if s.baro_key is not None:
+            S[S_HAVE_BARO] = 1
+            S[S_BARO_MID], S[S_BARO_SYS], S[S_BARO_COMP] = s.baro_key[:3]
+        S[S_GROUND] = s.ground_sysid if s.ground_sysid is not None else -1
+        self.D[0] = s._last_temp_c
+        S[S_MISSING], S[S_PREV], S[S_BLOCK_T], S[S_DT] = fw.imu_missing, fw._prev_imu_us, fw._block_t_us, fw.est.dt_us
+        S[S_NEXT_WIND], S[S_NEXT_HB] = fw._next_wind_us, fw._next_hb_us
+        S[S_LEN], S[S_BATCH] = len(fw._block), BATCH_SAMPLES
+        k = S_SENDERS
+        for (sys, comp), q in fw.stats.senders.items():
+            if len(self.senders) == MAX_SENDERS:
+                break
+            self.senders.append(q)
+            S[k : k + 12] = (sys, comp, q.received, q._newest, q._behind, q._t0, q._i0, q._t_mid, q._i_mid,
+                             q._t_last, q._i_last, not q._holes)  # fmt: skip
+            k += Q_SIZE
+        S[S_NSEND] = len(self.senders)
+
+    def store(self) -> None:
+        """What the scanner did, into the firmware's objects."""
+        fw, S = self.fw, self.S
+        st = fw.stats
+        v = S[:S_SENDERS].tolist()
+        st.bytes += v[S_BYTES]
+        st.frames += v[S_FRAMES]
+        st.garbage_bytes += v[S_GARBAGE]
+        st.bad_frames += v[S_BAD]
+        if v[S_TRUNC]:
+            st.truncated = True
+        if not v[S_LANE] or not v[S_FRAMES]:
+            return
+        s = fw.sampler
+        s.embedded_baro, s._others = bool(v[S_EMBEDDED]), v[S_OTHERS]
+        s.baro_beside += v[S_BESIDE]
+        s._last_temp_c = float(self.D[0])
+        rows = v[S_ROWS]
+        if rows:
+            fw.silent = False
+            fw.samples_in += v[S_SAMPLES]
+            fw.imu_missing, fw._prev_imu_us, fw._block_t_us = v[S_MISSING], v[S_PREV], v[S_BLOCK_T]
+            fw._recent_imu_us.extend(self.recent[: v[S_RECENT]].tolist())
+            blk = fw._block
+            blk._t.extend(self.rt[:rows].tolist())
+            blk._kind.extend(self.rk[:rows].tolist())
+            blk._v.extend(self.rv[: 9 * rows].tolist())
+        k = S_SENDERS
+        for q in self.senders:
+            (q.received, q._newest, q._behind, q._t0, q._i0, q._t_mid, q._i_mid, q._t_last,
+             q._i_last) = S[k + 2 : k + 11].tolist()  # fmt: skip
+            k += Q_SIZE
+
+
+def replay_tlog(fw: Firmware, path: str, scan, progress=None, stop: Callable[[], bool] | None = None,
+                chunk: int = CHUNK) -> bool:  # fmt: skip
+    """Every record of the tlog at ``path`` through ``fw`` (``scan``: ``scanner()``), as
+    ``wire.tlog_messages`` + ``Firmware.handle`` would; the file is read ``chunk`` bytes at a time.
+    About every 1000 frames ``stop()`` is asked and ``progress`` told. Returns False if ``stop()`` said
+    to stop. The caller flushes."""
+    st: LinkStats = fw.stats
+    dec = Decoder(st, fast=True)
+    lane = _Lane(fw)
+    S = lane.S
+    p = lane.ptrs
+    next_tick = 1000
+    with open(path, "rb") as fh:
+        buf, i, eof = b"", 0, False
+        while True:
+            lane.load(i, len(buf), eof)
+            r = scan(buf, *p)
+            lane.store()
+            i = int(S[S_I])
+            if r == R_MORE:
+                if eof:
+                    break
+                more = fh.read(chunk)
+                buf, i, eof = buf[i:] + more, 0, not more
+                continue
+            if r == R_END:
+                break
+            if r == R_FRAME:
+                j, i = int(S[S_J]), int(S[S_END])
+                m = dec.decode_frame(buf[j:i])
+                if m is not None:
+                    fw.handle(m)
+            elif r == R_DRAIN:
+                fw.drain()
+            seen = st.frames + st.bad_frames
+            if seen >= next_tick:
+                next_tick = seen + 1000
+                if stop is not None and stop():
+                    return False
+                if progress is not None:
+                    progress.done = (st.bytes + st.garbage_bytes + TLOG_HEADER * seen) / 1e6
+                    progress.status = fw.status()
+    return True
+
