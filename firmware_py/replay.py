@@ -174,4 +174,3 @@ def replay_tlog(fw: Firmware, path: str, scan, progress=None, stop: Callable[[],
                     progress.done = (st.bytes + st.garbage_bytes + TLOG_HEADER * seen) / 1e6
                     progress.status = fw.status()
     return True
-
