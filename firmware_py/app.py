@@ -290,9 +290,7 @@ class Firmware:
             stepped = blk.stepped[i:end].tolist()
             steps, modes, flags = blk.steps[i:end].tolist(), blk.modes[i:end].tolist(), blk.flags[i:end].tolist()
             last = end - i - 1
-            for k in range(last):
-                if stepped[k] & 1:
-                    self._count(steps[k], modes[k], flags[k])
+            self._count_steps(stepped, steps, modes, flags, last)
             t = int(blk.t[end - 1])
             if stepped[last] & 1:
                 self._judge(t)
@@ -301,6 +299,26 @@ class Firmware:
                 self._time_reset(t)
             i = end
         blk.clear()
+
+    def _count_steps(self, stepped: list[int], steps: list[int], modes: list[int], flags: list[int], n: int) -> None:
+        """``_count`` of each of the first ``n`` samples that stepped (``drain``'s pieces), in one loop."""
+        last = self._last_step
+        flight = 0
+        misfit = self.misfit_steps
+        for k in range(n):
+            if stepped[k] & 1:
+                step = steps[k]
+                d = step - last
+                last = step
+                if d > 0 and modes[k] != MODE_GROUND:  # as _count: a step back counts none
+                    flight += d
+                    f = flags[k]
+                    if f:
+                        for i in range(len(SOURCES)):
+                            if f >> i & 1:
+                                misfit[i] += d
+        self._last_step = last
+        self.flight_steps += flight
 
     def _count(self, step: int, mode: int, flags: int) -> None:
         """The steps since the last count, in flight and with each source flagged."""

@@ -65,37 +65,46 @@ class _Lane:
         self.recent = np.zeros(BATCH_SAMPLES + 2, np.int64)
         self.ptrs = [a.ctypes.data for a in (self.S, self.D, self.rt, self.rk, self.rv, self.recent)]
         self.senders: list[SenderSeq] = []
+        self.dirty = True  # the firmware's state is to be copied in before the next scan
 
     def load(self, i: int, n: int, eof: bool) -> None:
+        """The buffer, and the firmware's state if Python may have changed it since the last scan (``dirty``:
+        a frame handled the ordinary way, the status read); after a drain only what a drain changes."""
         fw, S = self.fw, self.S
+        if not self.dirty:
+            S[S_I], S[S_N], S[S_EOF] = i, n, eof
+            S[S_LEN], S[S_NEXT_WIND], S[S_NEXT_HB] = len(fw._block), fw._next_wind_us, fw._next_hb_us
+            return
+        self.dirty = False
         s = fw.sampler
         lane = (fw._block is not None and fw.pipe.decided and fw.pipe.resampler is None and fw.streams is None
                 and s.imu_key is not None and s.imu_key[0] == fastmav.mavlink.MAVLINK_MSG_ID_HIGHRES_IMU)  # fmt: skip
-        S[:S_SENDERS] = 0
-        S[S_I], S[S_N], S[S_EOF], S[S_LANE] = i, n, eof, lane
         self.senders = []
         if not lane:
+            S[:S_SENDERS] = 0
+            S[S_I], S[S_N], S[S_EOF] = i, n, eof
             return
-        S[S_IMU_MID], S[S_IMU_SYS], S[S_IMU_COMP], S[S_IMU_ID] = s.imu_key
-        S[S_HAVE_IMU] = 1
-        S[S_EMBEDDED], S[S_OTHERS] = s.embedded_baro, s._others
+        v = [0] * S_SENDERS
+        v[S_I], v[S_N], v[S_EOF], v[S_LANE] = i, n, eof, 1
+        v[S_IMU_MID], v[S_IMU_SYS], v[S_IMU_COMP], v[S_IMU_ID] = s.imu_key
+        v[S_HAVE_IMU] = 1
+        v[S_EMBEDDED], v[S_OTHERS] = s.embedded_baro, s._others
         if s.baro_key is not None:
-            S[S_HAVE_BARO] = 1
-            S[S_BARO_MID], S[S_BARO_SYS], S[S_BARO_COMP] = s.baro_key[:3]
-        S[S_GROUND] = s.ground_sysid if s.ground_sysid is not None else -1
-        self.D[0] = s._last_temp_c
-        S[S_MISSING], S[S_PREV], S[S_BLOCK_T], S[S_DT] = fw.imu_missing, fw._prev_imu_us, fw._block_t_us, fw.est.dt_us
-        S[S_NEXT_WIND], S[S_NEXT_HB] = fw._next_wind_us, fw._next_hb_us
-        S[S_LEN], S[S_BATCH] = len(fw._block), BATCH_SAMPLES
-        k = S_SENDERS
+            v[S_HAVE_BARO] = 1
+            v[S_BARO_MID], v[S_BARO_SYS], v[S_BARO_COMP] = s.baro_key[:3]
+        v[S_GROUND] = s.ground_sysid if s.ground_sysid is not None else -1
+        v[S_MISSING], v[S_PREV], v[S_BLOCK_T], v[S_DT] = fw.imu_missing, fw._prev_imu_us, fw._block_t_us, fw.est.dt_us
+        v[S_NEXT_WIND], v[S_NEXT_HB] = fw._next_wind_us, fw._next_hb_us
+        v[S_LEN], v[S_BATCH] = len(fw._block), BATCH_SAMPLES
         for (sys, comp), q in fw.stats.senders.items():
             if len(self.senders) == MAX_SENDERS:
                 break
             self.senders.append(q)
-            S[k : k + 12] = (sys, comp, q.received, q._newest, q._behind, q._t0, q._i0, q._t_mid, q._i_mid,
-                             q._t_last, q._i_last, not q._holes)  # fmt: skip
-            k += Q_SIZE
-        S[S_NSEND] = len(self.senders)
+            v += (sys, comp, q.received, q._newest, q._behind, q._t0, q._i0, q._t_mid, q._i_mid, q._t_last,
+                  q._i_last, not q._holes, 0, 0, 0, 0)  # fmt: skip
+        v[S_NSEND] = len(self.senders)
+        S[: len(v)] = v
+        self.D[0] = s._last_temp_c
 
     def store(self) -> None:
         """What the scanner did, into the firmware's objects."""
@@ -163,6 +172,7 @@ def replay_tlog(fw: Firmware, path: str, scan, progress=None, stop: Callable[[],
                 m = dec.decode_frame(buf[j:i])
                 if m is not None:
                     fw.handle(m)
+                lane.dirty = True
             elif r == R_DRAIN:
                 fw.drain()
             seen = st.frames + st.bad_frames
@@ -171,6 +181,7 @@ def replay_tlog(fw: Firmware, path: str, scan, progress=None, stop: Callable[[],
                 if stop is not None and stop():
                     return False
                 if progress is not None:
+                    lane.dirty = True  # fw.status() runs what waits
                     progress.done = (st.bytes + st.garbage_bytes + TLOG_HEADER * seen) / 1e6
                     progress.status = fw.status()
     return True
