@@ -28,7 +28,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from balloon_core.config import Design, build_section
 from balloon_core.samples import BaroSample, GroundBaroSample, GroundSample, MavlinkSampler, Sample, WinchSample
 from balloon_core.score import direction_from_deg, wind_unknown
-from balloon_core.wire import LinkStats, pack
+from balloon_core.wire import FastPacker, LinkStats, pack
 from firmware_py.core_c import SampleBlock, new_core
 from firmware_py.estimator.aid_sources.ground_ref import ground_counts
 from firmware_py.estimator.aid_sources.winch import winch_counts
@@ -64,6 +64,7 @@ RECENT_IMU = 256  # IMU sample times remembered to tell a late sample from a cop
 BATCH_SAMPLES = 256  # a file replay's samples handed to the C core at most in one call (``use_batches``)
 _BARO_PAD = (0.0,) * 7  # a barometer sample's unused values in a SampleBlock row
 CONSISTENT_TEXT = "wind model consistent again"
+PACK_WIND_COV = FastPacker(mavlink.MAVLink_wind_cov_message)  # the 10 Hz output, packed without a message object
 RESTARTED_TEXT = "wind model check restarted (filter reset)"
 
 
@@ -466,7 +467,7 @@ class Firmware:
         ``[outputs] qgc_direction = "from"`` WIND after every one instead (``OutputConfig``)."""
         if not self.wind_after_each and self.wind_cov_sent % WIND_EVERY == 0 and self.est.initialised:
             self.wind(t_us)
-        self._send(pack(self.mav, self.mav.wind_cov_encode(*self.out.fields(self.est))), t_us)
+        self._send(PACK_WIND_COV(self.mav, *self.out.fields(self.est)), t_us)
         self.wind_cov_sent += 1
         if self.wind_after_each and self.est.initialised:
             self.wind(t_us)
