@@ -283,6 +283,12 @@ class Firmware:
         if blk is None or not len(blk):
             return
         blk.ready()
+        self.run_block(blk)
+        blk.clear()
+
+    def run_block(self, blk: SampleBlock) -> None:
+        """``drain``'s work on a block whose arrays hold its ``n`` samples (``SampleBlock.ready``; the tlog
+        scanner's block, firmware_py/replay.py, is filled in C)."""
         est = self.est
         i, n = 0, blk.n
         while i < n:
@@ -299,7 +305,6 @@ class Firmware:
             if stepped[last] & 2:
                 self._time_reset(t)
             i = end
-        blk.clear()
 
     def _count_steps(self, stepped: list[int], steps: list[int], modes: list[int], flags: list[int], n: int) -> None:
         """``_count`` of each of the first ``n`` samples that stepped (``drain``'s pieces), in one loop."""

@@ -22,6 +22,7 @@ import numpy as np
 from balloon_core import fastmav
 from balloon_core.wire import TLOG_HEADER, Decoder, LinkStats, SenderSeq
 from firmware_py.app import BATCH_SAMPLES, Firmware
+from firmware_py.core_c import SampleBlock
 
 # the state array's fields (firmware_c/host/tlog.c)
 (S_I, S_N, S_EOF, S_LANE, S_J, S_END, S_BYTES, S_FRAMES, S_GARBAGE, S_BAD, S_TRUNC, S_IMU_MID, S_IMU_SYS,
@@ -59,11 +60,10 @@ class _Lane:
         self.fw = fw
         self.S = np.zeros(S_SENDERS + Q_SIZE * MAX_SENDERS, np.int64)
         self.D = np.zeros(1)
-        self.rt = np.zeros(BATCH_SAMPLES + 2, np.int64)
-        self.rk = np.zeros(BATCH_SAMPLES + 2, np.int32)
-        self.rv = np.zeros((BATCH_SAMPLES + 2) * 9)
+        # the samples the scanner takes, written in C straight into a block of their own (``rows``)
+        self.blk = blk = SampleBlock(BATCH_SAMPLES + 2)
         self.recent = np.zeros(BATCH_SAMPLES + 2, np.int64)
-        self.ptrs = [a.ctypes.data for a in (self.S, self.D, self.rt, self.rk, self.rv, self.recent)]
+        self.ptrs = [self.S.ctypes.data, self.D.ctypes.data, blk.t_p, blk.kind_p, blk.v_p, self.recent.ctypes.data]
         self.senders: list[SenderSeq] = []
         self.dirty = True  # the firmware's state is to be copied in before the next scan
 
@@ -73,13 +73,14 @@ class _Lane:
         fw, S = self.fw, self.S
         if not self.dirty:
             S[S_I], S[S_N], S[S_EOF] = i, n, eof
-            S[S_LEN], S[S_NEXT_WIND], S[S_NEXT_HB] = len(fw._block), fw._next_wind_us, fw._next_hb_us
+            S[S_LEN], S[S_NEXT_WIND], S[S_NEXT_HB] = len(fw._block) + S[S_ROWS], fw._next_wind_us, fw._next_hb_us
             return
         self.dirty = False
         s = fw.sampler
         lane = (fw._block is not None and fw.pipe.decided and fw.pipe.resampler is None and fw.streams is None
                 and s.imu_key is not None and s.imu_key[0] == fastmav.mavlink.MAVLINK_MSG_ID_HIGHRES_IMU)  # fmt: skip
         self.senders = []
+        self.take_rows()  # (none: what Python changed came after the last rows were handed over)
         if not lane:
             S[:S_SENDERS] = 0
             S[S_I], S[S_N], S[S_EOF] = i, n, eof
@@ -106,6 +107,28 @@ class _Lane:
         S[: len(v)] = v
         self.D[0] = s._last_temp_c
 
+    def take_rows(self) -> None:
+        """The scanner's samples not yet run into the firmware's block (before Python adds its own)."""
+        rows = int(self.S[S_ROWS])
+        if rows:
+            blk, lb = self.fw._block, self.blk
+            blk._t.extend(lb.t[:rows].tolist())
+            blk._kind.extend(lb.kind[:rows].tolist())
+            blk._v.extend(lb.v.reshape(-1)[: 9 * rows].tolist())
+            self.S[S_ROWS] = 0
+
+    def drain(self) -> None:
+        """``Firmware.drain`` with the scanner's samples: run from its own block when they are all there are."""
+        fw = self.fw
+        rows = int(self.S[S_ROWS])
+        if rows and not len(fw._block):
+            self.blk.n = rows
+            fw.run_block(self.blk)
+            self.S[S_ROWS] = 0
+        else:
+            self.take_rows()
+            fw.drain()
+
     def store(self) -> None:
         """What the scanner did, into the firmware's objects."""
         fw, S = self.fw, self.S
@@ -123,16 +146,11 @@ class _Lane:
         s.embedded_baro, s._others = bool(v[S_EMBEDDED]), v[S_OTHERS]
         s.baro_beside += v[S_BESIDE]
         s._last_temp_c = float(self.D[0])
-        rows = v[S_ROWS]
-        if rows:
+        if v[S_SAMPLES]:
             fw.silent = False
             fw.samples_in += v[S_SAMPLES]
             fw.imu_missing, fw._prev_imu_us, fw._block_t_us = v[S_MISSING], v[S_PREV], v[S_BLOCK_T]
             fw._recent_imu_us.extend(self.recent[: v[S_RECENT]].tolist())
-            blk = fw._block
-            blk._t.extend(self.rt[:rows].tolist())
-            blk._kind.extend(self.rk[:rows].tolist())
-            blk._v.extend(self.rv[: 9 * rows].tolist())
         k = S_SENDERS
         for q in self.senders:
             (q.received, q._newest, q._behind, q._t0, q._i0, q._t_mid, q._i_mid, q._t_last,
@@ -160,27 +178,32 @@ def replay_tlog(fw: Firmware, path: str, scan, progress=None, stop: Callable[[],
             lane.store()
             i = int(S[S_I])
             if r == R_MORE:
-                if eof:
+                if eof:  # (the scanner says R_END there)
+                    lane.take_rows()
                     break
                 more = fh.read(chunk)
                 buf, i, eof = buf[i:] + more, 0, not more
                 continue
             if r == R_END:
+                lane.take_rows()  # the caller's flush runs them
                 break
             if r == R_FRAME:
+                lane.take_rows()
                 j, i = int(S[S_J]), int(S[S_END])
                 m = dec.decode_frame(buf[j:i])
                 if m is not None:
                     fw.handle(m)
                 lane.dirty = True
             elif r == R_DRAIN:
-                fw.drain()
+                lane.drain()
             seen = st.frames + st.bad_frames
             if seen >= next_tick:
                 next_tick = seen + 1000
                 if stop is not None and stop():
+                    lane.take_rows()  # what was read counts in the summary
                     return False
                 if progress is not None:
+                    lane.take_rows()
                     lane.dirty = True  # fw.status() runs what waits
                     progress.done = (st.bytes + st.garbage_bytes + TLOG_HEADER * seen) / 1e6
                     progress.status = fw.status()

@@ -239,7 +239,7 @@ int bw_tlog_scan(const uint8_t *buf, int64_t *S, double *D, int64_t *rt, int32_t
     int eof = (int)S[S_EOF];
     uint8_t pay[256];
     S[S_BYTES] = S[S_FRAMES] = S[S_GARBAGE] = S[S_BAD] = S[S_TRUNC] = 0; /* what this call did */
-    S[S_IGNORED] = S[S_BESIDE] = S[S_SAMPLES] = S[S_ROWS] = S[S_RECENT] = 0;
+    S[S_IGNORED] = S[S_BESIDE] = S[S_SAMPLES] = S[S_RECENT] = 0; /* S_ROWS: the rows not yet taken */
     for (;;) {
         int64_t j, ln, end, id = -1;
         int seq = 0, sys = 0, comp = 0, r;
