@@ -309,6 +309,14 @@ class Firmware:
     def _count_steps(self, stepped: list[int], steps: list[int], modes: list[int], flags: list[int], n: int) -> None:
         """``_count`` of each of the first ``n`` samples that stepped (``drain``'s pieces), in one loop."""
         last = self._last_step
+        if n and 1 in (head := stepped[:n]):
+            s = steps[:n]
+            if s[0] >= last and MODE_GROUND not in modes[:n] and not any(flags[:n]) and s == sorted(s):
+                # the usual piece, in flight, consistent, the step count rising: the counts telescope
+                step = s[n - 1 - head[::-1].index(1)]
+                self.flight_steps += step - last
+                self._last_step = step
+                return
         flight = 0
         misfit = self.misfit_steps
         for k in range(n):
