@@ -286,14 +286,18 @@ class Firmware:
         self.run_block(blk)
         blk.clear()
 
-    def run_block(self, blk: SampleBlock) -> None:
+    def run_block(self, blk: SampleBlock, done: int = 0) -> None:
         """``drain``'s work on a block whose arrays hold its ``n`` samples (``SampleBlock.ready``; the tlog
-        scanner's block, firmware_py/replay.py, is filled in C)."""
+        scanner's block, firmware_py/replay.py, is filled in C). ``done``: its first piece has been through
+        the C core already (the scanner ran it), what follows it has not."""
         est = self.est
         i, n = 0, blk.n
         while i < n:
-            end = i + est.on_batch(blk, i, min(self._next_wind_us, self._next_hb_us), self._told_flags,
-                                   self._next_text_us)  # fmt: skip
+            if done:
+                end, done = done, 0
+            else:
+                end = i + est.on_batch(blk, i, min(self._next_wind_us, self._next_hb_us), self._told_flags,
+                                       self._next_text_us)  # fmt: skip
             stepped = blk.stepped[i:end].tolist()
             steps, modes, flags = blk.steps[i:end].tolist(), blk.modes[i:end].tolist(), blk.flags[i:end].tolist()
             last = end - i - 1

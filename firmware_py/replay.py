@@ -23,34 +23,52 @@ from balloon_core import fastmav
 from balloon_core.wire import TLOG_HEADER, Decoder, LinkStats, SenderSeq
 from firmware_py.app import BATCH_SAMPLES, Firmware
 from firmware_py.core_c import SampleBlock
+from firmware_py.estimator.consistency import SOURCES
+from firmware_py.estimator.state import MODE_GROUND
+
+WIND_COV = fastmav.mavlink.MAVLink_wind_cov_message
 
 # the state array's fields (firmware_c/host/tlog.c)
 (S_I, S_N, S_EOF, S_LANE, S_J, S_END, S_BYTES, S_FRAMES, S_GARBAGE, S_BAD, S_TRUNC, S_IMU_MID, S_IMU_SYS,
  S_IMU_COMP, S_IMU_ID, S_HAVE_IMU, S_EMBEDDED, S_OTHERS, S_IGNORED, S_BESIDE, S_HAVE_BARO, S_BARO_MID,
  S_BARO_SYS, S_BARO_COMP, S_GROUND, S_SAMPLES, S_MISSING, S_PREV, S_BLOCK_T, S_DT, S_NEXT_WIND, S_NEXT_HB,
- S_LEN, S_BATCH, S_ROWS, S_RECENT, S_NSEND) = range(37)  # fmt: skip
-S_SENDERS, Q_SIZE, MAX_SENDERS = 40, 16, 16
-R_MORE, R_END, R_FRAME, R_DRAIN = range(4)
-SENDER_FIELDS = ("received", "_newest", "_behind", "_t0", "_i0", "_t_mid", "_i_mid", "_t_last", "_i_last")
+ S_LEN, S_BATCH, S_ROWS, S_RECENT, S_NSEND, S_EMIT, S_TOLD, S_NEXT_TEXT, S_SENT, S_SEQ, S_SYSID, S_COMPID,
+ S_PERIOD, S_MSG_ID, S_MSG_EXTRA, S_GROUND_MODE, S_NSRC, S_LAST_STEP, S_FLIGHT, S_MISFIT) = range(52)  # fmt: skip
+S_NOUT, S_DONE = S_MISFIT + 8, S_MISFIT + 9
+S_SENDERS, Q_SIZE, MAX_SENDERS = 80, 16, 16
+R_MORE, R_END, R_FRAME, R_DRAIN, R_BATCHED, R_OUT = range(6)
+OUT_CAP, OUT_SLOT = 64, 64
 CHUNK = 1 << 20
 
 
-def scanner():
-    """``bw_tlog_scan`` of the host library (float build: the scanner does not depend on the real type),
-    or None where there is none (no compiler) or no fast decoding (no fastcrc)."""
+class Scanner:
+    """``bw_tlog_scan`` of the host library the firmware's estimator is built in (it runs the block
+    through that estimator): ``scan(est, buf, *pointers)``."""
+
+    def __init__(self) -> None:
+        self._fns: dict = {}
+
+    def __call__(self, est, buf: bytes, *ptrs) -> int:
+        f = self._fns.get(id(est._lib))
+        if f is None:
+            f = est._lib.bw_tlog_scan
+            f.argtypes = [C.c_char_p] + [C.c_void_p] * 13
+            f.restype = C.c_int
+            self._fns[id(est._lib)] = f
+        return f(buf, *ptrs)
+
+
+def scanner() -> Scanner | None:
+    """The tlog scanner, or None where there is none (no C compiler) or no fast decoding (no fastcrc)."""
     if not fastmav.TABLE:
         return None
     try:
         from firmware_py.core_c import load
 
-        lib = load("float")[0]
+        load("double")
     except Exception:  # no C core on this host: the ordinary path
         return None
-    f = lib.bw_tlog_scan
-    vp = C.c_void_p
-    f.argtypes = [C.c_char_p, vp, vp, vp, vp, vp, vp]
-    f.restype = C.c_int
-    return f
+    return Scanner()
 
 
 class _Lane:
@@ -63,7 +81,11 @@ class _Lane:
         # the samples the scanner takes, written in C straight into a block of their own (``rows``)
         self.blk = blk = SampleBlock(BATCH_SAMPLES + 2)
         self.recent = np.zeros(BATCH_SAMPLES + 2, np.int64)
-        self.ptrs = [self.S.ctypes.data, self.D.ctypes.data, blk.t_p, blk.kind_p, blk.v_p, self.recent.ctypes.data]
+        self.out = np.zeros(OUT_CAP * OUT_SLOT, np.uint8)  # WIND_COV frames packed in C, and (time, length)
+        self.out_meta = np.zeros(2 * OUT_CAP, np.int64)
+        self.ptrs = [self.S.ctypes.data, self.D.ctypes.data, blk.t_p, blk.kind_p, blk.v_p, self.recent.ctypes.data,
+                     0, blk.stepped_p, blk.steps_p, blk.modes_p, blk.flags_p, self.out.ctypes.data,
+                     self.out_meta.ctypes.data]  # fmt: skip
         self.senders: list[SenderSeq] = []
         self.dirty = True  # the firmware's state is to be copied in before the next scan
 
@@ -71,9 +93,12 @@ class _Lane:
         """The buffer, and the firmware's state if Python may have changed it since the last scan (``dirty``:
         a frame handled the ordinary way, the status read); after a drain only what a drain changes."""
         fw, S = self.fw, self.S
-        if not self.dirty:
+        if not self.dirty:  # (what a drain may change)
             S[S_I], S[S_N], S[S_EOF] = i, n, eof
             S[S_LEN], S[S_NEXT_WIND], S[S_NEXT_HB] = len(fw._block) + S[S_ROWS], fw._next_wind_us, fw._next_hb_us
+            S[S_TOLD], S[S_NEXT_TEXT], S[S_SENT], S[S_SEQ] = (fw._told_flags, fw._next_text_us, fw.wind_cov_sent,
+                                                              fw.mav.seq)  # fmt: skip
+            S[S_LAST_STEP] = fw._last_step
             return
         self.dirty = False
         s = fw.sampler
@@ -104,8 +129,15 @@ class _Lane:
             v += (sys, comp, q.received, q._newest, q._behind, q._t0, q._i0, q._t_mid, q._i_mid, q._t_last,
                   q._i_last, not q._holes, 0, 0, 0, 0)  # fmt: skip
         v[S_NSEND] = len(self.senders)
+        # the outputs: the usual WIND_COV packed in C unless a signing link or WIND after each one
+        v[S_EMIT] = not fw.wind_after_each and not fw.mav.signing.sign_outgoing
+        v[S_TOLD], v[S_NEXT_TEXT], v[S_SENT], v[S_SEQ] = fw._told_flags, fw._next_text_us, fw.wind_cov_sent, fw.mav.seq
+        v[S_SYSID], v[S_COMPID], v[S_PERIOD] = fw.mav.srcSystem, fw.mav.srcComponent, fw.period_us
+        v[S_MSG_ID], v[S_MSG_EXTRA] = WIND_COV.id, WIND_COV.crc_extra
+        v[S_GROUND_MODE], v[S_NSRC], v[S_LAST_STEP] = MODE_GROUND, len(SOURCES), fw._last_step
         S[: len(v)] = v
         self.D[0] = s._last_temp_c
+        self.ptrs[6] = C.addressof(fw.est._s)  # the estimator the scanner runs the block through
 
     def take_rows(self) -> None:
         """The scanner's samples not yet run into the firmware's block (before Python adds its own)."""
@@ -117,15 +149,17 @@ class _Lane:
             blk._v.extend(lb.v.reshape(-1)[: 9 * rows].tolist())
             self.S[S_ROWS] = 0
 
-    def drain(self) -> None:
-        """``Firmware.drain`` with the scanner's samples: run from its own block when they are all there are."""
+    def drain(self, done: int = 0) -> None:
+        """``Firmware.drain`` with the scanner's samples: run from its own block when they are all there are
+        (``done``: its first piece was run in C)."""
         fw = self.fw
         rows = int(self.S[S_ROWS])
         if rows and not len(fw._block):
             self.blk.n = rows
-            fw.run_block(self.blk)
+            fw.run_block(self.blk, done)
             self.S[S_ROWS] = 0
         else:
+            assert not done
             self.take_rows()
             fw.drain()
 
@@ -156,6 +190,21 @@ class _Lane:
             (q.received, q._newest, q._behind, q._t0, q._i0, q._t_mid, q._i_mid, q._t_last,
              q._i_last) = S[k + 2 : k + 11].tolist()  # fmt: skip
             k += Q_SIZE
+        # the blocks run in C (``run_rows`` in tlog.c): their step counts and WIND_COV frames
+        if v[S_FLIGHT]:
+            fw.flight_steps += v[S_FLIGHT]
+        misfit = v[S_MISFIT : S_MISFIT + len(SOURCES)]
+        if any(misfit):
+            for i, d in enumerate(misfit):
+                fw.misfit_steps[i] += d
+        fw._last_step, fw._next_wind_us = v[S_LAST_STEP], v[S_NEXT_WIND]
+        nout = v[S_NOUT]
+        if nout:
+            fw.wind_cov_sent, fw.mav.seq = v[S_SENT], v[S_SEQ]
+            fw.mav.total_packets_sent += nout
+            meta, out = self.out_meta[: 2 * nout].tolist(), self.out
+            for k in range(nout):
+                fw._send(out[OUT_SLOT * k : OUT_SLOT * k + meta[2 * k + 1]].tobytes(), meta[2 * k])
 
 
 def replay_tlog(fw: Firmware, path: str, scan, progress=None, stop: Callable[[], bool] | None = None,
@@ -174,7 +223,7 @@ def replay_tlog(fw: Firmware, path: str, scan, progress=None, stop: Callable[[],
         buf, i, eof = b"", 0, False
         while True:
             lane.load(i, len(buf), eof)
-            r = scan(buf, *p)
+            r = scan(fw.est, buf, *p)
             lane.store()
             i = int(S[S_I])
             if r == R_MORE:
@@ -196,6 +245,8 @@ def replay_tlog(fw: Firmware, path: str, scan, progress=None, stop: Callable[[],
                 lane.dirty = True
             elif r == R_DRAIN:
                 lane.drain()
+            elif r == R_BATCHED:
+                lane.drain(int(S[S_DONE]))
             seen = st.frames + st.bad_frames
             if seen >= next_tick:
                 next_tick = seen + 1000

@@ -10,6 +10,12 @@
 #include <stdint.h>
 #include <string.h>
 
+#include "bw_core.h"
+
+int bw_on_batch(bw_estimator_t *est, int n, const int64_t *t_us, const int32_t *kind, const double *v,
+                int64_t stop_us, int32_t told_flags, int64_t text_us, int32_t *stepped, int64_t *steps,
+                int32_t *modes, int32_t *flags);
+
 #define HDR 8
 #define MAX_FRAME 280
 
@@ -18,7 +24,10 @@ enum {
     S_I, S_N, S_EOF, S_LANE, S_J, S_END, S_BYTES, S_FRAMES, S_GARBAGE, S_BAD, S_TRUNC,
     S_IMU_MID, S_IMU_SYS, S_IMU_COMP, S_IMU_ID, S_HAVE_IMU, S_EMBEDDED, S_OTHERS, S_IGNORED, S_BESIDE,
     S_HAVE_BARO, S_BARO_MID, S_BARO_SYS, S_BARO_COMP, S_GROUND, S_SAMPLES, S_MISSING, S_PREV, S_BLOCK_T,
-    S_DT, S_NEXT_WIND, S_NEXT_HB, S_LEN, S_BATCH, S_ROWS, S_RECENT, S_NSEND, S_SENDERS = 40
+    S_DT, S_NEXT_WIND, S_NEXT_HB, S_LEN, S_BATCH, S_ROWS, S_RECENT, S_NSEND,
+    /* the outputs (Firmware.run_block, _count, _judge, emit_due, wind_cov) */
+    S_EMIT, S_TOLD, S_NEXT_TEXT, S_SENT, S_SEQ, S_SYSID, S_COMPID, S_PERIOD, S_MSG_ID, S_MSG_EXTRA, S_GROUND_MODE,
+    S_NSRC, S_LAST_STEP, S_FLIGHT, S_MISFIT, S_NOUT = S_MISFIT + 8, S_DONE, S_SENDERS = 80
 };
 /* a sender's fields (SenderSeq), 16 a sender from S_SENDERS */
 enum { Q_SYS, Q_COMP, Q_RECEIVED, Q_NEWEST, Q_BEHIND, Q_T0, Q_I0, Q_TMID, Q_IMID, Q_TLAST, Q_ILAST, Q_USABLE };
@@ -29,6 +38,10 @@ enum { Q_SYS, Q_COMP, Q_RECEIVED, Q_NEWEST, Q_BEHIND, Q_T0, Q_I0, Q_TMID, Q_IMID
 #define R_END 1   /* the end of the file */
 #define R_FRAME 2 /* the frame S_J .. S_END is for Python (decode and handle it; then S_I = S_END) */
 #define R_DRAIN 3 /* a frame was taken and its sample may make an output due: drain the block */
+#define R_BATCHED 4 /* as R_DRAIN, the block's first S_DONE samples already through the C core */
+#define R_OUT 5   /* the output buffer is full: send what is in it */
+#define OUT_CAP 64
+#define OUT_SLOT 64
 
 static const struct { uint32_t id; uint8_t extra; uint8_t size; } TABLE[] = {
     {105, 93, 63}, {107, 108, 65}, {26, 170, 24}, {116, 76, 24}, {129, 46, 24},
@@ -230,16 +243,96 @@ static int lane(int64_t *S, double *D, int64_t id, const uint8_t *p, int seq, in
     return drain ? 3 : 1;
 }
 
+/* Firmware._count of samples 0 .. n-1 (those that stepped) */
+static void count_steps(int64_t *S, int n, const int32_t *stepped, const int64_t *steps, const int32_t *modes,
+                        const int32_t *flags)
+{
+    int k, i;
+    for (k = 0; k < n; k++) {
+        int64_t d;
+        if (!(stepped[k] & 1)) continue;
+        d = steps[k] - S[S_LAST_STEP];
+        S[S_LAST_STEP] = steps[k];
+        if (d > 0 && modes[k] != S[S_GROUND_MODE]) {
+            S[S_FLIGHT] += d;
+            for (i = 0; i < S[S_NSRC]; i++)
+                if (flags[k] >> i & 1) S[S_MISFIT + i] += d;
+        }
+    }
+}
+
+/* The block's rows through the C core (Firmware.run_block) and, in the usual case (the whole block in one
+ * piece ending on a step, no STATUSTEXT, no HEARTBEAT, no WIND due with it), what Python does after it
+ * (the step counts, WIND_COV packed as pymavlink packs it) here: 1. Else 0, the first S_DONE rows done. */
+static int run_rows(int64_t *S, bw_estimator_t *est, int64_t *rt, int32_t *rk, double *rv, int32_t *stepped,
+                    int64_t *steps, int32_t *modes, int32_t *flags, uint8_t *out, int64_t *out_meta)
+{
+    int n = (int)S[S_ROWS], done, last;
+    int64_t t, stop = S[S_NEXT_WIND] < S[S_NEXT_HB] ? S[S_NEXT_WIND] : S[S_NEXT_HB];
+    bw_wind_cov_t f;
+    done = bw_on_batch(est, n, rt, rk, rv, stop, (int32_t)S[S_TOLD], S[S_NEXT_TEXT], stepped, steps, modes, flags);
+    S[S_DONE] = done;
+    last = done - 1;
+    if (done != n || stepped[last] != 1) return 0;
+    t = rt[last];
+    if (flags[last] != S[S_TOLD] && t >= S[S_NEXT_TEXT]) return 0; /* a STATUSTEXT */
+    if (t >= S[S_NEXT_HB]) return 0;
+    if (t >= S[S_NEXT_WIND]) {
+        uint8_t *o = out + OUT_SLOT * S[S_NOUT], pay[40];
+        int plen = 40, k;
+        uint16_t crc = 0xFFFF;
+        if (S[S_SENT] % 10 == 0 && est->initialised) return 0; /* WIND first */
+        bw_wind_cov(est, &f);
+        if (f.time_usec < 0) return 0;
+        memcpy(pay, &f.time_usec, 8);
+        memcpy(pay + 8, &f.wind_x, 4);
+        memcpy(pay + 12, &f.wind_y, 4);
+        memcpy(pay + 16, &f.wind_z, 4);
+        memcpy(pay + 20, &f.var_horiz, 4);
+        memcpy(pay + 24, &f.var_vert, 4);
+        memcpy(pay + 28, &f.wind_alt, 4);
+        memcpy(pay + 32, &f.horiz_accuracy, 4);
+        memcpy(pay + 36, &f.vert_accuracy, 4);
+        while (plen > 1 && pay[plen - 1] == 0) plen--; /* MAVLink 2 cuts trailing zeros */
+        o[0] = 0xFD;
+        o[1] = (uint8_t)plen;
+        o[2] = o[3] = 0;
+        o[4] = (uint8_t)S[S_SEQ];
+        o[5] = (uint8_t)S[S_SYSID];
+        o[6] = (uint8_t)S[S_COMPID];
+        o[7] = (uint8_t)(S[S_MSG_ID] & 0xFF);
+        o[8] = (uint8_t)(S[S_MSG_ID] >> 8 & 0xFF);
+        o[9] = (uint8_t)(S[S_MSG_ID] >> 16 & 0xFF);
+        memcpy(o + 10, pay, (size_t)plen);
+        for (k = 1; k < 10 + plen; k++) crc = crc_acc(crc, o[k]);
+        crc = crc_acc(crc, (uint8_t)S[S_MSG_EXTRA]);
+        o[10 + plen] = (uint8_t)(crc & 0xFF);
+        o[11 + plen] = (uint8_t)(crc >> 8);
+        out_meta[2 * S[S_NOUT]] = t;
+        out_meta[2 * S[S_NOUT] + 1] = 12 + plen;
+        S[S_NOUT]++;
+        S[S_SEQ] = (S[S_SEQ] + 1) % 256;
+        S[S_SENT]++;
+        S[S_NEXT_WIND] = t - t % S[S_PERIOD] + S[S_PERIOD];
+    }
+    count_steps(S, n, stepped, steps, modes, flags);
+    S[S_ROWS] = S[S_LEN] = 0;
+    return 1;
+}
+
 /* Scan buf[S_I .. S_N) (S_EOF: the file ends there) as tlog_messages does, until Python must act (R_*).
  * With S_LANE the common sensor frames are taken here (``lane``); every other frame is returned. */
 int bw_tlog_scan(const uint8_t *buf, int64_t *S, double *D, int64_t *rt, int32_t *rk, double *rv,
-                 int64_t *recent)
+                 int64_t *recent, bw_estimator_t *est, int32_t *stepped, int64_t *steps, int32_t *modes,
+                 int32_t *flags, uint8_t *out, int64_t *out_meta)
 {
     int64_t n = S[S_N], i = S[S_I];
     int eof = (int)S[S_EOF];
     uint8_t pay[256];
     S[S_BYTES] = S[S_FRAMES] = S[S_GARBAGE] = S[S_BAD] = S[S_TRUNC] = 0; /* what this call did */
     S[S_IGNORED] = S[S_BESIDE] = S[S_SAMPLES] = S[S_RECENT] = 0; /* S_ROWS: the rows not yet taken */
+    S[S_FLIGHT] = S[S_NOUT] = S[S_DONE] = 0;
+    memset(S + S_MISFIT, 0, 8 * sizeof S[0]);
     for (;;) {
         int64_t j, ln, end, id = -1;
         int seq = 0, sys = 0, comp = 0, r;
@@ -278,6 +371,11 @@ int bw_tlog_scan(const uint8_t *buf, int64_t *S, double *D, int64_t *rt, int32_t
         S[S_BYTES] += ln;
         S[S_FRAMES]++;
         i = end;
-        if (r == 3) { S[S_I] = i; return R_DRAIN; }
+        if (r == 3) {
+            S[S_I] = i;
+            if (!S[S_EMIT] || S[S_LEN] != S[S_ROWS]) return R_DRAIN; /* Python's own samples wait too */
+            if (!run_rows(S, est, rt, rk, rv, stepped, steps, modes, flags, out, out_meta)) return R_BATCHED;
+            if (S[S_NOUT] == OUT_CAP) return R_OUT;
+        }
     }
 }

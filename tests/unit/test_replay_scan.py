@@ -14,7 +14,7 @@ import pytest
 
 from balloon_core.config import Design
 from balloon_core.wire import TLOG_HEADER, LinkStats, frame_length, tlog_messages
-from firmware_py.app import Firmware
+from firmware_py.app import Firmware, OutputConfig
 from firmware_py.estimator.state import FilterConfig
 from firmware_py.replay import replay_tlog, scanner
 
@@ -38,9 +38,9 @@ def stats_tuple(st: LinkStats) -> tuple:
     return (st.bytes, st.frames, st.bad_frames, st.garbage_bytes, st.lost, st.truncated, senders)
 
 
-def replay(path: Path, how: str, chunk: int = 1 << 20) -> tuple:
+def replay(path: Path, how: str, chunk: int = 1 << 20, outputs: OutputConfig | None = None) -> tuple:
     sink = Sink()
-    fw = Firmware(Design(), FilterConfig(core="c"), sink)
+    fw = Firmware(Design(), FilterConfig(core="c"), sink, outputs=outputs)
     fw.use_batches()
     if how == "scan":
         assert replay_tlog(fw, str(path), SCAN, chunk=chunk)
@@ -87,6 +87,15 @@ def test_recorded_flights_replay_alike(name, tmp_path):
     fw.use_batches()
     replay_tlog(fw, str(p), counted)
     assert len(calls) < st[1] / 5
+
+
+def test_wind_after_each_wind_cov_replays_alike(tmp_path):
+    """``[outputs] qgc_direction = "from"`` (WIND after every WIND_COV: all outputs packed in Python)."""
+    p = tmp_path / "f.tlog"
+    p.write_bytes(flight(TLOGS[0]))
+    ref = replay(p, "pymavlink", outputs=OutputConfig("from"))
+    assert replay(p, "scan", outputs=OutputConfig("from")) == ref
+    assert sum(1 for _, f in ref[0] if f[7] == 168) > 1000  # WIND after each WIND_COV
 
 
 @pytest.mark.parametrize("seed", range(4))
