@@ -2,15 +2,19 @@
 (firmware_c/host/tlog.c, ``bw_tlog_scan``): the records framed and checked in C, and the common sensor
 frames (the IMU's HIGHRES_IMU, the balloon's SCALED_PRESSURE, each the next packet of its sender) taken
 through what the firmware does with them (``LinkStats.sequence``, ``MavlinkSampler.convert``,
-``Firmware.push`` with the rate decided and no averaging) straight into the C core's sample block, without
-a Python message each. Every other frame (other messages, anything unusual: a lost or late packet, a new
-sender, a time going back, the rate still being measured) comes back here in file order and goes the
-ordinary way (``Decoder.decode_frame``: fastmav or pymavlink, then ``Firmware.handle``), so the outputs,
-their bytes and every count are those of the Python path (tests/unit/test_replay_scan.py).
+``Firmware.push`` with the rate decided and no averaging) straight into a sample block, without a Python
+message each. When an output may be due the scanner runs the block through the C core (``bw_on_batch``)
+and, in the usual case (the block in one piece ending on a filter step; no STATUSTEXT, HEARTBEAT or WIND
+due with it), counts its steps and packs its WIND_COV (as pymavlink packs it) itself. Every other frame
+(other messages, anything unusual: a lost or late packet, a new sender, a time going back, the rate still
+being measured) and every other output comes back here in file order and goes the ordinary way
+(``Decoder.decode_frame``: fastmav or pymavlink, then ``Firmware.handle``; ``Firmware.run_block`` from
+where the C core stopped), so the outputs, their bytes and every count are those of the Python path
+(tests/unit/test_replay_scan.py).
 
-The Python objects hold the state: it is copied into the scanner's state array before each call and back
-after it (``_Lane``). Without the C core's library (or without fastcrc: no fast decoding either),
-``replay_tlog`` returns None and the caller replays the ordinary way."""
+The Python objects hold the state: it is copied into the scanner's state array before a call and back
+after it (``_Lane``). Without the C core's library (or without fastcrc: no fast decoding either)
+``scanner()`` is None and the caller replays the ordinary way."""
 
 from __future__ import annotations
 

@@ -1,7 +1,8 @@
 /* The host's tlog scanner (not flashed: firmware_c/build.py adds host/ to the host library only): a file
  * replay's records framed, checked and, for the common frames, taken all the way into the sample block
- * here instead of one Python message each (firmware_py/replay.py mirrors each step in Python and holds
- * the state; see there). A tlog record is an 8-byte big-endian time stamp and one MAVLink 1 or 2 frame.
+ * here instead of one Python message each, and the usual block through the C core with its WIND_COV
+ * (firmware_py/replay.py holds the state and does everything else; see there). A tlog record is an 8-byte
+ * big-endian time stamp and one MAVLink 1 or 2 frame.
  *
  * The framing is balloon_core/wire.py tlog_messages' rule for rule (resynchronisation on garbage, the
  * orphan check, a file that ends inside a record), and a frame counts as a sensor frame exactly when
