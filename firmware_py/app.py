@@ -28,7 +28,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from balloon_core.config import Design, build_section
 from balloon_core.samples import BaroSample, GroundBaroSample, GroundSample, MavlinkSampler, Sample, WinchSample
 from balloon_core.score import direction_from_deg, wind_unknown
-from balloon_core.wire import LinkStats, pack
+from balloon_core.wire import FastPacker, LinkStats, pack
 from firmware_py.core_c import SampleBlock, new_core
 from firmware_py.estimator.aid_sources.ground_ref import ground_counts
 from firmware_py.estimator.aid_sources.winch import winch_counts
@@ -64,6 +64,7 @@ RECENT_IMU = 256  # IMU sample times remembered to tell a late sample from a cop
 BATCH_SAMPLES = 256  # a file replay's samples handed to the C core at most in one call (``use_batches``)
 _BARO_PAD = (0.0,) * 7  # a barometer sample's unused values in a SampleBlock row
 CONSISTENT_TEXT = "wind model consistent again"
+PACK_WIND_COV = FastPacker(mavlink.MAVLink_wind_cov_message)  # the 10 Hz output, packed without a message object
 RESTARTED_TEXT = "wind model check restarted (filter reset)"
 
 
@@ -282,17 +283,25 @@ class Firmware:
         if blk is None or not len(blk):
             return
         blk.ready()
+        self.run_block(blk)
+        blk.clear()
+
+    def run_block(self, blk: SampleBlock, done: int = 0) -> None:
+        """``drain``'s work on a block whose arrays hold its ``n`` samples (``SampleBlock.ready``; the tlog
+        scanner's block, firmware_py/replay.py, is filled in C). ``done``: its first piece has been through
+        the C core already (the scanner ran it), what follows it has not."""
         est = self.est
         i, n = 0, blk.n
         while i < n:
-            end = i + est.on_batch(blk, i, min(self._next_wind_us, self._next_hb_us), self._told_flags,
-                                   self._next_text_us)  # fmt: skip
+            if done:
+                end, done = done, 0
+            else:
+                end = i + est.on_batch(blk, i, min(self._next_wind_us, self._next_hb_us), self._told_flags,
+                                       self._next_text_us)  # fmt: skip
             stepped = blk.stepped[i:end].tolist()
             steps, modes, flags = blk.steps[i:end].tolist(), blk.modes[i:end].tolist(), blk.flags[i:end].tolist()
             last = end - i - 1
-            for k in range(last):
-                if stepped[k] & 1:
-                    self._count(steps[k], modes[k], flags[k])
+            self._count_steps(stepped, steps, modes, flags, last)
             t = int(blk.t[end - 1])
             if stepped[last] & 1:
                 self._judge(t)
@@ -300,7 +309,34 @@ class Firmware:
             if stepped[last] & 2:
                 self._time_reset(t)
             i = end
-        blk.clear()
+
+    def _count_steps(self, stepped: list[int], steps: list[int], modes: list[int], flags: list[int], n: int) -> None:
+        """``_count`` of each of the first ``n`` samples that stepped (``drain``'s pieces), in one loop."""
+        last = self._last_step
+        if n and 1 in (head := stepped[:n]):
+            s = steps[:n]
+            if s[0] >= last and MODE_GROUND not in modes[:n] and not any(flags[:n]) and s == sorted(s):
+                # the usual piece, in flight, consistent, the step count rising: the counts telescope
+                step = s[n - 1 - head[::-1].index(1)]
+                self.flight_steps += step - last
+                self._last_step = step
+                return
+        flight = 0
+        misfit = self.misfit_steps
+        for k in range(n):
+            if stepped[k] & 1:
+                step = steps[k]
+                d = step - last
+                last = step
+                if d > 0 and modes[k] != MODE_GROUND:  # as _count: a step back counts none
+                    flight += d
+                    f = flags[k]
+                    if f:
+                        for i in range(len(SOURCES)):
+                            if f >> i & 1:
+                                misfit[i] += d
+        self._last_step = last
+        self.flight_steps += flight
 
     def _count(self, step: int, mode: int, flags: int) -> None:
         """The steps since the last count, in flight and with each source flagged."""
@@ -448,7 +484,7 @@ class Firmware:
         ``[outputs] qgc_direction = "from"`` WIND after every one instead (``OutputConfig``)."""
         if not self.wind_after_each and self.wind_cov_sent % WIND_EVERY == 0 and self.est.initialised:
             self.wind(t_us)
-        self._send(pack(self.mav, self.mav.wind_cov_encode(*self.out.fields(self.est))), t_us)
+        self._send(PACK_WIND_COV(self.mav, *self.out.fields(self.est)), t_us)
         self.wind_cov_sent += 1
         if self.wind_after_each and self.est.initialised:
             self.wind(t_us)

@@ -16,6 +16,7 @@ from balloon_core.wire import Decoder, capture_messages, open_link, open_sink
 from firmware_c.build import BuildError
 from firmware_py.app import Firmware, OutputConfig
 from firmware_py.estimator.state import FilterConfig
+from firmware_py.replay import replay_tlog, scanner
 from firmware_py.streams import StreamRequester
 
 
@@ -50,6 +51,12 @@ def replay_file(fw: Firmware, path: str, progress: Progress | None = None, stop=
 
 def _replay(fw: Firmware, path: str, progress: Progress | None, stop) -> bool:
     tlog = path.endswith(".tlog")
+    scan = scanner() if tlog and fw._block is not None else None
+    if scan is not None:  # the C core's tlog scanner (firmware_py/replay.py: the same messages and counts)
+        if not replay_tlog(fw, path, scan, progress, stop):
+            return False
+        fw.flush()
+        return True
     st = fw.stats
     msgs = capture_messages(path, st, fast=True)  # the sensor messages by fastmav (same messages, same counts)
     try:
