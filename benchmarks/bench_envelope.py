@@ -58,7 +58,7 @@ PARAMS = ("from_deg", "mean_mps", "wind_kind", "rope_model", "radius_m", "tether
           "bias_scale", "sensor_grade", "seed")  # fmt: skip
 WINDOW_S = 60.0
 CAL_EDGES = np.geomspace(0.02, 5.0, 15)  # stated accuracy bins, m/s
-ENVELOPE_VERSION = 1
+ENVELOPE_VERSION = 2
 #: the study's metric names as the envelope's table names them (one row per flight, envelope.csv)
 CONTRACT_NAMES = {"speed_error_pct": "speed_err_pct", "direction_error_deg": "dir_err_deg", "error_ratio": "err_acc"}
 
@@ -246,6 +246,10 @@ def summary(df) -> tuple[str, list[tuple[str, bool]]]:
         "taut re-placements /h": ok["replacements_per_h"],
         "band skill (fluctuating winds)": ok.loc[ok["wind_kind"] != "steady", "band_skill"],
     }
+    if "tilt_err_deg" in ok and "tilt_sigma_deg" in ok:
+        # not a target: the attitude's honesty (RMS tilt error over the filter's own RMS 1-sigma), which decides the
+        # wind's in light air (a degree of lean)
+        cols["tilt error / stated tilt"] = ok["tilt_err_deg"] / ok["tilt_sigma_deg"]
     lines = ["| metric | p50 | p90 | p95 | worst |", "|---|---:|---:|---:|---:|"]
     for name, s in cols.items():
         worst = s.min() if name.startswith("band skill") else (s.max() if name != "err/acc" else _far(s))

@@ -14,7 +14,7 @@ from balloon_core.config import Design
 from balloon_core.rotation import euler_from_quat
 from balloon_core.score import response, score
 from firmware_py.core_c import new_core
-from firmware_py.estimator.state import FilterConfig
+from firmware_py.estimator.state import ATT_E, ATT_N, FilterConfig
 from sim_hil.dynamics import TruthConfig
 from sim_hil.simulator import TRUTH_COLUMNS, Simulation
 from sim_hil.wind import WindConfig
@@ -22,17 +22,19 @@ from study.metrics import H_BAND_HZ, h_column
 
 
 def fly(design: Design, wind: WindConfig, truth: TruthConfig, filt: FilterConfig, duration_s: float, seed: int):
-    """Rows (time s, wind N, wind E, horiz accuracy, roll, pitch, yaw rad) per IMU sample, the truth table by
-    column, and the estimator (its counters)."""
+    """Rows (time s, wind N, wind E, horiz accuracy, roll, pitch, yaw rad, the stated tilt's 1-sigma rad) per IMU
+    sample, the truth table by column, and the estimator (its counters)."""
     sim = Simulation(design, wind, truth, duration_s, seed)
     est, _ = new_core(design, filt)
-    rows = np.zeros((sim.n_imu, 7))
+    rows = np.zeros((sim.n_imu, 8))
+    ekf = est.ekf  # its P is updated in place
     for i, s in enumerate(sim.samples()):
         if s.baro:
             est.on_baro(s.time_usec, *s.baro)
         est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
         wn, we = est.wind()
-        rows[i] = (s.time_usec * 1e-6, wn, we, est.wind_accuracy(), *euler_from_quat(*est.ekf.q.tolist()))
+        rows[i] = (s.time_usec * 1e-6, wn, we, est.wind_accuracy(), *euler_from_quat(*ekf.q.tolist()),
+                   math.sqrt(ekf.P[ATT_N, ATT_N] + ekf.P[ATT_E, ATT_E]))  # fmt: skip
     truth_cols = {c: sim.truth[:, k] for k, c in enumerate(TRUTH_COLUMNS)}
     return rows, truth_cols, est
 
@@ -95,6 +97,10 @@ def metrics(design: Design, wind: WindConfig, rows, truth, est, start_s: float) 
     out["mode_switches"] = float(c.mode_switches)
     out["resets"] = float(c.taut_resets + c.numeric_resets + c.time_resets + c.baro_resets)
     out["tilt_err_deg"], out["yaw_err_deg"] = attitude_errors(rows, truth, start_s)
+    # the stated tilt (RMS of the filter's own 1-sigma): the tilt's error over it says whether the attitude is honest
+    out["tilt_sigma_deg"] = (
+        float(np.degrees(np.sqrt(np.mean(rows[t >= start_s, 7] ** 2)))) if rows.shape[1] > 7 else math.nan
+    )
     return {k: float(v) for k, v in out.items()}
 
 
