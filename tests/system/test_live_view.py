@@ -84,6 +84,17 @@ def capture(sock: str) -> list[str]:
     return tmux(sock, "capture-pane", "-p", "-J", "-t", "gs").rstrip("\n").split("\n")
 
 
+def listening(sock: str, timeout_s: float = 30.0) -> None:
+    """Until the ground station draws its header (its socket is bound before): the balloon's one STATUSTEXT,
+    sent first, must not go to a port nobody listens on yet, however slowly the program starts."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if any(ln.startswith("balloon-gs") for ln in capture(sock)):
+            return
+        time.sleep(0.1)
+    raise AssertionError("the ground station never drew its view")
+
+
 @pytest.mark.parametrize("width,height", [(80, 24), (200, 50)])
 def test_listen_view_fits_and_marks_stale(width, height):
     port = free_port()
@@ -94,7 +105,7 @@ def test_listen_view_fits_and_marks_stale(width, height):
                     "-y", str(height), cmd], check=True, env=env)  # fmt: skip
     feed = Feed(port)
     try:
-        time.sleep(1.0)
+        listening(sock)
         feed.start()
         time.sleep(3.5)
         live = capture(sock)
