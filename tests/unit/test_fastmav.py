@@ -17,6 +17,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from balloon_core import fastmav
 from balloon_core.wire import TLOG_HEADER, LinkStats, pack, tlog_messages
+from tests.helpers.damage import damaged
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 TLOGS = ["golden/paper-reference.tlog.gz", "golden/join-in-flight.tlog.gz", "golden/reduced-balloon.tlog.gz"]
@@ -116,19 +117,9 @@ def test_every_message_and_framing_decodes_as_pymavlink(tmp_path):
 @pytest.mark.parametrize("seed", range(6))
 def test_corrupted_and_garbage_bytes_decode_as_pymavlink(seed, tmp_path):
     rng = random.Random(seed)
-    data = bytearray(every_message_tlog())
-    for _ in range(60):  # flipped bits (bad CRCs, bad lengths, bad message ids, bad magic)
-        k = rng.randrange(len(data))
-        data[k] ^= 1 << rng.randrange(8)
-    for _ in range(10):  # garbage inserted, some of it magic bytes
-        k = rng.randrange(len(data))
-        data[k:k] = bytes(rng.choice((0xFD, 0xFE, rng.randrange(256))) for _ in range(rng.randrange(1, 40)))
-    for _ in range(5):  # bytes dropped
-        k = rng.randrange(len(data))
-        del data[k : k + rng.randrange(1, 30)]
-    data = data[: len(data) - rng.randrange(0, 50)]  # cut inside a frame
+    data = damaged(every_message_tlog(), rng, flips=60, inserts=10, drops=5)
     p = tmp_path / "bad.tlog"
-    p.write_bytes(bytes(data))
+    p.write_bytes(data)
     (ref_msgs, ref_st), (fast_msgs, fast_st) = both(p)
     assert fast_msgs == ref_msgs and fast_st == ref_st
     assert ref_st[2] > 0  # bad frames were met

@@ -17,6 +17,7 @@ from balloon_core.wire import TLOG_HEADER, LinkStats, frame_length, tlog_message
 from firmware_py.app import Firmware, OutputConfig
 from firmware_py.estimator.state import FilterConfig
 from firmware_py.replay import replay_tlog, scanner
+from tests.helpers.damage import damaged
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 TLOGS = ["golden/paper-reference.tlog.gz", "golden/join-in-flight.tlog.gz", "golden/reduced-balloon.tlog.gz"]
@@ -124,17 +125,7 @@ def test_lost_repeated_swapped_and_restarted_records_replay_alike(seed, tmp_path
 @pytest.mark.parametrize("seed", range(6))
 def test_corrupted_and_garbage_bytes_replay_alike(seed, tmp_path):
     rng = random.Random(seed)
-    data = bytearray(flight(TLOGS[seed % len(TLOGS)]))
-    for _ in range(200):  # flipped bits (bad CRCs, bad lengths, bad message ids, bad magic, bad times)
-        k = rng.randrange(len(data))
-        data[k] ^= 1 << rng.randrange(8)
-    for _ in range(40):  # garbage inserted, some of it magic bytes
-        k = rng.randrange(len(data))
-        data[k:k] = bytes(rng.choice((0xFD, 0xFE, rng.randrange(256))) for _ in range(rng.randrange(1, 40)))
-    for _ in range(20):  # bytes dropped
-        k = rng.randrange(len(data))
-        del data[k : k + rng.randrange(1, 30)]
-    data = data[: len(data) - rng.randrange(0, 50)]  # cut inside a frame
+    data = damaged(flight(TLOGS[seed % len(TLOGS)]), rng, flips=200, inserts=40, drops=20)
     p = tmp_path / "bad.tlog"
     p.write_bytes(bytes(data))
     _, _, st, _ = same_three_ways(p, chunk=rng.choice((4096, 1 << 20)))
