@@ -32,7 +32,9 @@ static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, 
     if (ground) /* learnt at rest, where g is the only force */
         e->H3[2][BW_ABIAS_Z] = BW_R(1.0);
     pred[2] += e->x[BW_ABIAS_Z];
-    bw_ekf_fuse3(e, fx - pred[0], fy - pred[1], fz - pred[2], var, est->accel_status, var_z_extra);
+    /* accel.py: in flight the tilt takes only what a correlated model error allows (BW_ACCEL_MODEL_CORR_S) */
+    bw_ekf_fuse3(e, fx - pred[0], fy - pred[1], fz - pred[2], var, est->accel_status, var_z_extra,
+                 ground ? BW_R(1.0) : BW_MIN(BW_R(1.0), BW_SQRT(e->dt / (bw_real)BW_ACCEL_MODEL_CORR_S)));
 }
 
 void bw_control_accel(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)

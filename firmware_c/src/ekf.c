@@ -337,7 +337,7 @@ int bw_ekf_fuse(bw_ekf_t *e, bw_real innov, bw_real r, bw_status_t *st, bw_real 
 }
 
 int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_status_t st[3],
-                 bw_real r2_extra)
+                 bw_real r2_extra, bw_real tilt_gain)
 {
     int nz[N], nn = 0, i, j, k, a, ok = 1, moved;
     bw_real s[3][3], si[3][3], k3[N][3], hc[3][N], inn[3], var[3], gate2, worst = BW_R(0.0), scale = BW_R(1.0);
@@ -426,14 +426,23 @@ int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_
     si[1][2] = si[2][1] = (s[0][1] * s[0][2] - s[0][0] * s[1][2]) * inv;
     si[2][2] = (s[0][0] * s[1][1] - s[0][1] * s[0][1]) * inv;
     for (i = 0; i < N; i++) {
+        bw_real d;
         for (a = 0; a < 3; a++)
             k3[i][a] = e->pht[i][0] * si[0][a] + e->pht[i][1] * si[1][a] + e->pht[i][2] * si[2][a];
-        e->dx[i] += k3[i][0] * inn[0] + k3[i][1] * inn[1] + k3[i][2] * inn[2];
+        d = k3[i][0] * inn[0] + k3[i][1] * inn[1] + k3[i][2] * inn[2];
+        e->dx[i] += (i == BW_ATT_N || i == BW_ATT_E) ? tilt_gain * d : d; /* the tilt: K' = D K (ekf.py fuse3) */
     }
     for (i = 0; i < N; i++) {
         const bw_real k0 = k3[i][0], k1 = k3[i][1], k2 = k3[i][2];
         for (j = i; j < N; j++)
             e->P[i][j] = e->P[j][i] = e->P[i][j] - (k0 * e->pht[j][0] + k1 * e->pht[j][1] + k2 * e->pht[j][2]);
+    }
+    if (tilt_gain < BW_R(1.0)) {
+        /* P for the gain used (Joseph form) differs from P - K H P only in the tilt block, by (1 - a)^2 K H P */
+        const bw_real b = (BW_R(1.0) - tilt_gain) * (BW_R(1.0) - tilt_gain);
+        for (i = BW_ATT_N; i <= BW_ATT_E; i++)
+            for (j = BW_ATT_N; j <= BW_ATT_E; j++)
+                e->P[i][j] += b * (k3[i][0] * e->pht[j][0] + k3[i][1] * e->pht[j][1] + k3[i][2] * e->pht[j][2]);
     }
     for (a = 0; a < 3; a++) {
         st[a].fused += 1;

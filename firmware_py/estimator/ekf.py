@@ -405,7 +405,8 @@ class WindEkf:
         return True
 
     def fuse3(
-        self, i0: float, i1: float, i2: float, r: float, status: list[FusionStatus], r2_extra: float = 0.0
+        self, i0: float, i1: float, i2: float, r: float, status: list[FusionStatus], r2_extra: float = 0.0,
+        tilt_gain: float = 1.0,
     ) -> bool:
         """One sensor's three axes at once with the rows in ``self.H3`` and noise ``r`` per axis (a
         3x3 innovation covariance instead of three scalar updates: a third of the array operations).
@@ -464,13 +465,23 @@ class WindEkf:
         si[1, 2] = si[2, 1] = (s01 * s02 - s00 * s12) * inv
         si[2, 2] = (s00 * s11 - s01 * s01) * inv
         np.matmul(self._pht, si, out=self._k3)
+        np.matmul(self._k3, self._phtT, out=self._t1)
+        np.subtract(self.P, self._t1, out=self.P)
+        if tilt_gain < 1.0:
+            # the tilt takes ``tilt_gain`` of its optimal gain: K' = D K. P for the gain used (Joseph form),
+            # P - K'HP - PH^T K'^T + K' S K'^T, differs from P - KHP only in the tilt block, by (1 - a)^2 KHP
+            b = (1.0 - tilt_gain) ** 2
+            for i in (ATT_N, ATT_E):
+                self.P[i, ATT_N] += b * self._t1[i, ATT_N]
+                self.P[i, ATT_E] += b * self._t1[i, ATT_E]
+                self._k3[i, 0] *= tilt_gain
+                self._k3[i, 1] *= tilt_gain
+                self._k3[i, 2] *= tilt_gain
         self._i3[0], self._i3[1], self._i3[2] = i0, i1, i2
         if self.recorder is not None:
             self.recorder.update3(self.H3, si, self._i3, self._k3)
         np.matmul(self._k3, self._i3, out=self._v)
         np.add(self.dx, self._v, out=self.dx)
-        np.matmul(self._k3, self._phtT, out=self._t1)
-        np.subtract(self.P, self._t1, out=self.P)
         t = self.time_us
         for st in status:
             st.fused += 1

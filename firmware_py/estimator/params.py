@@ -50,6 +50,12 @@ BARO_MODEL_M = 0.3  # hypsometric conversion error (temperature profile, lag) ad
 LEARN_DRAG_AFTER_S = 2.0  # after the release, once the ascent is established
 FIELD_FLIGHT_S = 60.0  # magnetometer averaged this long in flight when there was no rest on the ground
 ACCEL_INNOV_S = 2.0  # averaging time of the accelerometer's innovations that set its noise floor
+# the specific force's model error (the rope's waves, the drag's lag behind a gust) is correlated over about this
+# long, and the accelerometer is fused every sample as if it were white: for the tilt, which the gyro holds and the
+# magnetometer also measures, that is its error. The tilt takes sqrt(dt / ACCEL_MODEL_CORR_S) of its gain in flight
+# (0.1 at 100 Hz: a correlated error is worth that many fewer independent samples, and a walking state's gain goes
+# as 1 / sqrt(R)); the covariance is the one for the gain used (ekf.fuse3, Joseph form)
+ACCEL_MODEL_CORR_S = 1.0
 TAUT_PULL_S = 1.0  # after a slack spell the rope must pull this long before the filter is taut again
 MEAN_WIND_S = 60.0  # averaging time of the mean wind that scales the wind's process noise
 # light air meanders: sigma_u stays near 0.3-0.5 m/s however low the mean wind (low-wind meandering), so where

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -9,6 +10,7 @@ import numpy as np
 from balloon_core.atmosphere import G0
 from balloon_core.rotation import rotation
 from firmware_py.estimator.ekf import FusionStatus, WindEkf
+from firmware_py.estimator.params import ACCEL_MODEL_CORR_S
 from firmware_py.estimator.state import (
     ABIAS_Z,
     ATT_D,
@@ -60,7 +62,9 @@ def fuse_accel(
     if ground:  # learnt at rest, where g is the only force; in flight its value only (a misfit is not a bias)
         H[2, ABIAS_Z] = 1.0
     pred[2] += float(ekf.x[ABIAS_Z])
-    ekf.fuse3(fx - pred[0], fy - pred[1], fz - pred[2], var, status, var_z_extra)
+    # in flight the tilt takes only what a correlated model error allows (params.ACCEL_MODEL_CORR_S)
+    tilt_gain = 1.0 if ground else min(1.0, math.sqrt(ekf.dt / ACCEL_MODEL_CORR_S))
+    ekf.fuse3(fx - pred[0], fy - pred[1], fz - pred[2], var, status, var_z_extra, tilt_gain)
 
 
 def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
