@@ -31,6 +31,7 @@ from postflight.product import (
     FLAG_WIND_UNKNOWN,
     WindProduct,
 )
+from postflight.smoother import BLOCK as BLOCK_C
 from postflight.smoother import SmootherRecorder
 
 GRID_HZ = 10.0  # the product's rate: WIND_COV's default
@@ -65,6 +66,7 @@ def reprocess(
     progress: Callable[[int], None] | None = None,
     warn: Callable[[str], None] | None = None,
     store_dir: str | None = None,
+    core: str | None = None,
 ) -> WindProduct:
     """Forward filter + backward smoother over ``samples`` (as logged, in order).
 
@@ -75,19 +77,23 @@ def reprocess(
     ``CLOCK_JUMP_US``, a new segment starts: its own pipeline, filter and smoother, joined into one
     product (``WindProduct.segment``). ``progress(n)`` is called every 10 000 samples with the count so
     far; ``warn`` gets the pipeline's one-line warnings; ``store_dir``: where the smoother's store spills
-    (``SmootherRecorder``), else memory."""
-    # the smoother works in float64 and records every step of the filter: the Python core's recorder hooks
+    (``SmootherRecorder``), else memory; ``core``: the estimator the forward pass runs, "c" (the C core's
+    double build, in blocks: ``_CRun``) or "py" (the Python reference), None: C where it can be built."""
+    # the smoother works in float64 and records every step of the filter: the C core's recorder (its double
+    # build, host/reprocess.c) where a C compiler is, else the Python core's (``core``: "c", "py", None: C if
+    # it can be built)
     cfg = dataclasses.replace(cfg or FilterConfig(), float32=False, core="py")
+    use_c = c_core_available() if core is None else core == "c"
     parts: list[WindProduct] = []
     tally = _SourceTally()
-    seg = _Segment(design, cfg, rate_explicit, grid_hz, store_dir)
+    seg = _Segment(design, cfg, rate_explicit, grid_hz, store_dir, use_c)
     newest = None  # the newest sample time in this segment
     for i, s in enumerate(samples):
         t = s.t_us  # IMU and barometer alike: one clock (a barometer sample of the new boot comes first)
         if newest is not None and (t < newest - CLOCK_BACK_US or t > newest + CLOCK_JUMP_US):
             parts.append(seg.finish(warn))
             tally.add(seg.run.est)
-            seg = _Segment(design, cfg, rate_explicit, grid_hz, store_dir)
+            seg = _Segment(design, cfg, rate_explicit, grid_hz, store_dir, use_c)
             newest = t
         elif newest is None or t > newest:
             newest = t
@@ -132,14 +138,25 @@ class _SourceTally:
                 "optional_sources": line}  # fmt: skip
 
 
+def c_core_available() -> bool:
+    """Whether the C core's double build can be loaded here (built at first use: a C compiler is needed)."""
+    try:
+        from firmware_py.core_c import load
+
+        load("double")
+    except Exception:  # no compiler, or the build failed: the Python core  # noqa: BLE001
+        return False
+    return True
+
+
 class _Segment:
     """One stretch of the log on one sensor clock: its input pipeline, filter and smoother."""
 
     def __init__(self, design: Design, cfg: FilterConfig, rate_explicit: bool, grid_hz: float,
-                 store_dir: str | None) -> None:  # fmt: skip
+                 store_dir: str | None, use_c: bool = False) -> None:  # fmt: skip
         self.pipe = InputPipeline(cfg, rate_explicit)
         self.rec = SmootherRecorder(N_STATES, store_dir, cov_states=(WIND_N, WIND_E))
-        self.run = _Run(design, self.rec, grid_hz)
+        self.run = (_CRun if use_c else _Run)(design, self.rec, grid_hz)
 
     def push(self, s: Sample | GroundSample, warn) -> None:
         if type(s) is WinchSample or type(s) is GroundBaroSample:
@@ -152,6 +169,7 @@ class _Segment:
         for t in self.pipe.flush():
             self.run.feed(self.pipe, t, warn)
         run = self.run
+        run.finish()
         sm = self.rec.smooth()
         product = _product(sm, np.array(run.modes, np.int8), np.array(run.air).reshape(-1, 2), run.baro_seen,
                            np.array(run.unconfirmed, bool), np.array(run.accuracy, float),
@@ -225,6 +243,9 @@ class _Run:
         self.rejected: list[int] = []  # WINCH_STATUS rejected since the grid point before
         self._rejected_before = 0
 
+    def finish(self) -> None:
+        """(The C run's blocks end here; this run has none.)"""
+
     def ground(self, s: GroundSample) -> None:
         """A sample from the ground (the winch, the ground reference): into the estimator as it arrives."""
         if type(s) is WinchSample:
@@ -277,6 +298,112 @@ class _Run:
             self.reel.append(est.ekf.rope.rate_mps if heard else math.nan)
             self.rejected.append(est.winch_rejected - self._rejected_before)
             self._rejected_before = est.winch_rejected
+
+
+C_BATCH = 4096  # samples a call of the C core (bw_reprocess_batch)
+N_EXTRA = 11  # what a grid point holds beside the state (host/reprocess.c)
+
+
+class _CRun(_Run):
+    """``_Run`` on the C core: the samples the input pipeline passes are handed over in blocks
+    (``bw_reprocess_batch``, firmware_c/host/reprocess.c), which runs each as ``_Run.feed`` does, with the
+    smoother's recorder in C (include/bw_recorder.h: the same events at the same places as the Python
+    core's ``WindEkf.recorder``), makes the grid as ``_Run.feed`` makes it and writes each point straight
+    into the ``SmootherRecorder``'s block storage; the backward pass is the recorder's own. A ground
+    sample (the winch, the ground reference) runs the samples before it first, so the order is kept."""
+
+    def __init__(self, design: Design, rec: SmootherRecorder, grid_hz: float) -> None:
+        super().__init__(design, rec, grid_hz)
+        self._t: list[int] = []
+        self._kind: list[int] = []
+        self._v: list[float] = []
+        self._extras: list[np.ndarray] = []
+        self._extra = np.zeros((BLOCK_C, N_EXTRA))
+        self._ng = np.zeros(1, np.int32)
+        self._fn = None
+
+    def ground(self, s: GroundSample) -> None:
+        if self.est is not None:
+            self._run()
+        super().ground(s)
+
+    def feed(self, pipe: InputPipeline, s: Sample, warn) -> None:
+        if self.est is None:
+            import ctypes as C
+
+            from firmware_py.core_c import CEstimator
+
+            est = self.est = CEstimator(self.design, pipe.cfg)  # float32 off: the double build
+            for g in self.pending.values():
+                feed_ground(est, g)
+            self.every = max(1, round(pipe.cfg.imu_rate_hz / self.grid_hz))
+            if pipe.decision.warning and warn is not None:
+                warn(pipe.decision.warning)
+            lib = est._lib
+            lib.bw_sizeof_recorder.restype = C.c_size_t
+            self._recorder = C.create_string_buffer(lib.bw_sizeof_recorder())
+            lib.bw_recorder_init.argtypes = [C.c_void_p, C.c_void_p, C.c_int64]
+            lib.bw_recorder_init(self._recorder, C.addressof(est._s), self.every)
+            fn = self._fn = lib.bw_reprocess_batch
+            fn.argtypes = [C.c_void_p] * 2 + [C.c_int] + [C.c_void_p] * 3 + [C.c_int] + [C.c_void_p] * 9
+            fn.restype = C.c_int
+        if type(s) is BaroSample:
+            self.baro_seen = True
+            self._t.append(s.t_us)
+            self._kind.append(1)
+            self._v.extend((s.pressure_hpa, s.temperature_c, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+        else:
+            self._t.append(s.t_us)
+            self._kind.append(0)
+            self._v.extend(s[1:])
+        if len(self._t) >= C_BATCH:
+            self._run()
+
+    def _run(self) -> None:
+        """The samples handed over so far through the C core, their grid points into the recorder's blocks."""
+        n = len(self._t)
+        if not n:
+            return
+        import ctypes as C
+
+        t = np.array(self._t, np.int64)
+        kind = np.array(self._kind, np.int32)
+        v = np.array(self._v, np.float64)
+        self._t.clear()
+        self._kind.clear()
+        self._v.clear()
+        est, rec, start = self.est, self.rec, 0
+        N = N_STATES
+        while start < n:
+            b, k = rec.slots()
+            self._ng[0] = 0
+            done = self._fn(C.addressof(est._s), self._recorder, n - start, t.ctypes.data + 8 * start,
+                            kind.ctypes.data + 4 * start, v.ctypes.data + 72 * start, BLOCK_C - k,
+                            self._ng.ctypes.data, b["t"].ctypes.data + 8 * k, b["x"].ctypes.data + 8 * N * k,
+                            b["P"].ctypes.data + 8 * N * N * k, b["Pi"].ctypes.data + 8 * N * N * k,
+                            b["g"].ctypes.data + 8 * N * k, b["G"].ctypes.data + 8 * N * N * k,
+                            b["linked"].ctypes.data + k, self._extra.ctypes.data)  # fmt: skip
+            m = int(self._ng[0])
+            if m:
+                rec.filled(m)
+                self._extras.append(self._extra[:m].copy())
+            start += done
+
+    def finish(self) -> None:
+        """The last samples through the C core; the grid's columns as ``_Run`` keeps them."""
+        self._run()
+        e = np.concatenate(self._extras) if self._extras else np.zeros((0, N_EXTRA))
+        self._extras = []
+        self.modes = e[:, 0].astype(np.int8)
+        self.unconfirmed = e[:, 1].astype(bool)
+        self.consistency = e[:, 2].astype(np.int8)
+        self.inflation = e[:, 3].copy()
+        self.accuracy = e[:, 4].copy()
+        self.after_gap = e[:, 5].astype(bool)
+        self.line = e[:, 6].copy()
+        self.reel = e[:, 7].copy()
+        self.rejected = np.diff(e[:, 8].astype(np.int64), prepend=0).astype(np.int32)
+        self.air = e[:, 9:11].copy()
 
 
 def _unconfirmed_segments(segment_start: np.ndarray, unconfirmed: np.ndarray) -> np.ndarray:

@@ -124,16 +124,7 @@ class SmootherRecorder:
 
     def grid_point(self, t_us: int, x: np.ndarray, P: np.ndarray) -> None:
         """Store a grid point: the filter's state after a step's fusions, and the map from the last one."""
-        if self._k == BLOCK:
-            n = self.n
-            self._spill()
-            self._blocks.append({
-                "t": np.zeros(BLOCK, np.int64), "x": np.zeros((BLOCK, n)), "P": np.zeros((BLOCK, n, n)),
-                "Pi": np.zeros((BLOCK, n, n)), "g": np.zeros((BLOCK, n)), "G": np.zeros((BLOCK, n, n)),
-                "linked": np.zeros(BLOCK, bool),
-            })  # fmt: skip
-            self._k = 0
-        b, k = self._blocks[-1], self._k
+        b, k = self.slots()
         b["t"][k] = t_us
         b["x"][k] = x
         b["P"][k] = P
@@ -145,6 +136,27 @@ class SmootherRecorder:
         self.count += 1
         self._linked = True
         self._reset()
+
+    def slots(self) -> tuple[dict[str, np.ndarray], int]:
+        """The newest block and the first free slot in it (a new block opened, the full one spilled, when
+        it has none): where ``grid_point`` writes, and where the C core's recorder writes its grid points
+        directly (postflight/reprocess.py ``_CRun``; then ``filled``)."""
+        if self._k == BLOCK:
+            n = self.n
+            self._spill()
+            self._blocks.append({
+                "t": np.zeros(BLOCK, np.int64), "x": np.zeros((BLOCK, n)), "P": np.zeros((BLOCK, n, n)),
+                "Pi": np.zeros((BLOCK, n, n)), "g": np.zeros((BLOCK, n)), "G": np.zeros((BLOCK, n, n)),
+                "linked": np.zeros(BLOCK, bool),
+            })  # fmt: skip
+            self._k = 0
+        return self._blocks[-1], self._k  # type: ignore[return-value]
+
+    def filled(self, m: int) -> None:
+        """``m`` grid points were written from the first free slot on (by the C core's recorder, which
+        keeps its own Pi, g, G and link between the points)."""
+        self._k += m
+        self.count += m
 
     def _spill(self) -> None:
         """The newest block is full: to a file in ``store_dir`` (if given), out of memory."""
