@@ -70,6 +70,8 @@ class Flight:
     meta: FlightMeta
     # the samples read again from the file (a MAVLink log: its values are not held in memory); None: ``values``
     stream: Callable[[], Iterator[Sample]] | None = None
+    # the same with runs of sensor samples as arrays (mavlink_log.SampleRows: a tlog through the C scanner)
+    block_stream: Callable[[], Iterator] | None = None
 
     def __len__(self) -> int:
         return len(self.t_us)
@@ -92,6 +94,13 @@ class Flight:
                     yield WinchSample(t, v[0], v[1], v[2], int(v[3]))
                 else:
                     yield GroundBaroSample(t, v[0], v[1])
+
+    def blocks(self) -> Iterator:
+        """``samples()``, with runs of sensor samples as ``mavlink_log.SampleRows`` where the reader has them."""
+        if self.block_stream is not None:
+            yield from self.block_stream()
+        else:
+            yield from self.samples()
 
     @property
     def has_winch(self) -> bool:

@@ -17,12 +17,13 @@ from collections.abc import Callable, Iterable
 import numpy as np
 
 from balloon_core.config import Design, to_toml
-from balloon_core.samples import BaroSample, GroundBaroSample, GroundSample, Sample, WinchSample
+from balloon_core.samples import BaroSample, GroundBaroSample, GroundSample, ImuSample, Sample, WinchSample
 from balloon_core.score import direction_from_deg, wind_unknown
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.state import MODE_GROUND, N_STATES, POS_D, POS_E, POS_N, WIND_E, WIND_N, FilterConfig
 from firmware_py.streams import InputPipeline, feed, feed_ground
 from postflight.flight import CLOCK_BACK_US, CLOCK_JUMP_US, loss_notes, segment_note
+from postflight.mavlink_log import SampleRows
 from postflight.product import (
     FLAG_AFTER_GAP,
     FLAG_NO_BARO,
@@ -88,7 +89,10 @@ def reprocess(
     tally = _SourceTally()
     seg = _Segment(design, cfg, rate_explicit, grid_hz, store_dir, use_c)
     newest = None  # the newest sample time in this segment
-    for i, s in enumerate(samples):
+    i = 0
+
+    def one(s) -> None:
+        nonlocal seg, newest, i
         t = s.t_us  # IMU and barometer alike: one clock (a barometer sample of the new boot comes first)
         if newest is not None and (t < newest - CLOCK_BACK_US or t > newest + CLOCK_JUMP_US):
             parts.append(seg.finish(warn))
@@ -100,6 +104,36 @@ def reprocess(
         seg.push(s, warn)
         if progress is not None and i % 10_000 == 0:
             progress(i)
+        i += 1
+
+    for s in samples:
+        if type(s) is not SampleRows:
+            one(s)
+            continue
+        # a run of sensor samples as arrays (postflight/mavlink_log.py): as one by one, but the stretch up
+        # to a clock break goes to the C core as it is once the input pipeline passes samples unchanged
+        a, n = 0, len(s.t)
+        while a < n:
+            if newest is None or not seg.rows_ok():
+                one(ImuSample(int(s.t[a]), *s.v[a].tolist()) if s.kind[a] == 0 else
+                    BaroSample(int(s.t[a]), float(s.v[a, 0]), float(s.v[a, 1])))  # fmt: skip
+                a += 1
+                continue
+            t = s.t[a:]
+            before = np.maximum.accumulate(np.concatenate(([newest], t[:-1])))  # the newest before each
+            cut = np.flatnonzero((t < before - CLOCK_BACK_US) | (t > before + CLOCK_JUMP_US))
+            b = a + (int(cut[0]) if len(cut) else n - a)
+            if b > a:
+                seg.run.feed_rows(s.t[a:b], s.kind[a:b], s.v[a:b])
+                newest = max(newest, int(s.t[a:b].max()))
+                if progress is not None and (i + b - a) // 10_000 > i // 10_000:
+                    progress((i + b - a) // 10_000 * 10_000)
+                i += b - a
+                a = b
+            else:  # a clock break: the new segment starts with this sample, one by one
+                one(ImuSample(int(s.t[a]), *s.v[a].tolist()) if s.kind[a] == 0 else
+                    BaroSample(int(s.t[a]), float(s.v[a, 0]), float(s.v[a, 1])))  # fmt: skip
+                a += 1
     parts.append(seg.finish(warn))
     tally.add(seg.run.est)
     product = join_segments([p for p in parts if len(p.time_s)], grid_hz)
@@ -157,6 +191,12 @@ class _Segment:
         self.pipe = InputPipeline(cfg, rate_explicit)
         self.rec = SmootherRecorder(N_STATES, store_dir, cov_states=(WIND_N, WIND_E))
         self.run = (_CRun if use_c else _Run)(design, self.rec, grid_hz)
+
+    def rows_ok(self) -> bool:
+        """Whether sensor samples may go to the filter as arrays (``_CRun.feed_rows``): the C run, its
+        estimator made, the input pipeline deciding nothing more and passing samples unchanged."""
+        return type(self.run) is _CRun and self.run.est is not None and self.pipe.decided and \
+            self.pipe.resampler is None
 
     def push(self, s: Sample | GroundSample, warn) -> None:
         if type(s) is WinchSample or type(s) is GroundBaroSample:
@@ -317,6 +357,8 @@ class _CRun(_Run):
         self._t: list[int] = []
         self._kind: list[int] = []
         self._v: list[float] = []
+        self._chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (feed_rows; before the lists)
+        self._pending = 0
         self._extras: list[np.ndarray] = []
         self._extra = np.zeros((BLOCK_C, N_EXTRA))
         self._ng = np.zeros(1, np.int32)
@@ -356,22 +398,46 @@ class _CRun(_Run):
             self._t.append(s.t_us)
             self._kind.append(0)
             self._v.extend(s[1:])
-        if len(self._t) >= C_BATCH:
+        self._pending += 1
+        if self._pending >= C_BATCH:
+            self._run()
+
+    def _lists(self) -> None:
+        """The samples fed one by one so far as a chunk (before rows that come after them)."""
+        if self._t:
+            self._chunks.append((np.array(self._t, np.int64), np.array(self._kind, np.int32),
+                                 np.array(self._v, np.float64).reshape(-1, 9)))  # fmt: skip
+            self._t.clear()
+            self._kind.clear()
+            self._v.clear()
+
+    def feed_rows(self, t: np.ndarray, kind: np.ndarray, v: np.ndarray) -> None:
+        """Sensor samples as arrays (the pipeline passes them unchanged: ``_Segment.rows_ok``), as ``feed``."""
+        self._lists()
+        if np.any(kind == 1):
+            self.baro_seen = True
+        self._chunks.append((t, kind, v))
+        self._pending += len(t)
+        if self._pending >= C_BATCH:
             self._run()
 
     def _run(self) -> None:
         """The samples handed over so far through the C core, their grid points into the recorder's blocks."""
-        n = len(self._t)
-        if not n:
+        self._lists()
+        if not self._chunks:
             return
         import ctypes as C
 
-        t = np.array(self._t, np.int64)
-        kind = np.array(self._kind, np.int32)
-        v = np.array(self._v, np.float64)
-        self._t.clear()
-        self._kind.clear()
-        self._v.clear()
+        if len(self._chunks) == 1:
+            t, kind, v = self._chunks[0]
+        else:
+            t, kind, v = (np.concatenate([c[j] for c in self._chunks]) for j in range(3))
+        t = np.ascontiguousarray(t, np.int64)
+        kind = np.ascontiguousarray(kind, np.int32)
+        v = np.ascontiguousarray(v, np.float64)
+        self._chunks.clear()
+        self._pending = 0
+        n = len(t)
         est, rec, start = self.est, self.rec, 0
         N = N_STATES
         while start < n:
@@ -524,7 +590,7 @@ def run_reprocess(args, argv: list[str] | None) -> int:
             bar.log(f"{prog}: note: {note}")
         bar.total, bar.unit = float(len(flight)), "samples"
         with tempfile.TemporaryDirectory(prefix="balloon-reprocess-") as store:  # the smoother's store spills here
-            product = reprocess(flight.samples(), design, cfg, rate_explicit="imu_rate_hz" in data.get("filter", {}),
+            product = reprocess(flight.blocks(), design, cfg, rate_explicit="imu_rate_hz" in data.get("filter", {}),
                                 progress=lambda n: bar.update(n, "forward filter"),
                                 warn=lambda w: bar.log(f"{prog}: {w}"), store_dir=store)  # fmt: skip
         bar.update(len(flight), "smoother done; writing the products")
