@@ -189,7 +189,8 @@ class _Segment:
     def __init__(self, design: Design, cfg: FilterConfig, rate_explicit: bool, grid_hz: float,
                  store_dir: str | None, use_c: bool = False) -> None:  # fmt: skip
         self.pipe = InputPipeline(cfg, rate_explicit)
-        self.rec = SmootherRecorder(N_STATES, store_dir, cov_states=(WIND_N, WIND_E))
+        self.rec = SmootherRecorder(N_STATES, store_dir, cov_states=(WIND_N, WIND_E),
+                                    x_states=(POS_N, POS_E, POS_D, WIND_N, WIND_E))  # what the product takes
         self.run = (_CRun if use_c else _Run)(design, self.rec, grid_hz)
 
     def rows_ok(self) -> bool:
@@ -503,9 +504,9 @@ def _product(
         cvar_e = np.where(keep, cvar_e, (cvar_e + sys_half) * f2)
         var_n = np.where(keep, var_n, (var_n + sys_half) * f2)
         var_e = np.where(keep, var_e, (var_e + sys_half) * f2)
-    wn, we = sm.xs[:, WIND_N], sm.xs[:, WIND_E]
+    wn, we = sm.state(WIND_N), sm.state(WIND_E)
     # an unconfirmed join in flight: the reported accuracy is at least sqrt(|w|^2 + 1) (Estimator.wind_accuracy)
-    floor_c = 0.5 * (sm.x[:, WIND_N] ** 2 + sm.x[:, WIND_E] ** 2 + 1.0)
+    floor_c = 0.5 * (sm.state(WIND_N, False) ** 2 + sm.state(WIND_E, False) ** 2 + 1.0)
     cvar_n = np.where(unconfirmed, np.maximum(cvar_n, floor_c), cvar_n)
     cvar_e = np.where(unconfirmed, np.maximum(cvar_e, floor_c), cvar_e)
     never = _unconfirmed_segments(sm.segment_start, unconfirmed)
@@ -514,12 +515,12 @@ def _product(
     var_e = np.where(never, np.maximum(var_e, floor_s), var_e)
     flags = np.zeros(n, np.int8)
     flags[sm.segment_start] |= FLAG_SEGMENT_START
-    moved = (np.abs(wn - sm.x[:, WIND_N]) > 1e-9) | (np.abs(we - sm.x[:, WIND_E]) > 1e-9)
+    moved = (np.abs(wn - sm.state(WIND_N, False)) > 1e-9) | (np.abs(we - sm.state(WIND_E, False)) > 1e-9)
     flags[moved] |= FLAG_SMOOTHED
     unknown = never | (modes == MODE_GROUND)
     unknown |= wind_unknown(np.hypot(wn, we), np.sqrt(var_n + var_e))
     flags[unknown] |= FLAG_WIND_UNKNOWN
-    height = -sm.xs[:, POS_D]
+    height = -sm.state(POS_D)
     if not baro_seen:
         flags |= FLAG_NO_BARO
         height = np.full(n, np.nan)
@@ -529,13 +530,13 @@ def _product(
         wind_e=we.copy(),
         sigma_n=np.sqrt(var_n),
         sigma_e=np.sqrt(var_e),
-        causal_n=sm.x[:, WIND_N].copy(),
-        causal_e=sm.x[:, WIND_E].copy(),
+        causal_n=sm.state(WIND_N, False).copy(),
+        causal_e=sm.state(WIND_E, False).copy(),
         causal_sigma_n=np.sqrt(cvar_n),
         causal_sigma_e=np.sqrt(cvar_e),
         height_m=height,
-        pos_n=sm.xs[:, POS_N].copy(),
-        pos_e=sm.xs[:, POS_E].copy(),
+        pos_n=sm.state(POS_N).copy(),
+        pos_e=sm.state(POS_E).copy(),
         air_pressure_pa=air[:, 0] * 100.0 if n else np.zeros(0),
         air_temperature_k=air[:, 1] + 273.15 if n else np.zeros(0),
         mode=modes,
