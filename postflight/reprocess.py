@@ -590,6 +590,7 @@ def run_reprocess(args, argv: list[str] | None) -> int:
         for note in meta.notes:
             bar.log(f"{prog}: note: {note}")
         bar.total, bar.unit = float(len(flight)), "samples"
+        flight.release()  # (its kinds and times: meta holds what they told; the samples come from the file)
         with tempfile.TemporaryDirectory(prefix="balloon-reprocess-") as store:  # the smoother's store spills here
             product = reprocess(flight.blocks(), design, cfg, rate_explicit="imu_rate_hz" in data.get("filter", {}),
                                 progress=lambda n: bar.update(n, "forward filter"),
