@@ -312,7 +312,7 @@ def main(argv: list[str] | None = None) -> None:
                  f"{duration / x / len(samples) * 1e6:.1f} us an IMU sample: decoded samples, one call"))  # fmt: skip
     x = reprocess_rate(reprocess_s)
     rows.append((f"reprocess balloon-gs ({reprocess_s:.0f} s flight, process)", f"{x:.0f}x",
-                 f"a 1 h flight in {HOUR_S / x:.0f} s (the Python core: the smoother records its steps)"))  # fmt: skip
+                 f"a 1 h flight in {HOUR_S / x:.0f} s (the C core, with the smoother's recorder)"))  # fmt: skip
     for scenario, rope in (("paper-reference", "paper rope"), ("field-rope", "lumped rope")):
         for reference in (False, True):
             x = max(sim_rate(scenario, sim_s, reference) for _ in range(1 if reference else 3))  # the best

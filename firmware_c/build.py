@@ -21,7 +21,7 @@ HERE = Path(__file__).resolve().parent
 # the core as flashed, and the host's own entry points (host/: the batch hand-over of a replay)
 SOURCES = sorted((HERE / "src").glob("*.c")) + sorted((HERE / "host").glob("*.c"))
 HEADERS = sorted((HERE / "src").glob("*.h")) + sorted((HERE / "include").glob("*.h"))
-FLAGS = ("-std=c99", "-O3", "-fPIC", "-shared", "-Wall", "-Wextra", "-Werror", "-Wshadow")
+FLAGS = ("-std=c99", "-O3", "-fPIC", "-shared", "-Wall", "-Wextra", "-Werror", "-Wshadow", "-DBW_HOST_RECORDER")
 REALS = {"float": ("-Wdouble-promotion",), "double": ("-DBW_DOUBLE",)}
 
 

@@ -70,9 +70,19 @@ class Flight:
     meta: FlightMeta
     # the samples read again from the file (a MAVLink log: its values are not held in memory); None: ``values``
     stream: Callable[[], Iterator[Sample]] | None = None
+    # the same with runs of sensor samples as arrays (mavlink_log.SampleRows: a tlog through the C scanner)
+    block_stream: Callable[[], Iterator] | None = None
 
     def __len__(self) -> int:
-        return len(self.t_us)
+        return len(self.t_us) if self.t_us is not None else self._released
+
+    def release(self) -> None:
+        """Forget the kinds and times of a flight whose samples are read again from the file (``stream``): a
+        day's log holds 86 MB of them, which reprocessing does not need once ``meta`` says what they told.
+        ``len()`` stays; ``with_ground`` no longer works."""
+        if self.stream is not None and self.t_us is not None:
+            self._released = len(self.t_us)
+            self.kind = self.t_us = None  # type: ignore[assignment]
 
     def samples(self) -> Iterator[Sample | GroundSample]:
         """The samples in order, converted a chunk at a time (no list of the whole flight)."""
@@ -92,6 +102,13 @@ class Flight:
                     yield WinchSample(t, v[0], v[1], v[2], int(v[3]))
                 else:
                     yield GroundBaroSample(t, v[0], v[1])
+
+    def blocks(self) -> Iterator:
+        """``samples()``, with runs of sensor samples as ``mavlink_log.SampleRows`` where the reader has them."""
+        if self.block_stream is not None:
+            yield from self.block_stream()
+        else:
+            yield from self.samples()
 
     @property
     def has_winch(self) -> bool:
@@ -234,9 +251,21 @@ def sensor_span_s(t_us: np.ndarray) -> float:
     t = np.asarray(t_us, np.int64)
     if len(t) < 2:
         return 0.0
-    d = np.diff(t)
-    brk = np.flatnonzero((d < -CLOCK_BACK_US) | (d > CLOCK_JUMP_US)) + 1
+    brk = _clock_breaks(t)
     return float(sum(int(p.max()) - int(p.min()) for p in np.split(t, brk) if len(p))) * 1e-6
+
+
+_PIECE = 1 << 20  # the long arrays of a day's log are worked through this many at a time (memory)
+
+
+def _clock_breaks(t: np.ndarray) -> np.ndarray:
+    """Where the clock goes back by more than ``CLOCK_BACK_US`` or jumps ahead by more than ``CLOCK_JUMP_US``
+    (the indices of the first sample after each), a piece at a time."""
+    out = []
+    for a in range(0, len(t) - 1, _PIECE):
+        d = np.diff(t[a : a + _PIECE + 1])
+        out.append(np.flatnonzero((d < -CLOCK_BACK_US) | (d > CLOCK_JUMP_US)) + 1 + a)
+    return np.concatenate(out) if out else np.zeros(0, np.int64)
 
 
 def imu_losses(imu_t: np.ndarray, rate_hz: float | None) -> tuple[int, int, int]:
@@ -247,16 +276,17 @@ def imu_losses(imu_t: np.ndarray, rate_hz: float | None) -> tuple[int, int, int]
     t = np.asarray(imu_t, np.int64)
     if len(t) < 2 or not rate_hz:
         return 0, 0, 0
-    d = np.diff(t)
-    brk = np.flatnonzero((d < -CLOCK_BACK_US) | (d > CLOCK_JUMP_US)) + 1
+    brk = _clock_breaks(t)
     dt = 1e6 / rate_hz
     missing = gaps = 0
     for part in np.split(t, brk):
-        u = np.unique(part)  # in time order, copies once: a late sample sits in its place
-        steps = np.rint(np.diff(u) / dt).astype(np.int64)
-        holes = steps[steps >= 2]
-        missing += int(np.sum(holes - 1))
-        gaps += len(holes)
+        ordered = all(bool(np.all(np.diff(part[a : a + _PIECE + 1]) > 0)) for a in range(0, len(part), _PIECE))
+        u = part if ordered else np.unique(part)  # in time order, copies once: a late sample sits in its place
+        for a in range(0, max(len(u) - 1, 0), _PIECE):
+            steps = np.rint(np.diff(u[a : a + _PIECE + 1]) / dt).astype(np.int64)
+            holes = steps[steps >= 2]
+            missing += int(np.sum(holes - 1))
+            gaps += len(holes)
     return missing, gaps, len(brk)
 
 

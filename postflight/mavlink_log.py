@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import array
+import ctypes as C
 import os
 from collections.abc import Iterator
+from typing import NamedTuple
 
 import numpy as np
 
+from balloon_core import fastmav
 from balloon_core.samples import (
     GROUND_SYSID,
+    BaroSample,
     GroundBaroSample,
     GroundSample,
     ImuSample,
@@ -17,7 +21,7 @@ from balloon_core.samples import (
     Sample,
     WinchSample,
 )
-from balloon_core.wire import LinkStats, capture_messages
+from balloon_core.wire import Decoder, LinkStats, capture_messages
 from postflight.flight import (
     KIND_BARO,
     KIND_GROUND,
@@ -34,6 +38,19 @@ from postflight.flight import (
 )
 
 
+class SampleRows(NamedTuple):
+    """Sensor samples in arrival order as arrays (what the C tlog scanner takes): ``kind`` 0 an IMU sample
+    (``v``: ax ay az gx gy gz mx my mz), 1 a barometer's (``v[:, 0:2]``: hPa, degC)."""
+
+    t: np.ndarray  # int64
+    kind: np.ndarray  # int32
+    v: np.ndarray  # (n, 9) float64
+
+    def samples(self) -> Iterator[Sample]:
+        for t, k, v in zip(self.t.tolist(), self.kind.tolist(), self.v.tolist()):
+            yield ImuSample(t, *v) if k == 0 else BaroSample(t, v[0], v[1])
+
+
 def mavlink_samples(
     path: str, stats: LinkStats | None = None, on_other=None, ground_sysid: int = GROUND_SYSID
 ) -> Iterator[Sample | GroundSample]:
@@ -41,7 +58,31 @@ def mavlink_samples(
     (MavlinkSampler), streamed from the file; ``on_other(msg)`` sees every other message. The winch's and
     the ground reference's samples keep their place (their arrival); their time is the newest sensor
     sample's, as the firmware stamps them."""
+    for item in mavlink_blocks(path, stats, on_other, ground_sysid):
+        if type(item) is SampleRows:
+            yield from item.samples()
+        else:
+            yield item
+
+
+def mavlink_blocks(
+    path: str, stats: LinkStats | None = None, on_other=None, ground_sysid: int = GROUND_SYSID
+) -> Iterator[SampleRows | Sample | GroundSample]:
+    """``mavlink_samples`` with runs of the common sensor frames as ``SampleRows``: a tlog through the C
+    core's scanner (firmware_c/host/tlog.c, as the firmware's file replay reads it: ``_scan_tlog``) where
+    the C core can be built and fastmav decodes, else one sample at a time."""
     stats = stats if stats is not None else LinkStats()
+    if path.endswith(".tlog"):
+        from firmware_py.replay import scanner
+
+        scan = scanner()
+        if scan is not None:
+            yield from _scan_tlog(path, stats, on_other, ground_sysid, scan)
+            return
+    yield from _samples_of(path, stats, on_other, ground_sysid)
+
+
+def _samples_of(path: str, stats: LinkStats, on_other, ground_sysid: int) -> Iterator[Sample | GroundSample]:
     sampler = MavlinkSampler(ground_sysid)
     last_t = 0
     msgs = capture_messages(path, stats, fast=True)  # the sensor messages by fastmav: the same, faster
@@ -65,6 +106,166 @@ def mavlink_samples(
         on_other(None, sampler)
 
 
+ROWS = 4096  # samples the scanner hands over at most at once
+
+
+class _Reader:
+    """The scanner's arrays for a reading (no firmware): the converter's and the link's state copied into
+    them before a scan when Python changed it (``dirty``) and back after it (firmware_py/replay.py _Lane,
+    without the firmware's block, clock and outputs: the scanner is told no output is ever due)."""
+
+    def __init__(self, sampler: MavlinkSampler, stats: LinkStats) -> None:
+        from firmware_py.replay import MAX_SENDERS, Q_SIZE, S_SENDERS
+
+        self.sampler, self.stats = sampler, stats
+        self.S = np.zeros(S_SENDERS + Q_SIZE * MAX_SENDERS, np.int64)
+        self.D = np.zeros(1)
+        self.t = np.zeros(ROWS + 2, np.int64)
+        self.kind = np.zeros(ROWS + 2, np.int32)
+        self.v = np.zeros((ROWS + 2, 9))
+        self.recent = np.zeros(ROWS + 2, np.int64)
+        self.ptrs = [self.S.ctypes.data, self.D.ctypes.data, self.t.ctypes.data, self.kind.ctypes.data,
+                     self.v.ctypes.data, self.recent.ctypes.data, None, None, None, None, None, None, None]  # fmt: skip
+        self.senders: list = []
+        self.prev = -1  # the newest IMU time: an IMU sample not after it is Python's (the scanner's rule)
+        self.dirty = True
+
+    def load(self, i: int, n: int, eof: bool) -> None:
+        from firmware_py import replay as R
+
+        S = self.S
+        if not self.dirty:
+            S[R.S_I], S[R.S_N], S[R.S_EOF], S[R.S_LEN] = i, n, eof, 0
+            return
+        self.dirty = False
+        s = self.sampler
+        self.senders = []
+        if s.imu_key is None or s.imu_key[0] != fastmav.mavlink.MAVLINK_MSG_ID_HIGHRES_IMU:
+            S[: R.S_SENDERS] = 0
+            S[R.S_I], S[R.S_N], S[R.S_EOF] = i, n, eof
+            return
+        v = [0] * R.S_SENDERS
+        v[R.S_I], v[R.S_N], v[R.S_EOF], v[R.S_LANE] = i, n, eof, 1
+        v[R.S_IMU_MID], v[R.S_IMU_SYS], v[R.S_IMU_COMP], v[R.S_IMU_ID] = s.imu_key
+        v[R.S_HAVE_IMU] = 1
+        v[R.S_EMBEDDED], v[R.S_OTHERS] = s.embedded_baro, s._others
+        if s.baro_key is not None:
+            v[R.S_HAVE_BARO] = 1
+            v[R.S_BARO_MID], v[R.S_BARO_SYS], v[R.S_BARO_COMP] = s.baro_key[:3]
+        v[R.S_GROUND] = s.ground_sysid if s.ground_sysid is not None else -1
+        never = 1 << 62
+        v[R.S_PREV], v[R.S_BLOCK_T], v[R.S_DT] = self.prev, -never, 10_000
+        v[R.S_NEXT_WIND] = v[R.S_NEXT_HB] = never
+        v[R.S_LEN], v[R.S_BATCH] = 0, ROWS
+        for (sys, comp), q in self.stats.senders.items():
+            if len(self.senders) == R.MAX_SENDERS:
+                break
+            self.senders.append(q)
+            v += (sys, comp, q.received, q._newest, q._behind, q._t0, q._i0, q._t_mid, q._i_mid, q._t_last,
+                  q._i_last, not q._holes, 0, 0, 0, 0)  # fmt: skip
+        v[R.S_NSEND] = len(self.senders)
+        S[: len(v)] = v
+        self.D[0] = s._last_temp_c
+
+    def store(self) -> None:
+        from firmware_py import replay as R
+
+        S, st = self.S, self.stats
+        v = S[: R.S_SENDERS].tolist()
+        st.bytes += v[R.S_BYTES]
+        st.frames += v[R.S_FRAMES]
+        st.garbage_bytes += v[R.S_GARBAGE]
+        st.bad_frames += v[R.S_BAD]
+        if v[R.S_TRUNC]:
+            st.truncated = True
+        if not v[R.S_LANE] or not v[R.S_FRAMES]:
+            return
+        s = self.sampler
+        s.embedded_baro, s._others = bool(v[R.S_EMBEDDED]), v[R.S_OTHERS]
+        s.baro_beside += v[R.S_BESIDE]
+        s._last_temp_c = float(self.D[0])
+        self.prev = v[R.S_PREV]
+        k = R.S_SENDERS
+        for q in self.senders:
+            (q.received, q._newest, q._behind, q._t0, q._i0, q._t_mid, q._i_mid, q._t_last,
+             q._i_last) = S[k + 2 : k + 11].tolist()  # fmt: skip
+            k += R.Q_SIZE
+
+    def rows(self) -> SampleRows | None:
+        """The samples the scanner took since the last call (None: none)."""
+        from firmware_py.replay import S_ROWS
+
+        n = int(self.S[S_ROWS])
+        if not n:
+            return None
+        self.S[S_ROWS] = 0
+        return SampleRows(self.t[:n].copy(), self.kind[:n].copy(), self.v[:n].copy())
+
+
+def _scan_tlog(path: str, stats: LinkStats, on_other, ground_sysid: int, scan) -> Iterator:
+    """``_samples_of`` a tlog through the C scanner (``bw_tlog_scan``): the records framed and checked as
+    ``wire.tlog_messages`` does, the chosen IMU's HIGHRES_IMU and the balloon's SCALED_PRESSURE (each the
+    next packet of its sender) taken into rows as ``LinkStats.sequence`` and ``MavlinkSampler.convert`` take
+    them; every other frame decoded and converted here, in file order."""
+    from firmware_py import replay as R
+
+    sampler = MavlinkSampler(ground_sysid)
+    dec = Decoder(stats, fast=True)
+    rd = _Reader(sampler, stats)
+    S, ptrs = rd.S, rd.ptrs
+    fn = None
+    last_t = 0
+    with open(path, "rb") as fh:
+        buf, i, eof = b"", 0, False
+        while True:
+            rd.load(i, len(buf), eof)
+            if fn is None:
+                from firmware_py.core_c import load
+
+                lib = load("double")[0]
+                fn = lib.bw_tlog_scan
+                fn.argtypes = [C.c_char_p] + [C.c_void_p] * 13
+                fn.restype = C.c_int
+            r = fn(buf, *ptrs)
+            rd.store()
+            i = int(S[R.S_I])
+            rows = rd.rows()
+            if rows is not None:
+                imu = np.flatnonzero(rows.kind == 0)
+                if len(imu):
+                    last_t = int(rows.t[imu[-1]])
+                yield rows
+            if r == R.R_MORE:
+                if eof:
+                    break
+                more = fh.read(R.CHUNK)
+                buf, i, eof = buf[i:] + more, 0, not more
+                continue
+            if r == R.R_END:
+                break
+            if r == R.R_FRAME:
+                j, i = int(S[R.S_J]), int(S[R.S_END])
+                m = dec.decode_frame(buf[j:i])
+                rd.dirty = True
+                if m is None:
+                    continue
+                out = sampler.convert(m)
+                if out is None:
+                    if on_other is not None:
+                        on_other(m, sampler)
+                    continue
+                for smp in out:
+                    if type(smp) is WinchSample or type(smp) is GroundBaroSample:
+                        yield smp._replace(t_us=last_t)
+                        continue
+                    if type(smp) is ImuSample:
+                        last_t = smp.t_us
+                        rd.prev = max(rd.prev, smp.t_us)
+                    yield smp
+    if on_other is not None:
+        on_other(None, sampler)
+
+
 def read_mavlink(path: str, ground_sysid: int = GROUND_SYSID) -> Flight:
     """A telemetry log or raw capture, through the live firmware's converter (MavlinkSampler): the same
     messages, instances and units. UTC from SYSTEM_TIME (time_unix_usec against time_boot_ms).
@@ -84,7 +285,12 @@ def read_mavlink(path: str, ground_sysid: int = GROUND_SYSID) -> Flight:
             found["utc"] = ((m.time_unix_usec - m.time_boot_ms * 1000) * 1e-6, "SYSTEM_TIME")
 
     fmt = "tlog" if path.endswith(".tlog") else "raw"
-    for s in mavlink_samples(path, stats, other, ground_sysid):
+    for s in mavlink_blocks(path, stats, other, ground_sysid):
+        if type(s) is SampleRows:
+            kinds.frombytes(np.where(s.kind == 0, KIND_IMU, KIND_BARO).astype(np.int8).tobytes())
+            times.frombytes(s.t.tobytes())
+            n_mag += int(np.count_nonzero((s.kind == 0) & ~np.isnan(s.v[:, 6])))
+            continue
         if type(s) is ImuSample:
             kinds.append(KIND_IMU)
             n_mag += s.mx == s.mx
@@ -97,8 +303,9 @@ def read_mavlink(path: str, ground_sysid: int = GROUND_SYSID) -> Flight:
         times.append(s.t_us)
     if stats.frames == 0:
         raise ValueError(f"{path}: no MAVLink in this file")
-    kind = np.frombuffer(kinds, np.int8).copy() if len(kinds) else np.zeros(0, np.int8)
-    t = np.frombuffer(times, np.int64).copy() if len(times) else np.zeros(0, np.int64)
+    # (on the arrays' own memory: a day's log holds 86 MB of them, no copy)
+    kind = np.frombuffer(kinds, np.int8) if len(kinds) else np.zeros(0, np.int8)
+    t = np.frombuffer(times, np.int64) if len(times) else np.zeros(0, np.int64)
     del kinds, times
     imu = kind == KIND_IMU
     if not imu.any():
@@ -124,7 +331,7 @@ def read_mavlink(path: str, ground_sysid: int = GROUND_SYSID) -> Flight:
     meta = FlightMeta(
         source=os.path.basename(path), sha256=sha256_of(path), format=fmt, has_imu=True, has_mag=n_mag > 0,
         has_baro=n_baro > 0, imu_rate_hz=first_rate_hz(imu_t), n_imu=int(imu.sum()), n_baro=n_baro,
-        n_mag=int(n_mag), duration_s=sensor_span_s(t[sensor]),
+        n_mag=int(n_mag), duration_s=sensor_span_s(t if sensor.all() else t[sensor]),
         utc_start_s=utc[0] if utc else None, utc_source=utc[1] if utc else None, sensors=sensors, notes=notes,
         bad_frames=stats.bad_frames, truncated=stats.truncated,
     )  # fmt: skip
@@ -132,4 +339,5 @@ def read_mavlink(path: str, ground_sysid: int = GROUND_SYSID) -> Flight:
         meta.notes.append("no barometer in the log: height and air data unknown")
     meta.imu_missing, meta.gaps, meta.clock_breaks = imu_losses(imu_t, meta.imu_rate_hz)
     meta.notes.extend(loss_notes(meta) + [n for n in (segment_note(meta),) if n])
-    return Flight(kind, t, None, meta, stream=lambda: mavlink_samples(path, ground_sysid=ground_sysid))
+    return Flight(kind, t, None, meta, stream=lambda: mavlink_samples(path, ground_sysid=ground_sysid),
+                  block_stream=lambda: mavlink_blocks(path, ground_sysid=ground_sysid))  # fmt: skip

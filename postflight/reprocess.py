@@ -17,12 +17,13 @@ from collections.abc import Callable, Iterable
 import numpy as np
 
 from balloon_core.config import Design, to_toml
-from balloon_core.samples import BaroSample, GroundBaroSample, GroundSample, Sample, WinchSample
+from balloon_core.samples import BaroSample, GroundBaroSample, GroundSample, ImuSample, Sample, WinchSample
 from balloon_core.score import direction_from_deg, wind_unknown
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.state import MODE_GROUND, N_STATES, POS_D, POS_E, POS_N, WIND_E, WIND_N, FilterConfig
 from firmware_py.streams import InputPipeline, feed, feed_ground
 from postflight.flight import CLOCK_BACK_US, CLOCK_JUMP_US, loss_notes, segment_note
+from postflight.mavlink_log import SampleRows
 from postflight.product import (
     FLAG_AFTER_GAP,
     FLAG_NO_BARO,
@@ -31,6 +32,7 @@ from postflight.product import (
     FLAG_WIND_UNKNOWN,
     WindProduct,
 )
+from postflight.smoother import BLOCK as BLOCK_C
 from postflight.smoother import SmootherRecorder
 
 GRID_HZ = 10.0  # the product's rate: WIND_COV's default
@@ -65,6 +67,7 @@ def reprocess(
     progress: Callable[[int], None] | None = None,
     warn: Callable[[str], None] | None = None,
     store_dir: str | None = None,
+    core: str | None = None,
 ) -> WindProduct:
     """Forward filter + backward smoother over ``samples`` (as logged, in order).
 
@@ -75,25 +78,62 @@ def reprocess(
     ``CLOCK_JUMP_US``, a new segment starts: its own pipeline, filter and smoother, joined into one
     product (``WindProduct.segment``). ``progress(n)`` is called every 10 000 samples with the count so
     far; ``warn`` gets the pipeline's one-line warnings; ``store_dir``: where the smoother's store spills
-    (``SmootherRecorder``), else memory."""
-    # the smoother works in float64 and records every step of the filter: the Python core's recorder hooks
+    (``SmootherRecorder``), else memory; ``core``: the estimator the forward pass runs, "c" (the C core's
+    double build, in blocks: ``_CRun``) or "py" (the Python reference), None: C where it can be built."""
+    # the smoother works in float64 and records every step of the filter: the C core's recorder (its double
+    # build, host/reprocess.c) where a C compiler is, else the Python core's (``core``: "c", "py", None: C if
+    # it can be built)
     cfg = dataclasses.replace(cfg or FilterConfig(), float32=False, core="py")
+    use_c = c_core_available() if core is None else core == "c"
     parts: list[WindProduct] = []
     tally = _SourceTally()
-    seg = _Segment(design, cfg, rate_explicit, grid_hz, store_dir)
+    seg = _Segment(design, cfg, rate_explicit, grid_hz, store_dir, use_c)
     newest = None  # the newest sample time in this segment
-    for i, s in enumerate(samples):
+    i = 0
+
+    def one(s) -> None:
+        nonlocal seg, newest, i
         t = s.t_us  # IMU and barometer alike: one clock (a barometer sample of the new boot comes first)
         if newest is not None and (t < newest - CLOCK_BACK_US or t > newest + CLOCK_JUMP_US):
             parts.append(seg.finish(warn))
             tally.add(seg.run.est)
-            seg = _Segment(design, cfg, rate_explicit, grid_hz, store_dir)
+            seg = _Segment(design, cfg, rate_explicit, grid_hz, store_dir, use_c)
             newest = t
         elif newest is None or t > newest:
             newest = t
         seg.push(s, warn)
         if progress is not None and i % 10_000 == 0:
             progress(i)
+        i += 1
+
+    for s in samples:
+        if type(s) is not SampleRows:
+            one(s)
+            continue
+        # a run of sensor samples as arrays (postflight/mavlink_log.py): as one by one, but the stretch up
+        # to a clock break goes to the C core as it is once the input pipeline passes samples unchanged
+        a, n = 0, len(s.t)
+        while a < n:
+            if newest is None or not seg.rows_ok():
+                one(ImuSample(int(s.t[a]), *s.v[a].tolist()) if s.kind[a] == 0 else
+                    BaroSample(int(s.t[a]), float(s.v[a, 0]), float(s.v[a, 1])))  # fmt: skip
+                a += 1
+                continue
+            t = s.t[a:]
+            before = np.maximum.accumulate(np.concatenate(([newest], t[:-1])))  # the newest before each
+            cut = np.flatnonzero((t < before - CLOCK_BACK_US) | (t > before + CLOCK_JUMP_US))
+            b = a + (int(cut[0]) if len(cut) else n - a)
+            if b > a:
+                seg.run.feed_rows(s.t[a:b], s.kind[a:b], s.v[a:b])
+                newest = max(newest, int(s.t[a:b].max()))
+                if progress is not None and (i + b - a) // 10_000 > i // 10_000:
+                    progress((i + b - a) // 10_000 * 10_000)
+                i += b - a
+                a = b
+            else:  # a clock break: the new segment starts with this sample, one by one
+                one(ImuSample(int(s.t[a]), *s.v[a].tolist()) if s.kind[a] == 0 else
+                    BaroSample(int(s.t[a]), float(s.v[a, 0]), float(s.v[a, 1])))  # fmt: skip
+                a += 1
     parts.append(seg.finish(warn))
     tally.add(seg.run.est)
     product = join_segments([p for p in parts if len(p.time_s)], grid_hz)
@@ -132,14 +172,32 @@ class _SourceTally:
                 "optional_sources": line}  # fmt: skip
 
 
+def c_core_available() -> bool:
+    """Whether the C core's double build can be loaded here (built at first use: a C compiler is needed)."""
+    try:
+        from firmware_py.core_c import load
+
+        load("double")
+    except Exception:  # no compiler, or the build failed: the Python core  # noqa: BLE001
+        return False
+    return True
+
+
 class _Segment:
     """One stretch of the log on one sensor clock: its input pipeline, filter and smoother."""
 
     def __init__(self, design: Design, cfg: FilterConfig, rate_explicit: bool, grid_hz: float,
-                 store_dir: str | None) -> None:  # fmt: skip
+                 store_dir: str | None, use_c: bool = False) -> None:  # fmt: skip
         self.pipe = InputPipeline(cfg, rate_explicit)
-        self.rec = SmootherRecorder(N_STATES, store_dir, cov_states=(WIND_N, WIND_E))
-        self.run = _Run(design, self.rec, grid_hz)
+        self.rec = SmootherRecorder(N_STATES, store_dir, cov_states=(WIND_N, WIND_E),
+                                    x_states=(POS_N, POS_E, POS_D, WIND_N, WIND_E))  # what the product takes
+        self.run = (_CRun if use_c else _Run)(design, self.rec, grid_hz)
+
+    def rows_ok(self) -> bool:
+        """Whether sensor samples may go to the filter as arrays (``_CRun.feed_rows``): the C run, its
+        estimator made, the input pipeline deciding nothing more and passing samples unchanged."""
+        return type(self.run) is _CRun and self.run.est is not None and self.pipe.decided and \
+            self.pipe.resampler is None
 
     def push(self, s: Sample | GroundSample, warn) -> None:
         if type(s) is WinchSample or type(s) is GroundBaroSample:
@@ -152,6 +210,7 @@ class _Segment:
         for t in self.pipe.flush():
             self.run.feed(self.pipe, t, warn)
         run = self.run
+        run.finish()
         sm = self.rec.smooth()
         product = _product(sm, np.array(run.modes, np.int8), np.array(run.air).reshape(-1, 2), run.baro_seen,
                            np.array(run.unconfirmed, bool), np.array(run.accuracy, float),
@@ -225,6 +284,9 @@ class _Run:
         self.rejected: list[int] = []  # WINCH_STATUS rejected since the grid point before
         self._rejected_before = 0
 
+    def finish(self) -> None:
+        """(The C run's blocks end here; this run has none.)"""
+
     def ground(self, s: GroundSample) -> None:
         """A sample from the ground (the winch, the ground reference): into the estimator as it arrives."""
         if type(s) is WinchSample:
@@ -279,6 +341,138 @@ class _Run:
             self._rejected_before = est.winch_rejected
 
 
+C_BATCH = 4096  # samples a call of the C core (bw_reprocess_batch)
+N_EXTRA = 11  # what a grid point holds beside the state (host/reprocess.c)
+
+
+class _CRun(_Run):
+    """``_Run`` on the C core: the samples the input pipeline passes are handed over in blocks
+    (``bw_reprocess_batch``, firmware_c/host/reprocess.c), which runs each as ``_Run.feed`` does, with the
+    smoother's recorder in C (include/bw_recorder.h: the same events at the same places as the Python
+    core's ``WindEkf.recorder``), makes the grid as ``_Run.feed`` makes it and writes each point straight
+    into the ``SmootherRecorder``'s block storage; the backward pass is the recorder's own. A ground
+    sample (the winch, the ground reference) runs the samples before it first, so the order is kept."""
+
+    def __init__(self, design: Design, rec: SmootherRecorder, grid_hz: float) -> None:
+        super().__init__(design, rec, grid_hz)
+        self._t: list[int] = []
+        self._kind: list[int] = []
+        self._v: list[float] = []
+        self._chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (feed_rows; before the lists)
+        self._pending = 0
+        self._extras: list[np.ndarray] = []
+        self._extra = np.zeros((BLOCK_C, N_EXTRA))
+        self._ng = np.zeros(1, np.int32)
+        self._fn = None
+
+    def ground(self, s: GroundSample) -> None:
+        if self.est is not None:
+            self._run()
+        super().ground(s)
+
+    def feed(self, pipe: InputPipeline, s: Sample, warn) -> None:
+        if self.est is None:
+            import ctypes as C
+
+            from firmware_py.core_c import CEstimator
+
+            est = self.est = CEstimator(self.design, pipe.cfg)  # float32 off: the double build
+            for g in self.pending.values():
+                feed_ground(est, g)
+            self.every = max(1, round(pipe.cfg.imu_rate_hz / self.grid_hz))
+            if pipe.decision.warning and warn is not None:
+                warn(pipe.decision.warning)
+            lib = est._lib
+            lib.bw_sizeof_recorder.restype = C.c_size_t
+            self._recorder = C.create_string_buffer(lib.bw_sizeof_recorder())
+            lib.bw_recorder_init.argtypes = [C.c_void_p, C.c_void_p, C.c_int64]
+            lib.bw_recorder_init(self._recorder, C.addressof(est._s), self.every)
+            fn = self._fn = lib.bw_reprocess_batch
+            fn.argtypes = [C.c_void_p] * 2 + [C.c_int] + [C.c_void_p] * 3 + [C.c_int] + [C.c_void_p] * 9
+            fn.restype = C.c_int
+        if type(s) is BaroSample:
+            self.baro_seen = True
+            self._t.append(s.t_us)
+            self._kind.append(1)
+            self._v.extend((s.pressure_hpa, s.temperature_c, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+        else:
+            self._t.append(s.t_us)
+            self._kind.append(0)
+            self._v.extend(s[1:])
+        self._pending += 1
+        if self._pending >= C_BATCH:
+            self._run()
+
+    def _lists(self) -> None:
+        """The samples fed one by one so far as a chunk (before rows that come after them)."""
+        if self._t:
+            self._chunks.append((np.array(self._t, np.int64), np.array(self._kind, np.int32),
+                                 np.array(self._v, np.float64).reshape(-1, 9)))  # fmt: skip
+            self._t.clear()
+            self._kind.clear()
+            self._v.clear()
+
+    def feed_rows(self, t: np.ndarray, kind: np.ndarray, v: np.ndarray) -> None:
+        """Sensor samples as arrays (the pipeline passes them unchanged: ``_Segment.rows_ok``), as ``feed``."""
+        self._lists()
+        if np.any(kind == 1):
+            self.baro_seen = True
+        self._chunks.append((t, kind, v))
+        self._pending += len(t)
+        if self._pending >= C_BATCH:
+            self._run()
+
+    def _run(self) -> None:
+        """The samples handed over so far through the C core, their grid points into the recorder's blocks."""
+        self._lists()
+        if not self._chunks:
+            return
+        import ctypes as C
+
+        if len(self._chunks) == 1:
+            t, kind, v = self._chunks[0]
+        else:
+            t, kind, v = (np.concatenate([c[j] for c in self._chunks]) for j in range(3))
+        t = np.ascontiguousarray(t, np.int64)
+        kind = np.ascontiguousarray(kind, np.int32)
+        v = np.ascontiguousarray(v, np.float64)
+        self._chunks.clear()
+        self._pending = 0
+        n = len(t)
+        est, rec, start = self.est, self.rec, 0
+        N = N_STATES
+        while start < n:
+            b, k = rec.slots()
+            self._ng[0] = 0
+            done = self._fn(C.addressof(est._s), self._recorder, n - start, t.ctypes.data + 8 * start,
+                            kind.ctypes.data + 4 * start, v.ctypes.data + 72 * start, BLOCK_C - k,
+                            self._ng.ctypes.data, b["t"].ctypes.data + 8 * k, b["x"].ctypes.data + 8 * N * k,
+                            b["P"].ctypes.data + 8 * N * N * k, b["Pi"].ctypes.data + 8 * N * N * k,
+                            b["g"].ctypes.data + 8 * N * k, b["G"].ctypes.data + 8 * N * N * k,
+                            b["linked"].ctypes.data + k, self._extra.ctypes.data)  # fmt: skip
+            m = int(self._ng[0])
+            if m:
+                rec.filled(m)
+                self._extras.append(self._extra[:m].copy())
+            start += done
+
+    def finish(self) -> None:
+        """The last samples through the C core; the grid's columns as ``_Run`` keeps them."""
+        self._run()
+        e = np.concatenate(self._extras) if self._extras else np.zeros((0, N_EXTRA))
+        self._extras = []
+        self.modes = e[:, 0].astype(np.int8)
+        self.unconfirmed = e[:, 1].astype(bool)
+        self.consistency = e[:, 2].astype(np.int8)
+        self.inflation = e[:, 3].copy()
+        self.accuracy = e[:, 4].copy()
+        self.after_gap = e[:, 5].astype(bool)
+        self.line = e[:, 6].copy()
+        self.reel = e[:, 7].copy()
+        self.rejected = np.diff(e[:, 8].astype(np.int64), prepend=0).astype(np.int32)
+        self.air = e[:, 9:11].copy()
+
+
 def _unconfirmed_segments(segment_start: np.ndarray, unconfirmed: np.ndarray) -> np.ndarray:
     """A segment that started with a join in flight is a balloon's if the motion confirmed it at any
     time in the segment (smoothing looks both ways); one never confirmed stays unconfirmed throughout."""
@@ -310,9 +504,9 @@ def _product(
         cvar_e = np.where(keep, cvar_e, (cvar_e + sys_half) * f2)
         var_n = np.where(keep, var_n, (var_n + sys_half) * f2)
         var_e = np.where(keep, var_e, (var_e + sys_half) * f2)
-    wn, we = sm.xs[:, WIND_N], sm.xs[:, WIND_E]
+    wn, we = sm.state(WIND_N), sm.state(WIND_E)
     # an unconfirmed join in flight: the reported accuracy is at least sqrt(|w|^2 + 1) (Estimator.wind_accuracy)
-    floor_c = 0.5 * (sm.x[:, WIND_N] ** 2 + sm.x[:, WIND_E] ** 2 + 1.0)
+    floor_c = 0.5 * (sm.state(WIND_N, False) ** 2 + sm.state(WIND_E, False) ** 2 + 1.0)
     cvar_n = np.where(unconfirmed, np.maximum(cvar_n, floor_c), cvar_n)
     cvar_e = np.where(unconfirmed, np.maximum(cvar_e, floor_c), cvar_e)
     never = _unconfirmed_segments(sm.segment_start, unconfirmed)
@@ -321,12 +515,12 @@ def _product(
     var_e = np.where(never, np.maximum(var_e, floor_s), var_e)
     flags = np.zeros(n, np.int8)
     flags[sm.segment_start] |= FLAG_SEGMENT_START
-    moved = (np.abs(wn - sm.x[:, WIND_N]) > 1e-9) | (np.abs(we - sm.x[:, WIND_E]) > 1e-9)
+    moved = (np.abs(wn - sm.state(WIND_N, False)) > 1e-9) | (np.abs(we - sm.state(WIND_E, False)) > 1e-9)
     flags[moved] |= FLAG_SMOOTHED
     unknown = never | (modes == MODE_GROUND)
     unknown |= wind_unknown(np.hypot(wn, we), np.sqrt(var_n + var_e))
     flags[unknown] |= FLAG_WIND_UNKNOWN
-    height = -sm.xs[:, POS_D]
+    height = -sm.state(POS_D)
     if not baro_seen:
         flags |= FLAG_NO_BARO
         height = np.full(n, np.nan)
@@ -336,13 +530,13 @@ def _product(
         wind_e=we.copy(),
         sigma_n=np.sqrt(var_n),
         sigma_e=np.sqrt(var_e),
-        causal_n=sm.x[:, WIND_N].copy(),
-        causal_e=sm.x[:, WIND_E].copy(),
+        causal_n=sm.state(WIND_N, False).copy(),
+        causal_e=sm.state(WIND_E, False).copy(),
         causal_sigma_n=np.sqrt(cvar_n),
         causal_sigma_e=np.sqrt(cvar_e),
         height_m=height,
-        pos_n=sm.xs[:, POS_N].copy(),
-        pos_e=sm.xs[:, POS_E].copy(),
+        pos_n=sm.state(POS_N).copy(),
+        pos_e=sm.state(POS_E).copy(),
         air_pressure_pa=air[:, 0] * 100.0 if n else np.zeros(0),
         air_temperature_k=air[:, 1] + 273.15 if n else np.zeros(0),
         mode=modes,
@@ -396,8 +590,9 @@ def run_reprocess(args, argv: list[str] | None) -> int:
         for note in meta.notes:
             bar.log(f"{prog}: note: {note}")
         bar.total, bar.unit = float(len(flight)), "samples"
+        flight.release()  # (its kinds and times: meta holds what they told; the samples come from the file)
         with tempfile.TemporaryDirectory(prefix="balloon-reprocess-") as store:  # the smoother's store spills here
-            product = reprocess(flight.samples(), design, cfg, rate_explicit="imu_rate_hz" in data.get("filter", {}),
+            product = reprocess(flight.blocks(), design, cfg, rate_explicit="imu_rate_hz" in data.get("filter", {}),
                                 progress=lambda n: bar.update(n, "forward filter"),
                                 warn=lambda w: bar.log(f"{prog}: {w}"), store_dir=store)  # fmt: skip
         bar.update(len(flight), "smoother done; writing the products")

@@ -50,11 +50,18 @@ class Smoothed:
     # the states whose covariance P and Ps hold, in order (all of them unless the recorder was told fewer):
     # P[:, i, j] is the covariance of states cov_states[i] and cov_states[j]
     cov_states: tuple[int, ...] = ()
+    # the states x and xs hold, in order (all of them unless the recorder was told fewer)
+    x_states: tuple[int, ...] = ()
 
     def var(self, state: int, smoothed: bool = True) -> np.ndarray:
         """The (smoothed or causal) variance of one state at every grid point."""
         i = self.cov_states.index(state) if self.cov_states else state
         return (self.Ps if smoothed else self.P)[:, i, i]
+
+    def state(self, state: int, smoothed: bool = True) -> np.ndarray:
+        """The (smoothed or causal) estimate of one state at every grid point."""
+        i = self.x_states.index(state) if self.x_states else state
+        return (self.xs if smoothed else self.x)[:, i]
 
 
 class SmootherRecorder:
@@ -64,12 +71,15 @@ class SmootherRecorder:
     grid stores 36 000 points (260 MB), 24 hours 6.2 GB. With ``store_dir`` each full block of the store
     goes to a file there (exact, float64) and comes back one block at a time in the backward pass: memory
     then holds two blocks whatever the flight. ``cov_states`` keeps the covariances of those states only
-    in the result (the whole P of every point of a day is 4 GB), e.g. the wind's two."""
+    in the result (the whole P of every point of a day is 4 GB), e.g. the wind's two; ``x_states`` keeps
+    those states of x and of the smoothed x (all 19 of a day are 260 MB)."""
 
-    def __init__(self, n_states: int, store_dir: str | None = None, cov_states: tuple[int, ...] | None = None) -> None:
+    def __init__(self, n_states: int, store_dir: str | None = None, cov_states: tuple[int, ...] | None = None,
+                 x_states: tuple[int, ...] | None = None) -> None:  # fmt: skip
         self.n = n = n_states
         self.store_dir = store_dir
         self.cov_states = tuple(cov_states) if cov_states is not None else tuple(range(n))
+        self.x_states = tuple(x_states) if x_states is not None else tuple(range(n))
         self.Pi = np.eye(n)
         self.g = np.zeros(n)
         self.G = np.zeros((n, n))
@@ -124,16 +134,7 @@ class SmootherRecorder:
 
     def grid_point(self, t_us: int, x: np.ndarray, P: np.ndarray) -> None:
         """Store a grid point: the filter's state after a step's fusions, and the map from the last one."""
-        if self._k == BLOCK:
-            n = self.n
-            self._spill()
-            self._blocks.append({
-                "t": np.zeros(BLOCK, np.int64), "x": np.zeros((BLOCK, n)), "P": np.zeros((BLOCK, n, n)),
-                "Pi": np.zeros((BLOCK, n, n)), "g": np.zeros((BLOCK, n)), "G": np.zeros((BLOCK, n, n)),
-                "linked": np.zeros(BLOCK, bool),
-            })  # fmt: skip
-            self._k = 0
-        b, k = self._blocks[-1], self._k
+        b, k = self.slots()
         b["t"][k] = t_us
         b["x"][k] = x
         b["P"][k] = P
@@ -145,6 +146,27 @@ class SmootherRecorder:
         self.count += 1
         self._linked = True
         self._reset()
+
+    def slots(self) -> tuple[dict[str, np.ndarray], int]:
+        """The newest block and the first free slot in it (a new block opened, the full one spilled, when
+        it has none): where ``grid_point`` writes, and where the C core's recorder writes its grid points
+        directly (postflight/reprocess.py ``_CRun``; then ``filled``)."""
+        if self._k == BLOCK:
+            n = self.n
+            self._spill()
+            self._blocks.append({
+                "t": np.zeros(BLOCK, np.int64), "x": np.zeros((BLOCK, n)), "P": np.zeros((BLOCK, n, n)),
+                "Pi": np.zeros((BLOCK, n, n)), "g": np.zeros((BLOCK, n)), "G": np.zeros((BLOCK, n, n)),
+                "linked": np.zeros(BLOCK, bool),
+            })  # fmt: skip
+            self._k = 0
+        return self._blocks[-1], self._k  # type: ignore[return-value]
+
+    def filled(self, m: int) -> None:
+        """``m`` grid points were written from the first free slot on (by the C core's recorder, which
+        keeps its own Pi, g, G and link between the points)."""
+        self._k += m
+        self.count += m
 
     def _spill(self) -> None:
         """The newest block is full: to a file in ``store_dir`` (if given), out of memory."""
@@ -177,6 +199,7 @@ class SmootherRecorder:
         called once per block."""
         n, m = self.n, self.count
         keep = np.asarray(self.cov_states)
+        xkeep = np.asarray(self.x_states)
         blocks = self._blocks
         last = self._k
         lam = np.zeros(n)
@@ -202,8 +225,8 @@ class SmootherRecorder:
                 else:
                     lam = np.zeros(n)
                     Lam = np.zeros((n, n))
-            out.append({"t": b["t"][:size], "x": x[:size].copy(), "P": P[:size][:, keep][:, :, keep],
-                        "xs": xs, "Ps": Ps, "linked": b["linked"][:size]})  # fmt: skip
+            out.append({"t": b["t"][:size], "x": x[:size][:, xkeep], "P": P[:size][:, keep][:, :, keep],
+                        "xs": xs[:, xkeep], "Ps": Ps, "linked": b["linked"][:size]})  # fmt: skip
             del b, x, P, Pi, g, G
             done += size
             if progress is not None:
@@ -215,8 +238,8 @@ class SmootherRecorder:
             parts = [o.pop(key) for o in out]
             return np.concatenate(parts) if parts else np.zeros((0, *shape))
 
-        k = len(keep)
+        k, kx = len(keep), len(xkeep)
         t = cat("t", ()).astype(np.int64)
         linked = cat("linked", ()).astype(bool)
-        return Smoothed(t, cat("x", (n,)), cat("P", (k, k)), cat("xs", (n,)), cat("Ps", (k, k)), ~linked,
-                        self.cov_states)  # fmt: skip
+        return Smoothed(t, cat("x", (kx,)), cat("P", (k, k)), cat("xs", (kx,)), cat("Ps", (k, k)), ~linked,
+                        self.cov_states, self.x_states)  # fmt: skip

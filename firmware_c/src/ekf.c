@@ -7,6 +7,12 @@
 
 #define N BW_N
 
+#ifdef BW_HOST_RECORDER
+/* the post-flight smoother's recorder (include/bw_recorder.h): host build only, here at ekf.py's calls */
+#include "bw_recorder.h"
+#define REC(e) (bw_recorder_active != 0 && bw_recorder_active->ekf == (e) ? bw_recorder_active : 0)
+#endif
+
 void bw_status_init(bw_status_t *st, int32_t recover_after)
 {
     memset(st, 0, sizeof *st);
@@ -150,6 +156,88 @@ static int f_row(const bw_ekf_t *e, const bw_real r[9], int ground, int i, unsig
     return n;
 }
 
+#ifdef BW_HOST_RECORDER
+/* SmootherRecorder.predict: Pi <- F Pi */
+static void rec_predict(bw_recorder_t *rc, const bw_ekf_t *e, const bw_real r[9], int ground)
+{
+    unsigned char cols[BW_NCOL + 1];
+    bw_real vals[BW_NCOL + 1];
+    int i, j, k, n;
+    for (i = 0; i < N; i++) {
+        double *t = rc->tmp[i];
+        n = f_row(e, r, ground, i, cols, vals);
+        for (j = 0; j < N; j++)
+            t[j] = 0.0;
+        for (k = 0; k < n; k++) {
+            const double v = (double)vals[k], *p = rc->Pi[cols[k]];
+            for (j = 0; j < N; j++)
+                t[j] += v * p[j];
+        }
+    }
+    memcpy(rc->Pi, rc->tmp, sizeof rc->Pi);
+}
+
+/* SmootherRecorder.update: a scalar fusion (row h, 1/S, innovation, gain K) */
+static void rec_update(bw_recorder_t *rc, const bw_real *h, double s_inv, double innov, const bw_real *kv)
+{
+    double hp[N];
+    int i, j, k;
+    for (j = 0; j < N; j++)
+        hp[j] = 0.0;
+    for (k = 0; k < N; k++)
+        if (h[k] != BW_R(0.0)) {
+            const double v = (double)h[k], *p = rc->Pi[k];
+            for (j = 0; j < N; j++)
+                hp[j] += v * p[j];
+        }
+    for (j = 0; j < N; j++)
+        rc->g[j] += hp[j] * (s_inv * innov);
+    for (i = 0; i < N; i++) {
+        const double a = hp[i] * s_inv, ki = (double)kv[i];
+        for (j = 0; j < N; j++) {
+            rc->G[i][j] += a * hp[j];
+            rc->Pi[i][j] -= ki * hp[j];
+        }
+    }
+}
+
+/* SmootherRecorder.update3: a vector fusion of three rows (H, S^-1, innovations, gain K) */
+static void rec_update3(bw_recorder_t *rc, const bw_real H[3][N], const bw_real si[3][3], const bw_real inn[3],
+                        const bw_real k3[N][3])
+{
+    double hp[3][N], s3[3][N], v3[3];
+    int a, b, i, j, k;
+    for (a = 0; a < 3; a++) {
+        for (j = 0; j < N; j++)
+            hp[a][j] = 0.0;
+        for (k = 0; k < N; k++)
+            if (H[a][k] != BW_R(0.0)) {
+                const double v = (double)H[a][k], *p = rc->Pi[k];
+                for (j = 0; j < N; j++)
+                    hp[a][j] += v * p[j];
+            }
+    }
+    for (a = 0; a < 3; a++) {
+        v3[a] = 0.0;
+        for (b = 0; b < 3; b++)
+            v3[a] += (double)si[a][b] * (double)inn[b];
+    }
+    for (a = 0; a < 3; a++)
+        for (j = 0; j < N; j++)
+            s3[a][j] = (double)si[a][0] * hp[0][j] + (double)si[a][1] * hp[1][j] + (double)si[a][2] * hp[2][j];
+    for (j = 0; j < N; j++)
+        rc->g[j] += v3[0] * hp[0][j] + v3[1] * hp[1][j] + v3[2] * hp[2][j];
+    for (i = 0; i < N; i++) {
+        const double h0 = hp[0][i], h1 = hp[1][i], h2 = hp[2][i];
+        const double c0 = (double)k3[i][0], c1 = (double)k3[i][1], c2 = (double)k3[i][2];
+        for (j = 0; j < N; j++) {
+            rc->G[i][j] += h0 * s3[0][j] + h1 * s3[1][j] + h2 * s3[2][j];
+            rc->Pi[i][j] -= c0 * hp[0][j] + c1 * hp[1][j] + c2 * hp[2][j];
+        }
+    }
+}
+#endif
+
 /* P <- F P F^T over F's non-zeros; the result written symmetric (both triangles, bit-identical) */
 static void propagate_covariance(bw_ekf_t *e, const bw_real r[9], int ground)
 {
@@ -248,6 +336,10 @@ void bw_ekf_predict(bw_ekf_t *e, bw_real gx, bw_real gy, bw_real gz, bw_real rho
     propagate_covariance(e, r, ground);
     for (i = 0; i < N; i++)
         e->P[i][i] += ground ? e->qd_ground[i] : e->q_flight[i];
+#ifdef BW_HOST_RECORDER
+    if (REC(e))
+        rec_predict(REC(e), e, r, ground);
+#endif
 }
 
 void bw_ekf_adapt_wind_noise(bw_ekf_t *e, bw_real mean_speed_mps, bw_real model_misfit)
@@ -325,6 +417,10 @@ int bw_ekf_fuse(bw_ekf_t *e, bw_real innov, bw_real r, bw_status_t *st, bw_real 
             e->dx[i] += kv[i] * innov;
         }
     }
+#ifdef BW_HOST_RECORDER
+    if (REC(e))
+        rec_update(REC(e), e->h, 1.0 / (double)s, (double)innov, kv);
+#endif
     for (i = 0; i < N; i++) {
         const bw_real ki = kv[i];
         for (j = i; j < N; j++)
@@ -432,6 +528,10 @@ int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_
         d = k3[i][0] * inn[0] + k3[i][1] * inn[1] + k3[i][2] * inn[2];
         e->dx[i] += (i == BW_ATT_N || i == BW_ATT_E) ? tilt_gain * d : d; /* the tilt: K' = D K (ekf.py fuse3) */
     }
+#ifdef BW_HOST_RECORDER
+    if (REC(e))
+        rec_update3(REC(e), (const bw_real(*)[N])e->H3, (const bw_real(*)[3])si, inn, (const bw_real(*)[3])k3);
+#endif
     for (i = 0; i < N; i++) {
         const bw_real k0 = k3[i][0], k1 = k3[i][1], k2 = k3[i][2];
         for (j = i; j < N; j++)
@@ -457,6 +557,10 @@ static void inhibit(bw_ekf_t *e, int i)
     int j;
     bw_real v = e->P[i][i];
     e->dx[i] = BW_R(0.0);
+#ifdef BW_HOST_RECORDER
+    if (REC(e))
+        bw_recorder_broken(REC(e)); /* not a fusion: the smoother's chain is cut here */
+#endif
     for (j = 0; j < N; j++)
         e->P[i][j] = e->P[j][i] = BW_R(0.0);
     e->P[i][i] = v;

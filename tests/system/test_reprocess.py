@@ -142,3 +142,39 @@ def test_the_product_carries_the_whole_design_it_used(tmp_path):
         assert set(data["filter"]) == set(FilterConfig.__dataclass_fields__)  # every key, defaults filled in
         assert set(data["balloon"]) == set(Design().balloon.__dataclass_fields__)
         assert ("wind" in data) == bool(args) and (not args or data["wind"] == {"kind": "steady"})
+
+
+def test_without_a_compiler_reprocess_runs_the_python_core_and_agrees_with_the_c_core(flight, tmp_path, monkeypatch):
+    """The C core (and the C tlog scanner) where a compiler is, the Python core (and reader) where none is:
+    the same product within the golden tolerance (tools/golden.py RTOL) on every float variable."""
+    import dataclasses
+
+    import firmware_c.build as build
+    from balloon_core.config import Design
+    from firmware_py import core_c
+    from postflight import reprocess as rp
+    from postflight.logs import read_flight
+
+    _, tlog, _ = flight
+    if not rp.c_core_available():
+        pytest.skip("no C compiler here: the fallback is all there is")
+    with_c = rp.reprocess(read_flight(str(tlog)).blocks(), Design())
+    empty = tmp_path / "no-build"
+    empty.mkdir()
+    monkeypatch.setattr(build, "_build_dirs", lambda: [empty])
+    monkeypatch.delenv("CC", raising=False)
+    monkeypatch.setattr(build.shutil, "which", lambda _name: None)
+    monkeypatch.setattr(core_c, "_LIBS", {})
+    assert not rp.c_core_available()
+    flight_py = read_flight(str(tlog))
+    assert all(type(s).__name__ != "SampleRows" for s in flight_py.blocks())  # the Python reader
+    with_py = rp.reprocess(flight_py.blocks(), Design())
+    assert not list(empty.iterdir())  # nothing was built
+    for f in dataclasses.fields(with_c):
+        a, b = getattr(with_c, f.name), getattr(with_py, f.name)
+        if not isinstance(a, np.ndarray):
+            continue
+        if a.dtype.kind == "f":
+            np.testing.assert_allclose(a, b, rtol=1e-7, atol=1e-10, err_msg=f.name)
+        else:
+            assert np.array_equal(a, b), f.name

@@ -5,6 +5,8 @@ the causal filter's lag."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -159,3 +161,48 @@ def test_smoother_removes_the_lag_on_a_two_axis_multisine():
     assert 0.2 <= s.error_ratio <= 1.5
     # the smoothed covariance of the real filter: symmetric, positive, never above the causal one
     assert np.all(p.sigma_n <= p.causal_sigma_n + 1e-9) and np.all(p.sigma_e <= p.causal_sigma_e + 1e-9)
+
+
+def test_the_c_cores_recorder_records_what_the_python_cores_does():
+    """The C core's recorder (host build, firmware_c/host/reprocess.c) against the Python core's on a short
+    flight with taut placements and inhibitions (the chain cut): every grid point's x, P, Pi, g, G and
+    link, and then the smoothed wind, agree within a tight tolerance (both in double)."""
+    from postflight.reprocess import _Segment, c_core_available
+    from sim_hil.scenarios import SCENARIOS
+
+    if not c_core_available():
+        pytest.skip("no C compiler: the C core cannot be built")
+    sc = SCENARIOS["field-rope"]
+    samples, _ = _samples("field-rope", 240.0, 5)
+    cfg = dataclasses.replace(sc.filter, float32=False, core="py")
+    segs = {}
+    for use_c in (False, True):
+        seg = _Segment(sc.design, cfg, True, 10.0, None, use_c)
+        for s in samples:
+            seg.push(s, None)
+        for t in seg.pipe.flush():
+            seg.run.feed(seg.pipe, t, None)
+        seg.run.finish()
+        segs[use_c] = seg
+    py, c = segs[False].rec, segs[True].rec
+    assert c.count == py.count > 2000
+    for bp, bc in zip(py._blocks, c._blocks, strict=True):
+        k = py._k if bp is py._blocks[-1] else len(bp["t"])
+        assert np.array_equal(bp["t"][:k], bc["t"][:k])
+        assert np.array_equal(bp["linked"][:k], bc["linked"][:k])
+        for key in ("x", "P", "Pi", "g", "G"):
+            a, b = bp[key][:k], bc[key][:k]
+            scale = np.maximum(np.abs(a).max(axis=0), 1e-12)  # per element over the flight
+            assert np.all(np.abs(a - b) <= 1e-9 * scale + 1e-15), key
+    assert (~py._blocks[0]["linked"][1 : py.count]).sum() >= 2  # the flight cuts the chain
+    # what the product takes beside the state
+    rp, rc = segs[False].run, segs[True].run
+    assert np.array_equal(np.array(rp.modes, np.int8), rc.modes)
+    assert np.array_equal(np.array(rp.consistency, np.int8), rc.consistency)
+    assert np.array_equal(np.array(rp.after_gap, bool), rc.after_gap)
+    assert np.array_equal(np.array(rp.air).reshape(-1, 2), rc.air, equal_nan=True)
+    np.testing.assert_allclose(np.array(rp.accuracy), rc.accuracy, rtol=1e-9)
+    sp, scc = py.smooth(), c.smooth()
+    for state in (12, 13):  # the wind
+        np.testing.assert_allclose(scc.state(state), sp.state(state), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(scc.Ps, sp.Ps, rtol=1e-8, atol=1e-12)
