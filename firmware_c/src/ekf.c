@@ -529,8 +529,13 @@ int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_
         e->dx[i] += (i == BW_ATT_N || i == BW_ATT_E) ? tilt_gain * d : d; /* the tilt: K' = D K (ekf.py fuse3) */
     }
 #ifdef BW_HOST_RECORDER
-    if (REC(e))
-        rec_update3(REC(e), (const bw_real(*)[N])e->H3, (const bw_real(*)[3])si, inn, (const bw_real(*)[3])k3);
+    if (REC(e)) { /* the gain used: the tilt's rows times tilt_gain (ekf.py hands the recorder K') */
+        bw_real kr[N][3];
+        memcpy(kr, k3, sizeof kr);
+        for (i = BW_ATT_N; i <= BW_ATT_E; i++)
+            kr[i][0] *= tilt_gain, kr[i][1] *= tilt_gain, kr[i][2] *= tilt_gain;
+        rec_update3(REC(e), (const bw_real(*)[N])e->H3, (const bw_real(*)[3])si, inn, (const bw_real(*)[3])kr);
+    }
 #endif
     for (i = 0; i < N; i++) {
         const bw_real k0 = k3[i][0], k1 = k3[i][1], k2 = k3[i][2];
