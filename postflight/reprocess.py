@@ -83,8 +83,9 @@ def reprocess(
     # the smoother works in float64 and records every step of the filter: the C core's recorder (its double
     # build, host/reprocess.c) where a C compiler is, else the Python core's (``core``: "c", "py", None: C if
     # it can be built)
-    cfg = dataclasses.replace(cfg or FilterConfig(), float32=False, core="py")
     use_c = c_core_available() if core is None else core == "c"
+    # the product's design says which core ran (its double build: the smoother works in float64)
+    cfg = dataclasses.replace(cfg or FilterConfig(), float32=False, core="c" if use_c else "py")
     parts: list[WindProduct] = []
     tally = _SourceTally()
     seg = _Segment(design, cfg, rate_explicit, grid_hz, store_dir, use_c)
