@@ -82,24 +82,33 @@ def mavlink_blocks(
     yield from _samples_of(path, stats, on_other, ground_sysid)
 
 
+def _converted(m, sampler: MavlinkSampler, on_other, last_t: int) -> tuple[list, int]:
+    """A message's samples (``on_other`` gets one that is not a sensor's), the winch's and the ground reference's
+    at the last IMU sample's time (they carry no sensor clock of their own), and that time after them."""
+    out = sampler.convert(m)
+    if out is None:
+        if on_other is not None:
+            on_other(m, sampler)
+        return [], last_t
+    stamped = []
+    for smp in out:
+        if type(smp) is WinchSample or type(smp) is GroundBaroSample:
+            stamped.append(smp._replace(t_us=last_t))
+            continue
+        if type(smp) is ImuSample:
+            last_t = smp.t_us
+        stamped.append(smp)
+    return stamped, last_t
+
+
 def _samples_of(path: str, stats: LinkStats, on_other, ground_sysid: int) -> Iterator[Sample | GroundSample]:
     sampler = MavlinkSampler(ground_sysid)
     last_t = 0
     msgs = capture_messages(path, stats, fast=True)  # the sensor messages by fastmav: the same, faster
     try:
         for m in msgs:
-            out = sampler.convert(m)
-            if out is None:
-                if on_other is not None:
-                    on_other(m, sampler)
-                continue
-            for smp in out:
-                if type(smp) is WinchSample or type(smp) is GroundBaroSample:
-                    yield smp._replace(t_us=last_t)
-                    continue
-                if type(smp) is ImuSample:
-                    last_t = smp.t_us
-                yield smp
+            stamped, last_t = _converted(m, sampler, on_other, last_t)
+            yield from stamped
     finally:
         msgs.close()
     if on_other is not None:
@@ -249,19 +258,9 @@ def _scan_tlog(path: str, stats: LinkStats, on_other, ground_sysid: int, scan) -
                 rd.dirty = True
                 if m is None:
                     continue
-                out = sampler.convert(m)
-                if out is None:
-                    if on_other is not None:
-                        on_other(m, sampler)
-                    continue
-                for smp in out:
-                    if type(smp) is WinchSample or type(smp) is GroundBaroSample:
-                        yield smp._replace(t_us=last_t)
-                        continue
-                    if type(smp) is ImuSample:
-                        last_t = smp.t_us
-                        rd.prev = max(rd.prev, smp.t_us)
-                    yield smp
+                stamped, last_t = _converted(m, sampler, on_other, last_t)
+                rd.prev = max(rd.prev, last_t)
+                yield from stamped
     if on_other is not None:
         on_other(None, sampler)
 
