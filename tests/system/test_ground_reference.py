@@ -11,7 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from firmware_py.estimator.control import Estimator
+from firmware_py.core_c import new_core
 from firmware_py.estimator.state import BARO_OFF
 from sim_hil.scenarios import SCENARIOS
 from sim_hil.simulator import TRUTH_COLUMNS, Simulation
@@ -24,7 +24,7 @@ def height_errors(seed: int) -> tuple[np.ndarray, np.ndarray, float, float]:
     and each one's barometer offset state at the end."""
     sc = SCENARIOS["field-weather"]
     sim = Simulation(sc.design, sc.wind, replace(sc.truth, ground_baro_hz=1.0), DURATION_S, seed)
-    with_ref, without = Estimator(sc.design, sc.filter), Estimator(sc.design, sc.filter)
+    with_ref, without = new_core(sc.design, sc.filter)[0], new_core(sc.design, sc.filter)[0]  # the C core (lockstep)
     pos_d = TRUTH_COLUMNS.index("pos_d")
     errs: tuple[list[float], list[float]] = ([], [])
     for i, s in enumerate(sim.samples()):
