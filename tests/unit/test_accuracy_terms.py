@@ -1,0 +1,33 @@
+"""tools/accuracy_terms.py: its terms add up to the accuracy the estimator reports, and a wrong flight number is
+a user error."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from benchmarks.bench_envelope import sample
+from tools.accuracy_terms import terms
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_the_terms_add_up_to_the_reported_accuracy():
+    """A steady flight (no inflation): the mean square accuracy is the sum of the terms' mean squares, and the
+    error is measured against the truth (not zero, not the accuracy itself)."""
+    steady = next(i for i, p in enumerate(sample(64)) if p["wind_kind"] == "steady" and p["mean_mps"] > 3.0)
+    t = terms(sample(64)[steady], 150.0)
+    assert t["inflation"] == pytest.approx(1.0, abs=1e-3)
+    parts = t["P"] ** 2 + t["drag"] ** 2 + t["rope"] ** 2 + t["tilt"] ** 2
+    assert t["accuracy"] ** 2 == pytest.approx(parts, rel=1e-6)
+    assert 0.0 < t["error"] < t["accuracy"] * 3.0 and t["error"] != pytest.approx(t["accuracy"])
+    assert t["offset_sigma_m"] > 0.0 and t["offset_walk_m"] >= 0.0
+
+
+def test_a_flight_outside_the_sample_is_a_user_error():
+    r = subprocess.run([sys.executable, str(ROOT / "tools" / "accuracy_terms.py"), "64", "--quick"],
+                       capture_output=True, text=True, cwd=ROOT)  # fmt: skip
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "no flight 64" in r.stderr

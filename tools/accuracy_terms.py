@@ -1,0 +1,106 @@
+"""What the stated wind accuracy is made of, flight by flight of the envelope benchmark (a diagnosis tool).
+
+    python tools/accuracy_terms.py 23 17 --quick          # flights of the --quick sample, 300 s
+    python tools/accuracy_terms.py 0 4 8 --duration 600    # flights of the full sample
+
+Flies each flight of ``benchmarks.bench_envelope``'s sample on the Python core (the C core is held equal to
+it) and prints, over the scored part (from 120 s), the RMS wind error against the truth and the RMS of each
+term of the reported accuracy (``Estimator.wind_accuracy``): the covariance's, the drag scale's, the rope's
+drag coefficient's and the tilt's systematic terms, the consistency monitor's mean factor and its windowed
+NIS per source; and how far the barometer offset state walked in its worst 20 s against its own stated
+1-sigma (the rope model's disagreement with the barometer, which no single innovation shows)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from balloon_core.atmosphere import G0  # noqa: E402
+from benchmarks.bench_envelope import sample, sections_of  # noqa: E402
+from firmware_py.estimator.consistency import SOURCES, lean_bias_wind, systematic_variance  # noqa: E402
+from firmware_py.estimator.control import Estimator  # noqa: E402
+from firmware_py.estimator.params import LEAN_BIAS_RAD  # noqa: E402
+from firmware_py.estimator.state import BARO_OFF, DRAG, MODE_TAUT  # noqa: E402
+from sim_hil.simulator import TRUTH_COLUMNS, Simulation  # noqa: E402
+from study.spec import build  # noqa: E402
+
+START_S = 120.0
+WALK_WINDOW_S = 20.0
+
+
+def terms(point: dict, duration_s: float) -> dict[str, float]:
+    design, wind, truth_cfg, filt = build(sections_of(point))
+    sim = Simulation(design, wind, truth_cfg, duration_s, point["seed"])
+    est = Estimator(design, dataclasses.replace(filt, core="py"))
+    every = int(round(sim.n_imu / duration_s / 10.0))  # 10 Hz rows
+    rows = []
+    for i, s in enumerate(sim.samples()):
+        if s.baro:
+            est.on_baro(s.time_usec, *s.baro)
+        est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
+        if i % every:
+            continue
+        ekf, m = est.ekf, est.model
+        wn, we = est.wind()
+        speed, k, kv = math.hypot(wn, we), float(ekf.x[DRAG]), float(ekf.P[DRAG, DRAG])
+        lift, c = (est.rho * m.volume_m3 - m.mass_kg) * G0, k * est.rho * m.half_cd_area_m2
+        lean = lean_bias_wind(speed, lift, c, LEAN_BIAS_RAD) if ekf.mode == MODE_TAUT else 0.0
+        rows.append((s.time_usec * 1e-6, wn, we, est.wind_accuracy(), ekf.wind_accuracy() ** 2,
+                     systematic_variance(speed, k, kv, 0.0), systematic_variance(speed, k, 0.0, est.rope_drag_share),
+                     lean**2, est.consistency.inflation, float(ekf.x[BARO_OFF]), float(ekf.P[BARO_OFF, BARO_OFF]),
+                     *est.consistency.nis))  # fmt: skip
+    r = np.array(rows)
+    truth = {c: sim.truth[:, j] for j, c in enumerate(TRUTH_COLUMNS)}
+    late = r[:, 0] >= START_S
+    tn = np.interp(r[late, 0], truth["time_s"], truth["wind_n"])
+    te = np.interp(r[late, 0], truth["time_s"], truth["wind_e"])
+    err = np.hypot(r[late, 1] - tn, r[late, 2] - te)
+    rms = lambda x: float(np.sqrt(np.mean(x)))  # noqa: E731 - of a squared series
+    out = {"error": rms(err**2), "mean_vector_error": math.hypot(r[late, 1].mean() - tn.mean(),
+                                                                  r[late, 2].mean() - te.mean()),
+           "accuracy": rms(r[late, 3] ** 2), "P": rms(r[late, 4]), "drag": rms(r[late, 5]), "rope": rms(r[late, 6]),
+           "tilt": rms(r[late, 7]), "inflation": float(r[late, 8].mean())}  # fmt: skip
+    n = int(round(WALK_WINDOW_S * 10.0))
+    off, sd = r[late, 9], np.sqrt(r[late, 10])
+    out["offset_walk_m"] = float(np.max(np.abs(off[n:] - off[:-n]))) if len(off) > n else math.nan
+    out["offset_sigma_m"] = float(np.mean(sd))
+    for j, name in enumerate(SOURCES):
+        out[f"nis_{name}"] = float(r[late, 11 + j].mean())
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("flights", type=int, nargs="+", help="flight numbers of the envelope's sample")
+    ap.add_argument("--quick", action="store_true", help="the --quick sample (64 flights) and 300 s")
+    ap.add_argument("--duration", type=float, default=None, help="simulated seconds (default 300 quick, else 600)")
+    a = ap.parse_args(argv)
+    points = sample(64 if a.quick else 200)
+    duration = a.duration or (300.0 if a.quick else 600.0)
+    for f in a.flights:
+        if not 0 <= f < len(points):
+            print(f"accuracy_terms: no flight {f} in a sample of {len(points)}", file=sys.stderr)
+            return 2
+    print("| flight | wind | rope | error | accuracy | = sqrt(P^2 + drag^2 + rope^2 + tilt^2) x inflation "
+          "| error/accuracy | worst 20 s offset walk / its sigma | NIS " + " ".join(SOURCES) + " |")  # fmt: skip
+    print("|---|---|---|---:|---:|---|---:|---:|---|")
+    for f in a.flights:
+        p = points[f]
+        t = terms(p, duration)
+        nis = " ".join(f"{t['nis_' + s]:.2f}" for s in SOURCES)
+        print(f"| {f} | {p['wind_kind']} {p['mean_mps']:.1f} m/s | {p['rope_model']} | {t['error']:.3f} | "
+              f"{t['accuracy']:.3f} | sqrt({t['P']:.3f}^2 + {t['drag']:.3f}^2 + {t['rope']:.3f}^2 + "
+              f"{t['tilt']:.3f}^2) x {t['inflation']:.2f} | {t['error'] / t['accuracy']:.2f} | "
+              f"{t['offset_walk_m']:.1f} m / {t['offset_sigma_m']:.2f} m | {nis} |", flush=True)  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
