@@ -55,7 +55,7 @@ def terms(point: dict, duration_s: float) -> dict[str, float]:
         rows.append((s.time_usec * 1e-6, wn, we, est.wind_accuracy(), ekf.wind_accuracy() ** 2,
                      systematic_variance(speed, k, kv, 0.0), systematic_variance(speed, k, 0.0, est.rope_drag_share),
                      lean**2, est.consistency.inflation, float(ekf.x[BARO_OFF]), float(ekf.P[BARO_OFF, BARO_OFF]),
-                     *est.consistency.nis))  # fmt: skip
+                     k, *est.consistency.nis))  # fmt: skip
     r = np.array(rows)
     truth = {c: sim.truth[:, j] for j, c in enumerate(TRUTH_COLUMNS)}
     late = r[:, 0] >= START_S
@@ -71,8 +71,11 @@ def terms(point: dict, duration_s: float) -> dict[str, float]:
     off, sd = r[late, 9], np.sqrt(r[late, 10])
     out["offset_walk_m"] = float(np.max(np.abs(off[n:] - off[:-n]))) if len(off) > n else math.nan
     out["offset_sigma_m"] = float(np.mean(sd))
+    out["drag_scale"] = float(r[late, 11].mean())
+    speed_est, speed_true = math.hypot(r[late, 1].mean(), r[late, 2].mean()), math.hypot(tn.mean(), te.mean())
+    out["speed_error_pct"] = 100.0 * (speed_est / speed_true - 1.0)
     for j, name in enumerate(SOURCES):
-        out[f"nis_{name}"] = float(r[late, 11 + j].mean())
+        out[f"nis_{name}"] = float(r[late, 12 + j].mean())
     return out
 
 
@@ -88,15 +91,17 @@ def main(argv: list[str] | None = None) -> int:
         if not 0 <= f < len(points):
             print(f"accuracy_terms: no flight {f} in a sample of {len(points)}", file=sys.stderr)
             return 2
-    print("| flight | wind | rope | error | accuracy | = sqrt(P^2 + drag^2 + rope^2 + tilt^2) x inflation "
-          "| error/accuracy | worst 20 s offset walk / its sigma | NIS " + " ".join(SOURCES) + " |")  # fmt: skip
-    print("|---|---|---|---:|---:|---|---:|---:|---|")
+    print("| flight | wind | rope | error | speed error | drag scale | accuracy "
+          "| = sqrt(P^2 + drag^2 + rope^2 + tilt^2) x inflation | error/accuracy "
+          "| worst 20 s offset walk / its sigma | NIS " + " ".join(SOURCES) + " |")  # fmt: skip
+    print("|---|---|---|---:|---:|---:|---:|---|---:|---:|---|")
     for f in a.flights:
         p = points[f]
         t = terms(p, duration)
         nis = " ".join(f"{t['nis_' + s]:.2f}" for s in SOURCES)
         print(f"| {f} | {p['wind_kind']} {p['mean_mps']:.1f} m/s | {p['rope_model']} | {t['error']:.3f} | "
-              f"{t['accuracy']:.3f} | sqrt({t['P']:.3f}^2 + {t['drag']:.3f}^2 + {t['rope']:.3f}^2 + "
+              f"{t['speed_error_pct']:+.1f} % | {t['drag_scale']:.3f} | {t['accuracy']:.3f} | "
+              f"sqrt({t['P']:.3f}^2 + {t['drag']:.3f}^2 + {t['rope']:.3f}^2 + "
               f"{t['tilt']:.3f}^2) x {t['inflation']:.2f} | {t['error'] / t['accuracy']:.2f} | "
               f"{t['offset_walk_m']:.1f} m / {t['offset_sigma_m']:.2f} m | {nis} |", flush=True)  # fmt: skip
     return 0
