@@ -335,15 +335,6 @@ static void switch_mode(bw_estimator_t *est, int mode)
     est->dwell = 0;
 }
 
-/* control.py _ascent_drag_var: what an ascent measures of the drag scale, the rope it misses included */
-static bw_real ascent_drag_var(const bw_estimator_t *est)
-{
-    const bw_model_t *m = &est->ekf.m;
-    bw_real lift = (est->rho * m->volume_m3 - m->mass_kg) * (bw_real)BW_G0;
-    bw_real rope = lift > BW_R(0.0) ? (bw_real)BW_ROPE_ASCENT_ERROR * m->rope_weight_n / lift : BW_R(1.0);
-    return (bw_real)(BW_DRAG_ASCENT_SIGMA * BW_DRAG_ASCENT_SIGMA) + rope * rope;
-}
-
 static void update_mode(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
 {
     bw_ekf_t *e = &est->ekf;
@@ -358,7 +349,8 @@ static void update_mode(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
             if (learning)
                 est->drag_prior[0] = e->x[BW_DRAG], est->drag_prior[1] = e->P[BW_DRAG][BW_DRAG];
             else
-                bw_ekf_cap_information(e, BW_DRAG, est->drag_prior[0], est->drag_prior[1], ascent_drag_var(est));
+                bw_ekf_cap_information(e, BW_DRAG, est->drag_prior[0], est->drag_prior[1],
+                                       (bw_real)(BW_DRAG_ASCENT_SIGMA * BW_DRAG_ASCENT_SIGMA));
         }
         e->learn_drag = learning;
     }

@@ -49,7 +49,6 @@ from firmware_py.estimator.params import (
     MAG_MODEL_GAUSS,
     MEAN_WIND_S,
     REORDER_WINDOW_US,
-    ROPE_ASCENT_ERROR,
     ROPE_WAVE_ACCEL_MPS2,
     ROPE_WAVE_ALIGN_RAD,
     TAUT_PULL_S,
@@ -315,14 +314,6 @@ class Estimator:
                 ekf.adapt_wind_noise(self._mean_speed, misfit)
         return True
 
-    def _ascent_drag_var(self) -> float:
-        """The variance of the drag scale an ascent measures: DRAG_ASCENT_SIGMA and the rope the ascent's model
-        misses (ROPE_ASCENT_ERROR of its weight) over the balloon's own net lift."""
-        m = self.model
-        lift = (self.rho * m.volume_m3 - m.mass_kg) * G0
-        rope = ROPE_ASCENT_ERROR * m.rope_kg_m * G0 * m.tether_length_m / lift if lift > 0.0 else 1.0
-        return DRAG_ASCENT_SIGMA * DRAG_ASCENT_SIGMA + rope * rope
-
     def _turbulence_excess(self) -> float:
         """The wind's process noise is sized for sigma_u = TI U (adapt_wind_noise). Light air does not calm
         in proportion: it meanders, sigma_u near 0.3-0.5 m/s at any mean speed. So below
@@ -490,7 +481,7 @@ class Estimator:
             if learning:
                 self._drag_prior = (float(ekf.x[DRAG]), float(ekf.P[DRAG, DRAG]))
             else:
-                ekf.cap_information(DRAG, *self._drag_prior, self._ascent_drag_var())
+                ekf.cap_information(DRAG, *self._drag_prior, DRAG_ASCENT_SIGMA**2)
         ekf.learn_drag = learning
         if ekf.mode == MODE_GROUND:
             lifted = abs(math.sqrt(ax * ax + ay * ay + az * az) - G0) > cfg.release_accel_mps2

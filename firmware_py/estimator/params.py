@@ -30,12 +30,6 @@ LEAN_BIAS_RAD = 0.0035
 # the drag scale learnt in a free ascent is worth at most this (1-sigma, relative): the ascent's model leaves
 # out the rope's pull as it is lifted off the ground, its drag and the gusts (+-20 % seen on the real rope)
 DRAG_ASCENT_SIGMA = 0.1
-# what of the lifted rope's weight the ascent's model misses, relative: it carries lambda g times the airborne
-# height, where the rope trailing to a drifting balloon weighs on it with its longer arc, is picked up at the
-# climb's speed (lambda v^2) and dragged over the ground (the real rope's tension over a 7 m/s ascent: 30 % of
-# its weight above lambda g h). Over the balloon's own net lift it is an error of the ascent's drag scale, added
-# to DRAG_ASCENT_SIGMA: a heavy rope's ascent says little of the balloon's drag
-ROPE_ASCENT_ERROR = 0.3
 ALIGN_INNOV_S = 5.0  # averaging time of the alignment's innovations that set its noise floor
 ALIGN_CROSS_VAR_MAX = 0.05**2  # rad^2: the most a rocking balloon's azimuth departs from its rope's
 ALIGN_RESET_S = 2.0  # rejected alignment this long re-places the taut state
