@@ -22,12 +22,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from balloon_core.atmosphere import G0  # noqa: E402
 from benchmarks.bench_envelope import sample, sections_of  # noqa: E402
-from firmware_py.estimator.consistency import SOURCES, lean_bias_wind, systematic_variance  # noqa: E402
+from firmware_py.estimator.consistency import SOURCES, systematic_variance  # noqa: E402
 from firmware_py.estimator.control import Estimator  # noqa: E402
-from firmware_py.estimator.params import LEAN_BIAS_RAD  # noqa: E402
-from firmware_py.estimator.state import BARO_OFF, DRAG, MODE_TAUT  # noqa: E402
+from firmware_py.estimator.state import BARO_OFF, DRAG  # noqa: E402
 from sim_hil.simulator import TRUTH_COLUMNS, Simulation  # noqa: E402
 from study.spec import build  # noqa: E402
 
@@ -47,11 +45,10 @@ def terms(point: dict, duration_s: float) -> dict[str, float]:
         est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
         if i % every:
             continue
-        ekf, m = est.ekf, est.model
+        ekf = est.ekf
         wn, we = est.wind()
         speed, k, kv = math.hypot(wn, we), float(ekf.x[DRAG]), float(ekf.P[DRAG, DRAG])
-        lift, c = (est.rho * m.volume_m3 - m.mass_kg) * G0, k * est.rho * m.half_cd_area_m2
-        lean = lean_bias_wind(speed, lift, c, LEAN_BIAS_RAD) if ekf.mode == MODE_TAUT else 0.0
+        lean = est.lean_wind_mps()
         rows.append((s.time_usec * 1e-6, wn, we, est.wind_accuracy(), ekf.wind_accuracy() ** 2,
                      systematic_variance(speed, k, kv, 0.0), systematic_variance(speed, k, 0.0, est.rope_drag_share),
                      lean**2, est.consistency.inflation, float(ekf.x[BARO_OFF]), float(ekf.P[BARO_OFF, BARO_OFF]),

@@ -533,17 +533,24 @@ class Estimator:
         wn, we = self.wind()
         sys_var = 0.0
         if ekf.mode != MODE_GROUND:
-            m = self.model
             speed = math.sqrt(wn * wn + we * we)
-            lean = lean_bias_wind(speed, (self.rho * m.volume_m3 - m.mass_kg) * G0,
-                                  float(ekf.x[DRAG]) * self.rho * m.half_cd_area_m2,
-                                  LEAN_BIAS_RAD) if ekf.mode == MODE_TAUT else 0.0  # fmt: skip
             sys_var = systematic_variance(speed, float(ekf.x[DRAG]), float(ekf.P[DRAG, DRAG]), self.rope_drag_share,
-                                          lean)  # fmt: skip
+                                          self.lean_wind_mps())  # fmt: skip
         acc = math.sqrt(ekf.wind_accuracy() ** 2 + sys_var) * self.consistency.inflation
         if self.unconfirmed:
             acc = max(acc, math.sqrt(wn * wn + we * we + 1.0))
         return acc
+
+    def lean_wind_mps(self) -> float:
+        """The wind error of the tilt's systematic error on the taut tether (consistency.lean_bias_wind), m/s;
+        0 off it."""
+        ekf = self.ekf
+        if ekf.mode != MODE_TAUT:
+            return 0.0
+        m = self.model
+        wn, we = self.wind()
+        return lean_bias_wind(math.sqrt(wn * wn + we * we), (self.rho * m.volume_m3 - m.mass_kg) * G0,
+                              float(ekf.x[DRAG]) * self.rho * m.half_cd_area_m2, LEAN_BIAS_RAD)  # fmt: skip
 
     def wind(self) -> tuple[float, float]:
         return float(self.ekf.x[WIND_N]), float(self.ekf.x[WIND_E])
