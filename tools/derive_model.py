@@ -233,7 +233,7 @@ def generate_params() -> str:
     lines[-1:-1] = [f"#define BW_N_RESET_KINDS {len(ekf.RESET_NAMES)}"]
     put("BW_", tuning)
     put("BW_", model, {"ADDED_MASS_COEFFICIENT"})
-    put("BW_", catenary, {"SHAPE_STEPS"})
+    put("BW_", catenary, {"SHAPE_STEPS", "ANCHORED_NEWTON_STEPS"})
     put("BW_WINDCOV_", outputs, {"WINDOW_S"})
     lines += ["#endif", ""]
     return "\n".join(lines)

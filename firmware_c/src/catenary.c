@@ -36,6 +36,26 @@ void bw_rope_chord(bw_real fn, bw_real fe, bw_real fd, bw_real length_m, bw_real
     chord[0] = -x, chord[1] = -y, chord[2] = -z;
 }
 
+bw_real bw_anchored_rope_spread(bw_real weight_n_m, bw_real span_m, bw_real height_m)
+{
+    bw_real rho, u;
+    int i;
+    if (span_m <= BW_R(1e-6) * BW_MAX(height_m, BW_R(1.0)) || height_m <= BW_R(0.0))
+        return BW_R(0.0);
+    rho = height_m / span_m;
+    if (rho < BW_R(1e-3)) {
+        u = BW_R(2.0) * rho;
+    } else { /* (cosh u - 1) / u = rho: Newton from above the root (f convex, f(0) = 0, f'(0) < 0) */
+        u = rho <= BW_R(1.0) ? BW_R(1.0) + BW_R(4.0) * rho
+                             : BW_LOG(BW_R(4.0) * rho) + BW_LOG(BW_LOG(BW_R(4.0) * rho) + BW_R(1.0)) + BW_R(1.0);
+        for (i = 0; i < BW_ANCHORED_NEWTON_STEPS; i++) {
+            bw_real ex = BW_EXP(u);
+            u -= (BW_R(0.5) * (ex + BW_R(1.0) / ex) - BW_R(1.0) - rho * u) / (BW_R(0.5) * (ex - BW_R(1.0) / ex) - rho);
+        }
+    }
+    return weight_n_m * span_m / u * BW_HYPOT(BW_R(1.0), BW_R(1.0) - BW_EXP(-u));
+}
+
 double bw_calm_weight_share(double lift_n, double rope_weight_n)
 {
     double v_top = lift_n, v_bottom = lift_n - rope_weight_n;

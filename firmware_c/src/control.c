@@ -335,6 +335,18 @@ static void switch_mode(bw_estimator_t *est, int mode)
     est->dwell = 0;
 }
 
+/* the climb tells the drag scale only while the rope's pull is known (Estimator._rope_load_known) */
+static int rope_load_known(const bw_estimator_t *est)
+{
+    const bw_ekf_t *e = &est->ekf;
+    const bw_model_t *m = &e->m;
+    bw_real lam_g = m->rope_kg_m * (bw_real)BW_G0;
+    bw_real height = BW_MIN(BW_MAX(-e->x[2] - m->radius_m, BW_R(0.0)), m->tether_length_m);
+    bw_real net_lift = (est->rho * m->volume_m3 - m->mass_kg) * (bw_real)BW_G0 - lam_g * height;
+    bw_real spread = bw_anchored_rope_spread(lam_g, BW_HYPOT(e->x[0], e->x[1]), height);
+    return spread < (bw_real)BW_DRAG_ASCENT_SIGMA * net_lift;
+}
+
 static void update_mode(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
 {
     bw_ekf_t *e = &est->ekf;
@@ -344,7 +356,7 @@ static void update_mode(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
     est->dwell += 1;
     dwell_ok = est->dwell >= est->n_dwell;
     {
-        int learning = e->mode == BW_MODE_FREE && est->dwell >= est->n_learn_drag;
+        int learning = e->mode == BW_MODE_FREE && est->dwell >= est->n_learn_drag && rope_load_known(est);
         if (learning != e->learn_drag) {
             if (learning)
                 est->drag_prior[0] = e->x[BW_DRAG], est->drag_prior[1] = e->P[BW_DRAG][BW_DRAG];

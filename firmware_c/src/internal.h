@@ -34,6 +34,7 @@ void bw_accelerations(const bw_model_t *m, bw_real rho, const bw_real s[BW_NCOL]
 void bw_rope_chord(bw_real fn, bw_real fe, bw_real fd, bw_real length_m, bw_real weight_n_m, bw_real drag_kg_m2,
                    bw_real wn, bw_real we, bw_real chord[3]);
 double bw_calm_weight_share(double lift_n, double rope_weight_n);
+bw_real bw_anchored_rope_spread(bw_real weight_n_m, bw_real span_m, bw_real height_m);
 bw_real bw_effective_rod(bw_real fn, bw_real fe, bw_real fd, bw_real cn, bw_real ce, bw_real cd, bw_real rope_weight_n);
 
 /* ekf.py */

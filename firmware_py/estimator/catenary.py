@@ -104,3 +104,28 @@ class RopeShape:
         self.calm_weight_n = calm_weight_n
         self.chord_m = length_m
         self.weight_n = calm_weight_n
+
+
+ANCHORED_NEWTON_STEPS = 12  # Newton steps from above the root: 1e-9 for heights 1e-3 .. 1e3 times the span
+
+
+def anchored_rope_spread(weight_n_m: float, span_m: float, height_m: float) -> float:
+    """How far apart (N) two honest pictures of the airborne rope's pull on a free balloon lie: hanging
+    straight down, ``weight_n_m * height_m`` (the free ascent's model), or fed from the anchor, a catenary
+    whose lowest point is the anchor (a rope coiled or reeled there and not yet lying on the ground
+    below the balloon), ``w (s down + a towards the anchor)`` with its arc s and parameter a from
+    h = a (cosh u - 1), x = a u at span x and height h. Their difference is w a (1, 1 - exp(-u)), as
+    s - h = a (sinh u - cosh u + 1). 0 straight above the anchor."""
+    if span_m <= 1e-6 * max(height_m, 1.0) or height_m <= 0.0:
+        return 0.0
+    rho = height_m / span_m  # < 1e6 here
+    if rho < 1e-3:
+        u = 2.0 * rho  # a flat rope: (cosh u - 1) / u = u / 2
+    else:
+        # (cosh u - 1) / u = rho: f(u) = cosh u - 1 - rho u is convex with f(0) = 0, f'(0) < 0, so Newton
+        # from above its positive root falls onto it monotonically
+        u = 1.0 + 4.0 * rho if rho <= 1.0 else math.log(4.0 * rho) + math.log(math.log(4.0 * rho) + 1.0) + 1.0
+        for _ in range(ANCHORED_NEWTON_STEPS):
+            ex = math.exp(u)
+            u -= (0.5 * (ex + 1.0 / ex) - 1.0 - rho * u) / (0.5 * (ex - 1.0 / ex) - rho)
+    return weight_n_m * span_m / u * math.hypot(1.0, 1.0 - math.exp(-u))

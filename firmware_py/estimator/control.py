@@ -15,6 +15,7 @@ from firmware_py.estimator.aid_sources.ground_ref import ground_baro_sample, ini
 from firmware_py.estimator.aid_sources.magnetometer import control_mag
 from firmware_py.estimator.aid_sources.tether import control_tether, enter_taut
 from firmware_py.estimator.aid_sources.winch import control_winch, init_winch, winch_sample
+from firmware_py.estimator.catenary import anchored_rope_spread
 from firmware_py.estimator.consistency import (
     ACCEL,
     ALIGN,
@@ -466,6 +467,21 @@ class Estimator:
         f = accelerations(self.model, self.rho, pn, pe, pd, vn, ve, vd, *x[12:17], True, self._probe)
         return f.taut
 
+    def _rope_load_known(self) -> bool:
+        """The climb tells the drag scale only as well as the rope's pull on the balloon is known: the
+        airborne rope hanging straight down (the free model) and fed from the anchor (a catenary from
+        it, ``anchored_rope_spread``) differ by less than DRAG_ASCENT_SIGMA of the lift that drives the
+        climb. Early in the ascent, or straight above the anchor, they agree; blown downwind on a long
+        rope they do not, and the climb's slowing may be the rope's."""
+        m = self.model
+        x = self.ekf.x
+        pn, pe, pd = float(x[0]), float(x[1]), float(x[2])
+        lam_g = m.rope_kg_m * G0
+        height = min(max(-pd - m.radius_m, 0.0), m.tether_length_m)
+        net_lift = (self.rho * m.volume_m3 - m.mass_kg) * G0 - lam_g * height
+        spread = anchored_rope_spread(lam_g, math.hypot(pn, pe), height)
+        return spread < DRAG_ASCENT_SIGMA * net_lift
+
     def _switch(self, mode: int) -> None:
         self.ekf.mode = mode
         self.counters.mode_switches += 1
@@ -476,7 +492,9 @@ class Estimator:
         cfg = self.cfg
         self._dwell += 1
         dwell_ok = self._dwell >= cfg.mode_dwell_s * cfg.imu_rate_hz
-        learning = ekf.mode == MODE_FREE and self._dwell >= LEARN_DRAG_AFTER_S * cfg.imu_rate_hz
+        learning = (
+            ekf.mode == MODE_FREE and self._dwell >= LEARN_DRAG_AFTER_S * cfg.imu_rate_hz and self._rope_load_known()
+        )
         if learning != ekf.learn_drag:
             if learning:
                 self._drag_prior = (float(ekf.x[DRAG]), float(ekf.P[DRAG, DRAG]))

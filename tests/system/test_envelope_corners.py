@@ -67,7 +67,7 @@ def fluctuating_ok(m: dict[str, float], min_skill: float = 0.25) -> list[str]:
     bad = []
     if not m["dir"] <= 3.0:
         bad.append(f"direction {m['dir']:.1f} deg")
-    if not m["speed"] <= 6.0:
+    if not m["speed"] <= 4.0:
         bad.append(f"speed {m['speed']:.1f} %")
     if not m["skill"] >= min_skill:
         bad.append(f"band skill {m['skill']:.2f}")
@@ -83,7 +83,9 @@ def fluctuating_ok(m: dict[str, float], min_skill: float = 0.25) -> list[str]:
 @pytest.mark.parametrize("rope", ["paper", "lumped"])
 def test_every_direction_of_a_multisine_flight(rope):
     """Nine directions of the same flight (6 m/s multisine, r = 1.25 m on 128 m, Table 2 sensors): each one
-    within 3 deg and 6 %, skilful, honest, no re-placement; the constant and the delayed truth fail."""
+    within 3 deg and the envelope's 4 % (the real rope read 4-6 % low before the ascent stopped learning the
+    drag where the rope's pull is not known), skilful, honest, no re-placement; the constant and the delayed
+    truth fail."""
     worst: list[str] = []
     for d in range(0, 360, 40):
         m = flights(base(from_deg=float(d), rope_model=rope))

@@ -10,7 +10,7 @@ import pytest
 
 from balloon_core.atmosphere import G0
 from balloon_core.config import Design
-from firmware_py.estimator.catenary import calm_weight_share, effective_rod, rope_chord
+from firmware_py.estimator.catenary import anchored_rope_spread, calm_weight_share, effective_rod, rope_chord
 from sim_hil.dynamics import BalloonPhysics, TruthConfig
 from sim_hil.rope import LumpedRope, rope_airborne, rope_derivative
 
@@ -164,3 +164,24 @@ def test_rope_drag_bows_the_rope_downwind():
     # the same pull at the top, the anchor further upwind: the chord leans further and is shorter
     assert bowed[0] > plain[0] + 3.0
     assert math.hypot(*bowed) < math.hypot(*plain)
+
+
+@pytest.mark.parametrize("u", [0.05, 0.6, 1.6, 4.0])
+def test_anchored_rope_is_the_catenary_from_the_anchor(u):
+    """The airborne rope fed from the anchor (its lowest point there): the pull it puts on the balloon,
+    (w a towards the anchor, w s down), shapes a rope of arc s through the anchor (``rope_chord``,
+    integrated independently), and the spread is its distance from the hanging rope's w h."""
+    a = 12.0
+    x, h, s = a * u, a * (math.cosh(u) - 1.0), a * math.sinh(u)
+    cn, ce, cd = rope_chord(-W * a, 0.0, W * s, s, W, 0.0, 0.0, 0.0)
+    assert cn == pytest.approx(x, rel=1e-2) and ce == 0.0 and -cd == pytest.approx(h, rel=1e-2, abs=1e-3)
+    assert anchored_rope_spread(W, x, h) == pytest.approx(W * math.hypot(s - h, a), rel=1e-9)
+
+
+def test_anchored_rope_spread_limits():
+    """Straight above the anchor both pictures agree; blown down they part, monotonically."""
+    assert anchored_rope_spread(W, 0.0, 50.0) == 0.0 and anchored_rope_spread(W, 10.0, 0.0) == 0.0
+    assert anchored_rope_spread(W, 0.01, 50.0) < 1e-3 * W * 50.0
+    spreads = [anchored_rope_spread(W, 50.0 * math.sin(b), 50.0 * math.cos(b)) for b in (0.1, 0.4, 0.8, 1.2)]
+    assert all(b > a for a, b in zip(spreads, spreads[1:]))
+    assert spreads[2] > 0.5 * W * 50.0  # at 46 deg from the vertical the two differ by half the rope's weight
