@@ -154,7 +154,7 @@ typedef struct {
         mag_sigma, mag_var, declination, rope_drag_share;
     int32_t catenary;
     /* the times of control.py as step counts (n >= ceil(t * rate)) and the monitor's weights, set at init */
-    int64_t n_dwell, n_learn_drag, n_false_release, n_taut_pull, n_confirm;
+    int32_t n_dwell, n_learn_drag, n_false_release, n_taut_pull, n_confirm;
     bw_real a_accel, a_taut, a_baro, a_confirm;
     int64_t dt_us;
     int32_t max_gap_steps;
@@ -182,7 +182,7 @@ typedef struct {
     bw_real ref_pos_d, t_ref_k, zero_sum;
     int32_t zero_n;
     bw_real join_height, rho, height_baro;
-    int32_t baro_pending;
+    int32_t baro_pending, baro_outside; /* a sample to fuse; samples in a row outside the gate (aid_baro.c) */
     /* the winch (aid_sources/winch.py) and the ground reference (aid_sources/ground_ref.py) */
     int64_t winch_samples, winch_t_us;
     bw_real winch_tension_n;

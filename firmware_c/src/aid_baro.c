@@ -77,12 +77,21 @@ int bw_baro_sample(bw_estimator_t *est, int64_t t_us, bw_real pressure_hpa, bw_r
 void bw_control_baro(bw_estimator_t *est)
 {
     if (est->baro_pending && est->height_baro == est->height_baro) {
+        bw_status_t *st = &est->baro_status;
         fuse_baro(est, est->height_baro);
         est->baro_pending = 0;
-        if (est->baro_status.consecutive_rejects >= est->sched.baro_reset) {
-            est->counters.baro_resets += 1;
-            est->baro_status.consecutive_rejects = 0;
-            bw_reset_height(&est->ekf, est->ref_pos_d - est->height_baro, est->baro_var);
+        /* every sample outside the gate counts, the recovery's forced fusions too (control.py) */
+        est->baro_outside = st->consecutive_rejects > 0 || st->test_ratio > BW_R(1.0) ? est->baro_outside + 1 : 0;
+        if (est->baro_outside >= est->sched.baro_reset) {
+            st->consecutive_rejects = 0;
+            est->baro_outside = 0;
+            if (est->ekf.mode == BW_MODE_TAUT) {
+                est->counters.taut_resets += 1;
+                bw_enter_taut(&est->ekf, bw_height_for_taut(est), est->rho, 1);
+            } else {
+                est->counters.baro_resets += 1;
+                bw_reset_height(&est->ekf, est->ref_pos_d - est->height_baro, est->baro_var);
+            }
         }
     }
 }

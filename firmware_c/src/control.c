@@ -17,9 +17,9 @@ static int32_t round_count(double v) /* max(1, round(v)), Python's round (half t
     return r < 1.0 ? 1 : (int32_t)r;
 }
 
-static int64_t steps_for(double v) /* the least step count n with n >= v */
+static int32_t steps_for(double v) /* the least step count n with n >= v (the config bounds v well below 2^31) */
 {
-    return (int64_t)ceil(v);
+    return (int32_t)ceil(v);
 }
 
 static void schedule_at(bw_schedule_t *s, double rate, double recover_after_s)
@@ -110,6 +110,7 @@ static void init_baro(bw_estimator_t *est)
     est->rho = (bw_real)(101325.0 / (BW_R_AIR * 293.15));
     est->height_baro = BW_R(NAN);
     est->baro_pending = 0;
+    est->baro_outside = 0;
     bw_init_ground_ref(est);
 }
 

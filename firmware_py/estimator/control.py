@@ -204,6 +204,7 @@ class Estimator:
         self.rho = air_density(101325.0, 293.15)
         self.height_baro = math.nan
         self._baro_pending = False
+        self.baro_outside = 0  # barometer samples in a row outside the gate (aid_sources.baro.control_baro)
         init_ground_ref(self)
 
     def reset(self) -> None:

@@ -1,6 +1,10 @@
 """The control logic's schedules are times, and every re-placement of the state goes through the
 filter's one reset API (firmware_py/estimator/params.py, ekf.WindEkf.reset)."""
 
+import math
+from dataclasses import replace
+
+import numpy as np
 import pytest
 
 from balloon_core.config import Design
@@ -73,3 +77,42 @@ def test_statuses_say_when_they_last_fused():
     assert 0 <= now - est.accel_status[0].time_last_fuse_us <= est.dt_us * 10  # fused every step
     assert 0 <= now - est.baro_status.time_last_fuse_us <= 200_000  # 20 Hz
     assert all(st.time_last_fuse_us <= now for st in (*est.mag_status, *est.taut_status))
+
+
+@pytest.mark.parametrize("core", ["py", "c"])
+def test_a_barometer_outside_its_gate_on_the_taut_tether_re_places_the_state(core):
+    """The taut state held straight above the anchor where the balloon leans on its rope (a 60 deg
+    blow-down read as upright once did this for a whole flight: the barometer 40 m off, rejected, its
+    recovery's forced fusions clearing the run of rejections every second, so the height reset after
+    ``BARO_RESET_S`` never came). Now the barometer outside its gate that long re-places the taut state
+    at the barometric height, its azimuth from the lean, counted as a taut re-placement."""
+    from firmware_py.core_c import CEstimator
+    from firmware_py.estimator.params import BARO_RESET_S
+    from firmware_py.estimator.state import BARO_OFF, POS_D
+    from sim_hil.scenarios import SCENARIOS
+    from sim_hil.simulator import TRUTH_COLUMNS, Simulation
+
+    sc = SCENARIOS["paper-reference"]
+    sim = Simulation(sc.design, replace(sc.wind, mean_mps=7.0), sc.truth, 90.0, 7)  # blown 45 deg down
+    samples = list(sim.samples())
+    truth = {c: sim.truth[:, k] for k, c in enumerate(TRUTH_COLUMNS)}
+    est = (Estimator if core == "py" else CEstimator)(sc.design, FilterConfig(core=core))
+    upset_at = 60.0
+    upset = None
+    for s in samples:
+        t = s.time_usec * 1e-6
+        if upset is None and t >= upset_at:
+            assert est.ekf.mode == MODE_TAUT and est.counters.taut_resets == 0
+            ell = math.sqrt(float(est.ekf.x[0]) ** 2 + float(est.ekf.x[1]) ** 2 + float(est.ekf.x[2]) ** 2)
+            est.ekf.x[0:6] = (0.0, 0.0, -ell, 0.0, 0.0, 0.0)  # upright on the same sphere
+            upset = t
+        if s.baro:
+            est.on_baro(s.time_usec, *s.baro)
+        est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
+        if upset is not None and t >= upset + BARO_RESET_S + 1.0:
+            break
+    assert est.counters.taut_resets == 1 and est.ekf.mode == MODE_TAUT
+    i = np.searchsorted(truth["time_s"], t)
+    height = -float(est.ekf.x[POS_D]) + float(est.ekf.x[BARO_OFF])
+    assert abs(height - truth["height_m"][i]) < 3.0, (height, truth["height_m"][i])
+    assert est.ekf.reset_counts[RESET_HEIGHT] == est.counters.baro_resets + est.counters.false_releases

@@ -6,10 +6,12 @@ import math
 from typing import TYPE_CHECKING
 
 from balloon_core.atmosphere import G0, LAPSE_K_M, R_AIR, air_density, hypsometric_height_m
+from firmware_py.estimator.aid_sources.tether import enter_taut
 from firmware_py.estimator.ekf import RESET_HEIGHT, FusionStatus, WindEkf
 from firmware_py.estimator.params import BARO_ZERO_S, P_MAX_HPA, P_MIN_HPA, T_MAX_C, T_MIN_C
 from firmware_py.estimator.state import (
     BARO_OFF,
+    MODE_TAUT,
     POS_D,
     VEL_D,
 )
@@ -81,13 +83,24 @@ def baro_sample(est: Estimator, t_us: int, pressure_hpa: float, temperature_c: f
 
 
 def control_baro(est: Estimator) -> None:
-    """Fuse a new barometric height at the step after it arrived; rejected for ``BARO_RESET_S`` the
-    height model is off and the sensor wins (a height reset)."""
+    """Fuse a new barometric height at the step after it arrived; outside the gate for ``BARO_RESET_S``
+    the height model is off and the sensor wins: a height reset, or on the taut tether a re-placement on
+    the rope's sphere at the barometric height, its azimuth from the lean (``enter_taut``). The streak
+    counts every sample outside the gate, the recovery's forced fusions too (``WindEkf.fuse``: they
+    clear the status's run of rejections every ``recover_after_s``, and the reset never came while the
+    taut rows held the state where the barometer could not walk it back)."""
     if est._baro_pending and not math.isnan(est.height_baro):
         ekf = est.ekf
-        fuse_baro(ekf, est.height_baro, est.ref_pos_d, est.baro_var, est.baro_status)
+        st = est.baro_status
+        fuse_baro(ekf, est.height_baro, est.ref_pos_d, est.baro_var, st)
         est._baro_pending = False
-        if est.baro_status.consecutive_rejects >= est.schedule.baro_reset:
-            est.counters.baro_resets += 1
-            est.baro_status.consecutive_rejects = 0
-            reset_height(ekf, est.ref_pos_d - est.height_baro, est.baro_var)
+        outside = st.consecutive_rejects > 0 or st.test_ratio > 1.0
+        est.baro_outside = est.baro_outside + 1 if outside else 0
+        if est.baro_outside >= est.schedule.baro_reset:
+            st.consecutive_rejects = est.baro_outside = 0
+            if ekf.mode == MODE_TAUT:
+                est.counters.taut_resets += 1
+                enter_taut(ekf, est._height_for_taut(), est.rho, from_tilt=True)
+            else:
+                est.counters.baro_resets += 1
+                reset_height(ekf, est.ref_pos_d - est.height_baro, est.baro_var)
