@@ -206,6 +206,7 @@ SCHEMA: dict[str, dict[str, Rule]] = {
         "ground_thermometer_k": num(0.0, 10.0),
         "temperature_drift_k_h": num(-20.0, 20.0),
         "drag_model": one_of("constant", "reynolds"),
+        "drag_coefficient_scale": num(0.1, 10.0),
         "drag_crisis_reynolds": num(1e3, 1e8),
         "drag_crisis_exponent": num(0.1, 10.0),
         "avionics_offset_m": num(0.0, 20.0),

@@ -28,12 +28,14 @@ import math
 import sys
 import time
 from pathlib import Path
+from statistics import NormalDist
 from typing import Any
 
 import numpy as np
 
 from balloon_core.config import Design, lift_balance
 from balloon_core.score import on_grid
+from sim_hil.dynamics import TruthConfig
 from sim_hil.scenarios import SCENARIOS
 from study import engine
 from study.spec import Case, case_key, scenario_sections
@@ -52,13 +54,19 @@ GRADES = {  # sensor 1-sigma errors the design states (and the simulator draws)
 BIASES = {"gyro_bias_dps": 0.3, "gyro_bias_walk_dps_rt_s": 0.002, "accel_bias_mps2": 0.02,
           "accel_bias_walk_mps2_rt_s": 0.001}  # fmt: skip  # the field-biases scenario's, x bias_scale
 DIMS = ("from_deg", "mean_mps", "wind_kind", "rope_model", "radius_u", "tether_m", "pressure_drift_hpa_h",
-        "bias_scale", "sensor_grade", "seed")  # fmt: skip
+        "bias_scale", "sensor_grade", "seed", "cd_scale", "rope_cd_scale")  # fmt: skip
 #: sampled parameters as they appear in the table (radius_u becomes radius_m)
 PARAMS = ("from_deg", "mean_mps", "wind_kind", "rope_model", "radius_m", "tether_m", "pressure_drift_hpa_h",
-          "bias_scale", "sensor_grade", "seed")  # fmt: skip
+          "bias_scale", "sensor_grade", "seed", "cd_scale", "rope_cd_scale")  # fmt: skip
+# the balloon and the rope flown are not the design's: their drag coefficients are the design's times a factor
+# drawn from what a user knows of them (1-sigma, truncated at 2.5 sigma): a sphere's C_d to 10 %, a rope's
+# cross-flow C_n to 30 % (the filter's stated accuracy assumes as much: consistency.systematic_variance)
+CD_SIGMA = 0.10
+TRUTH_DEFAULTS = TruthConfig()
+ROPE_CD_SIGMA = 0.30
 WINDOW_S = 60.0
 CAL_EDGES = np.geomspace(0.02, 5.0, 15)  # stated accuracy bins, m/s
-ENVELOPE_VERSION = 2
+ENVELOPE_VERSION = 3
 #: the study's metric names as the envelope's table names them (one row per flight, envelope.csv)
 CONTRACT_NAMES = {"speed_error_pct": "speed_err_pct", "direction_error_deg": "dir_err_deg", "error_ratio": "err_acc"}
 
@@ -137,8 +145,16 @@ def sample(n: int, seed: int = SEED) -> list[dict[str, Any]]:
             "bias_scale": round(float(v["bias_scale"]), 4),
             "sensor_grade": pick(v["sensor_grade"], tuple(GRADES)),
             "seed": int(v["seed"] * 1_000_000),
+            "cd_scale": drawn_scale(v["cd_scale"], CD_SIGMA),
+            "rope_cd_scale": drawn_scale(v["rope_cd_scale"], ROPE_CD_SIGMA),
         })  # fmt: skip
     return out
+
+
+def drawn_scale(u: float, sigma: float) -> float:
+    """1 + sigma z, z the standard normal quantile of the sample's u, truncated at 2.5 sigma."""
+    z = NormalDist().inv_cdf(min(max(u, 1e-9), 1.0 - 1e-9))
+    return float(round(1.0 + sigma * max(-2.5, min(2.5, z)), 4))
 
 
 def sections_of(p: dict[str, Any]) -> dict[str, dict[str, Any]]:
@@ -162,6 +178,8 @@ def sections_of(p: dict[str, Any]) -> dict[str, dict[str, Any]]:
     t = secs["truth"]
     t["rope_model"] = p["rope_model"]
     t["pressure_drift_hpa_h"] = p["pressure_drift_hpa_h"]
+    t["drag_coefficient_scale"] = p.get("cd_scale", 1.0)
+    t["rope_normal_cd"] = t.get("rope_normal_cd", TRUTH_DEFAULTS.rope_normal_cd) * p.get("rope_cd_scale", 1.0)
     t.update({k: v * p["bias_scale"] for k, v in BIASES.items()})
     return secs
 
@@ -315,7 +333,7 @@ def plots(df, out: Path) -> list[Path]:
 
     ok = df[df["status"] == "ok"]
     y = ok["dir_err_deg"].abs()
-    fig, axes = plt.subplots(2, 5, figsize=(18, 7), sharey=True)
+    fig, axes = plt.subplots(2, 6, figsize=(21, 7), sharey=True)
     rng = np.random.default_rng(0)
     for ax, p in zip(axes.flat, PARAMS):
         x = ok[p]

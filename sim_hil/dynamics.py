@@ -84,6 +84,9 @@ class TruthConfig:
     # sphere drag: "constant" = the design's drag_coefficient; "reynolds" = Cd(Re) through the drag
     # crisis (sphere_drag_coefficient), the design's Cd is then the firmware's belief only
     drag_model: str = "constant"
+    # the balloon flown is not quite the one designed: its C_d is the design's times this (constant drag model;
+    # a user knows a balloon's C_d to ~10 %, the design file's is the firmware's belief only)
+    drag_coefficient_scale: float = 1.0
     drag_crisis_reynolds: float = 4.1e5  # centre of the crisis: Cd(3 m/s, r = 1 m, 100 m) = 0.30
     drag_crisis_exponent: float = 4.0  # steepness; <= ~5 keeps the drag force rising with speed
     # avionics as a point mass (part of skin_and_avionics_kg) this far below the centre, along body +z;
@@ -98,6 +101,10 @@ class TruthConfig:
             raise ConfigError(f"truth.rope_segments must be an integer in [2, 200], got {self.rope_segments!r}")
         if self.drag_model not in ("constant", "reynolds"):
             raise ConfigError(f"truth.drag_model must be constant or reynolds, got {self.drag_model!r}")
+        if not 0.1 <= self.drag_coefficient_scale <= 10.0:
+            raise ConfigError(f"truth.drag_coefficient_scale must be in [0.1, 10], got {self.drag_coefficient_scale!r}")
+        if self.drag_coefficient_scale != 1.0 and self.drag_model != "constant":
+            raise ConfigError("truth.drag_coefficient_scale applies to the constant drag model only")
         if not (self.drag_crisis_reynolds > 0.0 and self.drag_crisis_exponent > 0.0):
             raise ConfigError("truth.drag_crisis_reynolds and truth.drag_crisis_exponent must be > 0")
         if self.avionics_offset_m < 0.0 or self.avionics_kg < 0.0:
@@ -184,7 +191,9 @@ class BalloonPhysics:
             volume_m3=volume,
             mass_kg=mass,
             inertia_kgm2=inertia,
-            drag_factor=0.5 * b.drag_coefficient * math.pi * r * r if truth.drag and not reynolds else 0.0,
+            drag_factor=0.5 * b.drag_coefficient * truth.drag_coefficient_scale * math.pi * r * r
+            if truth.drag and not reynolds
+            else 0.0,
             added_mass_coefficient=truth.added_mass_coefficient,
             tether_length_m=t.length_m,
             rope_kg_m=t.linear_density_kg_m,
