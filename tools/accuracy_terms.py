@@ -4,11 +4,12 @@
     python tools/accuracy_terms.py 0 4 8 --duration 600    # flights of the full sample
 
 Flies each flight of ``benchmarks.bench_envelope``'s sample on the Python core (the C core is held equal to
-it) and prints, over the scored part (from 120 s), the RMS wind error against the truth and the RMS of each
-term of the reported accuracy (``Estimator.wind_accuracy``): the covariance's, the drag scale's, the rope's
-drag coefficient's and the tilt's systematic terms, the consistency monitor's mean factor and its windowed
-NIS per source; and how far the barometer offset state walked in its worst 20 s against its own stated
-1-sigma (the rope model's disagreement with the barometer, which no single innovation shows)."""
+it) and prints, over the scored part (from 120 s), the RMS wind error against the truth, the drag scale learnt
+beside the one flown (the truth's C_d over the design's) and the RMS of each term of the reported accuracy
+(``Estimator.wind_accuracy``): the covariance's, the drag scale's, the rope's drag coefficient's and the
+tilt's systematic terms, the consistency monitor's mean factor and its windowed NIS per source; and how far
+the barometer offset state walked in its worst 20 s against its own stated 1-sigma (the rope model's
+disagreement with the barometer, which no single innovation shows)."""
 
 from __future__ import annotations
 
@@ -88,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
         if not 0 <= f < len(points):
             print(f"accuracy_terms: no flight {f} in a sample of {len(points)}", file=sys.stderr)
             return 2
-    print("| flight | wind | rope | error | speed error | drag scale | accuracy "
+    print("| flight | wind | rope | error | speed error | drag scale (truth's C_d / design's) | accuracy "
           "| = sqrt(P^2 + drag^2 + rope^2 + tilt^2) x inflation | error/accuracy "
           "| worst 20 s offset walk / its sigma | NIS " + " ".join(SOURCES) + " |")  # fmt: skip
     print("|---|---|---|---:|---:|---:|---:|---|---:|---:|---|")
@@ -97,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
         t = terms(p, duration)
         nis = " ".join(f"{t['nis_' + s]:.2f}" for s in SOURCES)
         print(f"| {f} | {p['wind_kind']} {p['mean_mps']:.1f} m/s | {p['rope_model']} | {t['error']:.3f} | "
-              f"{t['speed_error_pct']:+.1f} % | {t['drag_scale']:.3f} | {t['accuracy']:.3f} | "
+              f"{t['speed_error_pct']:+.1f} % | {t['drag_scale']:.3f} ({p['cd_scale']:.3f}) | {t['accuracy']:.3f} | "
               f"sqrt({t['P']:.3f}^2 + {t['drag']:.3f}^2 + {t['rope']:.3f}^2 + "
               f"{t['tilt']:.3f}^2) x {t['inflation']:.2f} | {t['error'] / t['accuracy']:.2f} | "
               f"{t['offset_walk_m']:.1f} m / {t['offset_sigma_m']:.2f} m | {nis} |", flush=True)  # fmt: skip
