@@ -28,7 +28,8 @@ ROPE_SHAPE_S = 60.0
 # removes from the lean, so from the wind in calm air, where the lean is a degree (consistency.py)
 LEAN_BIAS_RAD = 0.0035
 # the drag scale learnt in a free ascent is worth at most this (1-sigma, relative): the ascent's model leaves
-# out the rope's pull as it is lifted off the ground, its drag and the gusts (+-20 % seen on the real rope)
+# out the vertical air and the gusts (a downdraft through the climb reads as drag: +20 % in class B gusts).
+# It learns only while the rope's pull is known to this share of the net lift (control._rope_load_known)
 DRAG_ASCENT_SIGMA = 0.1
 ALIGN_INNOV_S = 5.0  # averaging time of the alignment's innovations that set its noise floor
 ALIGN_CROSS_VAR_MAX = 0.05**2  # rad^2: the most a rocking balloon's azimuth departs from its rope's
