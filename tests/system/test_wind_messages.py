@@ -291,6 +291,8 @@ def test_mavproxy_shows_the_firmwares_wind(flight, tmp_path):
     assert any(abs(direction - d) <= 1e-3 and speed == pytest.approx(s) for d, s in sent), (direction, speed)
     assert "speed_z : nan" in text
     status = [ln for ln in seen if "ESTIMATOR_STATUS {" in ln]
-    flags = int(status[-1].split("flags : ")[1].split(",")[0])
-    # as for WIND: the status MAVProxy printed last is one the firmware sent, not necessarily its last
-    assert flags in {m.flags for _, m in sink.of("ESTIMATOR_STATUS")} and flags & mavlink.ESTIMATOR_VELOCITY_HORIZ
+    printed = [int(ln.split("flags : ")[1].split(",")[0]) for ln in status]
+    # as for WIND: each status MAVProxy printed is one the firmware sent, from wherever in the replayed flight it
+    # was (on the ground or in a misfit's seconds: no horizontal velocity); the taut flight's show one
+    assert set(printed) <= {m.flags for _, m in sink.of("ESTIMATOR_STATUS")}, printed
+    assert any(f & mavlink.ESTIMATOR_VELOCITY_HORIZ for f in printed), printed
