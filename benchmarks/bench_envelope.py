@@ -35,7 +35,6 @@ import numpy as np
 
 from balloon_core.config import Design, lift_balance
 from balloon_core.score import on_grid
-from sim_hil.dynamics import TruthConfig
 from sim_hil.scenarios import SCENARIOS
 from study import engine
 from study.spec import Case, case_key, scenario_sections
@@ -62,7 +61,6 @@ PARAMS = ("from_deg", "mean_mps", "wind_kind", "rope_model", "radius_m", "tether
 # drawn from what a user knows of them (1-sigma, truncated at 2.5 sigma): a sphere's C_d to 10 %, a rope's
 # cross-flow C_n to 30 % (the filter's stated accuracy assumes as much: consistency.systematic_variance)
 CD_SIGMA = 0.10
-TRUTH_DEFAULTS = TruthConfig()
 ROPE_CD_SIGMA = 0.30
 WINDOW_S = 60.0
 CAL_EDGES = np.geomspace(0.02, 5.0, 15)  # stated accuracy bins, m/s
@@ -179,7 +177,7 @@ def sections_of(p: dict[str, Any]) -> dict[str, dict[str, Any]]:
     t["rope_model"] = p["rope_model"]
     t["pressure_drift_hpa_h"] = p["pressure_drift_hpa_h"]
     t["drag_coefficient_scale"] = p.get("cd_scale", 1.0)
-    t["rope_normal_cd"] = t.get("rope_normal_cd", TRUTH_DEFAULTS.rope_normal_cd) * p.get("rope_cd_scale", 1.0)
+    t["rope_normal_cd"] *= p.get("rope_cd_scale", 1.0)
     t.update({k: v * p["bias_scale"] for k, v in BIASES.items()})
     return secs
 

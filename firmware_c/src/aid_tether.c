@@ -29,7 +29,7 @@ void bw_enter_taut(bw_ekf_t *e, bw_real height_m, bw_real rho, int from_tilt)
     else
         an = ae = BW_R(0.0);
     /* the wind's speed from the static balance along that azimuth, drag = (N_b - W) tan(theta) */
-    lift = (rho * m->volume_m3 - m->mass_kg) * (bw_real)BW_G0 - e->rope_weight_n;
+    lift = bw_lift_n(m, rho) - e->rope_weight_n;
     drag = BW_MAX(lift, BW_R(0.0)) * sin_t / cos_t;
     k = BW_MAX(x[BW_DRAG], BW_R(0.2));
     speed = drag > BW_R(0.0) ? BW_SQRT(drag / (k * rho * m->half_cd_area_m2)) : BW_R(0.0);
@@ -125,7 +125,7 @@ static void update_rope_shape(bw_estimator_t *est)
     const bw_real *x = e->x, rho = est->rho, alpha = est->sched.rope_shape_alpha;
     bw_real un = x[BW_WIND_N] - x[BW_VEL_N], ue = x[BW_WIND_E] - x[BW_VEL_E], ud = -x[BW_VEL_D];
     bw_real kd = x[BW_DRAG] * rho * m->half_cd_area_m2 * BW_SQRT(un * un + ue * ue + ud * ud);
-    bw_real lift = (rho * m->volume_m3 - m->mass_kg) * (bw_real)BW_G0;
+    bw_real lift = bw_lift_n(m, rho);
     bw_real fn = -kd * un, fe = -kd * ue, fd = -kd * ud + lift, ch[3], chord, weight;
     bw_real length = m->tether_length_m;
     bw_rope_chord(fn, fe, fd, length, m->lam_g, BW_R(0.5) * rho * m->rope_cn_d_m,

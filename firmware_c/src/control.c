@@ -236,7 +236,7 @@ static void join_in_flight(bw_estimator_t *est, const bw_real q[4])
     const bw_model_t *m = &e->m;
     bw_real zd = q[0] * q[0] - q[1] * q[1] - q[2] * q[2] + q[3] * q[3]; /* cos(tilt) */
     bw_real tan_tilt = BW_SQRT(BW_MAX(BW_R(0.0), BW_R(1.0) - zd * zd)) / BW_MAX(zd, BW_R(0.1));
-    bw_real lift = (est->rho * m->volume_m3 - m->mass_kg) * (bw_real)BW_G0;
+    bw_real lift = bw_lift_n(m, est->rho);
     bw_real spare = lift - (est->catenary ? e->rope_weight_n : m->rope_weight_n);
     bw_real tan_chord = spare > BW_R(0.1) * lift ? tan_tilt * lift / spare : tan_tilt;
     bw_real height = (e->rope_chord_m + m->radius_m) / BW_SQRT(BW_R(1.0) + tan_chord * tan_chord);
@@ -343,7 +343,7 @@ static int rope_load_known(const bw_estimator_t *est)
     const bw_model_t *m = &e->m;
     bw_real lam_g = m->rope_kg_m * (bw_real)BW_G0;
     bw_real height = BW_MIN(BW_MAX(-e->x[2] - m->radius_m, BW_R(0.0)), m->tether_length_m);
-    bw_real net_lift = (est->rho * m->volume_m3 - m->mass_kg) * (bw_real)BW_G0 - lam_g * height;
+    bw_real net_lift = bw_lift_n(m, est->rho) - lam_g * height;
     bw_real spread = bw_anchored_rope_spread(lam_g, BW_HYPOT(e->x[0], e->x[1]), height);
     return spread < (bw_real)BW_DRAG_ASCENT_SIGMA * net_lift;
 }
@@ -574,7 +574,7 @@ bw_real bw_wind_accuracy(const bw_estimator_t *est)
     if (e->mode != BW_MODE_GROUND) {
         const bw_model_t *m = &e->m;
         bw_real lean = e->mode == BW_MODE_TAUT
-                           ? bw_lean_bias_wind(speed, (est->rho * m->volume_m3 - m->mass_kg) * (bw_real)BW_G0,
+                           ? bw_lean_bias_wind(speed, bw_lift_n(m, est->rho),
                                                e->x[BW_DRAG] * est->rho * m->half_cd_area_m2, (bw_real)BW_LEAN_BIAS_RAD)
                            : BW_R(0.0);
         sys_var = bw_systematic_variance(speed, e->x[BW_DRAG], e->P[BW_DRAG][BW_DRAG], est->rope_drag_share, lean);

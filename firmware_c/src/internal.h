@@ -28,6 +28,11 @@ double bw_round_half_even(double v);
 void bw_wind_process(double mean_mps, double ti, double diameter_m, double *tau_s, double *q_rate, double *q_walk);
 
 /* model.py */
+/* BalloonModel.lift_n: the balloon's own net lift in air of density rho (the rope not counted) */
+static inline bw_real bw_lift_n(const bw_model_t *m, bw_real rho)
+{
+    return (rho * m->volume_m3 - m->mass_kg) * (bw_real)BW_G0;
+}
 void bw_accelerations(const bw_model_t *m, bw_real rho, const bw_real s[BW_NCOL], int taut, bw_forces_t *out);
 
 /* catenary.py */

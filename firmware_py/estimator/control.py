@@ -394,7 +394,7 @@ class Estimator:
         ekf = self.ekf
         zd = q[0] * q[0] - q[1] * q[1] - q[2] * q[2] + q[3] * q[3]  # cos(tilt)
         tan_tilt = math.sqrt(max(0.0, 1.0 - zd * zd)) / max(zd, 0.1)
-        lift = (self.rho * m.volume_m3 - m.mass_kg) * G0
+        lift = m.lift_n(self.rho)
         spare = lift - (ekf.rope.weight_n if self.catenary else m.rope_weight_n)
         tan_chord = tan_tilt * lift / spare if spare > 0.1 * lift else tan_tilt
         height = (ekf.rope.chord_m + m.radius_m) / math.sqrt(1.0 + tan_chord * tan_chord)
@@ -479,7 +479,7 @@ class Estimator:
         pn, pe, pd = float(x[0]), float(x[1]), float(x[2])
         lam_g = m.rope_kg_m * G0
         height = min(max(-pd - m.radius_m, 0.0), m.tether_length_m)
-        net_lift = (self.rho * m.volume_m3 - m.mass_kg) * G0 - lam_g * height
+        net_lift = m.lift_n(self.rho) - lam_g * height
         spread = anchored_rope_spread(lam_g, math.hypot(pn, pe), height)
         return spread < DRAG_ASCENT_SIGMA * net_lift
 
@@ -568,7 +568,7 @@ class Estimator:
             return 0.0
         m = self.model
         wn, we = self.wind()
-        return lean_bias_wind(math.sqrt(wn * wn + we * we), (self.rho * m.volume_m3 - m.mass_kg) * G0,
+        return lean_bias_wind(math.sqrt(wn * wn + we * we), m.lift_n(self.rho),
                               float(ekf.x[DRAG]) * self.rho * m.half_cd_area_m2, LEAN_BIAS_RAD)  # fmt: skip
 
     def wind(self) -> tuple[float, float]:

@@ -54,6 +54,10 @@ class BalloonModel:
             rope_cn_d_m=rope_normal_cd * d.tether.diameter_m,
         )
 
+    def lift_n(self, rho: float) -> float:
+        """The balloon's own net lift in air of density ``rho`` (Eq. 4 less its weight; the rope not counted)."""
+        return (rho * self.volume_m3 - self.mass_kg) * G0
+
     @property
     def rope_weight_n(self) -> float:
         return self.rope_kg_m * G0 * self.tether_length_m

@@ -78,7 +78,7 @@ def enter_taut(ekf: WindEkf, height_m: float, rho: float, from_tilt: bool = Fals
         an = ae = 0.0
     # the wind's speed from the static balance along that azimuth, drag = (N_b - W) tan(theta): the
     # ascent's horizontal speed is observed only weakly (through the release and |u| in the climb)
-    lift = (rho * m.volume_m3 - m.mass_kg) * G0 - ekf.rope.weight_n
+    lift = m.lift_n(rho) - ekf.rope.weight_n
     drag = max(lift, 0.0) * sin_t / cos_t
     k = max(float(x[DRAG]), 0.2)
     speed = math.sqrt(drag / (k * rho * m.half_cd_area_m2)) if drag > 0.0 else 0.0
@@ -187,7 +187,7 @@ def update_rope_shape(ekf: WindEkf, rho: float, alpha: float) -> None:
     wn, we, k = float(x[WIND_N]), float(x[WIND_E]), float(x[DRAG])
     un, ue, ud = wn - vn, we - ve, -vd
     kd = k * rho * m.half_cd_area_m2 * math.sqrt(un * un + ue * ue + ud * ud)
-    lift = (rho * m.volume_m3 - m.mass_kg) * G0
+    lift = m.lift_n(rho)
     fn, fe, fd = -kd * un, -kd * ue, -kd * ud + lift
     w = m.rope_kg_m * G0
     cn, ce, cd = rope_chord(fn, fe, fd, m.tether_length_m, w, 0.5 * rho * m.rope_cn_d_m, wn, we)
