@@ -229,7 +229,7 @@ def generate_params() -> str:
         {"ACCEL", "ALIGN", "RADIUS", "BARO", "MAG", "CONSISTENCY_S", "NIS_CLIP", "FLAG_NIS", "ROPE_CD_REL_SIGMA"},
     )
     lines[-1:-1] = [f"#define BW_N_SOURCES {len(consistency.SOURCES)}"]
-    put("BW_", ekf, {"RESET_INITIALISE", "RESET_TAUT", "RESET_HEIGHT"})
+    put("BW_", ekf, {"RESET_INITIALISE", "RESET_TAUT", "RESET_HEIGHT", "RESET_DRAG"})
     lines[-1:-1] = [f"#define BW_N_RESET_KINDS {len(ekf.RESET_NAMES)}"]
     put("BW_", tuning)
     put("BW_", model, {"ADDED_MASS_COEFFICIENT"})

@@ -108,7 +108,7 @@ typedef struct {
     int32_t mode, learn_drag, drag_correlated, recover_after;
     int64_t time_us;
     int32_t taut_phase, noise_phase;   /* step % taut_every, step % wind_noise_every */
-    int32_t reset_counts[3];
+    int32_t reset_counts[4];
     int32_t reset_count;
 } bw_ekf_t;
 
@@ -168,14 +168,16 @@ typedef struct {
     bw_real acc_mean[3], acc_var;
     int64_t confirm_count;
     bw_real field_ned[3];
-    int64_t dwell;
+    int32_t dwell;
     bw_real accel_innov2, innov_alpha, mean_speed, speed_alpha, speed_var;
-    int64_t slack, pulling;
+    int32_t slack, pulling;
     int32_t was_slack;
-    int64_t height_above;
+    int32_t height_above;
     bw_real accel_var_excess;
     bw_real align_innov2[2], a_align_innov; /* the alignment's noise, along and cross (aid_tether.c) */
     bw_real drag_prior[2];        /* the drag scale and its variance when a free ascent starts to learn it */
+    bw_real ascent_var, ascent_climb; /* the variance that ascent's data claimed (0: none to weigh again), its climb */
+    bw_real turbulence[3]; /* the taut wind speed at the window's start, departures from it summed, squared */
     /* barometer (control.py _init_baro) */
     bw_real p_ref_pa;
     int32_t zeroing;

@@ -93,6 +93,8 @@ static void init_clock(bw_estimator_t *est)
     est->accel_var_excess = BW_R(0.0);
     est->align_innov2[0] = est->align_innov2[1] = BW_R(0.0);
     est->drag_prior[0] = BW_R(1.0), est->drag_prior[1] = BW_R(0.0);
+    est->ascent_var = est->ascent_climb = BW_R(0.0);
+    est->turbulence[0] = est->turbulence[1] = est->turbulence[2] = BW_R(0.0);
     bw_consistency_reset(&est->consistency);
 }
 
@@ -348,6 +350,46 @@ static int rope_load_known(const bw_estimator_t *est)
     return spread < (bw_real)BW_DRAG_ASCENT_SIGMA * net_lift;
 }
 
+/* control.py _weigh_ascent: the drag scale a free ascent learnt, weighed again once the taut flight has
+ * measured the turbulence (its wind speed's variance from TURBULENCE_FROM_S to TURBULENCE_TO_S after the entry):
+ * a measurement of sqrt(DRAG_ASCENT_FLOOR^2 + (2 sigma_w / v_climb)^2), never more than its data claimed */
+static void weigh_ascent(bw_estimator_t *est, bw_real speed)
+{
+    double rate = est->cfg->imu_rate_hz;
+    int32_t start = steps_for(BW_TURBULENCE_FROM_S * rate), end = steps_for(BW_TURBULENCE_TO_S * rate);
+    bw_ekf_t *e = &est->ekf;
+    bw_real *tb = est->turbulence, d, n, sigma_u2, sigma_w2, v, var, k, s;
+    int i, j;
+    if (est->dwell <= start) {
+        tb[0] = speed, tb[1] = BW_R(0.0), tb[2] = BW_R(0.0);
+        return;
+    }
+    d = speed - tb[0];
+    tb[1] += d;
+    tb[2] += d * d;
+    if (est->dwell < end)
+        return;
+    n = (bw_real)(end - start);
+    sigma_u2 = BW_MAX(BW_R(0.0), tb[2] / n - (tb[1] / n) * (tb[1] / n))
+               / (bw_real)bw_kaimal_window_share(BW_TURBULENCE_TO_S - BW_TURBULENCE_FROM_S, (double)est->mean_speed);
+    v = BW_MAX(est->ascent_climb, BW_R(1.0));
+    sigma_w2 = (bw_real)(BW_VERTICAL_TURBULENCE_RATIO * BW_VERTICAL_TURBULENCE_RATIO) * sigma_u2;
+    var = BW_MAX(est->ascent_var, (bw_real)(BW_DRAG_ASCENT_FLOOR * BW_DRAG_ASCENT_FLOOR) + BW_R(4.0) * sigma_w2 / (v * v));
+    k = e->x[BW_DRAG];
+    bw_ekf_weigh_information(e, BW_DRAG, est->drag_prior[0], est->drag_prior[1], var);
+    est->ascent_var = BW_R(0.0);
+    /* the drag the state explains stays: the relative wind moves with k */
+    s = BW_SQRT(k / e->x[BW_DRAG]);
+    for (i = 0; i < 2; i++) {
+        int w = i ? BW_WIND_E : BW_WIND_N, vel = i ? BW_VEL_E : BW_VEL_N;
+        e->x[w] = e->x[vel] + s * (e->x[w] - e->x[vel]);
+        for (j = 0; j < BW_N_STATES; j++)
+            e->P[w][j] *= s;
+        for (j = 0; j < BW_N_STATES; j++)
+            e->P[j][w] *= s;
+    }
+}
+
 static void update_mode(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
 {
     bw_ekf_t *e = &est->ekf;
@@ -358,12 +400,14 @@ static void update_mode(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
     dwell_ok = est->dwell >= est->n_dwell;
     {
         int learning = e->mode == BW_MODE_FREE && est->dwell >= est->n_learn_drag && rope_load_known(est);
+        if (learning)
+            est->ascent_climb = -e->x[BW_VEL_D];
         if (learning != e->learn_drag) {
             if (learning)
                 est->drag_prior[0] = e->x[BW_DRAG], est->drag_prior[1] = e->P[BW_DRAG][BW_DRAG];
             else
-                bw_ekf_cap_information(e, BW_DRAG, est->drag_prior[0], est->drag_prior[1],
-                                       (bw_real)(BW_DRAG_ASCENT_SIGMA * BW_DRAG_ASCENT_SIGMA));
+                est->ascent_var = bw_ekf_cap_information(e, BW_DRAG, est->drag_prior[0], est->drag_prior[1],
+                                                         (bw_real)(BW_DRAG_ASCENT_SIGMA * BW_DRAG_ASCENT_SIGMA));
         }
         e->learn_drag = learning;
     }
@@ -550,6 +594,8 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
         bw_real dev = BW_SQRT(wn * wn + we * we) - est->mean_speed;
         est->mean_speed += est->speed_alpha * dev;
         est->speed_var += est->speed_alpha * (dev * dev - est->speed_var);
+        if (est->ascent_var > BW_R(0.0))
+            weigh_ascent(est, BW_SQRT(wn * wn + we * we));
         if (e->noise_phase == 0) {
             bw_real misfit;
             est->vertical_gust_var = vertical_gust_var(est, est->mean_speed, est->rho);

@@ -571,20 +571,35 @@ static void inhibit(bw_ekf_t *e, int i)
     e->P[i][i] = v;
 }
 
-/* ekf.py cap_information: what the data told state i since the prior is worth at most a measurement of
- * variance data_var_min (a model error taken for information is given back) */
-void bw_ekf_cap_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_var, bw_real data_var_min)
+/* ekf.py weigh_information: what the data told state i since the prior, weighed as one measurement of
+ * variance data_var (the data's own estimate combined with the prior at that weight; correlations cut) */
+void bw_ekf_weigh_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_var, bw_real data_var)
 {
-    bw_real var = e->P[i][i], info, data, cap, v;
+    bw_real var = e->P[i][i], info, data, w, v;
     info = var > BW_R(0.0) && prior_var > BW_R(0.0) ? BW_R(1.0) / var - BW_R(1.0) / prior_var : BW_R(0.0);
-    if (!(info > BW_R(1.0) / data_var_min))
+    if (!(info > BW_R(0.0) && data_var > BW_R(0.0)))
         return;
     data = (e->x[i] / var - prior / prior_var) / info;
-    cap = BW_R(1.0) / data_var_min;
-    v = BW_R(1.0) / (BW_R(1.0) / prior_var + cap);
+    w = BW_R(1.0) / data_var;
+    v = BW_R(1.0) / (BW_R(1.0) / prior_var + w);
     inhibit(e, i);
-    e->x[i] = v * (prior / prior_var + cap * data);
+    e->x[i] = v * (prior / prior_var + w * data);
     e->P[i][i] = v;
+    bw_ekf_reset(e, BW_RESET_DRAG);
+}
+
+/* ekf.py cap_information: what the data told state i since the prior is worth at most a measurement of
+ * variance data_var_min (a model error taken for information is given back); the variance the data claimed
+ * (0: none) */
+bw_real bw_ekf_cap_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_var, bw_real data_var_min)
+{
+    bw_real var = e->P[i][i], info;
+    info = var > BW_R(0.0) && prior_var > BW_R(0.0) ? BW_R(1.0) / var - BW_R(1.0) / prior_var : BW_R(0.0);
+    if (!(info > BW_R(0.0)))
+        return BW_R(0.0);
+    if (info > BW_R(1.0) / data_var_min)
+        bw_ekf_weigh_information(e, i, prior, prior_var, data_var_min);
+    return BW_R(1.0) / info;
 }
 
 int bw_ekf_end_update(bw_ekf_t *e)

@@ -26,6 +26,7 @@ double bw_round_half_even(double v);
 
 /* tuning.py */
 void bw_wind_process(double mean_mps, double ti, double diameter_m, double *tau_s, double *q_rate, double *q_walk);
+double bw_kaimal_window_share(double window_s, double mean_mps);
 
 /* model.py */
 /* BalloonModel.lift_n: the balloon's own net lift in air of density rho (the rope not counted) */
@@ -56,7 +57,8 @@ int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_
 int bw_ekf_end_update(bw_ekf_t *e);
 void bw_ekf_fix_covariance(bw_ekf_t *e);
 bw_real bw_ekf_wind_accuracy(const bw_ekf_t *e);
-void bw_ekf_cap_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_var, bw_real data_var_min);
+bw_real bw_ekf_cap_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_var, bw_real data_var_min);
+void bw_ekf_weigh_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_var, bw_real data_var);
 void bw_status_init(bw_status_t *st, int32_t recover_after);
 
 /* consistency.py */

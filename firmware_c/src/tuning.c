@@ -10,6 +10,13 @@ static double kaimal_felt_psd(double f_hz, double mean_mps, double ti, double di
     return 4.0 * sigma * sigma * t / pow(1.0 + 6.0 * f_hz * t, 5.0 / 3.0) * sinc * sinc;
 }
 
+/* tuning.py kaimal_window_share: the share of the along-wind Kaimal variance a window sees about its mean */
+double bw_kaimal_window_share(double window_s, double mean_mps)
+{
+    double x = window_s * (mean_mps > BW_MIN_WIND_MPS ? mean_mps : BW_MIN_WIND_MPS) / BW_KAIMAL_LENGTH_M;
+    return 1.0 - pow(1.0 + 0.465 * pow(x, 0.714), -1.538);
+}
+
 void bw_wind_process(double mean_mps, double ti, double diameter_m, double *tau_s, double *q_rate, double *q_walk)
 {
     const int points = 40;

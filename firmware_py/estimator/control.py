@@ -39,6 +39,7 @@ from firmware_py.estimator.params import (
     CONFIRM_MOTION_MPS2,
     CONFIRM_S,
     CONFIRM_WINDOW_S,
+    DRAG_ASCENT_FLOOR,
     DRAG_ASCENT_SIGMA,
     FALSE_RELEASE_S,
     GYRO_MAX,
@@ -53,6 +54,8 @@ from firmware_py.estimator.params import (
     ROPE_WAVE_ACCEL_MPS2,
     ROPE_WAVE_ALIGN_RAD,
     TAUT_PULL_S,
+    TURBULENCE_FROM_S,
+    TURBULENCE_TO_S,
     VERTICAL_TURBULENCE_RATIO,
     Schedule,
 )
@@ -65,10 +68,13 @@ from firmware_py.estimator.state import (
     MODE_TAUT,
     POS_D,
     VEL_D,
+    VEL_E,
+    VEL_N,
     WIND_E,
     WIND_N,
     FilterConfig,
 )
+from firmware_py.estimator.tuning import kaimal_window_share
 
 
 class Counters:
@@ -189,6 +195,10 @@ class Estimator:
         self._accel_var_excess = 0.0
         self._align_innov2 = [0.0, 0.0]  # along, cross (aid_sources/tether.py)
         self._drag_prior = (1.0, 0.0)  # the drag scale and its variance when a free ascent starts to learn it
+        self._ascent_var = 0.0  # the variance the last ascent's data claimed for it (0: nothing to weigh again)
+        self._ascent_climb = 0.0  # that ascent's climb speed, m/s
+        # the taut wind speed at the measuring window's start, its departures from it summed, and squared
+        self._turbulence = [0.0, 0.0, 0.0]
         self._align_alpha = self.schedule.taut_every / (ALIGN_INNOV_S * self.cfg.imu_rate_hz)
         self.consistency.reset()
 
@@ -310,6 +320,8 @@ class Estimator:
             dev = math.sqrt(wn * wn + we * we) - self._mean_speed
             self._mean_speed += self._speed_alpha * dev
             self._speed_var += self._speed_alpha * (dev * dev - self._speed_var)
+            if self._ascent_var > 0.0:
+                self._weigh_ascent(math.sqrt(wn * wn + we * we))
             if self.step % self.schedule.wind_noise_every == 0:
                 self.vertical_gust_var = self._vertical_gust_var(self._mean_speed, self.rho)
                 misfit = max(1.0, self._accel_innov2 / self.accel_taut_var) * self._turbulence_excess()
@@ -325,6 +337,45 @@ class Estimator:
         expected = self.cfg.turbulence_intensity * max(self._mean_speed, 0.5)
         seen = min(self._speed_var, LIGHT_AIR_SIGMA_U_MPS * LIGHT_AIR_SIGMA_U_MPS)
         return max(1.0, seen / (expected * expected))
+
+    def _weigh_ascent(self, speed: float) -> None:
+        """The drag scale a free ascent learnt, weighed again once the taut flight has measured the turbulence.
+        The ascent's model leaves out the vertical air: a downdraft w through a climb at v reads as drag,
+        dk / k = 2 w / v (F ~ k v^2). Until it is measured the ascent is worth DRAG_ASCENT_SIGMA; from
+        TURBULENCE_FROM_S after the taut entry (its settling over) to TURBULENCE_TO_S the wind speed's variance
+        measures sigma_u, and the ascent is weighed as a measurement of sqrt(DRAG_ASCENT_FLOOR^2 + (2 sigma_w /
+        v)^2), sigma_w = VERTICAL_TURBULENCE_RATIO sigma_u, never more than its data claimed. Still air trusts
+        the ascent more, gusts less; once per ascent. The wind moves with the drag scale, so that the pull the
+        state explains stays (no step in the estimate)."""
+        rate = self.cfg.imu_rate_hz
+        start, end = math.ceil(TURBULENCE_FROM_S * rate), math.ceil(TURBULENCE_TO_S * rate)
+        tb = self._turbulence
+        if self._dwell <= start:
+            tb[0], tb[1], tb[2] = speed, 0.0, 0.0
+            return
+        d = speed - tb[0]
+        tb[1] += d
+        tb[2] += d * d
+        if self._dwell < end:
+            return
+        n = float(end - start)
+        # the window sees only part of the along-wind variance (its slow part passes as the mean); the vertical
+        # air's scale is short, the ascent's few seconds see all of it
+        share = kaimal_window_share(TURBULENCE_TO_S - TURBULENCE_FROM_S, self._mean_speed)
+        sigma_u2 = max(0.0, tb[2] / n - (tb[1] / n) * (tb[1] / n)) / share
+        v = max(self._ascent_climb, 1.0)
+        sigma_w2 = VERTICAL_TURBULENCE_RATIO * VERTICAL_TURBULENCE_RATIO * sigma_u2
+        var = max(self._ascent_var, DRAG_ASCENT_FLOOR * DRAG_ASCENT_FLOOR + 4.0 * sigma_w2 / (v * v))
+        ekf = self.ekf
+        k = float(ekf.x[DRAG])
+        ekf.weigh_information(DRAG, *self._drag_prior, var)
+        self._ascent_var = 0.0
+        # the drag the state explains (k |w - v| (w - v), the lean's pull) stays: the relative wind moves with k
+        s = math.sqrt(k / float(ekf.x[DRAG]))
+        for w, v in ((WIND_N, VEL_N), (WIND_E, VEL_E)):
+            ekf.x[w] = ekf.x[v] + s * (ekf.x[w] - ekf.x[v])
+            ekf.P[w, :] *= s
+            ekf.P[:, w] *= s
 
     def _vertical_gust_var(self, mean_speed_mps: float, rho: float) -> float:
         """The vertical air the model leaves out (its wind is horizontal), as the acceleration it puts
@@ -496,11 +547,13 @@ class Estimator:
         learning = (
             ekf.mode == MODE_FREE and self._dwell >= LEARN_DRAG_AFTER_S * cfg.imu_rate_hz and self._rope_load_known()
         )
+        if learning:
+            self._ascent_climb = -float(ekf.x[VEL_D])
         if learning != ekf.learn_drag:
             if learning:
                 self._drag_prior = (float(ekf.x[DRAG]), float(ekf.P[DRAG, DRAG]))
             else:
-                ekf.cap_information(DRAG, *self._drag_prior, DRAG_ASCENT_SIGMA**2)
+                self._ascent_var = ekf.cap_information(DRAG, *self._drag_prior, DRAG_ASCENT_SIGMA**2)
         ekf.learn_drag = learning
         if ekf.mode == MODE_GROUND:
             lifted = abs(math.sqrt(ax * ax + ay * ay + az * az) - G0) > cfg.release_accel_mps2

@@ -75,8 +75,8 @@ class FusionStatus:
 
 
 # the kinds of state reset: the control logic re-places the state instead of fusing a measurement
-RESET_INITIALISE, RESET_TAUT, RESET_HEIGHT = 0, 1, 2
-RESET_NAMES = ("initialise", "taut_placement", "height")
+RESET_INITIALISE, RESET_TAUT, RESET_HEIGHT, RESET_DRAG = 0, 1, 2, 3
+RESET_NAMES = ("initialise", "taut_placement", "height", "drag_scale")
 
 
 class WindEkf:
@@ -518,22 +518,34 @@ class WindEkf:
         np.add.reduce(self.P_diag, out=self._r)
         return finite and math.isfinite(float(self._r))
 
-    def cap_information(self, i: int, prior: float, prior_var: float, data_var_min: float) -> None:
+    def cap_information(self, i: int, prior: float, prior_var: float, data_var_min: float) -> float:
         """What the data told state i since it was ``prior`` +- sqrt(``prior_var``) is worth at most a
         measurement of variance ``data_var_min``: a model error (not noise) that the fusions took for
-        information is given back. The data's own estimate, (x / P - prior / P0) / (1 / P - 1 / P0), is
-        combined with the prior at the capped weight; the state's correlations are cut (``inhibit``)."""
+        information is given back (``weigh_information``). Returns the variance the data claimed (0: none)."""
         var = float(self.P[i, i])
         info = 1.0 / var - 1.0 / prior_var if var > 0.0 and prior_var > 0.0 else 0.0
-        if not info > 1.0 / data_var_min:
+        if not info > 0.0:
+            return 0.0
+        if info > 1.0 / data_var_min:
+            self.weigh_information(i, prior, prior_var, data_var_min)
+        return 1.0 / info
+
+    def weigh_information(self, i: int, prior: float, prior_var: float, data_var: float) -> None:
+        """What the data told state i since it was ``prior`` +- sqrt(``prior_var``), weighed as one
+        measurement of variance ``data_var``: the data's own estimate, (x / P - prior / P0) / (1 / P - 1 / P0),
+        is combined with the prior at that weight; the state's correlations are cut (``inhibit``). A
+        re-placement, not a fusion: counted as a reset."""
+        var = float(self.P[i, i])
+        info = 1.0 / var - 1.0 / prior_var if var > 0.0 and prior_var > 0.0 else 0.0
+        if not (info > 0.0 and data_var > 0.0):
             return
-        x = float(self.x[i])
-        data = (x / var - prior / prior_var) / info
-        cap = 1.0 / data_var_min
-        v = 1.0 / (1.0 / prior_var + cap)
+        data = (float(self.x[i]) / var - prior / prior_var) / info
+        w = 1.0 / data_var
+        v = 1.0 / (1.0 / prior_var + w)
         self.inhibit(i)
-        self.x[i] = v * (prior / prior_var + cap * data)
+        self.x[i] = v * (prior / prior_var + w * data)
         self.P[i, i] = v
+        self.reset(RESET_DRAG)
 
     def inhibit(self, i: int) -> None:
         """Hold state i where it is (PX4's state inhibition): no correction, no correlations; its

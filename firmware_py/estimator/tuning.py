@@ -51,6 +51,15 @@ def kaimal_felt_psd(f_hz: float, mean_mps: float, turbulence_intensity: float, d
     return 4.0 * sigma * sigma * t / (1.0 + 6.0 * f_hz * t) ** (5.0 / 3.0) * sinc * sinc
 
 
+def kaimal_window_share(window_s: float, mean_mps: float) -> float:
+    """The share of the along-wind Kaimal variance that a window of ``window_s`` sees about its own mean,
+    1 - int S(f) sinc^2(f T) df / sigma_u^2 (the slow part passes as the window's mean): 0.26 in 60 s at
+    2 m/s, 0.51 at 8 m/s. A fit, 1 - (1 + 0.465 x^0.714)^-1.538 with x = T U / L, within 0.003 of the integral
+    for x in 0.03-20 and never above it (the variance inferred from a window is never too small)."""
+    x = window_s * max(mean_mps, MIN_WIND_MPS) / KAIMAL_LENGTH_M
+    return 1.0 - (1.0 + 0.465 * x**0.714) ** -1.538
+
+
 def wind_process(mean_mps: float, turbulence_intensity: float, diameter_m: float, points: int = 40) -> WindProcess:
     """The integrated-OU wind model matched to the Kaimal spectrum in ``BAND_HZ`` (module docstring)."""
     u = max(mean_mps, MIN_WIND_MPS)
