@@ -7,9 +7,11 @@ Flies each flight of ``benchmarks.bench_envelope``'s sample on the Python core (
 it) and prints, over the scored part (from 120 s), the RMS wind error against the truth, the drag scale learnt
 beside the one flown (the truth's C_d over the design's) and the RMS of each term of the reported accuracy
 (``Estimator.wind_accuracy``): the covariance's, the drag scale's, the rope's drag coefficient's and the
-tilt's systematic terms, the consistency monitor's mean factor and its windowed NIS per source; and how far
+tilt's systematic terms, the consistency monitor's mean factor and its windowed NIS per source; how far
 the barometer offset state walked in its worst 20 s against its own stated 1-sigma (the rope model's
-disagreement with the barometer, which no single innovation shows)."""
+disagreement with the barometer, which no single innovation shows); and the attitude's RMS error about the
+magnetic field's axis (which the magnetometer cannot see) against its stated 1-sigma, with its correlation
+with the wind's error across the mean wind."""
 
 from __future__ import annotations
 
@@ -23,10 +25,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from balloon_core.rotation import quat_from_euler, rotation  # noqa: E402
 from benchmarks.bench_envelope import sample, sections_of  # noqa: E402
 from firmware_py.estimator.consistency import SOURCES, systematic_variance  # noqa: E402
 from firmware_py.estimator.control import Estimator  # noqa: E402
-from firmware_py.estimator.state import BARO_OFF, DRAG  # noqa: E402
+from firmware_py.estimator.state import ATT_D, ATT_N, BARO_OFF, DRAG  # noqa: E402
 from sim_hil.simulator import TRUTH_COLUMNS, Simulation  # noqa: E402
 from study.spec import build  # noqa: E402
 
@@ -39,7 +42,7 @@ def terms(point: dict, duration_s: float) -> dict[str, float]:
     sim = Simulation(design, wind, truth_cfg, duration_s, point["seed"])
     est = Estimator(design, dataclasses.replace(filt, core="py"))
     every = int(round(sim.n_imu / duration_s / 10.0))  # 10 Hz rows
-    rows = []
+    rows, att = [], []
     for i, s in enumerate(sim.samples()):
         if s.baro:
             est.on_baro(s.time_usec, *s.baro)
@@ -54,6 +57,7 @@ def terms(point: dict, duration_s: float) -> dict[str, float]:
                      systematic_variance(speed, k, kv, 0.0), systematic_variance(speed, k, 0.0, est.rope_drag_share),
                      lean**2, est.consistency.inflation, float(ekf.x[BARO_OFF]), float(ekf.P[BARO_OFF, BARO_OFF]),
                      k, *est.consistency.nis))  # fmt: skip
+        att.append((*ekf.q.tolist(), *est.field_ned, *ekf.P[ATT_N : ATT_D + 1, ATT_N : ATT_D + 1].ravel()))
     r = np.array(rows)
     truth = {c: sim.truth[:, j] for j, c in enumerate(TRUTH_COLUMNS)}
     late = r[:, 0] >= START_S
@@ -74,7 +78,31 @@ def terms(point: dict, duration_s: float) -> dict[str, float]:
     out["speed_error_pct"] = 100.0 * (speed_est / speed_true - 1.0)
     for j, name in enumerate(SOURCES):
         out[f"nis_{name}"] = float(r[late, 12 + j].mean())
+    out.update(about_field(np.array(att)[late], r[late], truth, tn, te))
     return out
+
+
+def about_field(att: np.ndarray, r: np.ndarray, truth: dict, tn: np.ndarray, te: np.ndarray) -> dict[str, float]:
+    """The attitude's error about the magnetic field's axis (true = (I + [d x]) estimate, d . b), RMS in deg, its
+    stated 1-sigma (sqrt(b' P_att b)) and the correlation of the error with the wind's error across the mean
+    wind (m/s)."""
+    eb, sb = [], []
+    for row, (t, *_rest) in zip(att, r):
+        ri = [float(np.interp(t, truth["time_s"], truth[c])) for c in ("roll_deg", "pitch_deg", "yaw_deg")]
+        rt = np.array(rotation(*quat_from_euler(*np.radians(ri)))).reshape(3, 3)
+        re = np.array(rotation(*row[:4])).reshape(3, 3)
+        m = rt @ re.T
+        d = 0.5 * np.array([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]])
+        b = np.array(row[4:7]) / np.linalg.norm(row[4:7])
+        eb.append(float(d @ b))
+        sb.append(float(b @ row[7:16].reshape(3, 3) @ b))
+    ang = math.atan2(te.mean(), tn.mean())
+    cross = -(r[:, 1] - tn) * math.sin(ang) + (r[:, 2] - te) * math.cos(ang)
+    eb_a = np.array(eb)
+    corr = float(np.corrcoef(eb_a, cross)[0, 1]) if np.std(eb_a) > 0.0 and np.std(cross) > 0.0 else math.nan
+    return {"about_field_deg": math.degrees(math.sqrt(np.mean(eb_a**2))),
+            "about_field_sigma_deg": math.degrees(math.sqrt(np.mean(sb))),
+            "cross_error": float(np.sqrt(np.mean(cross**2))), "about_field_cross_corr": corr}  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -91,8 +119,10 @@ def main(argv: list[str] | None = None) -> int:
             return 2
     print("| flight | wind | rope | error | speed error | drag scale (truth's C_d / design's) | accuracy "
           "| = sqrt(P^2 + drag^2 + rope^2 + tilt^2) x inflation | error/accuracy "
-          "| worst 20 s offset walk / its sigma | NIS " + " ".join(SOURCES) + " |")  # fmt: skip
-    print("|---|---|---|---:|---:|---:|---:|---|---:|---:|---|")
+          "| worst 20 s offset walk / its sigma | NIS " + " ".join(SOURCES) + " "
+          "| attitude about the field: RMS error / stated, deg "
+          "| its correlation with the cross-wind error (RMS) |")  # fmt: skip
+    print("|---|---|---|---:|---:|---:|---:|---|---:|---:|---|---:|---:|")
     for f in a.flights:
         p = points[f]
         t = terms(p, duration)
@@ -101,7 +131,9 @@ def main(argv: list[str] | None = None) -> int:
               f"{t['speed_error_pct']:+.1f} % | {t['drag_scale']:.3f} ({p['cd_scale']:.3f}) | {t['accuracy']:.3f} | "
               f"sqrt({t['P']:.3f}^2 + {t['drag']:.3f}^2 + {t['rope']:.3f}^2 + "
               f"{t['tilt']:.3f}^2) x {t['inflation']:.2f} | {t['error'] / t['accuracy']:.2f} | "
-              f"{t['offset_walk_m']:.1f} m / {t['offset_sigma_m']:.2f} m | {nis} |", flush=True)  # fmt: skip
+              f"{t['offset_walk_m']:.1f} m / {t['offset_sigma_m']:.2f} m | {nis} | "
+              f"{t['about_field_deg']:.2f} / {t['about_field_sigma_deg']:.2f} | "
+              f"{t['about_field_cross_corr']:+.2f} ({t['cross_error']:.2f} m/s) |", flush=True)  # fmt: skip
     return 0
 
 
