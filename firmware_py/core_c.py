@@ -16,6 +16,7 @@ import numpy as np
 
 from balloon_core.config import Design
 from firmware_py.estimator.consistency import SOURCES
+from firmware_py.estimator.ekf import RESET_NAMES
 from firmware_py.estimator.model import BalloonModel
 from firmware_py.estimator.state import MODE_NAMES, N_STATES, FilterConfig
 
@@ -89,7 +90,7 @@ def _structs(real):
             ("rope_chord_m", real), ("rope_weight_n", real), ("rope_rate_mps", real), ("mode", i32),
             ("learn_drag", i32),
             ("drag_correlated", i32), ("recover_after", i32), ("time_us", i64), ("taut_phase", i32),
-            ("noise_phase", i32), ("reset_counts", i32 * 4),
+            ("noise_phase", i32), ("reset_counts", i32 * len(RESET_NAMES)),
             ("reset_count", i32),
         ]  # fmt: skip
 
@@ -143,7 +144,8 @@ def _structs(real):
         ("speed_alpha", real), ("speed_var", real), ("slack", i32), ("pulling", i32), ("was_slack", i32),
         ("height_above", i32),
         ("accel_var_excess", real), ("align_innov2", real * 2),
-        ("a_align_innov", real), ("drag_prior", real * 2), ("ascent_var", real), ("ascent_climb", real),
+        ("a_align_innov", real), ("drag_prior", real * 2), ("ascent_data", real), ("ascent_var", real),
+        ("ascent_climb", real),
         ("turbulence", real * 3),
         ("p_ref_pa", real), ("zeroing", i32), ("ref_pos_d", real), ("t_ref_k", real),
         ("zero_sum", real), ("zero_n", i32), ("join_height", real), ("rho", real), ("height_baro", real),

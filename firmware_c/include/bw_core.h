@@ -176,7 +176,8 @@ typedef struct {
     bw_real accel_var_excess;
     bw_real align_innov2[2], a_align_innov; /* the alignment's noise, along and cross (aid_tether.c) */
     bw_real drag_prior[2];        /* the drag scale and its variance when a free ascent starts to learn it */
-    bw_real ascent_var, ascent_climb; /* the variance that ascent's data claimed (0: none to weigh again), its climb */
+    /* the drag scale the last ascent's data told, the variance it claimed (0: none to weigh again), its climb */
+    bw_real ascent_data, ascent_var, ascent_climb;
     bw_real turbulence[3]; /* the taut wind speed at the window's start, departures from it summed, squared */
     /* barometer (control.py _init_baro) */
     bw_real p_ref_pa;

@@ -17,6 +17,12 @@ static int32_t round_count(double v) /* max(1, round(v)), Python's round (half t
     return r < 1.0 ? 1 : (int32_t)r;
 }
 
+/* control.py count_up: a step count one more, held at the largest int32 */
+static int32_t count_up(int32_t n)
+{
+    return n < INT32_MAX ? n + 1 : n;
+}
+
 static int32_t steps_for(double v) /* the least step count n with n >= v (the config bounds v well below 2^31) */
 {
     return (int32_t)ceil(v);
@@ -93,7 +99,7 @@ static void init_clock(bw_estimator_t *est)
     est->accel_var_excess = BW_R(0.0);
     est->align_innov2[0] = est->align_innov2[1] = BW_R(0.0);
     est->drag_prior[0] = BW_R(1.0), est->drag_prior[1] = BW_R(0.0);
-    est->ascent_var = est->ascent_climb = BW_R(0.0);
+    est->ascent_data = est->ascent_var = est->ascent_climb = BW_R(0.0);
     est->turbulence[0] = est->turbulence[1] = est->turbulence[2] = BW_R(0.0);
     bw_consistency_reset(&est->consistency);
 }
@@ -303,6 +309,7 @@ static void reinitialise_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, 
             q[0] = BW_R(1.0), q[1] = q[2] = q[3] = BW_R(0.0);
     }
     bw_ekf_initialise(e, est->cfg, q, est->ref_pos_d - h);
+    est->ascent_var = BW_R(0.0); /* the drag scale starts afresh: no ascent to weigh again */
     e->P[0][0] = e->P[1][1] = BW_R(100.0) * BW_R(100.0);
     e->mode = h > e->m.release_height_m ? BW_MODE_FREE : BW_MODE_GROUND;
 }
@@ -358,7 +365,7 @@ static void weigh_ascent(bw_estimator_t *est, bw_real speed)
     double rate = est->cfg->imu_rate_hz;
     int32_t start = steps_for(BW_TURBULENCE_FROM_S * rate), end = steps_for(BW_TURBULENCE_TO_S * rate);
     bw_ekf_t *e = &est->ekf;
-    bw_real *tb = est->turbulence, d, n, sigma_u2, sigma_w2, v, var, k, s;
+    bw_real *tb = est->turbulence, d, n, sigma_u2, sigma_w2, climb, var, prior, prior_var, capped, walked, k, s;
     int i, j;
     if (est->dwell <= start) {
         tb[0] = speed, tb[1] = BW_R(0.0), tb[2] = BW_R(0.0);
@@ -371,12 +378,19 @@ static void weigh_ascent(bw_estimator_t *est, bw_real speed)
         return;
     n = (bw_real)(end - start);
     sigma_u2 = BW_MAX(BW_R(0.0), tb[2] / n - (tb[1] / n) * (tb[1] / n))
-               / (bw_real)bw_kaimal_window_share(BW_TURBULENCE_TO_S - BW_TURBULENCE_FROM_S, (double)est->mean_speed);
-    v = BW_MAX(est->ascent_climb, BW_R(1.0));
+               / (bw_real)bw_kaimal_window_share(BW_TURBULENCE_TO_S - BW_TURBULENCE_FROM_S, (double)(tb[0] + tb[1] / n));
+    climb = BW_MAX(est->ascent_climb, BW_R(1.0));
     sigma_w2 = (bw_real)(BW_VERTICAL_TURBULENCE_RATIO * BW_VERTICAL_TURBULENCE_RATIO) * sigma_u2;
-    var = BW_MAX(est->ascent_var, (bw_real)(BW_DRAG_ASCENT_FLOOR * BW_DRAG_ASCENT_FLOOR) + BW_R(4.0) * sigma_w2 / (v * v));
+    var = BW_MAX(est->ascent_var,
+                 (bw_real)(BW_DRAG_ASCENT_FLOOR * BW_DRAG_ASCENT_FLOOR) + BW_R(4.0) * sigma_w2 / (climb * climb));
+    prior = est->drag_prior[0], prior_var = est->drag_prior[1];
+    /* what the scale's random walk has added since the cap (its variance then: the prior and the data at the
+     * weight the cap left it) */
+    capped = BW_MAX(est->ascent_var, (bw_real)(BW_DRAG_ASCENT_SIGMA * BW_DRAG_ASCENT_SIGMA));
+    walked = BW_MAX(BW_R(0.0), e->P[BW_DRAG][BW_DRAG] - BW_R(1.0) / (BW_R(1.0) / prior_var + BW_R(1.0) / capped));
     k = e->x[BW_DRAG];
-    bw_ekf_weigh_information(e, BW_DRAG, est->drag_prior[0], est->drag_prior[1], var);
+    bw_ekf_weigh_information(e, BW_DRAG, prior, prior_var, est->ascent_data, var, walked, BW_RESET_DRAG);
+    e->x[BW_DRAG] = BW_MAX(e->x[BW_DRAG], (bw_real)BW_DRAG_SCALE_MIN);
     est->ascent_var = BW_R(0.0);
     /* the drag the state explains stays: the relative wind moves with k */
     s = BW_SQRT(k / e->x[BW_DRAG]);
@@ -396,7 +410,7 @@ static void update_mode(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
     const bw_model_t *cfg = &e->m;
     int dwell_ok;
     bw_real pn, pe, pd, dist, length;
-    est->dwell += 1;
+    est->dwell = count_up(est->dwell);
     dwell_ok = est->dwell >= est->n_dwell;
     {
         int learning = e->mode == BW_MODE_FREE && est->dwell >= est->n_learn_drag && rope_load_known(est);
@@ -407,7 +421,8 @@ static void update_mode(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
                 est->drag_prior[0] = e->x[BW_DRAG], est->drag_prior[1] = e->P[BW_DRAG][BW_DRAG];
             else
                 est->ascent_var = bw_ekf_cap_information(e, BW_DRAG, est->drag_prior[0], est->drag_prior[1],
-                                                         (bw_real)(BW_DRAG_ASCENT_SIGMA * BW_DRAG_ASCENT_SIGMA));
+                                                         (bw_real)(BW_DRAG_ASCENT_SIGMA * BW_DRAG_ASCENT_SIGMA),
+                                                         BW_RESET_DRAG, &est->ascent_data);
         }
         e->learn_drag = learning;
     }
@@ -416,7 +431,7 @@ static void update_mode(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
         bw_real hb = est->height_baro;
         int high = isfinite(hb) && hb > cfg->release_height_m;
         est->release_count = lifted ? est->release_count + 1 : 0;
-        est->height_above = high ? est->height_above + 1 : 0;
+        est->height_above = high ? count_up(est->height_above) : 0;
         if (est->release_count >= est->sched.release_confirm || est->height_above >= est->sched.release_height)
             switch_mode(est, BW_MODE_FREE);
         return;
@@ -438,7 +453,7 @@ static void update_mode(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
         }
         stalled = -pd > BW_R(0.5) * length && -e->x[BW_VEL_D] < BW_R(0.3);
         near = dist >= length - cfg->taut_margin_m || stalled;
-        est->pulling = near && rope_would_pull(est) ? est->pulling + 1 : 0;
+        est->pulling = near && rope_would_pull(est) ? count_up(est->pulling) : 0;
         /* back to taut after the rope went slack: only once it has pulled for a while (no flapping) */
         need = est->was_slack ? est->n_taut_pull : 1;
         if (dwell_ok && est->pulling >= need) {
@@ -446,7 +461,7 @@ static void update_mode(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
             bw_enter_taut(e, bw_height_for_taut(est), est->rho, 0);
         }
     } else {
-        est->slack = e->forces.taut ? 0 : est->slack + 1;
+        est->slack = e->forces.taut ? 0 : count_up(est->slack);
         if (dwell_ok && est->slack >= est->n_dwell) {
             switch_mode(est, BW_MODE_FREE);
             est->was_slack = 1;

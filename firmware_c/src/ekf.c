@@ -5,6 +5,9 @@
 
 #include "internal.h"
 
+/* the public struct's reset counts hold every kind the filter knows (a compile-time check, C99) */
+typedef char bw_reset_kinds_fit[sizeof(((bw_ekf_t *)0)->reset_counts) / sizeof(int32_t) == BW_N_RESET_KINDS ? 1 : -1];
+
 #define N BW_N
 
 #ifdef BW_HOST_RECORDER
@@ -571,34 +574,36 @@ static void inhibit(bw_ekf_t *e, int i)
     e->P[i][i] = v;
 }
 
-/* ekf.py weigh_information: what the data told state i since the prior, weighed as one measurement of
- * variance data_var (the data's own estimate combined with the prior at that weight; correlations cut) */
-void bw_ekf_weigh_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_var, bw_real data_var)
+/* ekf.py weigh_information: state i as the prior combined with one measurement data of variance data_var, plus
+ * walked_var (its random walk since); correlations cut; a reset of kind */
+void bw_ekf_weigh_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_var, bw_real data, bw_real data_var,
+                              bw_real walked_var, int kind)
 {
-    bw_real var = e->P[i][i], info, data, w, v;
-    info = var > BW_R(0.0) && prior_var > BW_R(0.0) ? BW_R(1.0) / var - BW_R(1.0) / prior_var : BW_R(0.0);
-    if (!(info > BW_R(0.0) && data_var > BW_R(0.0)))
+    bw_real w, v;
+    if (!(prior_var > BW_R(0.0) && data_var > BW_R(0.0)))
         return;
-    data = (e->x[i] / var - prior / prior_var) / info;
     w = BW_R(1.0) / data_var;
     v = BW_R(1.0) / (BW_R(1.0) / prior_var + w);
     inhibit(e, i);
     e->x[i] = v * (prior / prior_var + w * data);
-    e->P[i][i] = v;
-    bw_ekf_reset(e, BW_RESET_DRAG);
+    e->P[i][i] = v + walked_var;
+    bw_ekf_reset(e, kind);
 }
 
 /* ekf.py cap_information: what the data told state i since the prior is worth at most a measurement of
- * variance data_var_min (a model error taken for information is given back); the variance the data claimed
- * (0: none) */
-bw_real bw_ekf_cap_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_var, bw_real data_var_min)
+ * variance data_var_min (a model error taken for information is given back); the data's own estimate in *data
+ * and the variance it claimed returned (0, 0: it told nothing) */
+bw_real bw_ekf_cap_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_var, bw_real data_var_min, int kind,
+                               bw_real *data)
 {
     bw_real var = e->P[i][i], info;
     info = var > BW_R(0.0) && prior_var > BW_R(0.0) ? BW_R(1.0) / var - BW_R(1.0) / prior_var : BW_R(0.0);
+    *data = BW_R(0.0);
     if (!(info > BW_R(0.0)))
         return BW_R(0.0);
+    *data = (e->x[i] / var - prior / prior_var) / info;
     if (info > BW_R(1.0) / data_var_min)
-        bw_ekf_weigh_information(e, i, prior, prior_var, data_var_min);
+        bw_ekf_weigh_information(e, i, prior, prior_var, *data, data_var_min, BW_R(0.0), kind);
     return BW_R(1.0) / info;
 }
 

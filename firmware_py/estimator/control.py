@@ -27,7 +27,7 @@ from firmware_py.estimator.consistency import (
     lean_bias_wind,
     systematic_variance,
 )
-from firmware_py.estimator.ekf import FusionStatus, WindEkf
+from firmware_py.estimator.ekf import RESET_DRAG, FusionStatus, WindEkf
 from firmware_py.estimator.model import ADDED_MASS_COEFFICIENT, BalloonModel, Forces, accelerations
 from firmware_py.estimator.params import (
     ACC_MAX,
@@ -41,6 +41,7 @@ from firmware_py.estimator.params import (
     CONFIRM_WINDOW_S,
     DRAG_ASCENT_FLOOR,
     DRAG_ASCENT_SIGMA,
+    DRAG_SCALE_MIN,
     FALSE_RELEASE_S,
     GYRO_MAX,
     JOIN_IN_FLIGHT_US,
@@ -90,6 +91,11 @@ class Counters:
 
     def as_dict(self) -> dict[str, int]:
         return {name: getattr(self, name) for name in self.__slots__}
+
+
+def count_up(n: int) -> int:
+    """A step count one more, held at the largest int32 (the C core's counts: 248 days at 100 Hz)."""
+    return n + 1 if n < 2147483647 else n
 
 
 def _finite3(a: float, b: float, c: float, limit: float) -> bool:
@@ -195,8 +201,8 @@ class Estimator:
         self._accel_var_excess = 0.0
         self._align_innov2 = [0.0, 0.0]  # along, cross (aid_sources/tether.py)
         self._drag_prior = (1.0, 0.0)  # the drag scale and its variance when a free ascent starts to learn it
-        self._ascent_var = 0.0  # the variance the last ascent's data claimed for it (0: nothing to weigh again)
-        self._ascent_climb = 0.0  # that ascent's climb speed, m/s
+        # the drag scale the last ascent's data told, the variance it claimed (0: nothing to weigh again), its climb m/s
+        self._ascent_data, self._ascent_var, self._ascent_climb = 0.0, 0.0, 0.0
         # the taut wind speed at the measuring window's start, its departures from it summed, and squared
         self._turbulence = [0.0, 0.0, 0.0]
         self._align_alpha = self.schedule.taut_every / (ALIGN_INNOV_S * self.cfg.imu_rate_hz)
@@ -359,23 +365,27 @@ class Estimator:
         if self._dwell < end:
             return
         n = float(end - start)
-        # the window sees only part of the along-wind variance (its slow part passes as the mean); the vertical
-        # air's scale is short, the ascent's few seconds see all of it
-        share = kaimal_window_share(TURBULENCE_TO_S - TURBULENCE_FROM_S, self._mean_speed)
+        share = kaimal_window_share(TURBULENCE_TO_S - TURBULENCE_FROM_S, tb[0] + tb[1] / n)
         sigma_u2 = max(0.0, tb[2] / n - (tb[1] / n) * (tb[1] / n)) / share
-        v = max(self._ascent_climb, 1.0)
+        climb = max(self._ascent_climb, 1.0)
         sigma_w2 = VERTICAL_TURBULENCE_RATIO * VERTICAL_TURBULENCE_RATIO * sigma_u2
-        var = max(self._ascent_var, DRAG_ASCENT_FLOOR * DRAG_ASCENT_FLOOR + 4.0 * sigma_w2 / (v * v))
+        var = max(self._ascent_var, DRAG_ASCENT_FLOOR * DRAG_ASCENT_FLOOR + 4.0 * sigma_w2 / (climb * climb))
         ekf = self.ekf
+        prior, prior_var = self._drag_prior
+        # what the scale's random walk has added since the cap (its variance then: the prior and the data at the
+        # weight the cap left it)
+        capped = max(self._ascent_var, DRAG_ASCENT_SIGMA * DRAG_ASCENT_SIGMA)
+        walked = max(0.0, float(ekf.P[DRAG, DRAG]) - 1.0 / (1.0 / prior_var + 1.0 / capped))
         k = float(ekf.x[DRAG])
-        ekf.weigh_information(DRAG, *self._drag_prior, var)
+        ekf.weigh_information(DRAG, prior, prior_var, self._ascent_data, var, walked, RESET_DRAG)
+        ekf.x[DRAG] = max(float(ekf.x[DRAG]), DRAG_SCALE_MIN)
         self._ascent_var = 0.0
         # the drag the state explains (k |w - v| (w - v), the lean's pull) stays: the relative wind moves with k
         s = math.sqrt(k / float(ekf.x[DRAG]))
-        for w, v in ((WIND_N, VEL_N), (WIND_E, VEL_E)):
-            ekf.x[w] = ekf.x[v] + s * (ekf.x[w] - ekf.x[v])
-            ekf.P[w, :] *= s
-            ekf.P[:, w] *= s
+        for wi, vi in ((WIND_N, VEL_N), (WIND_E, VEL_E)):
+            ekf.x[wi] = ekf.x[vi] + s * (ekf.x[wi] - ekf.x[vi])
+            ekf.P[wi, :] *= s
+            ekf.P[:, wi] *= s
 
     def _vertical_gust_var(self, mean_speed_mps: float, rho: float) -> float:
         """The vertical air the model leaves out (its wind is horizontal), as the acceleration it puts
@@ -495,6 +505,7 @@ class Estimator:
             q = (q0 / n, q1 / n, q2 / n, q3 / n) if math.isfinite(n) and n > 0.5 else (1.0, 0.0, 0.0, 0.0)
         ekf.initialise(q, self.ref_pos_d - h)
         ekf.P[0, 0] = ekf.P[1, 1] = 100.0**2
+        self._ascent_var = 0.0  # the drag scale starts afresh: no ascent to weigh again
         ekf.mode = MODE_FREE if h > self.cfg.release_height_m else MODE_GROUND
 
     def _height_for_taut(self) -> float:
@@ -542,7 +553,7 @@ class Estimator:
     def _update_mode(self, ax: float, ay: float, az: float) -> None:
         ekf = self.ekf
         cfg = self.cfg
-        self._dwell += 1
+        self._dwell = count_up(self._dwell)
         dwell_ok = self._dwell >= cfg.mode_dwell_s * cfg.imu_rate_hz
         learning = (
             ekf.mode == MODE_FREE and self._dwell >= LEARN_DRAG_AFTER_S * cfg.imu_rate_hz and self._rope_load_known()
@@ -553,13 +564,15 @@ class Estimator:
             if learning:
                 self._drag_prior = (float(ekf.x[DRAG]), float(ekf.P[DRAG, DRAG]))
             else:
-                self._ascent_var = ekf.cap_information(DRAG, *self._drag_prior, DRAG_ASCENT_SIGMA**2)
+                self._ascent_data, self._ascent_var = ekf.cap_information(
+                    DRAG, *self._drag_prior, DRAG_ASCENT_SIGMA**2, RESET_DRAG
+                )
         ekf.learn_drag = learning
         if ekf.mode == MODE_GROUND:
             lifted = abs(math.sqrt(ax * ax + ay * ay + az * az) - G0) > cfg.release_accel_mps2
             self._release_count = self._release_count + 1 if lifted else 0
             high = math.isfinite(self.height_baro) and self.height_baro > cfg.release_height_m
-            self._height_above = self._height_above + 1 if high else 0
+            self._height_above = count_up(self._height_above) if high else 0
             sched = self.schedule
             if self._release_count >= sched.release_confirm or self._height_above >= sched.release_height:
                 self._switch(MODE_FREE)
@@ -578,14 +591,14 @@ class Estimator:
                 return
             stalled = -pd > 0.5 * length and -float(x[VEL_D]) < 0.3
             near = dist >= length - cfg.taut_margin_m or stalled
-            self._pulling = self._pulling + 1 if near and self._rope_would_pull() else 0
+            self._pulling = count_up(self._pulling) if near and self._rope_would_pull() else 0
             # back to taut after the rope went slack: only once it has pulled for a while (no flapping)
             need = TAUT_PULL_S * cfg.imu_rate_hz if self._was_slack else 1
             if dwell_ok and self._pulling >= need:
                 self._switch(MODE_TAUT)
                 enter_taut(ekf, self._height_for_taut(), self.rho)
         else:
-            self._slack = 0 if ekf.forces.taut else self._slack + 1
+            self._slack = 0 if ekf.forces.taut else count_up(self._slack)
             if dwell_ok and self._slack >= cfg.mode_dwell_s * cfg.imu_rate_hz:
                 self._switch(MODE_FREE)
                 self._was_slack = True

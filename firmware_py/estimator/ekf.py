@@ -234,8 +234,8 @@ class WindEkf:
 
     def reset(self, kind: int) -> None:
         """Every re-placement of the state (not a fusion) is told here, after x and P were written:
-        initialisation, a taut placement, a height reset. Counted per kind and in all; the post-flight
-        smoother cuts its chain where ``reset_count`` changes (postflight/reprocess.py)."""
+        initialisation, a taut placement, a height reset, the drag scale weighed. Counted per kind and in
+        all; the post-flight smoother cuts its chain where ``reset_count`` changes (postflight/reprocess.py)."""
         self.reset_counts[kind] += 1
         self.reset_count += 1
 
@@ -518,34 +518,36 @@ class WindEkf:
         np.add.reduce(self.P_diag, out=self._r)
         return finite and math.isfinite(float(self._r))
 
-    def cap_information(self, i: int, prior: float, prior_var: float, data_var_min: float) -> float:
+    def cap_information(
+        self, i: int, prior: float, prior_var: float, data_var_min: float, kind: int
+    ) -> tuple[float, float]:
         """What the data told state i since it was ``prior`` +- sqrt(``prior_var``) is worth at most a
         measurement of variance ``data_var_min``: a model error (not noise) that the fusions took for
-        information is given back (``weigh_information``). Returns the variance the data claimed (0: none)."""
+        information is given back (``weigh_information``, a reset of ``kind``). The data's own estimate,
+        (x / P - prior / P0) / (1 / P - 1 / P0), and the variance it claimed (0, 0: it told nothing)."""
         var = float(self.P[i, i])
         info = 1.0 / var - 1.0 / prior_var if var > 0.0 and prior_var > 0.0 else 0.0
         if not info > 0.0:
-            return 0.0
-        if info > 1.0 / data_var_min:
-            self.weigh_information(i, prior, prior_var, data_var_min)
-        return 1.0 / info
-
-    def weigh_information(self, i: int, prior: float, prior_var: float, data_var: float) -> None:
-        """What the data told state i since it was ``prior`` +- sqrt(``prior_var``), weighed as one
-        measurement of variance ``data_var``: the data's own estimate, (x / P - prior / P0) / (1 / P - 1 / P0),
-        is combined with the prior at that weight; the state's correlations are cut (``inhibit``). A
-        re-placement, not a fusion: counted as a reset."""
-        var = float(self.P[i, i])
-        info = 1.0 / var - 1.0 / prior_var if var > 0.0 and prior_var > 0.0 else 0.0
-        if not (info > 0.0 and data_var > 0.0):
-            return
+            return 0.0, 0.0
         data = (float(self.x[i]) / var - prior / prior_var) / info
+        if info > 1.0 / data_var_min:
+            self.weigh_information(i, prior, prior_var, data, data_var_min, 0.0, kind)
+        return data, 1.0 / info
+
+    def weigh_information(
+        self, i: int, prior: float, prior_var: float, data: float, data_var: float, walked_var: float, kind: int
+    ) -> None:
+        """State i as ``prior`` +- sqrt(``prior_var``) combined with one measurement ``data`` of variance
+        ``data_var``, plus ``walked_var``, what its random walk has added since; its correlations are cut
+        (``inhibit``). A re-placement, not a fusion: a reset of ``kind``."""
+        if not (prior_var > 0.0 and data_var > 0.0):
+            return
         w = 1.0 / data_var
         v = 1.0 / (1.0 / prior_var + w)
         self.inhibit(i)
         self.x[i] = v * (prior / prior_var + w * data)
-        self.P[i, i] = v
-        self.reset(RESET_DRAG)
+        self.P[i, i] = v + walked_var
+        self.reset(kind)
 
     def inhibit(self, i: int) -> None:
         """Hold state i where it is (PX4's state inhibition): no correction, no correlations; its

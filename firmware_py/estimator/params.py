@@ -32,8 +32,8 @@ LEAN_BIAS_RAD = 0.0035
 # It learns only while the rope's pull is known to this share of the net lift (control._rope_load_known)
 DRAG_ASCENT_SIGMA = 0.1
 # ... until the taut flight has measured the turbulence (control._weigh_ascent): the wind speed's variance about
-# its 60 s mean from TURBULENCE_FROM_S after the entry (the entry's settling is over) to TURBULENCE_TO_S, when the
-# ascent's drag scale is weighed again as a measurement of 1-sigma DRAG_ASCENT_FLOOR in still air (the
+# the window's own mean from TURBULENCE_FROM_S after the entry (the entry's settling is over) to TURBULENCE_TO_S,
+# when the ascent's drag scale is weighed again as a measurement of 1-sigma DRAG_ASCENT_FLOOR in still air (the
 # envelope's steady flights: 4 % RMS, 9 % worst; the rope's pull and the added mass are models) and
 # 2 sigma_w / v_climb with vertical air sigma_w = VERTICAL_TURBULENCE_RATIO sigma_u (F ~ k v^2: dk / k = 2 w / v)
 DRAG_ASCENT_FLOOR = 0.05

@@ -54,8 +54,9 @@ def kaimal_felt_psd(f_hz: float, mean_mps: float, turbulence_intensity: float, d
 def kaimal_window_share(window_s: float, mean_mps: float) -> float:
     """The share of the along-wind Kaimal variance that a window of ``window_s`` sees about its own mean,
     1 - int S(f) sinc^2(f T) df / sigma_u^2 (the slow part passes as the window's mean): 0.26 in 60 s at
-    2 m/s, 0.51 at 8 m/s. A fit, 1 - (1 + 0.465 x^0.714)^-1.538 with x = T U / L, within 0.003 of the integral
-    for x in 0.03-20 and never above it (the variance inferred from a window is never too small)."""
+    2 m/s, 0.51 at 8 m/s. A fit, 1 - (1 + 0.465 x^0.714)^-1.538 with x = T U / L, within 0.005 of the integral
+    for x in 0.09-40 (0.5-230 m/s in 60 s) and never above it (the variance inferred from a window is never
+    too small)."""
     x = window_s * max(mean_mps, MIN_WIND_MPS) / KAIMAL_LENGTH_M
     return 1.0 - (1.0 + 0.465 * x**0.714) ** -1.538
 

@@ -161,9 +161,10 @@ ASCENTS = {  # the balloon's C_d unlike its design's, as a user's would be
 def test_the_ascent_is_worth_what_the_turbulence_allows(name):
     """The free ascent's drag scale, weighed again once the taut flight has measured the turbulence
     (control._weigh_ascent): in steady air it is worth more than the 10 % it was capped at (the drag's share
-    of the stated accuracy shrinks: 4.6 % on the scale, with the design's 10 % prior), in gusts less (a
-    downdraft through the climb read as 34 % more drag here); in both the truth's C_d is within 3 sigma of
-    it. Weighed once: the cap and the weighing are the two drag-scale re-placements."""
+    of the stated accuracy shrinks: 5.1 % on the scale with the design's 10 % prior and the scale's walk since
+    the cap, where the cap left 7.5 %), in gusts less (a downdraft through the climb read as 34 % more drag
+    here); in both the truth's C_d is within 3 sigma of it. Weighed once: the cap and the weighing are the two
+    drag-scale re-placements."""
     from firmware_py.estimator.ekf import RESET_DRAG
     from firmware_py.estimator.state import DRAG
 
@@ -171,6 +172,6 @@ def test_the_ascent_is_worth_what_the_turbulence_allows(name):
     design, wind, truth_cfg, filt = build(be.sections_of(p))
     _, _, est = fly(design, wind, truth_cfg, filt, 170.0, p["seed"])
     k, sigma = float(est.ekf.x[DRAG]), math.sqrt(float(est.ekf.P[DRAG, DRAG]))
-    assert (sigma < 0.05) if name == "steady" else (sigma > 0.08), sigma
+    assert (sigma < 0.06) if name == "steady" else (sigma > 0.08), sigma
     assert abs(k - p["cd_scale"]) < 3.0 * sigma, (k, sigma)
     assert est.ekf.reset_counts[RESET_DRAG] == 2

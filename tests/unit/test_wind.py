@@ -204,12 +204,12 @@ def test_bad_wind_config_is_rejected():
 def test_the_filter_s_window_share_is_the_kaimal_spectrum_s(mean_mps):
     """What a 60 s window sees of the along-wind variance about its own mean, 1 - int S sinc^2(f T) df / sigma^2
     (the filter's fit, estimator/tuning.py), against the simulator's Kaimal spectrum integrated here: within
-    0.005 and never above it (the variance inferred from a window is then never too small), rising with the
+    0.006 and never above it (the variance inferred from a window is then never too small), rising with the
     wind (a window of a faster wind holds more of its eddies)."""
     window_s = 60.0
     f = np.logspace(-8, 3, 400_001)
     psd = kaimal_psd(f, 1.0, KAIMAL_LENGTH_M, mean_mps)
     seen = np.trapezoid(psd * (1.0 - np.sinc(f * window_s) ** 2), f) / np.trapezoid(psd, f)
     share = kaimal_window_share(window_s, mean_mps)
-    assert seen - 0.005 <= share <= seen + 1e-4
+    assert seen - 0.006 <= share <= seen + 1e-4
     assert kaimal_window_share(window_s, 1.01 * mean_mps) > share
