@@ -116,3 +116,33 @@ def test_a_barometer_outside_its_gate_on_the_taut_tether_re_places_the_state(cor
     height = -float(est.ekf.x[POS_D]) + float(est.ekf.x[BARO_OFF])
     assert abs(height - truth["height_m"][i]) < 3.0, (height, truth["height_m"][i])
     assert est.ekf.reset_counts[RESET_HEIGHT] == est.counters.baro_resets + est.counters.false_releases
+
+
+def test_the_ascent_is_weighed_from_what_it_told_however_long_ago():
+    """The drag scale an ascent told (0.8 claiming a variance of 0.004 against the design's 1 +- 0.1), capped
+    at the ascent's end, then weighed again in still air however long the scale has walked since: from what
+    the ascent told and its claimed variance (the still-air floor is smaller), the walk since kept on top.
+    Recovered from the walked P instead, a weighing 20 minutes after the cap read the walk as lost data (k < 0)."""
+    from firmware_py.estimator.ekf import RESET_DRAG
+    from firmware_py.estimator.params import TURBULENCE_FROM_S, TURBULENCE_TO_S
+    from firmware_py.estimator.state import DRAG
+
+    est = Estimator(Design(), FilterConfig())
+    ekf = est.ekf
+    ekf.initialise((1.0, 0.0, 0.0, 0.0), 0.0)
+    prior, prior_var, data, data_var = 1.0, 0.01, 0.8, 0.004
+    v = 1.0 / (1.0 / prior_var + 1.0 / data_var)
+    ekf.x[DRAG], ekf.P[DRAG, DRAG] = v * (prior / prior_var + data / data_var), v
+    est._drag_prior = (prior, prior_var)
+    est._ascent_data, est._ascent_var = ekf.cap_information(DRAG, prior, prior_var, 0.1**2, RESET_DRAG)
+    assert (est._ascent_data, est._ascent_var) == (pytest.approx(data), pytest.approx(data_var))
+    assert ekf.x[DRAG] == pytest.approx(0.9)  # half way back: the cap's weight is the prior's
+    walked = 0.02
+    ekf.P[DRAG, DRAG] += walked
+    rate = est.cfg.imu_rate_hz
+    for n in range(math.ceil(TURBULENCE_FROM_S * rate), math.ceil(TURBULENCE_TO_S * rate) + 1):
+        est._dwell = n
+        est._weigh_ascent(5.0)  # still air
+    assert est._ascent_var == 0.0 and ekf.reset_counts[RESET_DRAG] == 2
+    assert ekf.x[DRAG] == pytest.approx(v * (prior / prior_var + data / data_var))
+    assert ekf.P[DRAG, DRAG] == pytest.approx(v + walked)
