@@ -72,7 +72,9 @@ def test_helpers():
 
 @pytest.mark.slow
 def test_sim_status_lines_and_quiet(tmp_path):
-    env = {**os.environ, INTERVAL_ENV: "0.3"}
+    # a status line every millisecond: the simulator's 120 s take longer than that on any machine, however fast
+    # (at 0.3 s, a machine that simulates them in 0.2 s printed none)
+    env = {**os.environ, INTERVAL_ENV: "0.001"}
     out = tmp_path / "s.tlog"
     r = subprocess.run([PY, "-m", "sim_hil", "--duration", "120", "--out", str(out)], capture_output=True,
                        text=True, env=env, check=True)  # fmt: skip
