@@ -100,7 +100,8 @@ def _structs(real):
     class Schedule(C.Structure):
         _fields_ = [(n, i32) for n in ("taut_every", "align_reset", "baro_reset", "baro_recover", "mag_recover",
                                        "field_learn", "field_flight", "wind_noise_every", "release_confirm",
-                                       "release_height")] + [("rope_shape_alpha", real)]  # fmt: skip
+                                       "release_height", "turbulence_from", "turbulence_to")] + [
+            ("rope_shape_alpha", real)]  # fmt: skip
 
     class WindCov(C.Structure):
         _fields_ = [("time_usec", i64)] + [

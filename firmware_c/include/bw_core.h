@@ -121,7 +121,7 @@ typedef struct {
 
 typedef struct {
     int32_t taut_every, align_reset, baro_reset, baro_recover, mag_recover, field_learn, field_flight,
-        wind_noise_every, release_confirm, release_height;
+        wind_noise_every, release_confirm, release_height, turbulence_from, turbulence_to;
     bw_real rope_shape_alpha;
 } bw_schedule_t;
 

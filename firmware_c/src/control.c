@@ -44,6 +44,8 @@ static void schedule_at(bw_schedule_t *s, double rate, double recover_after_s)
     s->wind_noise_every = round_count(BW_WIND_NOISE_PERIOD_S * rate);
     s->release_confirm = round_count(BW_RELEASE_CONFIRM_S * rate);
     s->release_height = round_count(BW_RELEASE_HEIGHT_S * rate);
+    s->turbulence_from = round_count(BW_TURBULENCE_FROM_S * rate);
+    s->turbulence_to = round_count(BW_TURBULENCE_TO_S * rate);
     a = 1.0 / (BW_ROPE_SHAPE_S * taut_hz);
     s->rope_shape_alpha = (bw_real)(a < 1.0 ? a : 1.0);
 }
@@ -362,8 +364,7 @@ static int rope_load_known(const bw_estimator_t *est)
  * a measurement of sqrt(DRAG_ASCENT_FLOOR^2 + (2 sigma_w / v_climb)^2), never more than its data claimed */
 static void weigh_ascent(bw_estimator_t *est, bw_real speed)
 {
-    double rate = est->cfg->imu_rate_hz;
-    int32_t start = steps_for(BW_TURBULENCE_FROM_S * rate), end = steps_for(BW_TURBULENCE_TO_S * rate);
+    int32_t start = est->sched.turbulence_from, end = est->sched.turbulence_to;
     bw_ekf_t *e = &est->ekf;
     bw_real *tb = est->turbulence, d, n, sigma_u2, sigma_w2, climb, var, prior, prior_var, capped, walked, k, s;
     int i, j;
@@ -606,11 +607,11 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
         monitor(est);
     if (e->mode == BW_MODE_TAUT) {
         bw_real wn = e->x[BW_WIND_N], we = e->x[BW_WIND_E];
-        bw_real dev = BW_SQRT(wn * wn + we * we) - est->mean_speed;
+        bw_real speed = BW_SQRT(wn * wn + we * we), dev = speed - est->mean_speed;
         est->mean_speed += est->speed_alpha * dev;
         est->speed_var += est->speed_alpha * (dev * dev - est->speed_var);
         if (est->ascent_var > BW_R(0.0))
-            weigh_ascent(est, BW_SQRT(wn * wn + we * we));
+            weigh_ascent(est, speed);
         if (e->noise_phase == 0) {
             bw_real misfit;
             est->vertical_gust_var = vertical_gust_var(est, est->mean_speed, est->rho);

@@ -323,11 +323,12 @@ class Estimator:
             self._monitor()
         if ekf.mode == MODE_TAUT:
             wn, we = self.wind()
-            dev = math.sqrt(wn * wn + we * we) - self._mean_speed
+            speed = math.sqrt(wn * wn + we * we)
+            dev = speed - self._mean_speed
             self._mean_speed += self._speed_alpha * dev
             self._speed_var += self._speed_alpha * (dev * dev - self._speed_var)
             if self._ascent_var > 0.0:
-                self._weigh_ascent(math.sqrt(wn * wn + we * we))
+                self._weigh_ascent(speed)
             if self.step % self.schedule.wind_noise_every == 0:
                 self.vertical_gust_var = self._vertical_gust_var(self._mean_speed, self.rho)
                 misfit = max(1.0, self._accel_innov2 / self.accel_taut_var) * self._turbulence_excess()
@@ -353,8 +354,7 @@ class Estimator:
         v)^2), sigma_w = VERTICAL_TURBULENCE_RATIO sigma_u, never more than its data claimed. Still air trusts
         the ascent more, gusts less; once per ascent. The wind moves with the drag scale, so that the pull the
         state explains stays (no step in the estimate)."""
-        rate = self.cfg.imu_rate_hz
-        start, end = math.ceil(TURBULENCE_FROM_S * rate), math.ceil(TURBULENCE_TO_S * rate)
+        start, end = self.schedule.turbulence_from, self.schedule.turbulence_to
         tb = self._turbulence
         if self._dwell <= start:
             tb[0], tb[1], tb[2] = speed, 0.0, 0.0

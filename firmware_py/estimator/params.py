@@ -129,6 +129,8 @@ class Schedule:
     wind_noise_every: int  # steps
     release_confirm: int
     release_height: int
+    turbulence_from: int  # taut steps: the ascent's turbulence window (control._weigh_ascent)
+    turbulence_to: int
     rope_shape_alpha: float  # low-pass weight per taut step of the rope shape (ROPE_SHAPE_S)
 
     @classmethod
@@ -146,5 +148,7 @@ class Schedule:
             wind_noise_every=max(1, round(WIND_NOISE_PERIOD_S * imu_rate_hz)),
             release_confirm=max(1, round(RELEASE_CONFIRM_S * imu_rate_hz)),
             release_height=max(1, round(RELEASE_HEIGHT_S * imu_rate_hz)),
+            turbulence_from=max(1, round(TURBULENCE_FROM_S * imu_rate_hz)),
+            turbulence_to=max(1, round(TURBULENCE_TO_S * imu_rate_hz)),
             rope_shape_alpha=min(1.0, 1.0 / (ROPE_SHAPE_S * taut_hz)),
         )

@@ -124,7 +124,6 @@ def test_the_ascent_is_weighed_from_what_it_told_however_long_ago():
     the ascent told and its claimed variance (the still-air floor is smaller), the walk since kept on top.
     Recovered from the walked P instead, a weighing 20 minutes after the cap read the walk as lost data (k < 0)."""
     from firmware_py.estimator.ekf import RESET_DRAG
-    from firmware_py.estimator.params import TURBULENCE_FROM_S, TURBULENCE_TO_S
     from firmware_py.estimator.state import DRAG
 
     est = Estimator(Design(), FilterConfig())
@@ -139,8 +138,7 @@ def test_the_ascent_is_weighed_from_what_it_told_however_long_ago():
     assert ekf.x[DRAG] == pytest.approx(0.9)  # half way back: the cap's weight is the prior's
     walked = 0.02
     ekf.P[DRAG, DRAG] += walked
-    rate = est.cfg.imu_rate_hz
-    for n in range(math.ceil(TURBULENCE_FROM_S * rate), math.ceil(TURBULENCE_TO_S * rate) + 1):
+    for n in range(est.schedule.turbulence_from, est.schedule.turbulence_to + 1):
         est._dwell = n
         est._weigh_ascent(5.0)  # still air
     assert est._ascent_var == 0.0 and ekf.reset_counts[RESET_DRAG] == 2
