@@ -42,12 +42,19 @@ bw_real bw_systematic_variance(bw_real speed_mps, bw_real drag_scale, bw_real dr
     return speed_mps * speed_mps * (rel_k * rel_k + rel_rope * rel_rope) + lean_wind_mps * lean_wind_mps;
 }
 
-/* consistency.py lean_bias_wind: the wind error of a tilt error on the taut balloon */
-bw_real bw_lean_bias_wind(bw_real speed_mps, bw_real lift_n, bw_real drag_per_speed2, bw_real lean_bias_rad)
+/* consistency.py lean_bias_wind: the wind error of a tilt error on the taut balloon, with the field's geometry
+ * (the rotation about the field's axis that only the accelerometer holds turns the lean's azimuth) */
+bw_real bw_lean_bias_wind(bw_real wind_n, bw_real wind_e, bw_real lift_n, bw_real drag_per_speed2,
+                          bw_real lean_bias_rad, const bw_real field_ned[3])
 {
-    bw_real v;
+    bw_real speed = BW_SQRT(wind_n * wind_n + wind_e * wind_e), f2 = BW_R(1.0), bh, t, v;
     if (!(drag_per_speed2 > BW_R(0.0) && lift_n > BW_R(0.0)))
         return BW_R(0.0);
-    v = BW_R(1.118033988749895) * lift_n * lean_bias_rad / (drag_per_speed2 * BW_MAX(speed_mps, BW_R(1e-3)));
-    return BW_MIN(v, BW_MAX(speed_mps, BW_R(0.5)));
+    bh = BW_SQRT(field_ned[0] * field_ned[0] + field_ned[1] * field_ned[1]);
+    if (bh > BW_R(0.0) && speed > BW_R(0.0)) { /* false while the field is unknown (NaN) */
+        t = field_ned[2] / bh * drag_per_speed2 * speed * speed / lift_n;
+        f2 = BW_R(1.0) + t * t + BW_R(2.0) * t * (wind_n * field_ned[0] + wind_e * field_ned[1]) / (speed * bh);
+    }
+    v = lift_n * lean_bias_rad * BW_SQRT(f2 + BW_R(0.25)) / (drag_per_speed2 * BW_MAX(speed, BW_R(1e-3)));
+    return BW_MIN(v, BW_MAX(speed, BW_R(0.5)));
 }

@@ -23,6 +23,8 @@ Plain floats, fixed memory: a C port is a struct of five floats.
 
 from __future__ import annotations
 
+import math
+
 SOURCES = ("accel", "align", "radius", "baro", "mag")
 ACCEL, ALIGN, RADIUS, BARO, MAG = range(len(SOURCES))
 CONSISTENCY_S = 20.0  # averaging time of each source's NIS
@@ -84,12 +86,33 @@ def systematic_variance(
     return speed_mps * speed_mps * (rel_k * rel_k + rel_rope * rel_rope) + lean_wind_mps * lean_wind_mps
 
 
-def lean_bias_wind(speed_mps: float, lift_n: float, drag_per_speed2: float, lean_bias_rad: float) -> float:
+def lean_bias_wind(
+    wind_n: float, wind_e: float, lift_n: float, drag_per_speed2: float, lean_bias_rad: float,
+    field_ned: tuple[float, float, float],
+) -> float:  # fmt: skip
     """The wind error (m/s, horizontal) of a tilt error ``lean_bias_rad`` on the taut balloon: its lean is the
-    pull, tan(lean) = D / N_b with D = c |w|^2, so across the wind dw = N_b d / (c |w|) (the azimuth turns by
-    d / lean) and along it half that (the square law): sqrt(5/4) N_b d / (c |w|). Large in calm air, where
-    the lean is a degree; bounded by a wind whose direction is unknown (its own speed, or 0.5 m/s)."""
+    pull, tan(lean) = D / N_b with D = c |w|^2, so a tilt d across the lean turns its azimuth by d / tan(lean),
+    dw = N_b d / (c |w|) across the wind, and a tilt along it half that along (the square law). Large in calm
+    air, where the lean is a degree; bounded by a wind whose direction is unknown (its own speed, or 0.5 m/s).
+
+    Across the lean the geometry of the magnetic field adds to it. The magnetometer holds every rotation but
+    the one about the field's axis (inclination I), which only the accelerometer holds, through that
+    rotation's tilt about the field's horizontal direction (cos I of it): a tilt error d there is a rotation
+    d / cos I about the field, mostly a heading error. It turns the balloon's body axis, which lies along the
+    rope, and with it the lean's azimuth: by d (tan I + cos a / tan(lean)), a the lean's azimuth from
+    magnetic north; the tilt about the horizontal across the field (which the magnetometer holds to the same
+    d, the field having been learnt against the accelerometer) turns it by d sin a / tan(lean). Across the
+    wind then dw = N_b d F / (c |w|), F^2 = 1 + t^2 + 2 t cos a, t = tan I tan(lean): for a 66 deg field and
+    a 30 deg lean F is 2.3 blown towards magnetic north (the rope from the balloon points away from the
+    field) and 0.3 blown south (the rope along the field)."""
+    speed = math.sqrt(wind_n * wind_n + wind_e * wind_e)
     if not (drag_per_speed2 > 0.0 and lift_n > 0.0):
         return 0.0
-    v = 1.118033988749895 * lift_n * lean_bias_rad / (drag_per_speed2 * max(speed_mps, 1e-3))
-    return min(v, max(speed_mps, 0.5))
+    f2 = 1.0
+    bn, be, bd = field_ned
+    bh = math.sqrt(bn * bn + be * be)
+    if bh > 0.0 and speed > 0.0:  # False while the field is unknown (NaN)
+        t = bd / bh * drag_per_speed2 * speed * speed / lift_n
+        f2 = 1.0 + t * t + 2.0 * t * (wind_n * bn + wind_e * be) / (speed * bh)
+    v = lift_n * lean_bias_rad * math.sqrt(f2 + 0.25) / (drag_per_speed2 * max(speed, 1e-3))
+    return min(v, max(speed, 0.5))

@@ -634,8 +634,8 @@ class Estimator:
             return 0.0
         m = self.model
         wn, we = self.wind()
-        return lean_bias_wind(math.sqrt(wn * wn + we * we), m.lift_n(self.rho),
-                              float(ekf.x[DRAG]) * self.rho * m.half_cd_area_m2, LEAN_BIAS_RAD)  # fmt: skip
+        return lean_bias_wind(wn, we, m.lift_n(self.rho), float(ekf.x[DRAG]) * self.rho * m.half_cd_area_m2,
+                              LEAN_BIAS_RAD, self.field_ned)  # fmt: skip
 
     def wind(self) -> tuple[float, float]:
         return float(self.ekf.x[WIND_N]), float(self.ekf.x[WIND_E])

@@ -59,11 +59,11 @@ def base(**kw: Any) -> dict[str, Any]:
 
 def fluctuating_ok(m: dict[str, float], min_skill: float = 0.25) -> list[str]:
     """What a fluctuating wind's estimate must meet: the mean's direction and speed, the band's skill (a
-    floor: the envelope's target is 0.6, which the flights from 160-200 deg miss; from 160 deg on the real
-    rope 0.29, 0.32 before the tilt took a correlated error's share of the accelerometer's gain, which
-    improved the envelope's worst flights), honesty (error / stated accuracy, and the share beyond 3 sigma: at
-    most 10 %, where the envelope's target is 3 %, which the real rope from 160 deg misses with 9 %), no taut
-    re-placement. The constant true mean has no skill at all."""
+    floor: the envelope's target is 0.6, which the flights from 160-200 deg miss: 0.45 from 160 deg on the
+    real rope, 0.1 with seeds 3 and 7), honesty (error / stated accuracy, and the share beyond 3 sigma: at
+    most 5 %, where the envelope's target is 3 %; seeds 76402, 3 and 7 of every direction reach 2.7 %, 22 %
+    while the gyro bias walked at 0.005 deg/s per sqrt(s) and the yaw followed the force model's misfit), no
+    taut re-placement. The constant true mean has no skill at all."""
     bad = []
     if not m["dir"] <= 3.0:
         bad.append(f"direction {m['dir']:.1f} deg")
@@ -73,7 +73,7 @@ def fluctuating_ok(m: dict[str, float], min_skill: float = 0.25) -> list[str]:
         bad.append(f"band skill {m['skill']:.2f}")
     if not 0.4 <= m["err_acc"] <= 2.1:
         bad.append(f"error/accuracy {m['err_acc']:.2f}")
-    if not m["beyond_3sigma"] <= 0.10:
+    if not m["beyond_3sigma"] <= 0.05:
         bad.append(f"{100 * m['beyond_3sigma']:.0f} % beyond 3 sigma")
     if m["replacements"] > 0:
         bad.append(f"{m['replacements']:.0f} taut re-placements")

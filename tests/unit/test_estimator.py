@@ -199,3 +199,46 @@ def test_firmware_restarted_in_flight_finds_the_wind(seed):
     assert np.sqrt(np.mean(err**2)) < 0.6
     assert est.height_m() == pytest.approx(truth["height_m"][-1], abs=3.0)
     check_covariance(est.ekf.P)
+
+
+def _azimuth_turn(r: np.ndarray, axis: np.ndarray, angle: float) -> float:
+    """How far a rotation by ``angle`` about ``axis`` (Rodrigues) turns the horizontal azimuth of ``-r``."""
+    k = axis / np.linalg.norm(axis)
+    rr = r * math.cos(angle) + np.cross(k, r) * math.sin(angle) + k * (k @ r) * (1.0 - math.cos(angle))
+    return (math.atan2(-rr[1], -rr[0]) - math.atan2(-r[1], -r[0]) + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@pytest.mark.parametrize("inclination_deg, declination_deg", [(66.0, 3.0), (-40.0, -15.0), (20.0, 0.0)])
+def test_the_lean_bias_turns_the_lean_as_the_field_geometry_says(inclination_deg, declination_deg):
+    """The tilt's systematic error d on the taut balloon (consistency.lean_bias_wind) against the rotations
+    themselves: the magnetometer holds all but the rotation about the field, which the accelerometer holds
+    through its tilt (cos I of it), so d is a rotation d / cos I about the field, and d about the horizontal
+    across it; each turns the balloon's body axis (along the rope) and with it the lean's azimuth, which is
+    the wind's direction. Blown away from the field's horizontal direction the rope lies closer to the field,
+    and the error is smaller than blown towards it; in calm air (a small lean) the geometry drops out."""
+    from firmware_py.estimator.consistency import lean_bias_wind
+
+    inc, dec = math.radians(inclination_deg), math.radians(declination_deg)
+    b = np.array([math.cos(inc) * math.cos(dec), math.cos(inc) * math.sin(dec), math.sin(inc)])
+    across = np.array([-math.sin(dec), math.cos(dec), 0.0])
+    field = tuple(0.5 * b)
+    lift_n, c, d = 20.0, 0.6, 1e-5
+    results = {}
+    for speed in (1.0, 6.0):
+        for az_deg in range(0, 360, 30):
+            az = math.radians(az_deg)  # the wind blows towards az; the balloon leans that way
+            lean = math.atan(c * speed * speed / lift_n)
+            rope = np.array([-math.sin(lean) * math.cos(az), -math.sin(lean) * math.sin(az), math.cos(lean)])
+            turn = math.hypot(_azimuth_turn(rope, b, d / math.cos(inc)), _azimuth_turn(rope, across, d))
+            along = lift_n * d / (2.0 * c * speed)
+            expected = math.hypot(speed * turn, along)
+            got = lean_bias_wind(speed * math.cos(az), speed * math.sin(az), lift_n, c, d, field)
+            assert got == pytest.approx(expected, rel=1e-3), (speed, az_deg)
+            results[speed, az_deg] = got
+    # towards the field's horizontal direction (the rope from the balloon points away from it) against away
+    towards = max(results[6.0, a] for a in range(0, 360, 30) if math.cos(math.radians(a) - dec) > 0.8)
+    away = min(results[6.0, a] for a in range(0, 360, 30) if math.cos(math.radians(a) - dec) < -0.8)
+    assert (towards > 1.5 * away) == (inclination_deg > 0.0)
+    # the field unknown (NaN before it is learnt): the plain lean, d / tan(lean) across
+    plain = lean_bias_wind(6.0, 0.0, lift_n, c, d, (math.nan, math.nan, math.nan))
+    assert plain == pytest.approx(lift_n * d / (c * 6.0) * math.sqrt(1.25))
