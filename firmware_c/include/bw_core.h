@@ -166,7 +166,7 @@ typedef struct {
     bw_real field_sum[6];
     int32_t joined, unconfirmed;
     bw_real acc_mean[3], acc_var;
-    int64_t confirm_count;
+    int32_t confirm_count;
     bw_real field_ned[3];
     int32_t dwell;
     bw_real accel_innov2, innov_alpha, mean_speed, speed_alpha, speed_var;
@@ -174,7 +174,8 @@ typedef struct {
     int32_t was_slack;
     int32_t height_above;
     bw_real accel_var_excess;
-    bw_real align_innov2[2], a_align_innov; /* the alignment's noise, along and cross (aid_tether.c) */
+    bw_real align_innov2[2], align_mean, a_align_innov; /* the alignment's noise, along and cross; the along
+                                                       * innovation's mean (aid_tether.c) */
     bw_real drag_prior[2];        /* the drag scale and its variance when a free ascent starts to learn it */
     /* the drag scale the last ascent's data told, the variance it claimed (0: none to weigh again), its climb */
     bw_real ascent_data, ascent_var, ascent_climb;

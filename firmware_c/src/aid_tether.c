@@ -144,17 +144,19 @@ void bw_control_tether(bw_estimator_t *est)
     bw_ekf_t *e = &est->ekf;
     if (e->mode == BW_MODE_TAUT && e->taut_phase == 0) {
         bw_status_t *an = &est->taut_status[2], *ae = &est->taut_status[3];
-        /* each alignment component's noise follows its recent innovations, the azimuth's no more than a
-         * rocking balloon's (tether.py control_tether) */
+        /* each alignment component's noise follows its recent innovations: the lean's their spread about
+         * their mean (a persistent misfit is a lean that is off), the azimuth's no more than a rocking
+         * balloon's (tether.py control_tether) */
         bw_real *mean2 = est->align_innov2, along_var, cross_var;
         if (est->catenary)
             update_rope_shape(est);
-        along_var = BW_MAX(est->align_var, mean2[0]);
+        along_var = BW_MAX(est->align_var, mean2[0] - est->align_mean * est->align_mean);
         cross_var = BW_MAX(est->align_var, BW_MIN(mean2[1], (bw_real)BW_ALIGN_CROSS_VAR_MAX));
         fuse_taut(est, along_var, cross_var);
         if (an->time_test_us == e->time_us) {
             mean2[0] += est->a_align_innov * (an->innov * an->innov - mean2[0]);
             mean2[1] += est->a_align_innov * (ae->innov * ae->innov - mean2[1]);
+            est->align_mean += est->a_align_innov * (an->innov - est->align_mean);
         }
         if (BW_MAX(an->consecutive_rejects, ae->consecutive_rejects) >= est->sched.align_reset) {
             est->counters.taut_resets += 1;

@@ -99,7 +99,7 @@ static void init_clock(bw_estimator_t *est)
     est->was_slack = 0;
     est->height_above = 0;
     est->accel_var_excess = BW_R(0.0);
-    est->align_innov2[0] = est->align_innov2[1] = BW_R(0.0);
+    est->align_innov2[0] = est->align_innov2[1] = est->align_mean = BW_R(0.0);
     est->drag_prior[0] = BW_R(1.0), est->drag_prior[1] = BW_R(0.0);
     est->ascent_data = est->ascent_var = est->ascent_climb = BW_R(0.0);
     est->turbulence[0] = est->turbulence[1] = est->turbulence[2] = BW_R(0.0);
@@ -288,7 +288,7 @@ static void confirm(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
     moving = est->acc_var > (bw_real)(BW_CONFIRM_MOTION_MPS2 * BW_CONFIRM_MOTION_MPS2);
     explained = est->accel_innov2 < (bw_real)BW_CONFIRM_EXPLAINED * est->acc_var &&
                 est->accel_innov2 <= est->accel_confirm_var;
-    est->confirm_count = moving && explained ? est->confirm_count + 1 : 0;
+    est->confirm_count = moving && explained ? count_up(est->confirm_count) : 0;
     if (est->confirm_count >= est->n_confirm)
         est->unconfirmed = 0;
 }

@@ -200,6 +200,7 @@ class Estimator:
         self._height_above = 0
         self._accel_var_excess = 0.0
         self._align_innov2 = [0.0, 0.0]  # along, cross (aid_sources/tether.py)
+        self._align_mean = 0.0  # the along innovations' running mean (their spread is the noise)
         self._drag_prior = (1.0, 0.0)  # the drag scale and its variance when a free ascent starts to learn it
         # the drag scale the last ascent's data told, the variance it claimed (0: nothing to weigh again), its climb m/s
         self._ascent_data, self._ascent_var, self._ascent_climb = 0.0, 0.0, 0.0
@@ -486,7 +487,7 @@ class Estimator:
         moving = self._acc_var > CONFIRM_MOTION_MPS2**2
         explained = (self._accel_innov2 < CONFIRM_EXPLAINED * self._acc_var
                      and self._accel_innov2 <= self.accel_confirm_var)  # fmt: skip
-        self._confirm_count = self._confirm_count + 1 if moving and explained else 0
+        self._confirm_count = count_up(self._confirm_count) if moving and explained else 0
         if self._confirm_count >= CONFIRM_S * self.cfg.imu_rate_hz:
             self.unconfirmed = False
 

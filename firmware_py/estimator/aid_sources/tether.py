@@ -213,14 +213,20 @@ def control_tether(est: Estimator) -> None:
         # (aid_sources/accel.py): a balloon that rocks in gusts is not along its rope force to 0.01 rad,
         # and a model error taken for a precise measurement is rejected, then re-placed, again and again
         mean2 = est._align_innov2
-        # the azimuth's noise no more than a rocking balloon's: beyond it the state, not the model, is off,
-        # and the rejections re-place it from the tilt (a noise that followed such innovations would let
-        # a wrong azimuth wander on; the gusty flights' cross component stays within 0.05 rad)
-        along_var, cross_var = max(est.align_var, mean2[0]), max(est.align_var, min(mean2[1], ALIGN_CROSS_VAR_MAX))
+        # the lean's noise is the innovations' spread about their mean, not their mean square: the rocking is
+        # noise, a persistent misfit is a lean that is off (a noise that followed it let a lean drifting upright
+        # confirm itself in class B gusts on the paper's rope, the barometer's offset taking the height: 46 m in
+        # five minutes, the wind a sixth of the truth's); the azimuth's noise no more than a rocking balloon's:
+        # beyond it the state, not the model, is off, and the rejections re-place it from the tilt (a noise that
+        # followed such innovations would let a wrong azimuth wander on; the gusty flights' cross component
+        # stays within 0.05 rad)
+        along_var = max(est.align_var, mean2[0] - est._align_mean**2)
+        cross_var = max(est.align_var, min(mean2[1], ALIGN_CROSS_VAR_MAX))
         fuse_taut(ekf, cfg.radial_m**2, cfg.radial_rate_mps**2, along_var, cross_var, est.taut_status)
         along, cross = est.taut_status[2], est.taut_status[3]
         if along.time_test_us == ekf.time_us:
             mean2[0] += est._align_alpha * (along.innov**2 - mean2[0])
+            est._align_mean += est._align_alpha * (along.innov - est._align_mean)
             mean2[1] += est._align_alpha * (cross.innov**2 - mean2[1])
         if max(along.consecutive_rejects, cross.consecutive_rejects) >= est.schedule.align_reset:
             est.counters.taut_resets += 1
