@@ -161,7 +161,7 @@ ASCENTS = {  # the balloon's C_d unlike its design's, as a user's would be
 def test_the_ascent_is_worth_what_the_turbulence_allows(name):
     """The free ascent's drag scale, weighed again once the taut flight has measured the turbulence
     (control._weigh_ascent): in steady air it is worth more than the 10 % it was capped at (the drag's share
-    of the stated accuracy shrinks: 5.1 % on the scale with the design's 10 % prior and the scale's walk since
+    of the stated accuracy shrinks: 3.8 % on the scale with the design's 10 % prior and the scale's walk since
     the cap, where the cap left 7.5 %), in gusts less (a downdraft through the climb read as 34 % more drag
     here); in both the truth's C_d is within 3 sigma of it. Weighed once: the cap and the weighing are the two
     drag-scale re-placements."""
