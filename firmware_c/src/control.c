@@ -145,7 +145,7 @@ void bw_config_default(bw_config_t *c)
     c->mag_declination_deg = 0.0, c->ground_pressure_hpa = NAN, c->altitude_amsl_m = 0.0;
     c->imu_rate_hz = 100.0, c->accel_process_mps2 = 0.05, c->expected_wind_mps = 3.0, c->turbulence_intensity = 0.2;
     c->drag_walk_rt_s = 0.002, c->baro_walk_m_rt_s = 0.1, c->accel_bias_walk_mps2_rt_s = 0.001;
-    c->gyro_bias_walk_dps_rt_s = 0.002;
+    c->gyro_bias_walk_dps_rt_s = 0.0025;
     c->accel_model_mps2 = 0.15, c->accel_taut_mps2 = 0.1, c->accel_static_mps2 = 0.3, c->align_rad = 0.01;
     c->radial_m = 0.3, c->radial_rate_mps = 0.15, c->rope_catenary = 1;
     c->gate_sigma = 5.0, c->recover_after_s = 1.0;
@@ -635,11 +635,24 @@ bw_real bw_wind_accuracy(const bw_estimator_t *est)
             w = bw_ekf_wind_accuracy(e);
     if (e->mode != BW_MODE_GROUND) {
         const bw_model_t *m = &e->m;
-        bw_real lean = e->mode == BW_MODE_TAUT
-                           ? bw_lean_bias_wind(wn, we, bw_lift_n(m, est->rho),
-                                               e->x[BW_DRAG] * est->rho * m->half_cd_area_m2, (bw_real)BW_LEAN_BIAS_RAD,
-                                               est->field_ned)
-                           : BW_R(0.0);
+        bw_real lean = BW_R(0.0);
+        if (e->mode == BW_MODE_TAUT) {
+            /* the attitude's variance across the lean (control.py lean_wind_mps) */
+            bw_real r[9], zn, ze, zd, tilt, cross_var = BW_R(0.0);
+            bw_rotation(e->q, r);
+            zn = r[2], ze = r[5], zd = r[8];
+            tilt = BW_HYPOT(zn, ze);
+            if (tilt > BW_R(0.0)) {
+                const bw_real cn = ze / tilt, ce = -zn / tilt;
+                const bw_real g[3] = {-ce * zd, cn * zd, ce * zn - cn * ze};
+                int i, j;
+                for (i = 0; i < 3; i++)
+                    for (j = 0; j < 3; j++)
+                        cross_var += g[i] * g[j] * e->P[BW_ATT_N + i][BW_ATT_N + j];
+            }
+            lean = bw_lean_bias_wind(wn, we, bw_lift_n(m, est->rho), e->x[BW_DRAG] * est->rho * m->half_cd_area_m2,
+                                     (bw_real)BW_LEAN_BIAS_RAD, est->field_ned, cross_var);
+        }
         sys_var = bw_systematic_variance(speed, e->x[BW_DRAG], e->P[BW_DRAG][BW_DRAG], est->rope_drag_share, lean);
     }
     acc = BW_SQRT(w * w + sys_var) * est->consistency.inflation;

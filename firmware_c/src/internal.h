@@ -70,7 +70,7 @@ void bw_consistency_evaluate(bw_consistency_t *m);
 bw_real bw_systematic_variance(bw_real speed_mps, bw_real drag_scale, bw_real drag_scale_var, bw_real rope_drag_share,
                                bw_real lean_wind_mps);
 bw_real bw_lean_bias_wind(bw_real wind_n, bw_real wind_e, bw_real lift_n, bw_real drag_per_speed2,
-                          bw_real lean_bias_rad, const bw_real field_ned[3]);
+                          bw_real lean_bias_rad, const bw_real field_ned[3], bw_real cross_tilt_var);
 
 /* aid sources */
 void bw_control_accel(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az);

@@ -88,7 +88,7 @@ def systematic_variance(
 
 def lean_bias_wind(
     wind_n: float, wind_e: float, lift_n: float, drag_per_speed2: float, lean_bias_rad: float,
-    field_ned: tuple[float, float, float],
+    field_ned: tuple[float, float, float], cross_tilt_var: float = 0.0,
 ) -> float:  # fmt: skip
     """The wind error (m/s, horizontal) of a tilt error ``lean_bias_rad`` on the taut balloon: its lean is the
     pull, tan(lean) = D / N_b with D = c |w|^2, so a tilt d across the lean turns its azimuth by d / tan(lean),
@@ -104,7 +104,12 @@ def lean_bias_wind(
     d, the field having been learnt against the accelerometer) turns it by d sin a / tan(lean). Across the
     wind then dw = N_b d F / (c |w|), F^2 = 1 + t^2 + 2 t cos a, t = tan I tan(lean): for a 66 deg field and
     a 30 deg lean F is 2.3 blown towards magnetic north (the rope from the balloon points away from the
-    field) and 0.3 blown south (the rope along the field)."""
+    field) and 0.3 blown south (the rope along the field).
+
+    ``cross_tilt_var`` (rad^2): the filter's own attitude variance across the lean (the body axis's displacement,
+    c . d z / d att P_att (..)^T), which turns the azimuth the same way. The alignment takes it as white noise,
+    and the position and the wind average it away; but the attitude's error is slow (about the field's axis
+    only the accelerometer holds it), so its share of the wind is stated here."""
     speed = math.sqrt(wind_n * wind_n + wind_e * wind_e)
     if not (drag_per_speed2 > 0.0 and lift_n > 0.0):
         return 0.0
@@ -114,5 +119,6 @@ def lean_bias_wind(
     if bh > 0.0 and speed > 0.0:  # False while the field is unknown (NaN)
         t = bd / bh * drag_per_speed2 * speed * speed / lift_n
         f2 = 1.0 + t * t + 2.0 * t * (wind_n * bn + wind_e * be) / (speed * bh)
-    v = lift_n * lean_bias_rad * math.sqrt(f2 + 0.25) / (drag_per_speed2 * max(speed, 1e-3))
+    d2 = lean_bias_rad * lean_bias_rad
+    v = lift_n * math.sqrt(d2 * (f2 + 0.25) + cross_tilt_var) / (drag_per_speed2 * max(speed, 1e-3))
     return min(v, max(speed, 0.5))

@@ -61,6 +61,7 @@ from firmware_py.estimator.params import (
     Schedule,
 )
 from firmware_py.estimator.state import (
+    ATT_N,
     BARO_OFF,
     DRAG,
     MODE_FREE,
@@ -416,7 +417,8 @@ class Estimator:
         radius, _, an, ae = self.taut_status
         if an.time_test_us == t and an.innov_var > 0.0 and ae.innov_var > 0.0:
             # against the noise it was fused with: the alignment's noise follows the rocking (aid_sources/tether.py),
-            # which P then holds; what the monitor sees is innovations beyond it (the azimuth's bound)
+            # which P then holds; what the monitor sees is innovations beyond it (the azimuth's bound, and a
+            # persistent along misfit: that noise follows only the spread about the mean)
             mon.add(ALIGN, 0.5 * (an.innov**2 / an.innov_var + ae.innov**2 / ae.innov_var), taut_alpha)
         if radius.time_test_us == t and radius.innov_var > 0.0:
             mon.add(RADIUS, radius.innov**2 / radius.innov_var, taut_alpha)
@@ -635,8 +637,17 @@ class Estimator:
             return 0.0
         m = self.model
         wn, we = self.wind()
+        r = rotation(*ekf.q.tolist())
+        zn, ze, zd = r[2], r[5], r[8]  # the body's down axis, along the rope
+        lean = math.hypot(zn, ze)
+        cross_var = 0.0
+        if lean > 0.0:  # across the lean (cn, ce): c . d z / d att P_att (..)^T
+            cn, ce = ze / lean, -zn / lean
+            g = (-ce * zd, cn * zd, ce * zn - cn * ze)
+            P = ekf.P
+            cross_var = sum(g[i] * g[j] * float(P[ATT_N + i, ATT_N + j]) for i in range(3) for j in range(3))
         return lean_bias_wind(wn, we, m.lift_n(self.rho), float(ekf.x[DRAG]) * self.rho * m.half_cd_area_m2,
-                              LEAN_BIAS_RAD, self.field_ned)  # fmt: skip
+                              LEAN_BIAS_RAD, self.field_ned, cross_var)  # fmt: skip
 
     def wind(self) -> tuple[float, float]:
         return float(self.ekf.x[WIND_N]), float(self.ekf.x[WIND_E])

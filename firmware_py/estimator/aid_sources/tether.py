@@ -226,8 +226,8 @@ def control_tether(est: Estimator) -> None:
         along, cross = est.taut_status[2], est.taut_status[3]
         if along.time_test_us == ekf.time_us:
             mean2[0] += est._align_alpha * (along.innov**2 - mean2[0])
-            est._align_mean += est._align_alpha * (along.innov - est._align_mean)
             mean2[1] += est._align_alpha * (cross.innov**2 - mean2[1])
+            est._align_mean += est._align_alpha * (along.innov - est._align_mean)
         if max(along.consecutive_rejects, cross.consecutive_rejects) >= est.schedule.align_reset:
             est.counters.taut_resets += 1
             along.consecutive_rejects = cross.consecutive_rejects = 0
