@@ -140,11 +140,11 @@ void bw_config_default(bw_config_t *c)
     c->tether_length_m = 100.0;
     c->rope_kg_m = 0.02;
     c->rope_drag_m2 = 0.0;
-    c->rope_cn_d_m = 1.1 * 0.003;
+    c->rope_cn_d_m = 1.1 * 0.004726260241728836; /* Cn d: a solid nylon rope of 0.02 kg/m is 4.7 mm thick */
     c->accel_mps2 = 0.01, c->baro_m = 1.0, c->gyro_dps = 1.0, c->mag_gauss = 0.005;
     c->mag_declination_deg = 0.0, c->ground_pressure_hpa = NAN, c->altitude_amsl_m = 0.0;
     c->imu_rate_hz = 100.0, c->accel_process_mps2 = 0.05, c->expected_wind_mps = 3.0, c->turbulence_intensity = 0.2;
-    c->drag_walk_rt_s = 0.002, c->baro_walk_m_rt_s = 0.1, c->accel_bias_walk_mps2_rt_s = 0.001;
+    c->drag_walk_rt_s = 0.0005, c->baro_walk_m_rt_s = 0.1, c->accel_bias_walk_mps2_rt_s = 0.001;
     c->gyro_bias_walk_dps_rt_s = 0.0025;
     c->accel_model_mps2 = 0.15, c->accel_taut_mps2 = 0.1, c->accel_static_mps2 = 0.3, c->align_rad = 0.01;
     c->radial_m = 0.3, c->radial_rate_mps = 0.15, c->rope_catenary = 1;

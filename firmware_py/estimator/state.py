@@ -49,7 +49,11 @@ class FilterConfig:
     # the wind the filter expects (its process noise is derived from this spectrum: tuning.py)
     expected_wind_mps: float = 3.0
     turbulence_intensity: float = 0.2  # sigma_u / U the filter expects (docs/estimator.md: chosen by NEES)
-    drag_walk_rt_s: float = 0.002  # drag-scale random walk
+    # the drag scale's random walk: the balloon's drag changes with time through its gas (a few per cent of its
+    # volume lost or heated by the sun over hours, the area with it): 0.0005 per sqrt(s) is 3 % in an hour, 8.5 %
+    # in eight; on the taut tether nothing measures the scale, so this is the growth of its stated uncertainty
+    # (0.002 grew it by 12 % an hour, 34 % over a field day, where the physics had not changed)
+    drag_walk_rt_s: float = 0.0005
     # the barometer's offset walk: the weather moves the ground pressure 1-3 hPa in 3 h (8 m per hPa);
     # 0.1 m/sqrt(s) is 6 m in an hour as a random walk and follows a 2 hPa/h front within metres
     baro_walk_m_rt_s: float = 0.1

@@ -94,3 +94,20 @@ def test_cortex_m4_under_qemu_equals_the_host_build(stream, tmp_path):
     assert equal, line
     stats = (tmp_path / "st.txt").read_text().split()
     assert int(stats[stats.index("median_instructions") + 1]) > 1000  # the timer counted
+
+
+def test_the_c_defaults_are_the_design_files_and_the_filters():
+    """``bw_config_default`` (what a C user starts from) is the Python core's default design and ``[filter]``, field
+    for field (its rope's cross-flow drag once assumed a 3 mm rope where the design's 0.02 kg/m is 4.7 mm)."""
+    import ctypes
+    import math
+
+    from firmware_py.core_c import config_struct, load
+
+    lib, Config, _, _ = load("double")
+    c = Config()
+    lib.bw_config_default(ctypes.byref(c))
+    want = config_struct(Design(), FilterConfig(), Config)
+    for name, _ in Config._fields_:
+        a, b = getattr(c, name), getattr(want, name)
+        assert (math.isnan(a) and math.isnan(b)) or a == pytest.approx(b, rel=1e-12), name
