@@ -51,6 +51,17 @@ void bw_enter_taut(bw_ekf_t *e, bw_real height_m, bw_real rho, int from_tilt)
     bw_ekf_reset(e, BW_RESET_TAUT);
 }
 
+
+/* tether.py lean_variance: the attitude's variance along a horizontal component (cn, ce) of the body's down axis */
+bw_real bw_lean_variance(const bw_ekf_t *e, bw_real cn, bw_real ce, bw_real zn, bw_real ze, bw_real zd)
+{
+    const bw_real g0 = -ce * zd, g1 = cn * zd, g2 = ce * zn - cn * ze; /* c . d z / d att */
+    return g0 * (g0 * e->P[BW_ATT_N][BW_ATT_N] +
+                 BW_R(2.0) * (g1 * e->P[BW_ATT_N][BW_ATT_E] + g2 * e->P[BW_ATT_N][BW_ATT_D])) +
+           g1 * (g1 * e->P[BW_ATT_E][BW_ATT_E] + BW_R(2.0) * g2 * e->P[BW_ATT_E][BW_ATT_D]) +
+           g2 * g2 * e->P[BW_ATT_D][BW_ATT_D];
+}
+
 static void fuse_taut(bw_estimator_t *est, bw_real along_var, bw_real cross_var)
 {
     bw_ekf_t *e = &est->ekf;
@@ -103,12 +114,7 @@ static void fuse_taut(bw_estimator_t *est, bw_real along_var, bw_real cross_var)
             /* the attitude is a parameter (tether.py fuse_taut): no attitude columns; its uncertainty along
              * the component, c . d z / d att P_att (..)^T, is added to the noise */
             const bw_real cn = c[cc][0], ce = c[cc][1];
-            const bw_real g0 = -ce * zd, g1 = cn * zd, g2 = ce * zn - cn * ze;
-            const bw_real var_att =
-                g0 * (g0 * e->P[BW_ATT_N][BW_ATT_N] +
-                      BW_R(2.0) * (g1 * e->P[BW_ATT_N][BW_ATT_E] + g2 * e->P[BW_ATT_N][BW_ATT_D])) +
-                g1 * (g1 * e->P[BW_ATT_E][BW_ATT_E] + BW_R(2.0) * g2 * e->P[BW_ATT_E][BW_ATT_D]) +
-                g2 * g2 * e->P[BW_ATT_D][BW_ATT_D];
+            const bw_real var_att = bw_lean_variance(e, cn, ce, zn, ze, zd);
             memset(e->h, 0, sizeof e->h);
             for (j = 0; j < ncol; j++)
                 e->h[BW_MODEL_COLS[j]] = -(cn * n[2 + j] + ce * n[2 + BW_NCOL + j]); /* residual c . (z - n(x)) */

@@ -642,14 +642,8 @@ bw_real bw_wind_accuracy(const bw_estimator_t *est)
             bw_rotation(e->q, r);
             zn = r[2], ze = r[5], zd = r[8];
             tilt = BW_HYPOT(zn, ze);
-            if (tilt > BW_R(0.0)) {
-                const bw_real cn = ze / tilt, ce = -zn / tilt;
-                const bw_real g[3] = {-ce * zd, cn * zd, ce * zn - cn * ze};
-                int i, j;
-                for (i = 0; i < 3; i++)
-                    for (j = 0; j < 3; j++)
-                        cross_var += g[i] * g[j] * e->P[BW_ATT_N + i][BW_ATT_N + j];
-            }
+            if (tilt > BW_R(0.0))
+                cross_var = bw_lean_variance(e, ze / tilt, -zn / tilt, zn, ze, zd);
             lean = bw_lean_bias_wind(wn, we, bw_lift_n(m, est->rho), e->x[BW_DRAG] * est->rho * m->half_cd_area_m2,
                                      (bw_real)BW_LEAN_BIAS_RAD, est->field_ned, cross_var);
         }

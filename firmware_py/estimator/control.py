@@ -13,7 +13,7 @@ from firmware_py.estimator.aid_sources.accel import control_accel
 from firmware_py.estimator.aid_sources.baro import baro_sample, control_baro, reset_height
 from firmware_py.estimator.aid_sources.ground_ref import ground_baro_sample, init_ground_ref
 from firmware_py.estimator.aid_sources.magnetometer import control_mag
-from firmware_py.estimator.aid_sources.tether import control_tether, enter_taut
+from firmware_py.estimator.aid_sources.tether import control_tether, enter_taut, lean_variance
 from firmware_py.estimator.aid_sources.winch import control_winch, init_winch, winch_sample
 from firmware_py.estimator.catenary import anchored_rope_spread
 from firmware_py.estimator.consistency import (
@@ -61,7 +61,6 @@ from firmware_py.estimator.params import (
     Schedule,
 )
 from firmware_py.estimator.state import (
-    ATT_N,
     BARO_OFF,
     DRAG,
     MODE_FREE,
@@ -640,12 +639,7 @@ class Estimator:
         r = rotation(*ekf.q.tolist())
         zn, ze, zd = r[2], r[5], r[8]  # the body's down axis, along the rope
         lean = math.hypot(zn, ze)
-        cross_var = 0.0
-        if lean > 0.0:  # across the lean (cn, ce): c . d z / d att P_att (..)^T
-            cn, ce = ze / lean, -zn / lean
-            g = (-ce * zd, cn * zd, ce * zn - cn * ze)
-            P = ekf.P
-            cross_var = sum(g[i] * g[j] * float(P[ATT_N + i, ATT_N + j]) for i in range(3) for j in range(3))
+        cross_var = lean_variance(ekf.P, ze / lean, -zn / lean, zn, ze, zd) if lean > 0.0 else 0.0  # across the lean
         return lean_bias_wind(wn, we, m.lift_n(self.rho), float(ekf.x[DRAG]) * self.rho * m.half_cd_area_m2,
                               LEAN_BIAS_RAD, self.field_ned, cross_var)  # fmt: skip
 

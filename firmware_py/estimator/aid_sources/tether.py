@@ -101,6 +101,17 @@ def enter_taut(ekf: WindEkf, height_m: float, rho: float, from_tilt: bool = Fals
     ekf.reset(RESET_TAUT)
 
 
+def lean_variance(P, cn: float, ce: float, zn: float, ze: float, zd: float) -> float:
+    """The attitude's variance along a horizontal component (cn, ce) of the body's down axis z (along the rope):
+    c . d z / d att P_att (..)^T with d z / d att = -[z x], rad^2."""
+    g0, g1, g2 = -ce * zd, cn * zd, ce * zn - cn * ze  # c . d z / d att, over ATT_N, ATT_E, ATT_D
+    return float(
+        g0 * (g0 * P[ATT_N, ATT_N] + 2.0 * (g1 * P[ATT_N, ATT_E] + g2 * P[ATT_N, ATT_D]))
+        + g1 * (g1 * P[ATT_E, ATT_E] + 2.0 * g2 * P[ATT_E, ATT_D])
+        + g2 * g2 * P[ATT_D, ATT_D]
+    )
+
+
 def fuse_taut(
     ekf: WindEkf, radial_var: float, radial_rate_var: float, along_var: float, cross_var: float,
     status: list[FusionStatus],
@@ -163,18 +174,12 @@ def fuse_taut(
     # where the attitude is uncertain, so is the measured lean: its variance along the component (the
     # attitude a "consider" parameter, d z / d att = -[z x]) is added to the noise. In calm air the lean
     # is a degree or two and a tenth of a degree of tilt turns its azimuth by several degrees
-    P = ekf.P
     for cn, ce, var, st in ((an, ae, along_var, status[2]), (-ae, an, cross_var, status[3])):
-        g0, g1, g2 = -ce * zd, cn * zd, ce * zn - cn * ze  # c . d z / d att, over ATT_N, ATT_E, ATT_D
-        var_att = (
-            g0 * (g0 * P[ATT_N, ATT_N] + 2.0 * (g1 * P[ATT_N, ATT_E] + g2 * P[ATT_N, ATT_D]))
-            + g1 * (g1 * P[ATT_E, ATT_E] + 2.0 * g2 * P[ATT_E, ATT_D])
-            + g2 * g2 * P[ATT_D, ATT_D]
-        )
+        var_att = lean_variance(ekf.P, cn, ce, zn, ze, zd)
         h.fill(0.0)
         for j in range(ncol):
             h[MODEL_COLUMNS[j]] = -(cn * n[jn + j] + ce * n[je + j])  # residual c . (z - n(x))
-        ekf.fuse(cn * (n[0] - zn) + ce * (n[1] - ze), var + float(var_att), st, recover=False)
+        ekf.fuse(cn * (n[0] - zn) + ce * (n[1] - ze), var + var_att, st, recover=False)
 
 
 def update_rope_shape(ekf: WindEkf, rho: float, alpha: float) -> None:
