@@ -110,7 +110,9 @@ def test_lossy_reordering_link_still_converges_and_losses_are_counted(tmp_path):
         fw_cmd = [PY, "-m", "firmware_py", "--in", f"udpin:127.0.0.1:{p_fw}", "--out", f"udpout:127.0.0.1:{down.port}"]
         fw = subprocess.Popen(fw_cmd, stderr=subprocess.PIPE, text=True)
         time.sleep(0.5)
-        subprocess.run([PY, "-m", "sim_hil", "--duration", "240", "--seed", "4", "--truth", str(truth),
+        # 480 s: six minutes scored (from 120 s), where two minutes of a band below 0.05 Hz made the skill depend on
+        # which packets the link happened to lose (0.45-0.55 between runs of the same flight)
+        subprocess.run([PY, "-m", "sim_hil", "--duration", "480", "--seed", "4", "--truth", str(truth),
                         "--out", f"udpout:127.0.0.1:{up.port}", "--speed", "20", "--lockstep"],
                        check=True, timeout=120, capture_output=True)  # fmt: skip
         time.sleep(1.0)
@@ -126,7 +128,7 @@ def test_lossy_reordering_link_still_converges_and_losses_are_counted(tmp_path):
     assert gaps > 100 and reordered > 10
     s = report(str(csv), str(truth))
     # 10 % of the sensor packets lost, 5 % reordered: still better than the constant true mean by far
-    assert s.band_skill >= 0.5 and abs(s.speed_error_pct) < 5
+    assert s.band_skill >= 0.5 and abs(s.speed_error_pct) < 5, s
 
 
 def wind_cov_listener(port: int, records: list, stop: threading.Event):
