@@ -58,8 +58,8 @@ DIMS = ("from_deg", "mean_mps", "wind_kind", "rope_model", "radius_u", "tether_m
 PARAMS = ("from_deg", "mean_mps", "wind_kind", "rope_model", "radius_m", "tether_m", "pressure_drift_hpa_h",
           "bias_scale", "sensor_grade", "seed", "cd_scale", "rope_cd_scale")  # fmt: skip
 # the balloon and the rope flown are not the design's: their drag coefficients are the design's times a factor
-# drawn from what a user knows of them (1-sigma, truncated at 2.5 sigma): a sphere's C_d to 10 %, a rope's
-# cross-flow C_n to 30 % (the filter's stated accuracy assumes as much: consistency.systematic_variance)
+# drawn from what a user knows of them (1-sigma, truncated at 2.5 sigma): a sphere's C_d to 10 % (the filter's
+# stated accuracy assumes as much: consistency.systematic_variance), a rope's cross-flow C_n to 30 %
 CD_SIGMA = 0.10
 ROPE_CD_SIGMA = 0.30
 WINDOW_S = 60.0

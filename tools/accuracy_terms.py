@@ -3,15 +3,14 @@
     python tools/accuracy_terms.py 23 17 --quick          # flights of the --quick sample, 300 s
     python tools/accuracy_terms.py 0 4 8 --duration 600    # flights of the full sample
 
-Flies each flight of ``benchmarks.bench_envelope``'s sample on the Python core (the C core is held equal to
-it) and prints, over the scored part (from 120 s), the RMS wind error against the truth, the drag scale learnt
-beside the one flown (the truth's C_d over the design's) and the RMS of each term of the reported accuracy
-(``Estimator.wind_accuracy``): the covariance's, the drag scale's, the rope's drag coefficient's and the
-tilt's systematic terms, the consistency monitor's mean factor and its windowed NIS per source; how far
-the barometer offset state walked in its worst 20 s against its own stated 1-sigma (the rope model's
-disagreement with the barometer, which no single innovation shows); and the attitude's RMS error about the
-magnetic field's axis (which the magnetometer cannot see) against its stated 1-sigma, with its correlation
-with the wind's error across the mean wind."""
+Flies each flight of ``benchmarks.bench_envelope``'s sample on the Python core (the C core is held equal to it) and
+prints, over the scored part (from 120 s), the RMS wind error against the truth, the drag scale learnt beside the
+one flown (the truth's C_d over the design's) and the RMS of each term of the reported accuracy
+(``Estimator.wind_accuracy``): the covariance's, the drag scale's and the tilt's systematic terms, the consistency
+monitor's mean factor and its windowed NIS per source; how far the barometer offset state walked in its worst 20 s
+against its own stated 1-sigma (the rope model's disagreement with the barometer, which no single innovation
+shows); and the attitude's RMS error about the magnetic field's axis (which the magnetometer cannot see) against
+its stated 1-sigma, with its correlation with the wind's error across the mean wind."""
 
 from __future__ import annotations
 
@@ -54,9 +53,8 @@ def terms(point: dict, duration_s: float) -> dict[str, float]:
         speed, k, kv = math.hypot(wn, we), float(ekf.x[DRAG]), float(ekf.P[DRAG, DRAG])
         lean = est.lean_wind_mps()
         rows.append((s.time_usec * 1e-6, wn, we, est.wind_accuracy(), ekf.wind_accuracy() ** 2,
-                     systematic_variance(speed, k, kv, 0.0), systematic_variance(speed, k, 0.0, est.rope_drag_share),
-                     lean**2, est.consistency.inflation, float(ekf.x[BARO_OFF]), float(ekf.P[BARO_OFF, BARO_OFF]),
-                     k, *est.consistency.nis))  # fmt: skip
+                     systematic_variance(speed, k, kv, 0.0), lean**2, est.consistency.inflation, float(ekf.x[BARO_OFF]),
+                     float(ekf.P[BARO_OFF, BARO_OFF]), k, *est.consistency.nis))  # fmt: skip
         att.append((*ekf.q.tolist(), *est.field_ned, *ekf.P[ATT_N : ATT_D + 1, ATT_N : ATT_D + 1].ravel()))
     r = np.array(rows)
     truth = {c: sim.truth[:, j] for j, c in enumerate(TRUTH_COLUMNS)}
@@ -67,17 +65,17 @@ def terms(point: dict, duration_s: float) -> dict[str, float]:
     rms = lambda x: float(np.sqrt(np.mean(x)))  # noqa: E731 - of a squared series
     out = {"error": rms(err**2), "mean_vector_error": math.hypot(r[late, 1].mean() - tn.mean(),
                                                                   r[late, 2].mean() - te.mean()),
-           "accuracy": rms(r[late, 3] ** 2), "P": rms(r[late, 4]), "drag": rms(r[late, 5]), "rope": rms(r[late, 6]),
-           "tilt": rms(r[late, 7]), "inflation": float(r[late, 8].mean())}  # fmt: skip
+           "accuracy": rms(r[late, 3] ** 2), "P": rms(r[late, 4]), "drag": rms(r[late, 5]),
+           "tilt": rms(r[late, 6]), "inflation": float(r[late, 7].mean())}  # fmt: skip
     n = int(round(WALK_WINDOW_S * 10.0))
-    off, sd = r[late, 9], np.sqrt(r[late, 10])
+    off, sd = r[late, 8], np.sqrt(r[late, 9])
     out["offset_walk_m"] = float(np.max(np.abs(off[n:] - off[:-n]))) if len(off) > n else math.nan
     out["offset_sigma_m"] = float(np.mean(sd))
-    out["drag_scale"] = float(r[late, 11].mean())
+    out["drag_scale"] = float(r[late, 10].mean())
     speed_est, speed_true = math.hypot(r[late, 1].mean(), r[late, 2].mean()), math.hypot(tn.mean(), te.mean())
     out["speed_error_pct"] = 100.0 * (speed_est / speed_true - 1.0)
     for j, name in enumerate(SOURCES):
-        out[f"nis_{name}"] = float(r[late, 12 + j].mean())
+        out[f"nis_{name}"] = float(r[late, 11 + j].mean())
     out.update(about_field(np.array(att)[late], r[late], truth, tn, te))
     return out
 
@@ -118,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"accuracy_terms: no flight {f} in a sample of {len(points)}", file=sys.stderr)
             return 2
     print("| flight | wind | rope | error | speed error | drag scale (truth's C_d / design's) | accuracy "
-          "| = sqrt(P^2 + drag^2 + rope^2 + tilt^2) x inflation | error/accuracy "
+          "| = sqrt(P^2 + drag^2 + tilt^2) x inflation | error/accuracy "
           "| worst 20 s offset walk / its sigma | NIS " + " ".join(SOURCES) + " "
           "| attitude about the field: RMS error / stated, deg "
           "| its correlation with the cross-wind error (RMS) |")  # fmt: skip
@@ -129,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
         nis = " ".join(f"{t['nis_' + s]:.2f}" for s in SOURCES)
         print(f"| {f} | {p['wind_kind']} {p['mean_mps']:.1f} m/s | {p['rope_model']} | {t['error']:.3f} | "
               f"{t['speed_error_pct']:+.1f} % | {t['drag_scale']:.3f} ({p['cd_scale']:.3f}) | {t['accuracy']:.3f} | "
-              f"sqrt({t['P']:.3f}^2 + {t['drag']:.3f}^2 + {t['rope']:.3f}^2 + "
+              f"sqrt({t['P']:.3f}^2 + {t['drag']:.3f}^2 + "
               f"{t['tilt']:.3f}^2) x {t['inflation']:.2f} | {t['error'] / t['accuracy']:.2f} | "
               f"{t['offset_walk_m']:.1f} m / {t['offset_sigma_m']:.2f} m | {nis} | "
               f"{t['about_field_deg']:.2f} / {t['about_field_sigma_deg']:.2f} | "

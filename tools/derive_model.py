@@ -226,7 +226,7 @@ def generate_params() -> str:
     put(
         "BW_",
         consistency,
-        {"ACCEL", "ALIGN", "RADIUS", "BARO", "MAG", "CONSISTENCY_S", "NIS_CLIP", "FLAG_NIS", "ROPE_CD_REL_SIGMA"},
+        {"ACCEL", "ALIGN", "RADIUS", "BARO", "MAG", "CONSISTENCY_S", "NIS_CLIP", "FLAG_NIS"},
     )
     lines[-1:-1] = [f"#define BW_N_SOURCES {len(consistency.SOURCES)}"]
     put("BW_", ekf, {"RESET_INITIALISE", "RESET_TAUT", "RESET_HEIGHT", "RESET_DRAG"})

@@ -151,7 +151,7 @@ typedef struct {
     bw_windcov_out_t out;
     /* noise */
     bw_real accel_var, accel_static_var, accel_confirm_var, accel_taut_var, vertical_gust_var, align_var, baro_var,
-        mag_sigma, mag_var, declination, rope_drag_share;
+        mag_sigma, mag_var, declination;
     int32_t catenary;
     /* the times of control.py as step counts (n >= ceil(t * rate)) and the monitor's weights, set at init */
     int32_t n_dwell, n_learn_drag, n_false_release, n_taut_pull, n_confirm;

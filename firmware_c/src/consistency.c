@@ -33,13 +33,11 @@ void bw_consistency_evaluate(bw_consistency_t *m)
     m->inflation = BW_SQRT(worst);
 }
 
-bw_real bw_systematic_variance(bw_real speed_mps, bw_real drag_scale, bw_real drag_scale_var, bw_real rope_drag_share,
-                               bw_real lean_wind_mps)
+bw_real bw_systematic_variance(bw_real speed_mps, bw_real drag_scale, bw_real drag_scale_var, bw_real lean_wind_mps)
 {
     bw_real k = BW_MAX(drag_scale, BW_R(1e-3));
     bw_real rel_k = BW_R(0.5) * BW_SQRT(drag_scale_var) / k;
-    bw_real rel_rope = BW_R(0.5) * rope_drag_share * (bw_real)BW_ROPE_CD_REL_SIGMA;
-    return speed_mps * speed_mps * (rel_k * rel_k + rel_rope * rel_rope) + lean_wind_mps * lean_wind_mps;
+    return speed_mps * speed_mps * rel_k * rel_k + lean_wind_mps * lean_wind_mps;
 }
 
 /* consistency.py lean_bias_wind: the wind error of a tilt error on the taut balloon, with the field's geometry

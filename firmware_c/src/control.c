@@ -157,7 +157,7 @@ void bw_config_default(bw_config_t *c)
 
 int bw_init(bw_estimator_t *est, const bw_config_t *cfg)
 {
-    double share, s_acc, rope_half, dt_us, gap;
+    double share, s_acc, dt_us, gap;
     int i;
     if (!(cfg->imu_rate_hz > 0.0 && cfg->radius_m > 0.0 && cfg->mass_kg > 0.0 && cfg->volume_m3 > 0.0))
         return -1;
@@ -202,8 +202,6 @@ int bw_init(bw_estimator_t *est, const bw_config_t *cfg)
     for (i = 0; i < 4; i++)
         bw_status_init(&est->taut_status[i], 0);
     bw_consistency_reset(&est->consistency);
-    rope_half = 0.25 * cfg->rope_cn_d_m * cfg->tether_length_m; /* a straight rope's half of its drag */
-    est->rope_drag_share = (bw_real)(rope_half / (cfg->half_cd_area_m2 + rope_half));
     est->probe.rope_weight_n = BW_R(NAN);
     est->probe.m_eff_kg = BW_R(1.0);
     {
@@ -647,7 +645,7 @@ bw_real bw_wind_accuracy(const bw_estimator_t *est)
             lean = bw_lean_bias_wind(wn, we, bw_lift_n(m, est->rho), e->x[BW_DRAG] * est->rho * m->half_cd_area_m2,
                                      (bw_real)BW_LEAN_BIAS_RAD, est->field_ned, cross_var);
         }
-        sys_var = bw_systematic_variance(speed, e->x[BW_DRAG], e->P[BW_DRAG][BW_DRAG], est->rope_drag_share, lean);
+        sys_var = bw_systematic_variance(speed, e->x[BW_DRAG], e->P[BW_DRAG][BW_DRAG], lean);
     }
     acc = BW_SQRT(w * w + sys_var) * est->consistency.inflation;
     if (est->unconfirmed)

@@ -112,7 +112,6 @@
 #define BW_CONSISTENCY_S 20.0
 #define BW_NIS_CLIP 25.0
 #define BW_FLAG_NIS 2.0
-#define BW_ROPE_CD_REL_SIGMA 0.3
 #define BW_N_SOURCES 5
 
 #define BW_RESET_INITIALISE 0

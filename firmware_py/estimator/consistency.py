@@ -16,7 +16,11 @@ What the monitor does with it:
 
 The accuracy itself also carries what the covariance cannot know (``systematic_variance``): the
 drag scale's uncertainty (inhibited on the taut tether, so decorrelated from the wind in P) and the
-rope's drag coefficient, which the design gives only as a typical value.
+tilt's systematic error. Not the rope's drag coefficient, which the design gives only as a typical
+value: the balloon's lean is the pull at the rope's top, the balloon's own drag against its own lift,
+whatever the rope below does (the full envelope's truths, the rope's C_n drawn to 30 %: the speed error
+moves 0.9 % per unit of it, 0.3 % at one sigma; a steady 7 m/s flight with half and 1.5 times the
+rope's C_n: within 0.7 %).
 
 Plain floats, fixed memory: a C port is a struct of five floats.
 """
@@ -30,7 +34,6 @@ ACCEL, ALIGN, RADIUS, BARO, MAG = range(len(SOURCES))
 CONSISTENCY_S = 20.0  # averaging time of each source's NIS
 NIS_CLIP = 25.0  # one innovation counts at most as a 5-sigma one: a transient does not rule the window
 FLAG_NIS = 2.0  # a windowed NIS above this flags the source: its innovations are 1.4x their expectation
-ROPE_CD_REL_SIGMA = 0.3  # 1-sigma of the rope's cross-flow drag coefficient, relative (1.0-1.3 round ropes)
 
 
 class Consistency:
@@ -74,16 +77,14 @@ class Consistency:
 
 
 def systematic_variance(
-    speed_mps: float, drag_scale: float, drag_scale_var: float, rope_drag_share: float, lean_wind_mps: float = 0.0
+    speed_mps: float, drag_scale: float, drag_scale_var: float, lean_wind_mps: float = 0.0
 ) -> float:  # fmt: skip
     """Variance of the horizontal wind from what the filter's P does not hold, (m/s)^2: the drag
-    scale's uncertainty (F ~ k |w|^2: dw / w = dk / 2k), the rope's drag coefficient (the rope's
-    share of the horizontal drag, times its relative uncertainty, halved for the square law) and the
-    tilt's systematic error ``lean_wind_mps`` (``lean_bias_wind``), which no averaging removes."""
+    scale's uncertainty (F ~ k |w|^2: dw / w = dk / 2k) and the tilt's systematic error
+    ``lean_wind_mps`` (``lean_bias_wind``), which no averaging removes."""
     k = max(drag_scale, 1e-3)
     rel_k = 0.5 * (drag_scale_var**0.5) / k
-    rel_rope = 0.5 * rope_drag_share * ROPE_CD_REL_SIGMA
-    return speed_mps * speed_mps * (rel_k * rel_k + rel_rope * rel_rope) + lean_wind_mps * lean_wind_mps
+    return speed_mps * speed_mps * rel_k * rel_k + lean_wind_mps * lean_wind_mps
 
 
 def lean_bias_wind(

@@ -162,9 +162,6 @@ class Estimator:
         self.mag_var = self.mag_sigma**2 + MAG_MODEL_GAUSS**2
         self.taut_status = [FusionStatus(n) for n in ("radius", "radial_rate", "align_along", "align_cross")]
         self.consistency = Consistency()
-        m = self.model
-        rope_half = 0.25 * m.rope_cn_d_m * m.tether_length_m  # a straight rope's half of its drag
-        self.rope_drag_share = rope_half / (m.half_cd_area_m2 + rope_half)
         self._init_clock()
         self._init_baro()
         init_winch(self)
@@ -621,8 +618,7 @@ class Estimator:
         sys_var = 0.0
         if ekf.mode != MODE_GROUND:
             speed = math.sqrt(wn * wn + we * we)
-            sys_var = systematic_variance(speed, float(ekf.x[DRAG]), float(ekf.P[DRAG, DRAG]), self.rope_drag_share,
-                                          self.lean_wind_mps())  # fmt: skip
+            sys_var = systematic_variance(speed, float(ekf.x[DRAG]), float(ekf.P[DRAG, DRAG]), self.lean_wind_mps())
         acc = math.sqrt(ekf.wind_accuracy() ** 2 + sys_var) * self.consistency.inflation
         if self.unconfirmed:
             acc = max(acc, math.sqrt(wn * wn + we * we + 1.0))

@@ -21,7 +21,7 @@ def test_the_terms_add_up_to_the_reported_accuracy():
     steady = next(i for i, p in enumerate(sample(64)) if p["wind_kind"] == "steady" and p["mean_mps"] > 3.0)
     t = terms(sample(64)[steady], 150.0)
     assert t["inflation"] == pytest.approx(1.0, abs=1e-3)
-    parts = t["P"] ** 2 + t["drag"] ** 2 + t["rope"] ** 2 + t["tilt"] ** 2
+    parts = t["P"] ** 2 + t["drag"] ** 2 + t["tilt"] ** 2
     assert t["accuracy"] ** 2 == pytest.approx(parts, rel=1e-6)
     assert 0.0 < t["error"] < t["accuracy"] * 3.0 and t["error"] != pytest.approx(t["accuracy"])
     assert t["offset_sigma_m"] > 0.0 and t["offset_walk_m"] >= 0.0
