@@ -4,12 +4,13 @@
 
 #include "internal.h"
 
-static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, bw_real var, bw_real var_z_extra)
+static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, bw_real var, bw_real var_z_extra,
+                       bw_real misfit)
 {
     bw_ekf_t *e = &est->ekf;
     const bw_forces_t *f = &e->forces;
     int ground = e->mode == BW_MODE_GROUND, i, j;
-    bw_real r[9], yn, ye, yd, pred[3];
+    bw_real r[9], yn, ye, yd, pred[3], tilt;
     bw_rotation(e->q, r);
     if (ground)
         yn = BW_R(0.0), ye = BW_R(0.0), yd = -(bw_real)BW_G0;
@@ -32,9 +33,11 @@ static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, 
     if (ground) /* learnt at rest, where g is the only force */
         e->H3[2][BW_ABIAS_Z] = BW_R(1.0);
     pred[2] += e->x[BW_ABIAS_Z];
-    /* accel.py: in flight the tilt takes only what a correlated model error allows (BW_ACCEL_MODEL_CORR_S) */
-    bw_ekf_fuse3(e, fx - pred[0], fy - pred[1], fz - pred[2], var, est->accel_status, var_z_extra,
-                 ground ? BW_R(1.0) : BW_MIN(BW_R(1.0), BW_SQRT(e->dt / (bw_real)BW_ACCEL_MODEL_CORR_S)));
+    /* accel.py: in flight the tilt takes only what a correlated model error allows (BW_ACCEL_MODEL_CORR_S), the
+     * heading too in proportion to the misfit */
+    tilt = ground ? BW_R(1.0) : BW_MIN(BW_R(1.0), BW_SQRT(e->dt / (bw_real)BW_ACCEL_MODEL_CORR_S));
+    bw_ekf_fuse3(e, fx - pred[0], fy - pred[1], fz - pred[2], var, est->accel_status, var_z_extra, tilt,
+                 BW_R(1.0) - misfit * (BW_R(1.0) - tilt));
 }
 
 void bw_control_accel(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
@@ -42,11 +45,14 @@ void bw_control_accel(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
     const bw_ekf_t *e = &est->ekf;
     bw_real var = e->mode == BW_MODE_GROUND ? est->accel_static_var : e->mode == BW_MODE_FREE ? est->accel_var
                                                                                               : est->accel_taut_var;
-    bw_real nominal = var, i2;
+    bw_real nominal = var, i2, misfit;
     const bw_status_t *st = est->accel_status;
     var = BW_MAX(var, est->accel_innov2);
     est->accel_var_excess = var - nominal;
-    fuse_accel(est, ax, ay, az, var, e->mode != BW_MODE_GROUND ? est->vertical_gust_var : BW_R(0.0));
+    /* accel.py: the windowed NIS from 1 to BW_FLAG_NIS, the model stops explaining the accelerometer */
+    misfit = est->consistency.nis[BW_ACCEL] / (bw_real)BW_FLAG_NIS - BW_R(1.0);
+    misfit = BW_MIN(BW_R(1.0), BW_MAX(BW_R(0.0), misfit));
+    fuse_accel(est, ax, ay, az, var, e->mode != BW_MODE_GROUND ? est->vertical_gust_var : BW_R(0.0), misfit);
     i2 = (st[0].innov * st[0].innov + st[1].innov * st[1].innov + st[2].innov * st[2].innov) / BW_R(3.0);
     est->accel_innov2 += est->innov_alpha * (i2 - est->accel_innov2);
 }

@@ -436,7 +436,7 @@ int bw_ekf_fuse(bw_ekf_t *e, bw_real innov, bw_real r, bw_status_t *st, bw_real 
 }
 
 int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_status_t st[3],
-                 bw_real r2_extra, bw_real tilt_gain)
+                 bw_real r2_extra, bw_real tilt_gain, bw_real heading_gain)
 {
     int nz[N], nn = 0, i, j, k, a, ok = 1, moved;
     bw_real s[3][3], si[3][3], k3[N][3], hc[3][N], inn[3], var[3], gate2, worst = BW_R(0.0), scale = BW_R(1.0);
@@ -529,14 +529,20 @@ int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_
         for (a = 0; a < 3; a++)
             k3[i][a] = e->pht[i][0] * si[0][a] + e->pht[i][1] * si[1][a] + e->pht[i][2] * si[2][a];
         d = k3[i][0] * inn[0] + k3[i][1] * inn[1] + k3[i][2] * inn[2];
-        e->dx[i] += (i == BW_ATT_N || i == BW_ATT_E) ? tilt_gain * d : d; /* the tilt: K' = D K (ekf.py fuse3) */
+        if (i == BW_ATT_N || i == BW_ATT_E) /* K' = D K (ekf.py fuse3) */
+            d *= tilt_gain;
+        else if (i >= BW_ATT_D && i <= BW_GB_Z)
+            d *= heading_gain;
+        e->dx[i] += d;
     }
 #ifdef BW_HOST_RECORDER
-    if (REC(e)) { /* the gain used: the tilt's rows times tilt_gain (ekf.py hands the recorder K') */
+    if (REC(e)) { /* the gain used: the attitude's and the bias's rows times their gains (ekf.py hands it K') */
         bw_real kr[N][3];
         memcpy(kr, k3, sizeof kr);
-        for (i = BW_ATT_N; i <= BW_ATT_E; i++)
-            kr[i][0] *= tilt_gain, kr[i][1] *= tilt_gain, kr[i][2] *= tilt_gain;
+        for (i = BW_ATT_N; i <= BW_GB_Z; i++) {
+            bw_real g = i >= BW_ATT_D ? heading_gain : tilt_gain;
+            kr[i][0] *= g, kr[i][1] *= g, kr[i][2] *= g;
+        }
         rec_update3(REC(e), (const bw_real(*)[N])e->H3, (const bw_real(*)[3])si, inn, (const bw_real(*)[3])kr);
     }
 #endif
@@ -545,12 +551,20 @@ int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_
         for (j = i; j < N; j++)
             e->P[i][j] = e->P[j][i] = e->P[i][j] - (k0 * e->pht[j][0] + k1 * e->pht[j][1] + k2 * e->pht[j][2]);
     }
-    if (tilt_gain < BW_R(1.0)) {
-        /* P for the gain used (Joseph form) differs from P - K H P only in the tilt block, by (1 - a)^2 K H P */
-        const bw_real b = (BW_R(1.0) - tilt_gain) * (BW_R(1.0) - tilt_gain);
-        for (i = BW_ATT_N; i <= BW_ATT_E; i++)
-            for (j = BW_ATT_N; j <= BW_ATT_E; j++)
-                e->P[i][j] += b * (k3[i][0] * e->pht[j][0] + k3[i][1] * e->pht[j][1] + k3[i][2] * e->pht[j][2]);
+    if (tilt_gain < BW_R(1.0) || heading_gain < BW_R(1.0)) {
+        /* P for the gain used (Joseph form) differs from P - K H P only in the attitude and gyro bias block, by
+         * (1 - d_i) (1 - d_j) K H P (the tilt's d_i tilt_gain, the heading's and the bias's heading_gain) */
+        const bw_real t = BW_R(1.0) - tilt_gain, h = BW_R(1.0) - heading_gain;
+        const bw_real d[6] = {t, t, h, h, h, h};
+        const int last = heading_gain < BW_R(1.0) ? BW_GB_Z : BW_ATT_E; /* the tilt's block alone at full heading */
+        for (i = BW_ATT_N; i <= last; i++)
+            for (j = i; j <= last; j++) {
+                bw_real v = d[i - BW_ATT_N] * d[j - BW_ATT_N]
+                            * (k3[i][0] * e->pht[j][0] + k3[i][1] * e->pht[j][1] + k3[i][2] * e->pht[j][2]);
+                e->P[i][j] += v;
+                if (j != i)
+                    e->P[j][i] += v;
+            }
     }
     for (a = 0; a < 3; a++) {
         st[a].fused += 1;

@@ -34,6 +34,9 @@ from firmware_py.estimator.state import (
     ATT_E,
     ATT_N,
     DRAG,
+    GB_X,
+    GB_Y,
+    GB_Z,
     MODE_GROUND,
     MODE_TAUT,
     MODEL_COLUMNS,
@@ -76,6 +79,8 @@ class FusionStatus:
 
 # the kinds of state reset: the control logic re-places the state instead of fusing a measurement
 RESET_INITIALISE, RESET_TAUT, RESET_HEIGHT, RESET_DRAG = 0, 1, 2, 3
+# what a correlated misfit of the accelerometer must not drag at the full gain (fuse3)
+SLOW_STATES = (ATT_N, ATT_E, ATT_D, GB_X, GB_Y, GB_Z)
 RESET_NAMES = ("initialise", "taut_placement", "height", "drag_scale")
 
 
@@ -406,7 +411,7 @@ class WindEkf:
 
     def fuse3(
         self, i0: float, i1: float, i2: float, r: float, status: list[FusionStatus], r2_extra: float = 0.0,
-        tilt_gain: float = 1.0,
+        tilt_gain: float = 1.0, heading_gain: float = 1.0,
     ) -> bool:
         """One sensor's three axes at once with the rows in ``self.H3`` and noise ``r`` per axis (a
         3x3 innovation covariance instead of three scalar updates: a third of the array operations).
@@ -467,16 +472,17 @@ class WindEkf:
         np.matmul(self._pht, si, out=self._k3)
         np.matmul(self._k3, self._phtT, out=self._t1)
         np.subtract(self.P, self._t1, out=self.P)
-        if tilt_gain < 1.0:
-            # the tilt takes ``tilt_gain`` of its optimal gain: K' = D K. P for the gain used (Joseph form),
-            # P - K'HP - PH^T K'^T + K' S K'^T, differs from P - KHP only in the tilt block, by (1 - a)^2 KHP
-            b = (1.0 - tilt_gain) ** 2
-            for i in (ATT_N, ATT_E):
-                self.P[i, ATT_N] += b * self._t1[i, ATT_N]
-                self.P[i, ATT_E] += b * self._t1[i, ATT_E]
-                self._k3[i, 0] *= tilt_gain
-                self._k3[i, 1] *= tilt_gain
-                self._k3[i, 2] *= tilt_gain
+        if tilt_gain < 1.0 or heading_gain < 1.0:
+            # the tilt takes ``tilt_gain`` of its optimal gain, the heading and the gyro bias ``heading_gain``:
+            # K' = D K. P for the gain used (Joseph form), P - K'HP - PH^T K'^T + K' S K'^T, differs from P - KHP only
+            # in the attitude and gyro bias block, by (1 - d_i) (1 - d_j) KHP
+            gains = (tilt_gain, tilt_gain, heading_gain, heading_gain, heading_gain, heading_gain)
+            for a, i in enumerate(SLOW_STATES):
+                for b, j in enumerate(SLOW_STATES):
+                    self.P[i, j] += (1.0 - gains[a]) * (1.0 - gains[b]) * self._t1[i, j]
+                self._k3[i, 0] *= gains[a]
+                self._k3[i, 1] *= gains[a]
+                self._k3[i, 2] *= gains[a]
         self._i3[0], self._i3[1], self._i3[2] = i0, i1, i2
         if self.recorder is not None:
             self.recorder.update3(self.H3, si, self._i3, self._k3)

@@ -9,6 +9,7 @@ import numpy as np
 
 from balloon_core.atmosphere import G0
 from balloon_core.rotation import rotation
+from firmware_py.estimator.consistency import ACCEL, FLAG_NIS
 from firmware_py.estimator.ekf import FusionStatus, WindEkf
 from firmware_py.estimator.params import ACCEL_MODEL_CORR_S
 from firmware_py.estimator.state import (
@@ -25,8 +26,9 @@ if TYPE_CHECKING:
 
 
 def fuse_accel(
-    ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status: list[FusionStatus], var_z_extra: float = 0.0
-) -> None:
+    ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status: list[FusionStatus], var_z_extra: float = 0.0,
+    misfit: float = 0.0,
+) -> None:  # fmt: skip
     """Specific force in FRD against the force model, f = R^T (a(x) - g) + (0, 0, b_z): tilt (through
     g) and the balloon's dynamics (drag of the wind, the air's push, the rope) through a(x), with the
     body-z bias b_z (a persistent vertical misfit would otherwise be read as a lean of the wind). On
@@ -62,9 +64,11 @@ def fuse_accel(
     if ground:  # learnt at rest, where g is the only force; in flight its value only (a misfit is not a bias)
         H[2, ABIAS_Z] = 1.0
     pred[2] += float(ekf.x[ABIAS_Z])
-    # in flight the tilt takes only what a correlated model error allows (params.ACCEL_MODEL_CORR_S)
+    # in flight the tilt takes only what a correlated model error allows (params.ACCEL_MODEL_CORR_S); the heading
+    # too, in proportion to ``misfit`` (0: the model explains the accelerometer, 1: it does not)
     tilt_gain = 1.0 if ground else min(1.0, math.sqrt(ekf.dt / ACCEL_MODEL_CORR_S))
-    ekf.fuse3(fx - pred[0], fy - pred[1], fz - pred[2], var, status, var_z_extra, tilt_gain)
+    heading_gain = 1.0 - misfit * (1.0 - tilt_gain)
+    ekf.fuse3(fx - pred[0], fy - pred[1], fz - pred[2], var, status, var_z_extra, tilt_gain, heading_gain)
 
 
 def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
@@ -78,7 +82,10 @@ def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
     var = max(var, est._accel_innov2)
     est._accel_var_excess = var - nominal  # what the consistency monitor takes back out (control._monitor)
     # the vertical air the model leaves out moves the balloon along its body z (control._vertical_gust_var)
-    fuse_accel(ekf, ax, ay, az, var, est.accel_status, est.vertical_gust_var if ekf.mode != MODE_GROUND else 0.0)
+    # the accelerometer's windowed NIS (the consistency monitor) from 1 to FLAG_NIS: the model stops explaining it
+    misfit = min(1.0, max(0.0, est.consistency.nis[ACCEL] / FLAG_NIS - 1.0))
+    fuse_accel(ekf, ax, ay, az, var, est.accel_status, est.vertical_gust_var if ekf.mode != MODE_GROUND else 0.0,
+               misfit)  # fmt: skip
     st = est.accel_status
     i2 = (st[0].innov ** 2 + st[1].innov ** 2 + st[2].innov ** 2) / 3.0
     est._accel_innov2 += est._innov_alpha * (i2 - est._accel_innov2)
