@@ -49,8 +49,8 @@ void bw_control_accel(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
     const bw_status_t *st = est->accel_status;
     var = BW_MAX(var, est->accel_innov2);
     est->accel_var_excess = var - nominal;
-    /* accel.py: the windowed NIS from 1 to BW_FLAG_NIS, the model stops explaining the accelerometer */
-    misfit = est->consistency.nis[BW_ACCEL] / (bw_real)BW_FLAG_NIS - BW_R(1.0);
+    /* accel.py: the windowed NIS from BW_FLAG_NIS to twice that, the model stops explaining the accelerometer */
+    misfit = est->consistency.nis[BW_ACCEL] * (bw_real)(1.0 / BW_FLAG_NIS) - BW_R(1.0);
     misfit = BW_MIN(BW_R(1.0), BW_MAX(BW_R(0.0), misfit));
     fuse_accel(est, ax, ay, az, var, e->mode != BW_MODE_GROUND ? est->vertical_gust_var : BW_R(0.0), misfit);
     i2 = (st[0].innov * st[0].innov + st[1].innov * st[1].innov + st[2].innov * st[2].innov) / BW_R(3.0);

@@ -529,12 +529,13 @@ int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_
         for (a = 0; a < 3; a++)
             k3[i][a] = e->pht[i][0] * si[0][a] + e->pht[i][1] * si[1][a] + e->pht[i][2] * si[2][a];
         d = k3[i][0] * inn[0] + k3[i][1] * inn[1] + k3[i][2] * inn[2];
-        if (i == BW_ATT_N || i == BW_ATT_E) /* K' = D K (ekf.py fuse3) */
-            d *= tilt_gain;
-        else if (i >= BW_ATT_D && i <= BW_GB_Z)
-            d *= heading_gain;
         e->dx[i] += d;
     }
+    /* K' = D K (ekf.py fuse3): the tilt's rows take tilt_gain of the correction, the heading's and the bias's
+     * heading_gain (only the tilt's while the heading's gain is whole) */
+    for (i = BW_ATT_N; i <= (heading_gain < BW_R(1.0) ? BW_GB_Z : BW_ATT_E); i++)
+        e->dx[i] -= (BW_R(1.0) - (i <= BW_ATT_E ? tilt_gain : heading_gain))
+                    * (k3[i][0] * inn[0] + k3[i][1] * inn[1] + k3[i][2] * inn[2]);
 #ifdef BW_HOST_RECORDER
     if (REC(e)) { /* the gain used: the attitude's and the bias's rows times their gains (ekf.py hands it K') */
         bw_real kr[N][3];
