@@ -2,8 +2,17 @@
  * parameters and the free / taut configuration at one state. */
 #include "internal.h"
 
+/* model.py rope_pickup_n: lambda vd^2, the pull that picks the rope up while climbing with part of it on the ground */
+static bw_real rope_pickup_n(const bw_model_t *m, bw_real pd, bw_real vd)
+{
+    bw_real height = -pd - m->radius_m;
+    if (vd >= BW_R(0.0) || height <= BW_R(0.0) || height >= m->tether_length_m)
+        return BW_R(0.0);
+    return m->rope_kg_m * vd * vd;
+}
+
 /* (m_eff, push, c, lift, rope_w, rope_slope, kr, att_n, att_e, att_d) for air density rho */
-static void parameters(const bw_model_t *m, bw_real rho, bw_real pd, int taut, const bw_real attach[3],
+static void parameters(const bw_model_t *m, bw_real rho, bw_real pd, bw_real vd, int taut, const bw_real attach[3],
                        bw_real rope_weight_n, bw_real par[10])
 {
     bw_real rho_v = rho * m->volume_m3;
@@ -21,7 +30,7 @@ static void parameters(const bw_model_t *m, bw_real rho, bw_real pd, int taut, c
             rope_w = lam_g * m->tether_length_m;
             slope = BW_R(0.0);
         } else { /* lambda g (-pd - r), written as rope_w + slope * pd */
-            rope_w = -lam_g * m->radius_m;
+            rope_w = -lam_g * m->radius_m + rope_pickup_n(m, pd, vd);
             slope = -lam_g;
         }
     }
@@ -40,7 +49,7 @@ static void parameters(const bw_model_t *m, bw_real rho, bw_real pd, int taut, c
 void bw_accelerations(const bw_model_t *m, bw_real rho, const bw_real s[BW_NCOL], int taut, bw_forces_t *out)
 {
     int i;
-    parameters(m, rho, s[2], taut, out->attach_ned, out->rope_weight_n, out->params);
+    parameters(m, rho, s[2], s[5], taut, out->attach_ned, out->rope_weight_n, out->params);
     out->m_eff_kg = out->params[0];
     if (taut) {
         bw_real r[BW_TAUT_MODEL_SIZE];
@@ -65,6 +74,11 @@ void bw_accelerations(const bw_model_t *m, bw_real rho, const bw_real s[BW_NCOL]
         out->an = r[0], out->ae = r[1], out->ad = r[2];
         for (i = 0; i < 3 * BW_NCOL; i++)
             out->ja[i] = r[3 + i];
+        if (!taut) { /* the pick-up's lambda vd^2 is in the parameter rope_w: its d a_d / d vd (model.py) */
+            bw_real pickup = rope_pickup_n(m, s[2], s[5]);
+            if (pickup > BW_R(0.0))
+                out->ja[2 * BW_NCOL + 5] += BW_R(2.0) * pickup / (s[5] * out->params[0]);
+        }
         out->tension_n = BW_R(0.0);
         out->taut = 0;
     }

@@ -24,6 +24,7 @@ FREE_JA = slice(3, 3 + 3 * N_COLUMNS)  # free_model: a (3), then d a / d x (3 x 
 TAUT_PULL = 3  # taut_model: a (3), tension / m_eff, d a / d x (3 x n), d(tension / m_eff) / d x (n)
 TAUT_JA = slice(TAUT_PULL + 1, TAUT_PULL + 1 + 3 * N_COLUMNS)
 TAUT_JPULL = slice(TAUT_JA.stop, TAUT_JA.stop + N_COLUMNS)
+JA_DOWN_VD = 2 * N_COLUMNS + COLUMNS.index("vel_d")  # d a_d / d v_d in the row-major d a / d x
 ROPE_JAC = 2  # rope_direction: n_N, n_E, then d n_N / d x (n), d n_E / d x (n)
 
 ADDED_MASS_COEFFICIENT = 0.5
@@ -92,9 +93,22 @@ class Forces:
     rope_weight_n: float = float("nan")
 
 
+def rope_pickup_n(m: BalloonModel, pd: float, vd: float) -> float:
+    """The pull (N, down) that picks the rope up from rest while the balloon climbs at ``-vd`` with part of
+    the rope still on the ground: the rising rope takes up lambda |vd| kg a second to the climb's speed,
+    lambda vd^2 (a rope lifted off its coil, its drum or the grass; a chain lifted from a heap). Against the
+    balloon's drag at that climb, k c vd^2, it is lambda / (k c), 1-3 % for a 20 g/m rope: the free ascent that
+    left it out learnt a drag scale that much too large, and read the taut wind low by half of it (the real
+    rope's steady flights of the envelope, 2-3 % low). 0 descending, or with no rope or all of it aloft."""
+    height = -pd - m.radius_m
+    if vd >= 0.0 or height <= 0.0 or height >= m.tether_length_m:
+        return 0.0
+    return m.rope_kg_m * vd * vd
+
+
 def parameters(
     m: BalloonModel, rho: float, pd: float, taut: bool, attach_ned: tuple = (0.0, 0.0, 0.0),
-    rope_weight_n: float = float("nan"),
+    rope_weight_n: float = float("nan"), vd: float = 0.0,
 ) -> tuple[float, ...]:  # fmt: skip
     """(m_eff, push, c, lift, rope_w, rope_slope, kr, att_n, att_e, att_d) of the generated model, for
     air density ``rho``.
@@ -102,7 +116,8 @@ def parameters(
     push = (1 + Ca) rho V: the accelerating air's push per m/s^2 (Froude-Krylov + added mass);
     c = rho Cd pi r^2 / 2; lift = (rho V - m) g, the balloon's own net lift (Eq. 4 minus its weight);
     rope weight: taut, the share the rod carries (``rope_weight_n``, catenary.py; the whole rope of the
-    paper's Eq. 5 if NaN); in free ascent the airborne part hanging below the balloon;
+    paper's Eq. 5 if NaN); in free ascent the airborne part hanging below the balloon and, climbing, the
+    pull that picks the rope up (``rope_pickup_n``);
     att = the attachment point relative to the centre (taut: the rope pulls from there)."""
     rho_v = rho * m.volume_m3
     m_eff = m.mass_kg + ADDED_MASS_COEFFICIENT * rho_v
@@ -117,7 +132,7 @@ def parameters(
         elif height >= m.tether_length_m:
             rope_w, slope = lam_g * m.tether_length_m, 0.0
         else:  # lambda g (-pd - r), written as rope_w + slope * pd
-            rope_w, slope = -lam_g * m.radius_m, -lam_g
+            rope_w, slope = -lam_g * m.radius_m + rope_pickup_n(m, pd, vd), -lam_g
     return (
         m_eff,
         (1.0 + ADDED_MASS_COEFFICIENT) * rho_v,
@@ -146,7 +161,7 @@ def accelerations(
     with the whole rope hanging from the balloon. Taut, the rope pulls from ``out.attach_ned`` (the
     attitude enters as a parameter: no Jacobian column, its effect is r / L ~ 1 % of the tension's
     direction). Fills ``out``."""
-    par = parameters(m, rho, pd, taut, out.attach_ned, out.rope_weight_n)
+    par = parameters(m, rho, pd, taut, out.attach_ned, out.rope_weight_n, vd)
     out.params = par
     out.m_eff_kg = par[0]
     if taut:
@@ -162,6 +177,11 @@ def accelerations(
     r = free_model(pn, pe, pd, vn, ve, vd, wn, we, rn, re, k, *par)
     out.an, out.ae, out.ad = r[0], r[1], r[2]
     out.ja = r[FREE_JA]
+    pickup = 0.0 if taut else rope_pickup_n(m, pd, vd)
+    if pickup > 0.0:  # the pick-up's lambda vd^2 is in the parameter rope_w: its d a_d / d vd, 2 lambda vd / m_eff
+        ja = list(out.ja)
+        ja[JA_DOWN_VD] += 2.0 * pickup / (vd * par[0])
+        out.ja = tuple(ja)
     out.tension_n = 0.0
     out.taut = False
     return out
