@@ -34,7 +34,7 @@ static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, 
         e->H3[2][BW_ABIAS_Z] = BW_R(1.0);
     pred[2] += e->x[BW_ABIAS_Z];
     /* accel.py: in flight the tilt takes only what a correlated model error allows (BW_ACCEL_MODEL_CORR_S), the
-     * heading too in proportion to the misfit */
+     * heading and the gyro bias too in proportion to the misfit */
     tilt = ground ? BW_R(1.0) : BW_MIN(BW_R(1.0), BW_SQRT(e->dt / (bw_real)BW_ACCEL_MODEL_CORR_S));
     bw_ekf_fuse3(e, fx - pred[0], fy - pred[1], fz - pred[2], var, est->accel_status, var_z_extra, tilt,
                  BW_R(1.0) - misfit * (BW_R(1.0) - tilt));
@@ -50,7 +50,7 @@ void bw_control_accel(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
     var = BW_MAX(var, est->accel_innov2);
     est->accel_var_excess = var - nominal;
     /* accel.py: the windowed NIS from BW_FLAG_NIS to twice that, the model stops explaining the accelerometer */
-    misfit = est->consistency.nis[BW_ACCEL] * (bw_real)(1.0 / BW_FLAG_NIS) - BW_R(1.0);
+    misfit = est->consistency.nis[BW_ACCEL] / (bw_real)BW_FLAG_NIS - BW_R(1.0);
     misfit = BW_MIN(BW_R(1.0), BW_MAX(BW_R(0.0), misfit));
     fuse_accel(est, ax, ay, az, var, e->mode != BW_MODE_GROUND ? est->vertical_gust_var : BW_R(0.0), misfit);
     i2 = (st[0].innov * st[0].innov + st[1].innov * st[1].innov + st[2].innov * st[2].innov) / BW_R(3.0);

@@ -533,9 +533,10 @@ int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_
     }
     /* K' = D K (ekf.py fuse3): the tilt's rows take tilt_gain of the correction, the heading's and the bias's
      * heading_gain (only the tilt's while the heading's gain is whole) */
-    for (i = BW_ATT_N; i <= (heading_gain < BW_R(1.0) ? BW_GB_Z : BW_ATT_E); i++)
-        e->dx[i] -= (BW_R(1.0) - (i <= BW_ATT_E ? tilt_gain : heading_gain))
-                    * (k3[i][0] * inn[0] + k3[i][1] * inn[1] + k3[i][2] * inn[2]);
+    if (tilt_gain < BW_R(1.0) || heading_gain < BW_R(1.0))
+        for (i = BW_ATT_N; i <= (heading_gain < BW_R(1.0) ? BW_GB_Z : BW_ATT_E); i++)
+            e->dx[i] -= (BW_R(1.0) - (i <= BW_ATT_E ? tilt_gain : heading_gain))
+                        * (k3[i][0] * inn[0] + k3[i][1] * inn[1] + k3[i][2] * inn[2]);
 #ifdef BW_HOST_RECORDER
     if (REC(e)) { /* the gain used: the attitude's and the bias's rows times their gains (ekf.py hands it K') */
         bw_real kr[N][3];
@@ -556,11 +557,11 @@ int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_
         /* P for the gain used (Joseph form) differs from P - K H P only in the attitude and gyro bias block, by
          * (1 - d_i) (1 - d_j) K H P (the tilt's d_i tilt_gain, the heading's and the bias's heading_gain) */
         const bw_real t = BW_R(1.0) - tilt_gain, h = BW_R(1.0) - heading_gain;
-        const bw_real d[6] = {t, t, h, h, h, h};
+        const bw_real c[6] = {t, t, h, h, h, h}; /* 1 - d_i */
         const int last = heading_gain < BW_R(1.0) ? BW_GB_Z : BW_ATT_E; /* the tilt's block alone at full heading */
         for (i = BW_ATT_N; i <= last; i++)
             for (j = i; j <= last; j++) {
-                bw_real v = d[i - BW_ATT_N] * d[j - BW_ATT_N]
+                bw_real v = c[i - BW_ATT_N] * c[j - BW_ATT_N]
                             * (k3[i][0] * e->pht[j][0] + k3[i][1] * e->pht[j][1] + k3[i][2] * e->pht[j][2]);
                 e->P[i][j] += v;
                 if (j != i)

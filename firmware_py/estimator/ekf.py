@@ -79,9 +79,9 @@ class FusionStatus:
 
 # the kinds of state reset: the control logic re-places the state instead of fusing a measurement
 RESET_INITIALISE, RESET_TAUT, RESET_HEIGHT, RESET_DRAG = 0, 1, 2, 3
+RESET_NAMES = ("initialise", "taut_placement", "height", "drag_scale")
 # what a correlated misfit of the accelerometer must not drag at the full gain (fuse3)
 SLOW_STATES = (ATT_N, ATT_E, ATT_D, GB_X, GB_Y, GB_Z)
-RESET_NAMES = ("initialise", "taut_placement", "height", "drag_scale")
 
 
 class WindEkf:
@@ -417,7 +417,10 @@ class WindEkf:
         3x3 innovation covariance instead of three scalar updates: a third of the array operations).
         Each axis keeps its status (innovation, its variance, test ratio); the vector is rejected if
         any axis fails the gate, and after ``recover_after`` rejections in a row fused with its
-        covariance inflated to put the worst axis on the gate (as ``fuse``)."""
+        covariance inflated to put the worst axis on the gate (as ``fuse``). The tilt's rows of the gain take
+        ``tilt_gain`` of it, the heading's and the gyro bias's ``heading_gain`` (``SLOW_STATES``: a correlated
+        error is worth fewer independent samples, params.ACCEL_MODEL_CORR_S), and the covariance is the one for
+        the gain used (Joseph form)."""
         np.dot(self.H3, self.dx, out=self._i3)
         c0, c1, c2 = self._i3.tolist()
         i0, i1, i2 = i0 - c0, i1 - c1, i2 - c2

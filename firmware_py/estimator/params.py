@@ -63,14 +63,17 @@ LEARN_DRAG_AFTER_S = 0.5
 FIELD_FLIGHT_S = 60.0  # magnetometer averaged this long in flight when there was no rest on the ground
 ACCEL_INNOV_S = 2.0  # averaging time of the accelerometer's innovations that set its noise floor
 # the specific force's model error (the rope's waves, the drag's lag behind a gust) is correlated over about this
-# long, and the accelerometer is fused every sample as if it were white: for the attitude, which the gyro holds and the
-# magnetometer also measures, that is its error. The attitude takes sqrt(dt / ACCEL_MODEL_CORR_S) of its gain in
-# flight (0.1 at 100 Hz: a correlated error is worth that many fewer independent samples, and a walking state's gain
-# goes as 1 / sqrt(R)); the covariance is the one for the gain used (ekf.fuse3, Joseph form). The heading too: taut,
-# the accelerometer reads it through the lean's azimuth (the pull's direction), from the same force model, and about
-# the magnetic field's axis only the accelerometer holds it; at the full gain the paper's rope blown down 65 deg in
-# class B gusts turned 3 deg about the field, where 0.5 was stated, and the wind 1.4 m/s across (the envelope's
-# quick flight 23)
+# long, and the accelerometer is fused every sample as if it were white: for the tilt, which the gyro holds and the
+# magnetometer also measures, that is its error. The tilt takes sqrt(dt / ACCEL_MODEL_CORR_S) of its gain in flight
+# (0.1 at 100 Hz: a correlated error is worth that many fewer independent samples, and a walking state's gain goes as
+# 1 / sqrt(R)); the covariance is the one for the gain used (ekf.fuse3, Joseph form). The heading and the gyro bias
+# take it in proportion to the accelerometer's windowed NIS from consistency.FLAG_NIS to twice that (aid_sources/
+# accel.py): taut, the accelerometer reads the heading through the lean's azimuth (the pull's direction), from the
+# same force model, and about the magnetic field's axis only it holds the attitude; at the full gain the paper's rope
+# blown down 65 deg in class B gusts drove the bias 0.16 deg/s in 20 s and the attitude 3 deg about the field, where
+# 0.5 was stated, and the wind 1.4 m/s across (the envelope's quick flight 23). Always at the reduced gain, the
+# heading lost what the accelerometer tells of it where the model fits (the real rope's multisine: band skill
+# 0.76 -> 0.57), and the bias in light air, where it must be learnt in flight
 ACCEL_MODEL_CORR_S = 1.0
 TAUT_PULL_S = 1.0  # after a slack spell the rope must pull this long before the filter is taut again
 MEAN_WIND_S = 60.0  # averaging time of the mean wind that scales the wind's process noise

@@ -64,8 +64,8 @@ def fuse_accel(
     if ground:  # learnt at rest, where g is the only force; in flight its value only (a misfit is not a bias)
         H[2, ABIAS_Z] = 1.0
     pred[2] += float(ekf.x[ABIAS_Z])
-    # in flight the tilt takes only what a correlated model error allows (params.ACCEL_MODEL_CORR_S); the heading
-    # too, in proportion to ``misfit`` (0: the model explains the accelerometer, 1: it does not)
+    # in flight the tilt takes only what a correlated model error allows (params.ACCEL_MODEL_CORR_S); the heading and
+    # the gyro bias too, in proportion to ``misfit`` (0: the model explains the accelerometer, 1: it does not)
     tilt_gain = 1.0 if ground else min(1.0, math.sqrt(ekf.dt / ACCEL_MODEL_CORR_S))
     heading_gain = 1.0 - misfit * (1.0 - tilt_gain)
     ekf.fuse3(fx - pred[0], fy - pred[1], fz - pred[2], var, status, var_z_extra, tilt_gain, heading_gain)
@@ -81,8 +81,8 @@ def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
     nominal = var
     var = max(var, est._accel_innov2)
     est._accel_var_excess = var - nominal  # what the consistency monitor takes back out (control._monitor)
-    # the vertical air the model leaves out moves the balloon along its body z (control._vertical_gust_var)
-    # the accelerometer's windowed NIS (the consistency monitor) from 1 to FLAG_NIS: the model stops explaining it
+    # the accelerometer's windowed NIS (the consistency monitor) from FLAG_NIS to twice that: the model stops
+    # explaining it; the vertical air the model leaves out moves the balloon along its body z (_vertical_gust_var)
     misfit = min(1.0, max(0.0, est.consistency.nis[ACCEL] / FLAG_NIS - 1.0))
     fuse_accel(ekf, ax, ay, az, var, est.accel_status, est.vertical_gust_var if ekf.mode != MODE_GROUND else 0.0,
                misfit)  # fmt: skip

@@ -1,0 +1,109 @@
+"""The attitude's and the gyro bias's reduced gains (ekf.fuse3, aid_sources/accel.py) and the free ascent's rope
+pick-up (model.rope_pickup_n): the covariance is the one of the gain used, the heading's gain follows the
+accelerometer's misfit, and the pick-up's Jacobian is the model's."""
+
+import math
+
+import numpy as np
+import pytest
+
+from balloon_core.config import Design
+from firmware_py.estimator.aid_sources.accel import control_accel
+from firmware_py.estimator.consistency import ACCEL, FLAG_NIS
+from firmware_py.estimator.control import Estimator
+from firmware_py.estimator.ekf import SLOW_STATES, FusionStatus
+from firmware_py.estimator.model import BalloonModel, Forces, accelerations, rope_pickup_n
+from firmware_py.estimator.params import ACCEL_MODEL_CORR_S
+from firmware_py.estimator.state import ATT_E, ATT_N, MODE_TAUT, N_STATES
+
+MODEL = BalloonModel.from_design(Design())
+
+
+def _ekf(seed: int):
+    est = Estimator(Design())
+    est.on_imu(0, 0.0, 0.0, -9.81, 0.0, 0.0, 0.0, 0.2, 0.0, 0.45)
+    ekf = est.ekf
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(N_STATES, N_STATES)) * 0.1
+    ekf.P[:] = a @ a.T + 0.01 * np.eye(N_STATES)
+    ekf.H3[:] = rng.normal(size=(3, N_STATES))
+    return ekf
+
+
+@pytest.mark.parametrize(("tilt", "heading"), [(0.1, 0.55), (0.1, 1.0), (1.0, 0.3)])
+def test_the_reduced_gains_keep_the_covariance_of_the_gain_used(tilt, heading):
+    """K' = D K with D the tilt's gain on the tilt, the heading's on the heading and the gyro bias, 1 elsewhere:
+    the update is K' times the innovation and P the Joseph form (I - K'H) P (I - K'H)^T + K' R K'^T, not the
+    optimal gain's P - KHP (the two differ, so the test can fail)."""
+    ekf = _ekf(7)
+    p0, h = ekf.P.copy(), ekf.H3.copy()
+    r, r2 = 0.04, 0.01
+    innov = np.array([0.01, -0.02, 0.015])
+    ekf.begin_update()
+    st = [FusionStatus(str(i)) for i in range(3)]
+    assert ekf.fuse3(*innov, r, st, r2, tilt, heading)
+    rr = np.diag([r, r, r + r2])
+    k = p0 @ h.T @ np.linalg.inv(h @ p0 @ h.T + rr)
+    d = np.ones(N_STATES)
+    d[[ATT_N, ATT_E]] = tilt
+    d[list(SLOW_STATES[2:])] = heading
+    kp = d[:, None] * k
+    ikh = np.eye(N_STATES) - kp @ h
+    joseph = ikh @ p0 @ ikh.T + kp @ rr @ kp.T
+    assert np.allclose(ekf.dx, kp @ innov, rtol=1e-9, atol=1e-12)
+    assert np.allclose(ekf.P, joseph, rtol=1e-9, atol=1e-12)
+    if tilt < 1.0 or heading < 1.0:
+        assert not np.allclose(ekf.P, p0 - k @ h @ p0, rtol=1e-6, atol=1e-9)
+
+
+@pytest.mark.parametrize("nis", [0.5, FLAG_NIS, 1.5 * FLAG_NIS, 2.0 * FLAG_NIS, 5.0 * FLAG_NIS])
+def test_the_heading_takes_the_reduced_gain_as_the_accelerometer_stops_being_explained(nis):
+    """Below FLAG_NIS the heading and the gyro bias take the whole gain, from twice FLAG_NIS the tilt's reduced
+    one, linearly between; the tilt always takes its reduced gain in flight."""
+    est = Estimator(Design())
+    est.on_imu(0, 0.0, 0.0, -9.81, 0.0, 0.0, 0.0, 0.2, 0.0, 0.45)
+    ekf = est.ekf
+    ekf.mode = MODE_TAUT
+    ekf.x[0:3] = [3.0, 40.0, -92.0]
+    ekf.x[12:14] = [0.5, 3.0]
+    ekf.x[16] = 1.0
+    seen = []
+    ekf.fuse3 = lambda *a: seen.append(a[-2:]) or True
+    est.consistency.nis[ACCEL] = nis
+    control_accel(est, 0.1, -0.2, -9.7)
+    tilt, heading = seen[0]
+    a = math.sqrt(ekf.dt / ACCEL_MODEL_CORR_S)
+    assert tilt == pytest.approx(a)
+    misfit = min(1.0, max(0.0, nis / FLAG_NIS - 1.0))
+    assert heading == pytest.approx(1.0 - misfit * (1.0 - a))
+    assert a - 1e-12 <= heading <= 1.0
+
+
+def test_the_rope_pickup_is_the_climbs_momentum_while_rope_lies_on_the_ground():
+    r, length, lam = MODEL.radius_m, MODEL.tether_length_m, MODEL.rope_kg_m
+    pd = -(r + 0.5 * length)  # half the rope aloft
+    assert rope_pickup_n(MODEL, pd, -4.0) == pytest.approx(lam * 16.0)
+    assert rope_pickup_n(MODEL, pd, 0.0) == 0.0  # at rest
+    assert rope_pickup_n(MODEL, pd, 2.0) == 0.0  # descending: the rope lays itself down
+    assert rope_pickup_n(MODEL, -(r + length + 1.0), -4.0) == 0.0  # all of it aloft
+    assert rope_pickup_n(MODEL, -(r - 0.1), -4.0) == 0.0  # on the ground
+
+
+def test_the_climbing_free_models_jacobian_carries_the_pickup():
+    """A climb at 4 m/s with half the rope aloft: the free model's d a / d x against central differences,
+    d a_d / d v_d included (the pick-up's 2 lambda v_d / m_eff beside the generated columns)."""
+    x0 = np.array([1.0, 2.0, -(MODEL.radius_m + 40.0), 0.5, 1.5, -4.0, 1.0, 3.0, 0.02, -0.01, 1.05])
+
+    def acc(x):
+        f = accelerations(MODEL, 1.2, *x, False, Forces())
+        return np.array([f.an, f.ae, f.ad]), f
+
+    _, f = acc(x0)
+    num = np.zeros((3, 11))
+    for i in range(11):
+        d = np.zeros(11)
+        d[i] = 1e-6
+        num[:, i] = (acc(x0 + d)[0] - acc(x0 - d)[0]) / 2e-6
+    assert np.allclose(np.array(f.ja).reshape(3, 11), num, rtol=1e-5, atol=1e-7)
+    pick = 2.0 * MODEL.rope_kg_m * x0[5] / f.m_eff_kg
+    assert abs(pick) > 1e-3  # the pick-up's share is there to be missed
