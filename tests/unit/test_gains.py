@@ -1,6 +1,6 @@
 """The attitude's and the gyro bias's reduced gains (ekf.fuse3, aid_sources/accel.py) and the free ascent's rope
 pick-up (model.rope_pickup_n): the covariance is the one of the gain used, the heading's gain follows the
-accelerometer's misfit, and the pick-up's Jacobian is the model's."""
+accelerometer's misfit, the pick-up is there only while the rope is being lifted (its Jacobian: test_model.py)."""
 
 import math
 
@@ -12,7 +12,7 @@ from firmware_py.estimator.aid_sources.accel import control_accel
 from firmware_py.estimator.consistency import ACCEL, FLAG_NIS
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.ekf import SLOW_STATES, FusionStatus
-from firmware_py.estimator.model import BalloonModel, Forces, accelerations, rope_pickup_n
+from firmware_py.estimator.model import BalloonModel, rope_pickup_n
 from firmware_py.estimator.params import ACCEL_MODEL_CORR_S
 from firmware_py.estimator.state import ATT_E, ATT_N, MODE_TAUT, N_STATES
 
@@ -87,23 +87,3 @@ def test_the_rope_pickup_is_the_climbs_momentum_while_rope_lies_on_the_ground():
     assert rope_pickup_n(MODEL, pd, 2.0) == 0.0  # descending: the rope lays itself down
     assert rope_pickup_n(MODEL, -(r + length + 1.0), -4.0) == 0.0  # all of it aloft
     assert rope_pickup_n(MODEL, -(r - 0.1), -4.0) == 0.0  # on the ground
-
-
-def test_the_climbing_free_models_jacobian_carries_the_pickup():
-    """A climb at 4 m/s with half the rope aloft: the free model's d a / d x against central differences,
-    d a_d / d v_d included (the pick-up's 2 lambda v_d / m_eff beside the generated columns)."""
-    x0 = np.array([1.0, 2.0, -(MODEL.radius_m + 40.0), 0.5, 1.5, -4.0, 1.0, 3.0, 0.02, -0.01, 1.05])
-
-    def acc(x):
-        f = accelerations(MODEL, 1.2, *x, False, Forces())
-        return np.array([f.an, f.ae, f.ad]), f
-
-    _, f = acc(x0)
-    num = np.zeros((3, 11))
-    for i in range(11):
-        d = np.zeros(11)
-        d[i] = 1e-6
-        num[:, i] = (acc(x0 + d)[0] - acc(x0 - d)[0]) / 2e-6
-    assert np.allclose(np.array(f.ja).reshape(3, 11), num, rtol=1e-5, atol=1e-7)
-    pick = 2.0 * MODEL.rope_kg_m * x0[5] / f.m_eff_kg
-    assert abs(pick) > 1e-3  # the pick-up's share is there to be missed

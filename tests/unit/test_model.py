@@ -26,16 +26,22 @@ def acc(x, taut):
 X0 = np.array([3.0, 40.0, -92.0, 0.2, 0.3, -0.1, 0.5, 3.0, 0.05, -0.03, 1.1])
 
 
+def central_jacobian(a, x):
+    """d a / d x (3 x 11) by central differences of ``a(x) -> (acceleration, forces)``."""
+    num = np.zeros((3, 11))
+    for i in range(11):
+        d = np.zeros(11)
+        d[i] = 1e-6
+        num[:, i] = (a(x + d)[0] - a(x - d)[0]) / 2e-6
+    return num
+
+
 @pytest.mark.parametrize("taut", [False, True])
 def test_model_jacobians(taut):
     """The generated d a / d x (every column, the air's push and the taut projection included)
     against central differences of the generated a(x)."""
     _, f = acc(X0, taut)
-    num = np.zeros((3, 11))
-    for i in range(11):
-        d = np.zeros(11)
-        d[i] = 1e-6
-        num[:, i] = (acc(X0 + d, taut)[0] - acc(X0 - d, taut)[0]) / 2e-6
+    num = central_jacobian(lambda x: acc(x, taut), X0)
     assert np.allclose(np.array(f.ja).reshape(3, 11), num, rtol=1e-5, atol=1e-7)
     assert f.taut == taut
     if taut:
@@ -149,9 +155,14 @@ def test_rope_drag_jacobians():
     a0, _ = acc(X0, True)
     # ~1 N of cross-flow drag on the rope at 2.5 m/s, half of it carried by the balloon
     assert 0.3 < np.linalg.norm(a1 - a0) * f.m_eff_kg < 3.0
-    num = np.zeros((3, 11))
-    for i in range(11):
-        d = np.zeros(11)
-        d[i] = 1e-6
-        num[:, i] = (a(X0 + d)[0] - a(X0 - d)[0]) / 2e-6
-    assert np.allclose(np.array(f.ja).reshape(3, 11), num, rtol=1e-5, atol=1e-7)
+    assert np.allclose(np.array(f.ja).reshape(3, 11), central_jacobian(a, X0), rtol=1e-5, atol=1e-7)
+
+
+def test_the_climbing_free_models_jacobian_carries_the_rope_pickup():
+    """A climb at 4 m/s with half the rope aloft: the free model's d a / d x against central differences,
+    d a_d / d v_d included (the pick-up's 2 lambda v_d / m_eff beside the generated columns)."""
+    x0 = np.array([1.0, 2.0, -(MODEL.radius_m + 40.0), 0.5, 1.5, -4.0, 1.0, 3.0, 0.02, -0.01, 1.05])
+    _, f = acc(x0, False)
+    assert np.allclose(np.array(f.ja).reshape(3, 11), central_jacobian(lambda x: acc(x, False), x0), rtol=1e-5,
+                       atol=1e-7)  # fmt: skip
+    assert abs(2.0 * MODEL.rope_kg_m * x0[5] / f.m_eff_kg) > 1e-3  # the pick-up's share is there to be missed
