@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from balloon_core.config import Design
+from benchmarks.bench_envelope import sample
 from firmware_py.estimator.aid_sources.accel import control_accel
 from firmware_py.estimator.consistency import ACCEL, FLAG_NIS
 from firmware_py.estimator.control import Estimator
@@ -15,6 +16,7 @@ from firmware_py.estimator.ekf import SLOW_STATES, FusionStatus
 from firmware_py.estimator.model import BalloonModel, rope_pickup_n
 from firmware_py.estimator.params import ACCEL_MODEL_CORR_S
 from firmware_py.estimator.state import ATT_E, ATT_N, MODE_TAUT, N_STATES
+from tools.ascent_scale import ascent_error
 
 MODEL = BalloonModel.from_design(Design())
 
@@ -87,3 +89,13 @@ def test_the_rope_pickup_is_the_climbs_momentum_while_rope_lies_on_the_ground():
     assert rope_pickup_n(MODEL, pd, 2.0) == 0.0  # descending: the rope lays itself down
     assert rope_pickup_n(MODEL, -(r + length + 1.0), -4.0) == 0.0  # all of it aloft
     assert rope_pickup_n(MODEL, -(r - 0.1), -4.0) == 0.0  # on the ground
+
+
+def test_the_real_ropes_ascent_learns_the_balloons_drag_without_the_pickups_bias():
+    """The envelope's steady flights on the real rope (the first 12 of the full sample): the free ascent's drag
+    scale against the truth's C_d. Without the pick-up in the ascent's model it read 3.5 % high on average (3.8 %
+    RMS), and the taut wind half of that low; with it +1.1 % (1.9 % RMS)."""
+    flights = [p for p in sample(200) if p["wind_kind"] == "steady" and p["rope_model"] == "lumped"][:12]
+    e = np.array([ascent_error(p)[0] for p in flights])
+    assert abs(e.mean()) < 0.02
+    assert np.sqrt(np.mean(e**2)) < 0.03
