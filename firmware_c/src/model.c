@@ -12,7 +12,7 @@ static bw_real rope_pickup_n(const bw_model_t *m, bw_real pd, bw_real vd)
 }
 
 /* (m_eff, push, c, lift, rope_w, rope_slope, kr, att_n, att_e, att_d) for air density rho */
-static void parameters(const bw_model_t *m, bw_real rho, bw_real pd, bw_real vd, int taut, const bw_real attach[3],
+static void parameters(const bw_model_t *m, bw_real rho, bw_real pd, bw_real pickup_n, int taut, const bw_real attach[3],
                        bw_real rope_weight_n, bw_real par[10])
 {
     bw_real rho_v = rho * m->volume_m3;
@@ -30,7 +30,7 @@ static void parameters(const bw_model_t *m, bw_real rho, bw_real pd, bw_real vd,
             rope_w = lam_g * m->tether_length_m;
             slope = BW_R(0.0);
         } else { /* lambda g (-pd - r), written as rope_w + slope * pd */
-            rope_w = -lam_g * m->radius_m + rope_pickup_n(m, pd, vd);
+            rope_w = -lam_g * m->radius_m + pickup_n;
             slope = -lam_g;
         }
     }
@@ -49,7 +49,8 @@ static void parameters(const bw_model_t *m, bw_real rho, bw_real pd, bw_real vd,
 void bw_accelerations(const bw_model_t *m, bw_real rho, const bw_real s[BW_NCOL], int taut, bw_forces_t *out)
 {
     int i;
-    parameters(m, rho, s[2], s[5], taut, out->attach_ned, out->rope_weight_n, out->params);
+    const bw_real pickup = taut ? BW_R(0.0) : rope_pickup_n(m, s[2], s[5]); /* model.py: the ascent's pick-up */
+    parameters(m, rho, s[2], pickup, taut, out->attach_ned, out->rope_weight_n, out->params);
     out->m_eff_kg = out->params[0];
     if (taut) {
         bw_real r[BW_TAUT_MODEL_SIZE];
@@ -74,11 +75,8 @@ void bw_accelerations(const bw_model_t *m, bw_real rho, const bw_real s[BW_NCOL]
         out->an = r[0], out->ae = r[1], out->ad = r[2];
         for (i = 0; i < 3 * BW_NCOL; i++)
             out->ja[i] = r[3 + i];
-        if (!taut) { /* the pick-up's lambda vd^2 is in the parameter rope_w: its d a_d / d vd (model.py) */
-            bw_real pickup = rope_pickup_n(m, s[2], s[5]);
-            if (pickup > BW_R(0.0))
-                out->ja[2 * BW_NCOL + 5] += BW_R(2.0) * pickup / (s[5] * out->params[0]);
-        }
+        if (pickup > BW_R(0.0)) /* lambda vd^2 is in the parameter rope_w: its d a_d / d vd (model.py) */
+            out->ja[2 * BW_NCOL + 5] += BW_R(2.0) * pickup / (s[5] * out->params[0]);
         out->tension_n = BW_R(0.0);
         out->taut = 0;
     }

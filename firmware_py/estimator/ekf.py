@@ -480,8 +480,9 @@ class WindEkf:
             # K' = D K. P for the gain used (Joseph form), P - K'HP - PH^T K'^T + K' S K'^T, differs from P - KHP only
             # in the attitude and gyro bias block, by (1 - d_i) (1 - d_j) KHP
             gains = (tilt_gain, tilt_gain, heading_gain, heading_gain, heading_gain, heading_gain)
-            for a, i in enumerate(SLOW_STATES):
-                for b, j in enumerate(SLOW_STATES):
+            block = SLOW_STATES if heading_gain < 1.0 else SLOW_STATES[:2]  # the tilt's alone at full heading
+            for a, i in enumerate(block):
+                for b, j in enumerate(block):
                     self.P[i, j] += (1.0 - gains[a]) * (1.0 - gains[b]) * self._t1[i, j]
                 self._k3[i, 0] *= gains[a]
                 self._k3[i, 1] *= gains[a]

@@ -108,7 +108,7 @@ def rope_pickup_n(m: BalloonModel, pd: float, vd: float) -> float:
 
 def parameters(
     m: BalloonModel, rho: float, pd: float, taut: bool, attach_ned: tuple = (0.0, 0.0, 0.0),
-    rope_weight_n: float = float("nan"), vd: float = 0.0,
+    rope_weight_n: float = float("nan"), pickup_n: float = 0.0,
 ) -> tuple[float, ...]:  # fmt: skip
     """(m_eff, push, c, lift, rope_w, rope_slope, kr, att_n, att_e, att_d) of the generated model, for
     air density ``rho``.
@@ -117,7 +117,7 @@ def parameters(
     c = rho Cd pi r^2 / 2; lift = (rho V - m) g, the balloon's own net lift (Eq. 4 minus its weight);
     rope weight: taut, the share the rod carries (``rope_weight_n``, catenary.py; the whole rope of the
     paper's Eq. 5 if NaN); in free ascent the airborne part hanging below the balloon and, climbing, the
-    pull that picks the rope up (``rope_pickup_n``);
+    pull that picks the rope up (``pickup_n``, ``rope_pickup_n``);
     att = the attachment point relative to the centre (taut: the rope pulls from there)."""
     rho_v = rho * m.volume_m3
     m_eff = m.mass_kg + ADDED_MASS_COEFFICIENT * rho_v
@@ -132,7 +132,7 @@ def parameters(
         elif height >= m.tether_length_m:
             rope_w, slope = lam_g * m.tether_length_m, 0.0
         else:  # lambda g (-pd - r), written as rope_w + slope * pd
-            rope_w, slope = -lam_g * m.radius_m + rope_pickup_n(m, pd, vd), -lam_g
+            rope_w, slope = -lam_g * m.radius_m + pickup_n, -lam_g
     return (
         m_eff,
         (1.0 + ADDED_MASS_COEFFICIENT) * rho_v,
@@ -161,7 +161,8 @@ def accelerations(
     with the whole rope hanging from the balloon. Taut, the rope pulls from ``out.attach_ned`` (the
     attitude enters as a parameter: no Jacobian column, its effect is r / L ~ 1 % of the tension's
     direction). Fills ``out``."""
-    par = parameters(m, rho, pd, taut, out.attach_ned, out.rope_weight_n, vd)
+    pickup = 0.0 if taut else rope_pickup_n(m, pd, vd)
+    par = parameters(m, rho, pd, taut, out.attach_ned, out.rope_weight_n, pickup)
     out.params = par
     out.m_eff_kg = par[0]
     if taut:
@@ -177,7 +178,6 @@ def accelerations(
     r = free_model(pn, pe, pd, vn, ve, vd, wn, we, rn, re, k, *par)
     out.an, out.ae, out.ad = r[0], r[1], r[2]
     out.ja = r[FREE_JA]
-    pickup = 0.0 if taut else rope_pickup_n(m, pd, vd)
     if pickup > 0.0:  # the pick-up's lambda vd^2 is in the parameter rope_w: its d a_d / d vd, 2 lambda vd / m_eff
         ja = list(out.ja)
         ja[JA_DOWN_VD] += 2.0 * pickup / (vd * par[0])
