@@ -44,6 +44,12 @@ MAX_HEIGHT_M = 20000.0
 MAX_RATE_RPS = 1000.0
 
 
+
+def _every(imu_hz: float, rate_hz: float, n_imu: int) -> int:
+    """IMU samples between two readings at ``rate_hz`` (> 0): at least 1, at most the flight's length + 1 (a rate
+    slower than one reading a flight reads once, at the start; 1e-300 Hz does not overflow)."""
+    return max(1, min(round(min(imu_hz / rate_hz, n_imu + 1.0)), n_imu + 1))
+
 class SimulationDiverged(ValueError):
     """The truth integration blew up: the design is too stiff for the physics step (a user error)."""
 
@@ -104,8 +110,8 @@ class Simulation:
         self._truth_rows = 0  # rows filled so far (whole flight)
         self.samples_done = 0  # IMU samples yielded so far
         self.winch = winch if winch is not None and winch.enabled else None
-        self.winch_every = max(1, round(imu_hz / self.winch.status_hz)) if self.winch else 0
-        self.ground_every = max(1, round(imu_hz / truth.ground_baro_hz)) if truth.ground_baro_hz > 0.0 else 0
+        self.winch_every = _every(imu_hz, self.winch.status_hz, self.n_imu) if self.winch else 0
+        self.ground_every = _every(imu_hz, truth.ground_baro_hz, self.n_imu) if truth.ground_baro_hz > 0.0 else 0
         # the winch's load cell and the ground barometer draw from their own streams: the flight's other
         # sensors stay the same with them or without
         self._aux_rng = np.random.default_rng(np.random.SeedSequence([seed, 0x47524E44]))

@@ -251,3 +251,14 @@ def test_truth_wind_veers_and_shears_about_the_reference_height():
     assert math.hypot(wn, we) == pytest.approx(3.0 * 1.5**0.14)
     frm = math.degrees(math.atan2(-we, -wn)) % 360.0
     assert frm == pytest.approx(275.0)  # veered: from 5 deg further clockwise 50 m higher
+
+
+@pytest.mark.parametrize("hz", [5e-324, 1e-6])
+def test_a_rate_slower_than_one_reading_a_flight_reads_once(hz):
+    """Any positive rate the design file allows runs: the winch's and the ground's readings at 1e-6 Hz or at the
+    smallest float come once, at the start (5e-324 Hz overflowed the interval's integer before)."""
+    w = WinchConfig(times_s=(0.0,), lengths_m=(100.0,), status_hz=hz)
+    sim = Simulation(Design(), WindConfig(kind="steady"), TruthConfig(ground_baro_hz=hz), 2.0, 1, winch=w)
+    samples = list(sim.samples())
+    assert sum(s.winch is not None for s in samples) == 1
+    assert sum(s.ground is not None for s in samples) == 1
