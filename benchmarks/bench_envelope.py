@@ -1,7 +1,7 @@
 """The operating envelope: many flights from a fixed-seed low-discrepancy sample of the conditions a
 user may meet, each run through the study engine, scored, summarised against the issue's targets.
 
-    .venv/bin/python -m benchmarks.bench_envelope [--quick] [--flights N] [--out DIR]
+    .venv/bin/python -m benchmarks.bench_envelope [--quick] [--flights N] [--out DIR] [--cd-sigma S]
         [--serial | --workers N | --scheduler tcp://HOST:PORT]
 
 Sampled per flight (a scrambled Halton sequence, fixed seed): wind direction 0-360 deg, mean speed
@@ -9,8 +9,10 @@ Sampled per flight (a scrambled Halton sequence, fixed seed): wind direction 0-3
 vertical), rope model of the truth (lumped | paper), tether 50-150 m, balloon radius from the smallest
 that lifts its tether with 20 % spare lift (``balloon_core.config.lift_balance``) up to 1.6 m,
 weather pressure drift +-3 hPa/h, wandering gyro/accelerometer biases (0-1 x the field-biases
-scenario's), sensor grade (Table 2 | MEMS | tactical), the simulator seed. The firmware is told only
-the design (balloon, tether, sensors); everything else is truth only, its [filter] stays the default.
+scenario's), sensor grade (Table 2 | MEMS | tactical), the simulator seed, and the balloon's and the rope's
+drag coefficients about the design's (a sphere's C_d known to 10 %, ``--cd-sigma``; a rope's C_n to 30 %). The
+firmware is told only the design (balloon, tether, sensors); everything else is truth only, its [filter] stays
+the default (with ``--cd-sigma`` other than 0.1 it is told that 1-sigma: ``[filter] init_drag``).
 
 Per flight (after ``start_s``): the study metrics (``study.case.metrics``) plus the worst 60 s mean
 direction error, the share of samples whose horizontal error exceeds 3 x the reported accuracy,
@@ -59,8 +61,10 @@ PARAMS = ("from_deg", "mean_mps", "wind_kind", "rope_model", "radius_m", "tether
           "bias_scale", "sensor_grade", "seed", "cd_scale", "rope_cd_scale")  # fmt: skip
 # the balloon and the rope flown are not the design's: their drag coefficients are the design's times a factor
 # drawn from what a user knows of them (1-sigma, truncated at 2.5 sigma): a sphere's C_d to 10 % (the filter's
-# stated accuracy assumes as much: consistency.systematic_variance), a rope's cross-flow C_n to 30 %
+# default prior, [filter] init_drag, assumes as much), a rope's cross-flow C_n to 30 %. ``--cd-sigma``: a balloon
+# whose C_d was measured (a tow or a wind-tunnel test), the truth's drawn and the filter told with that 1-sigma
 CD_SIGMA = 0.10
+CD_SIGMA_RANGE = (0.005, 0.5)
 ROPE_CD_SIGMA = 0.30
 WINDOW_S = 60.0
 CAL_EDGES = np.geomspace(0.02, 5.0, 15)  # stated accuracy bins, m/s
@@ -124,8 +128,9 @@ def pick(u: float, choices: tuple[str, ...]) -> str:
     return choices[min(int(u * len(choices)), len(choices) - 1)]
 
 
-def sample(n: int, seed: int = SEED) -> list[dict[str, Any]]:
-    """The n flights' parameters (a dict per flight, in the order of ``PARAMS``)."""
+def sample(n: int, seed: int = SEED, cd_sigma: float = CD_SIGMA) -> list[dict[str, Any]]:
+    """The n flights' parameters (a dict per flight, in the order of ``PARAMS``); the balloon's C_d drawn with
+    1-sigma ``cd_sigma`` (any other than CD_SIGMA is also what the filter is told: ``cd_sigma`` in each dict)."""
     u = halton(n, len(DIMS), seed)
     out = []
     for row in u:
@@ -143,9 +148,11 @@ def sample(n: int, seed: int = SEED) -> list[dict[str, Any]]:
             "bias_scale": round(float(v["bias_scale"]), 4),
             "sensor_grade": pick(v["sensor_grade"], tuple(GRADES)),
             "seed": int(v["seed"] * 1_000_000),
-            "cd_scale": drawn_scale(v["cd_scale"], CD_SIGMA),
+            "cd_scale": drawn_scale(v["cd_scale"], cd_sigma),
             "rope_cd_scale": drawn_scale(v["rope_cd_scale"], ROPE_CD_SIGMA),
         })  # fmt: skip
+        if cd_sigma != CD_SIGMA:
+            out[-1]["cd_sigma"] = cd_sigma
     return out
 
 
@@ -179,6 +186,8 @@ def sections_of(p: dict[str, Any]) -> dict[str, dict[str, Any]]:
     t["drag_coefficient_scale"] = p.get("cd_scale", 1.0)
     t["rope_normal_cd"] *= p.get("rope_cd_scale", 1.0)
     t.update({k: v * p["bias_scale"] for k, v in BIASES.items()})
+    if "cd_sigma" in p:  # a measured C_d: the user writes its 1-sigma into the design's [filter]
+        secs["filter"]["init_drag"] = p["cd_sigma"]
     return secs
 
 
@@ -393,14 +402,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--serial", action="store_true", help="in this process, no Dask")
     ap.add_argument("--workers", type=int, help="Dask workers (default: one per core)")
     ap.add_argument("--scheduler", help="a running Dask scheduler, tcp://HOST:PORT (instead of local workers)")
+    ap.add_argument("--cd-sigma", type=float, default=CD_SIGMA,
+                    help=f"1-sigma of what the user knows of the balloon's C_d, relative (default {CD_SIGMA:g}: "
+                         "a sphere's from the literature; 0.02: measured); the truth's drawn with it, the filter "
+                         "told it")  # fmt: skip
     args = ap.parse_args(argv)
+    lo, hi = CD_SIGMA_RANGE
+    if not lo <= args.cd_sigma <= hi:
+        print(f"bench_envelope: --cd-sigma must be between {lo:g} and {hi:g}, got {args.cd_sigma:g}", file=sys.stderr)
+        return 2
     import pandas as pd
 
     n = args.flights or (64 if args.quick else 200)
     duration = args.duration or (300.0 if args.quick else 600.0)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    params = sample(n)
+    params = sample(n, cd_sigma=args.cd_sigma)
     cs = cases(params, duration, args.start)
     store = engine.Store(out / "parts")
     t0 = time.perf_counter()
@@ -417,7 +434,8 @@ def main(argv: list[str] | None = None) -> int:
     df.to_csv(out / "envelope.csv", index=False)
     text, targets = summary(df)
     head = (
-        f"envelope: {n} flights of {duration:g} s (scored from {args.start:g} s), base {BASE}, "
+        f"envelope: {n} flights of {duration:g} s (scored from {args.start:g} s), base {BASE}"
+        f"{'' if args.cd_sigma == CD_SIGMA else f', the C_d known to {100 * args.cd_sigma:g} %'}, "
         f"{'serial' if args.serial else f'{st.workers} Dask workers'}; {st.computed} computed, {st.reused} "
         f"reused, {st.failed} failed; wall {wall:.0f} s (mean flight {st.case_s / max(st.computed, 1):.1f} s)"
     )

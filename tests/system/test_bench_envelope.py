@@ -44,6 +44,25 @@ def test_every_design_lifts_its_tether_with_spare_and_the_firmware_gets_only_the
     assert 0.9 < r < 1.0
 
 
+def test_a_measured_drag_coefficient_is_drawn_and_told_with_its_own_sigma(capsys):
+    # the default: the truth's C_d within 2.5 x 10 % of the design's, and the filter's prior is that 10 %
+    assert FilterConfig().init_drag == be.CD_SIGMA
+    wide = pd.DataFrame(be.sample(64))
+    assert (wide["cd_scale"] - 1.0).abs().max() > 0.15 and "cd_sigma" not in wide
+    # measured to 2 %: the same points, the C_d drawn with 2 % and the filter told so, nothing else changed
+    narrow = be.sample(64, cd_sigma=0.02)
+    assert all(abs(p["cd_scale"] - 1.0) <= 0.05 + 1e-9 for p in narrow)
+    for p, q in zip(narrow, be.sample(64)):
+        _, _, truth, filt = build(be.sections_of(p))
+        assert filt == FilterConfig(init_drag=0.02) and truth.drag_coefficient_scale == p["cd_scale"]
+        assert {k: v for k, v in p.items() if k not in ("cd_scale", "cd_sigma")} == {
+            k: v for k, v in q.items() if k != "cd_scale"
+        }
+    assert be.main(["--cd-sigma", "0", "--out", "/nonexistent/never-written"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--cd-sigma must be between" in err
+
+
 def test_extra_metrics_on_a_known_error():
     t = np.arange(0.0, 300.0, 0.01)
     rows = np.column_stack([t, np.full_like(t, 3.0), np.full_like(t, 0.4), np.full_like(t, 0.1)])
