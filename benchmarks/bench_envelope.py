@@ -64,7 +64,7 @@ PARAMS = ("from_deg", "mean_mps", "wind_kind", "rope_model", "radius_m", "tether
 # default prior, [filter] init_drag, assumes as much), a rope's cross-flow C_n to 30 %. ``--cd-sigma``: a balloon
 # whose C_d was measured (a tow or a wind-tunnel test), the truth's drawn and the filter told with that 1-sigma
 CD_SIGMA = 0.10
-CD_SIGMA_RANGE = (0.005, 0.5)
+CD_SIGMA_RANGE = (0.005, 0.3)  # at 0.3 the 2.5-sigma draw keeps the C_d at 0.25 of the design's (the floor: 0.1)
 ROPE_CD_SIGMA = 0.30
 WINDOW_S = 60.0
 CAL_EDGES = np.geomspace(0.02, 5.0, 15)  # stated accuracy bins, m/s

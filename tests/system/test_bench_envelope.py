@@ -58,6 +58,8 @@ def test_a_measured_drag_coefficient_is_drawn_and_told_with_its_own_sigma(capsys
         assert {k: v for k, v in p.items() if k not in ("cd_scale", "cd_sigma")} == {
             k: v for k, v in q.items() if k != "cd_scale"
         }
+    # the widest sigma allowed draws no C_d the simulator refuses ([truth] drag_coefficient_scale >= 0.1)
+    assert min(p["cd_scale"] for p in be.sample(200, cd_sigma=be.CD_SIGMA_RANGE[1])) >= 0.1
     assert be.main(["--cd-sigma", "0", "--out", "/nonexistent/never-written"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--cd-sigma must be between" in err

@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parents[2]
 def test_an_attitude_error_about_the_field_is_recovered_and_the_wind_with_it():
     sc = SCENARIOS["field-rope-multisine"]
     sc = dataclasses.replace(sc, wind=dataclasses.replace(sc.wind, kind="steady", from_deg=200.0))
-    up, down, none = (step_response(sc, deg=d) for d in (1.0, -1.0, 0.0))
+    up, down, none = step_response(sc, (1.0, -1.0, 0.0))
     assert all(abs(a) < 1e-6 and abs(c) < 1e-6 for _, a, c in none)  # the same samples: only the step differs
     peak = max(abs(c) for _, _, c in up)
     assert peak > 0.05  # the wind across follows the turned attitude ...
@@ -30,4 +30,4 @@ def test_an_attitude_error_about_the_field_is_recovered_and_the_wind_with_it():
 def test_an_unknown_scenario_is_a_user_error():
     r = subprocess.run([sys.executable, str(ROOT / "tools" / "attitude_step.py"), "nonesuch"],
                        capture_output=True, text=True, cwd=ROOT)  # fmt: skip
-    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "unknown scenario" in r.stderr
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "invalid choice: 'nonesuch'" in r.stderr
