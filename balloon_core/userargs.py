@@ -12,6 +12,7 @@ import math
 import os
 import re
 import sys
+from collections.abc import Callable
 from typing import NoReturn
 
 # a week of simulated flight (about an hour of computing); memory does not grow with it (the wind, the
@@ -108,6 +109,18 @@ def nonneg_float(text: str) -> float:
     if x < 0.0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
     return x
+
+
+def between(lo: float, hi: float) -> Callable[[str], float]:
+    """An argparse type: a finite number from ``lo`` to ``hi``."""
+
+    def check(text: str) -> float:
+        x = _number(text)
+        if not lo <= x <= hi:
+            raise argparse.ArgumentTypeError(f"must be {lo:g} .. {hi:g}, got {text!r}")
+        return x
+
+    return check
 
 
 MIN_SPEED, MAX_SPEED = 0.01, 10000.0

@@ -44,11 +44,11 @@ MAX_HEIGHT_M = 20000.0
 MAX_RATE_RPS = 1000.0
 
 
-
 def _every(imu_hz: float, rate_hz: float, n_imu: int) -> int:
     """IMU samples between two readings at ``rate_hz`` (> 0): at least 1, at most the flight's length + 1 (a rate
     slower than one reading a flight reads once, at the start; 1e-300 Hz does not overflow)."""
     return max(1, min(round(min(imu_hz / rate_hz, n_imu + 1.0)), n_imu + 1))
+
 
 class SimulationDiverged(ValueError):
     """The truth integration blew up: the design is too stiff for the physics step (a user error)."""

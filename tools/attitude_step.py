@@ -13,7 +13,6 @@ is a tilt): what the wind does here is what it does when the gyro's noise turns 
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import math
 import sys
@@ -28,9 +27,7 @@ from firmware_py.estimator.control import Estimator  # noqa: E402
 from sim_hil.scenarios import SCENARIOS, Scenario  # noqa: E402
 from sim_hil.simulator import Simulation  # noqa: E402
 
-AFTER_S = (0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 40.0, 70.0, 100.0)
-
-
+AFTER_S = (0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 40.0, 70.0, 100.0)  # the times the answer is printed at, s
 AT_RANGE_S = (60.0, 3600.0)  # the step: after the release, the climb and the taut entry; at most an hour in
 MAX_DEG = 10.0  # a small error: the answer is the filter's linear one
 AXES = {"down": (0.0, 0.0, 1.0), "north": (1.0, 0.0, 0.0)}  # "field": the filter's learnt field
@@ -84,29 +81,16 @@ def step_response(sc: Scenario, degs: tuple[float, ...] = (1.0,), seed: int = 1,
     return out
 
 
-def bounded(lo: float, hi: float):
-    """An argparse type: a number from ``lo`` to ``hi`` (nan and inf are outside)."""
-
-    def check(text: str) -> float:
-        try:
-            x = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-        if not lo <= x <= hi:
-            raise argparse.ArgumentTypeError(f"must be {lo:g} .. {hi:g}, got {text!r}")
-        return x
-
-    return check
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = userargs.Parser(prog="attitude_step", description=__doc__.splitlines()[0])
     ap.add_argument("scenario", choices=sorted(SCENARIOS), metavar="SCENARIO")
-    ap.add_argument("--from-deg", type=bounded(0.0, 360.0), help="the wind's direction (default: the scenario's)")
+    ap.add_argument(
+        "--from-deg", type=userargs.between(0.0, 360.0), help="the wind's direction (default: the scenario's)"
+    )
     ap.add_argument("--steady", action="store_true", help="a steady wind of the scenario's mean instead")
     ap.add_argument("--seed", type=userargs.seed, default=1)
-    ap.add_argument("--at", type=bounded(*AT_RANGE_S), default=150.0, help="time of the step, s (default 150)")
-    ap.add_argument("--deg", type=bounded(-MAX_DEG, MAX_DEG), default=1.0, help="the turn, deg (default 1)")
+    ap.add_argument("--at", type=userargs.between(*AT_RANGE_S), default=150.0, help="time of the step, s (default 150)")
+    ap.add_argument("--deg", type=userargs.between(-MAX_DEG, MAX_DEG), default=1.0, help="the turn, deg (default 1)")
     ap.add_argument("--axis", choices=("field", *AXES), default="field")
     a = ap.parse_args(argv)
     sc = SCENARIOS[a.scenario]
