@@ -91,7 +91,7 @@ def _structs(real):
             ("learn_drag", i32),
             ("drag_correlated", i32), ("recover_after", i32), ("time_us", i64), ("taut_phase", i32),
             ("noise_phase", i32), ("reset_counts", i32 * len(RESET_NAMES)),
-            ("reset_count", i32),
+            ("reset_count", i32), ("field_att_extra", real),
         ]  # fmt: skip
 
     class Consistency(C.Structure):

@@ -110,6 +110,7 @@ typedef struct {
     int32_t taut_phase, noise_phase;   /* step % taut_every, step % wind_noise_every */
     int32_t reset_counts[4];
     int32_t reset_count;
+    bw_real field_att_extra;     /* the attitude's variance about the field's axis that P does not hold (consistency.c) */
 } bw_ekf_t;
 
 typedef struct {

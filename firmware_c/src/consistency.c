@@ -33,6 +33,42 @@ void bw_consistency_evaluate(bw_consistency_t *m)
     m->inflation = BW_SQRT(worst);
 }
 
+/* consistency.py field_variance: the attitude's variance about the field's axis in P (0 while it is unknown) */
+bw_real bw_field_variance(const bw_ekf_t *e, const bw_real field_ned[3])
+{
+    bw_real b = BW_SQRT(field_ned[0] * field_ned[0] + field_ned[1] * field_ned[1] + field_ned[2] * field_ned[2]), bn,
+            be, bd;
+    if (!(b > BW_R(0.0)))
+        return BW_R(0.0);
+    bn = field_ned[0] / b, be = field_ned[1] / b, bd = field_ned[2] / b;
+    return bn * (bn * e->P[BW_ATT_N][BW_ATT_N] + BW_R(2.0) * (be * e->P[BW_ATT_N][BW_ATT_E] + bd * e->P[BW_ATT_N][BW_ATT_D])) +
+           be * (be * e->P[BW_ATT_E][BW_ATT_E] + BW_R(2.0) * bd * e->P[BW_ATT_E][BW_ATT_D]) +
+           bd * bd * e->P[BW_ATT_D][BW_ATT_D];
+}
+
+/* consistency.py correlated_weight: the share of a fusion's information that counts, its misfit correlated */
+bw_real bw_correlated_weight(bw_real nis, bw_real dt_s, bw_real corr_s)
+{
+    return nis * corr_s <= dt_s ? BW_R(1.0) : dt_s / (nis * corr_s);
+}
+
+/* consistency.py field_attitude_extra: one step of the attitude's variance about the field's axis that P does not
+ * hold, each fusion's information counted with its weight */
+bw_real bw_field_attitude_extra(bw_real extra, bw_real v_pred, bw_real v_accel, bw_real v_aids, bw_real v_end,
+                                bw_real w_accel, bw_real w_align)
+{
+    const bw_real v0[3] = {v_pred, v_accel, v_aids}, v1[3] = {v_accel, v_aids, v_end}, w[3] = {w_accel, BW_R(1.0), w_align};
+    bw_real s = v_pred + extra, inv;
+    int i;
+    for (i = 0; i < 3; i++) {
+        inv = (v0[i] > BW_R(0.0) && v1[i] > BW_R(0.0) && s > BW_R(0.0))
+                  ? BW_R(1.0) / s + w[i] * (BW_R(1.0) / v1[i] - BW_R(1.0) / v0[i]) : BW_R(0.0);
+        if (inv > BW_R(0.0))
+            s = BW_R(1.0) / inv;
+    }
+    return isfinite(s) ? BW_MAX(BW_R(0.0), s - v_end) : BW_R(0.0);
+}
+
 bw_real bw_systematic_variance(bw_real speed_mps, bw_real drag_scale, bw_real drag_scale_var, bw_real lean_wind_mps)
 {
     bw_real k = BW_MAX(drag_scale, BW_R(1e-3));

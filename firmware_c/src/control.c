@@ -514,8 +514,9 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
     bw_counters_t *c = &est->counters;
     bw_ekf_t *e = &est->ekf;
     int mag_ok;
+    int32_t resets;
     int64_t d, steps, i;
-    bw_real r[9], rad;
+    bw_real r[9], rad, v_pred, v_accel, v_aids;
     if (!(finite3(ax, ay, az, (bw_real)BW_ACC_MAX) && finite3(gx, gy, gz, (bw_real)BW_GYRO_MAX))) {
         c->rejected += 1;
         return 0;
@@ -587,18 +588,31 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
     est->last_gyro[0] = gx, est->last_gyro[1] = gy, est->last_gyro[2] = gz;
     e->time_us = est->t_filter_us;
     bw_ekf_begin_update(e);
+    resets = e->reset_count;
+    v_pred = bw_field_variance(e, est->field_ned);
     bw_control_accel(est, ax, ay, az);
+    v_accel = bw_field_variance(e, est->field_ned);
     if (est->unconfirmed)
         confirm(est, ax, ay, az);
     bw_control_baro(est);
     bw_control_winch(est);
     if (mag_ok)
         bw_control_mag(est, ax, ay, az, mx, my, mz);
+    v_aids = bw_field_variance(e, est->field_ned);
     bw_control_tether(est);
     if (!bw_ekf_end_update(e)) {
         c->numeric_resets += 1;
         reinitialise_in_flight(est, ax, ay, az, mx, my, mz, mag_ok);
         return 1;
+    }
+    if (e->reset_count == resets && e->mode != BW_MODE_GROUND) {
+        const bw_real *nis = est->consistency.nis, corr = (bw_real)BW_ACCEL_MODEL_CORR_S;
+        e->field_att_extra = bw_field_attitude_extra(e->field_att_extra, v_pred, v_accel, v_aids,
+                                                     bw_field_variance(e, est->field_ned),
+                                                     bw_correlated_weight(nis[BW_ACCEL], e->dt, corr),
+                                                     bw_correlated_weight(nis[BW_ALIGN], e->dt, corr));
+    } else {
+        e->field_att_extra = BW_R(0.0);
     }
     update_mode(est, ax, ay, az);
     if (e->mode != BW_MODE_GROUND)
@@ -640,8 +654,17 @@ bw_real bw_wind_accuracy(const bw_estimator_t *est)
             bw_rotation(e->q, r);
             zn = r[2], ze = r[5], zd = r[8];
             tilt = BW_HYPOT(zn, ze);
-            if (tilt > BW_R(0.0))
-                cross_var = bw_lean_variance(e, ze / tilt, -zn / tilt, zn, ze, zd);
+            if (tilt > BW_R(0.0)) {
+                /* and what P does not hold about the field's axis, across and (a half) along the lean */
+                const bw_real cn = ze / tilt, ce = -zn / tilt, *fb = est->field_ned;
+                const bw_real b = BW_SQRT(fb[0] * fb[0] + fb[1] * fb[1] + fb[2] * fb[2]);
+                cross_var = bw_lean_variance(e, cn, ce, zn, ze, zd);
+                if (b > BW_R(0.0)) {
+                    const bw_real across = ((-ce * zd) * fb[0] + (cn * zd) * fb[1] + (ce * zn - cn * ze) * fb[2]) / b;
+                    const bw_real along = ((cn * zd) * fb[0] + (ce * zd) * fb[1] + (-cn * zn - ce * ze) * fb[2]) / b;
+                    cross_var += e->field_att_extra * (across * across + BW_R(0.25) * along * along);
+                }
+            }
             lean = bw_lean_bias_wind(wn, we, bw_lift_n(m, est->rho), e->x[BW_DRAG] * est->rho * m->half_cd_area_m2,
                                      (bw_real)BW_LEAN_BIAS_RAD, est->field_ned, cross_var);
         }

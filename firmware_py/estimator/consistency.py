@@ -76,6 +76,45 @@ class Consistency:
         return [name for i, name in enumerate(SOURCES) if self.flags >> i & 1]
 
 
+def field_variance(P, bn: float, be: float, bd: float) -> float:
+    """The attitude's variance about the unit axis (bn, be, bd) (the magnetic field's), b^T P_att b, rad^2."""
+    return float(
+        bn * (bn * P[6, 6] + 2.0 * (be * P[6, 7] + bd * P[6, 8]))
+        + be * (be * P[7, 7] + 2.0 * bd * P[7, 8])
+        + bd * bd * P[8, 8]
+    )
+
+
+def correlated_weight(nis: float, dt_s: float, corr_s: float) -> float:
+    """The share of a fusion's information that counts where the source's misfit is correlated over ``corr_s``:
+    its innovations, ``nis`` times their expected variance, are a model error worth dt / corr_s independent
+    samples per sample; where they are smaller than the noise the filter assumed (nis < dt / corr_s), all of it."""
+    return 1.0 if nis * corr_s <= dt_s else dt_s / (nis * corr_s)
+
+
+def field_attitude_extra(
+    extra: float, v_pred: float, v_accel: float, v_aids: float, v_end: float, w_accel: float, w_align: float
+) -> float:  # fmt: skip
+    """One step of the attitude's variance about the magnetic field's axis that P does not hold, rad^2 (>= 0).
+
+    About that axis the magnetometer sees nothing and only the accelerometer (its tilt, cos I of it, and on the
+    taut tether the pull's azimuth) and the alignment (through the position) hold the attitude. Both fuse every
+    sample as if their misfit were white, but what they misfit is the rope's waves and the drag's lag behind the
+    wind, correlated over seconds: P about that axis shrinks as if it had ten times the data, and the wind across
+    the lean follows the attitude's slow error (docs/estimator.md, "Honest accuracy"). So beside P the same
+    step is taken again, each fusion's information 1/v_after - 1/v_before counted with its weight
+    (``correlated_weight``: the accelerometer's, the alignment's; the barometer's, the winch's and the
+    magnetometer's fully) from the prediction's variance ``v_pred`` (P's after the step's prediction, plus
+    ``extra``) through ``v_accel`` (after the accelerometer), ``v_aids`` (after the barometer, the winch, the
+    magnetometer) to ``v_end`` (after the tether)."""
+    s = v_pred + extra
+    for v0, v1, w in ((v_pred, v_accel, w_accel), (v_accel, v_aids, 1.0), (v_aids, v_end, w_align)):
+        inv = 1.0 / s + w * (1.0 / v1 - 1.0 / v0) if v0 > 0.0 and v1 > 0.0 and s > 0.0 else 0.0
+        if inv > 0.0:
+            s = 1.0 / inv
+    return max(0.0, s - v_end) if math.isfinite(s) else 0.0
+
+
 def systematic_variance(
     speed_mps: float, drag_scale: float, drag_scale_var: float, lean_wind_mps: float = 0.0
 ) -> float:  # fmt: skip

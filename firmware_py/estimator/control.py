@@ -24,6 +24,9 @@ from firmware_py.estimator.consistency import (
     MAG,
     RADIUS,
     Consistency,
+    correlated_weight,
+    field_attitude_extra,
+    field_variance,
     lean_bias_wind,
     systematic_variance,
 )
@@ -32,6 +35,7 @@ from firmware_py.estimator.model import ADDED_MASS_COEFFICIENT, BalloonModel, Fo
 from firmware_py.estimator.params import (
     ACC_MAX,
     ACCEL_INNOV_S,
+    ACCEL_MODEL_CORR_S,
     ALIGN_INNOV_S,
     BARO_MODEL_M,
     BARO_NOMINAL_HZ,
@@ -304,18 +308,30 @@ class Estimator:
         self._last_gyro = (gx, gy, gz)
         ekf.time_us = self.t_filter_us
         ekf.begin_update()
+        resets = ekf.reset_count
+        v_pred = self._field_variance()
         control_accel(self, ax, ay, az)
+        v_accel = self._field_variance()
         if self.unconfirmed:
             self._confirm(ax, ay, az)
         control_baro(self)
         control_winch(self)
         if mag_ok:
             control_mag(self, ax, ay, az, mx, my, mz)
+        v_aids = self._field_variance()
         control_tether(self)
         if not ekf.end_update():
             c.numeric_resets += 1
             self._reinitialise_in_flight(ax, ay, az, mx, my, mz, mag_ok)
             return True
+        if ekf.reset_count == resets and ekf.mode != MODE_GROUND:
+            nis, dt, corr = self.consistency.nis, ekf.dt, ACCEL_MODEL_CORR_S
+            ekf.field_att_extra = field_attitude_extra(
+                ekf.field_att_extra, v_pred, v_accel, v_aids, self._field_variance(),
+                correlated_weight(nis[ACCEL], dt, corr), correlated_weight(nis[ALIGN], dt, corr),
+            )  # fmt: skip
+        else:
+            ekf.field_att_extra = 0.0
         self._update_mode(ax, ay, az)
         if ekf.mode != MODE_GROUND:
             self._monitor()
@@ -624,6 +640,12 @@ class Estimator:
             acc = max(acc, math.sqrt(wn * wn + we * we + 1.0))
         return acc
 
+    def _field_variance(self) -> float:
+        """The attitude's variance about the magnetic field's axis in P, rad^2; 0 while the field is unknown."""
+        bn, be, bd = self.field_ned
+        b = math.sqrt(bn * bn + be * be + bd * bd)
+        return field_variance(self.ekf.P, bn / b, be / b, bd / b) if b > 0.0 else 0.0
+
     def lean_wind_mps(self) -> float:
         """The wind error of the tilt's systematic error on the taut tether (consistency.lean_bias_wind), m/s;
         0 off it."""
@@ -635,7 +657,16 @@ class Estimator:
         r = rotation(*ekf.q.tolist())
         zn, ze, zd = r[2], r[5], r[8]  # the body's down axis, along the rope
         lean = math.hypot(zn, ze)
-        cross_var = lean_variance(ekf.P, ze / lean, -zn / lean, zn, ze, zd) if lean > 0.0 else 0.0  # across the lean
+        cross_var = 0.0
+        if lean > 0.0:  # across the lean; and what P does not hold about the field's axis, across and (a half) along
+            cn, ce = ze / lean, -zn / lean
+            cross_var = lean_variance(ekf.P, cn, ce, zn, ze, zd)
+            bn, be, bd = self.field_ned
+            b = math.sqrt(bn * bn + be * be + bd * bd)
+            if b > 0.0:
+                across = ((-ce * zd) * bn + (cn * zd) * be + (ce * zn - cn * ze) * bd) / b
+                along = ((cn * zd) * bn + (ce * zd) * be + (-cn * zn - ce * ze) * bd) / b
+                cross_var += ekf.field_att_extra * (across * across + 0.25 * along * along)
         return lean_bias_wind(wn, we, m.lift_n(self.rho), float(ekf.x[DRAG]) * self.rho * m.half_cd_area_m2,
                               LEAN_BIAS_RAD, self.field_ned, cross_var)  # fmt: skip
 

@@ -167,6 +167,9 @@ class WindEkf:
         # the one reset API (``reset``): counters per kind and in all, which outputs and the smoother read
         self.reset_counts = [0] * len(RESET_NAMES)
         self.reset_count = 0
+        # the attitude's variance about the magnetic field's axis that P does not hold, rad^2
+        # (consistency.field_attitude_extra); a re-placement starts it again from P
+        self.field_att_extra = 0.0
 
     _VIEWS = (
         "_scale_col",
@@ -243,6 +246,7 @@ class WindEkf:
         all; the post-flight smoother cuts its chain where ``reset_count`` changes (postflight/reprocess.py)."""
         self.reset_counts[kind] += 1
         self.reset_count += 1
+        self.field_att_extra = 0.0
 
     # ------------------------------------------------------------------ prediction
 

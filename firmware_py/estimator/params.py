@@ -75,7 +75,10 @@ ACCEL_INNOV_S = 2.0  # averaging time of the accelerometer's innovations that se
 # blown down 65 deg in class B gusts drove the bias 0.16 deg/s in 20 s and the attitude 3 deg about the field, where
 # 0.5 was stated, and the wind 1.4 m/s across (the envelope's quick flight 23). Always at the reduced gain, the
 # heading lost what the accelerometer tells of it where the model fits (the real rope's multisine: band skill
-# 0.76 -> 0.57), and the bias in light air, where it must be learnt in flight
+# 0.76 -> 0.57), and the bias in light air, where it must be learnt in flight. What the heading's full gain takes from
+# a correlated misfit is stated instead: the accuracy carries the attitude's variance about the field's axis with
+# the accelerometer's and the alignment's information worth dt / ACCEL_MODEL_CORR_S samples per sample wherever
+# their innovations reach the noise assumed (consistency.field_attitude_extra)
 ACCEL_MODEL_CORR_S = 1.0
 TAUT_PULL_S = 1.0  # after a slack spell the rope must pull this long before the filter is taut again
 MEAN_WIND_S = 60.0  # averaging time of the mean wind that scales the wind's process noise
