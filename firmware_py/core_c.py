@@ -292,6 +292,10 @@ class _Ekf:
     def rope_chord_m(self) -> float:
         return self._e.rope_chord_m
 
+    @property
+    def field_att_extra(self) -> float:
+        return self._e.field_att_extra
+
     def wind_accuracy(self) -> float:
         return math.sqrt(max(0.0, float(self.P[12, 12]) + float(self.P[13, 13])))
 

@@ -514,7 +514,6 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
     bw_counters_t *c = &est->counters;
     bw_ekf_t *e = &est->ekf;
     int mag_ok;
-    int32_t resets;
     int64_t d, steps, i;
     bw_real r[9], rad, v_pred, v_accel, v_aids;
     if (!(finite3(ax, ay, az, (bw_real)BW_ACC_MAX) && finite3(gx, gy, gz, (bw_real)BW_GYRO_MAX))) {
@@ -588,7 +587,6 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
     est->last_gyro[0] = gx, est->last_gyro[1] = gy, est->last_gyro[2] = gz;
     e->time_us = est->t_filter_us;
     bw_ekf_begin_update(e);
-    resets = e->reset_count;
     v_pred = bw_field_variance(e, est->field_ned);
     bw_control_accel(est, ax, ay, az);
     v_accel = bw_field_variance(e, est->field_ned);
@@ -605,12 +603,15 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
         reinitialise_in_flight(est, ax, ay, az, mx, my, mz, mag_ok);
         return 1;
     }
-    if (e->reset_count == resets && e->mode != BW_MODE_GROUND) {
-        const bw_real *nis = est->consistency.nis, corr = (bw_real)BW_ACCEL_MODEL_CORR_S;
-        e->field_att_extra = bw_field_attitude_extra(e->field_att_extra, v_pred, v_accel, v_aids,
-                                                     bw_field_variance(e, est->field_ned),
-                                                     bw_correlated_weight(nis[BW_ACCEL], e->dt, corr),
-                                                     bw_correlated_weight(nis[BW_ALIGN], e->dt, corr));
+    if (e->mode != BW_MODE_GROUND) {
+        /* control.py: each source's NIS against the noise it was fused with, over its own interval */
+        const bw_real corr = (bw_real)BW_ACCEL_MODEL_CORR_S;
+        const bw_real nominal = e->mode == BW_MODE_TAUT ? est->accel_taut_var : est->accel_var;
+        const bw_real nis_accel = est->consistency.nis[BW_ACCEL] * nominal / (nominal + est->accel_var_excess);
+        e->field_att_extra = bw_field_attitude_extra(
+            e->field_att_extra, v_pred, v_accel, v_aids, bw_field_variance(e, est->field_ned),
+            bw_correlated_weight(nis_accel, e->dt, corr),
+            bw_correlated_weight(est->consistency.nis[BW_ALIGN], (bw_real)est->sched.taut_every * e->dt, corr));
     } else {
         e->field_att_extra = BW_R(0.0);
     }
@@ -655,7 +656,8 @@ bw_real bw_wind_accuracy(const bw_estimator_t *est)
             zn = r[2], ze = r[5], zd = r[8];
             tilt = BW_HYPOT(zn, ze);
             if (tilt > BW_R(0.0)) {
-                /* and what P does not hold about the field's axis, across and (a half) along the lean */
+                /* and what P does not hold about the field's axis, across and along the lean (a quarter of the
+                 * variance: the square law) */
                 const bw_real cn = ze / tilt, ce = -zn / tilt, *fb = est->field_ned;
                 const bw_real b = BW_SQRT(fb[0] * fb[0] + fb[1] * fb[1] + fb[2] * fb[2]);
                 cross_var = bw_lean_variance(e, cn, ce, zn, ze, zd);
@@ -664,6 +666,8 @@ bw_real bw_wind_accuracy(const bw_estimator_t *est)
                     const bw_real along = ((cn * zd) * fb[0] + (ce * zd) * fb[1] + (-cn * zn - ce * ze) * fb[2]) / b;
                     cross_var += e->field_att_extra * (across * across + BW_R(0.25) * along * along);
                 }
+                /* a displacement across turns the azimuth by itself over sin(lean), a tilt d by d / tan(lean) */
+                cross_var /= BW_MAX(zd, (bw_real)BW_LEAN_COS_MIN) * BW_MAX(zd, (bw_real)BW_LEAN_COS_MIN);
             }
             lean = bw_lean_bias_wind(wn, we, bw_lift_n(m, est->rho), e->x[BW_DRAG] * est->rho * m->half_cd_area_m2,
                                      (bw_real)BW_LEAN_BIAS_RAD, est->field_ned, cross_var);

@@ -91,7 +91,8 @@ void bw_ekf_reset(bw_ekf_t *e, int kind)
 {
     e->reset_counts[kind] += 1;
     e->reset_count += 1;
-    e->field_att_extra = BW_R(0.0);
+    if (kind == BW_RESET_INITIALISE) /* the others leave the attitude's block of P as it was */
+        e->field_att_extra = BW_R(0.0);
 }
 
 void bw_ekf_initialise(bw_ekf_t *e, const bw_config_t *c, const bw_real q[4], bw_real pos_d)

@@ -29,6 +29,8 @@ from __future__ import annotations
 
 import math
 
+from firmware_py.estimator.state import ATT_D, ATT_E, ATT_N
+
 SOURCES = ("accel", "align", "radius", "baro", "mag")
 ACCEL, ALIGN, RADIUS, BARO, MAG = range(len(SOURCES))
 CONSISTENCY_S = 20.0  # averaging time of each source's NIS
@@ -79,16 +81,18 @@ class Consistency:
 def field_variance(P, bn: float, be: float, bd: float) -> float:
     """The attitude's variance about the unit axis (bn, be, bd) (the magnetic field's), b^T P_att b, rad^2."""
     return float(
-        bn * (bn * P[6, 6] + 2.0 * (be * P[6, 7] + bd * P[6, 8]))
-        + be * (be * P[7, 7] + 2.0 * bd * P[7, 8])
-        + bd * bd * P[8, 8]
+        bn * (bn * P[ATT_N, ATT_N] + 2.0 * (be * P[ATT_N, ATT_E] + bd * P[ATT_N, ATT_D]))
+        + be * (be * P[ATT_E, ATT_E] + 2.0 * bd * P[ATT_E, ATT_D])
+        + bd * bd * P[ATT_D, ATT_D]
     )
 
 
 def correlated_weight(nis: float, dt_s: float, corr_s: float) -> float:
     """The share of a fusion's information that counts where the source's misfit is correlated over ``corr_s``:
-    its innovations, ``nis`` times their expected variance, are a model error worth dt / corr_s independent
-    samples per sample; where they are smaller than the noise the filter assumed (nis < dt / corr_s), all of it."""
+    ``dt_s / (nis corr_s)``, ``dt_s`` the source's interval and ``nis`` its windowed NIS against the noise it was
+    fused with. Its innovations, ``nis`` times that noise, are a model error worth dt / corr_s independent samples
+    per sample: a consistent filter (nis = 1) counts dt / corr_s of what it fused, one whose innovations are far
+    smaller than its noise (nis <= dt / corr_s) all of it, never more."""
     return 1.0 if nis * corr_s <= dt_s else dt_s / (nis * corr_s)
 
 
@@ -100,13 +104,15 @@ def field_attitude_extra(
     About that axis the magnetometer sees nothing and only the accelerometer (its tilt, cos I of it, and on the
     taut tether the pull's azimuth) and the alignment (through the position) hold the attitude. Both fuse every
     sample as if their misfit were white, but what they misfit is the rope's waves and the drag's lag behind the
-    wind, correlated over seconds: P about that axis shrinks as if it had ten times the data, and the wind across
+    wind, correlated over seconds: P about that axis shrinks as if it had a hundred times the data, and the wind across
     the lean follows the attitude's slow error (docs/estimator.md, "Honest accuracy"). So beside P the same
     step is taken again, each fusion's information 1/v_after - 1/v_before counted with its weight
-    (``correlated_weight``: the accelerometer's, the alignment's; the barometer's, the winch's and the
-    magnetometer's fully) from the prediction's variance ``v_pred`` (P's after the step's prediction, plus
-    ``extra``) through ``v_accel`` (after the accelerometer), ``v_aids`` (after the barometer, the winch, the
-    magnetometer) to ``v_end`` (after the tether)."""
+    (``correlated_weight``: the accelerometer's, the alignment's (with the radius's rows, fused with it); the
+    barometer's, the winch's and the magnetometer's fully) from the prediction's variance ``v_pred`` (P's after the
+    step's prediction, plus ``extra``) through ``v_accel`` (after the accelerometer), ``v_aids`` (after the
+    barometer, the winch, the magnetometer) to ``v_end`` (after the tether). Simplified: the prediction adds P's own
+    growth only (a gyro bias error would add to it), and what reaches the attitude through its correlations counts
+    as if the field's axis were seen directly."""
     s = v_pred + extra
     for v0, v1, w in ((v_pred, v_accel, w_accel), (v_accel, v_aids, 1.0), (v_aids, v_end, w_align)):
         inv = 1.0 / s + w * (1.0 / v1 - 1.0 / v0) if v0 > 0.0 and v1 > 0.0 and s > 0.0 else 0.0

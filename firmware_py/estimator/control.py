@@ -50,6 +50,7 @@ from firmware_py.estimator.params import (
     GYRO_MAX,
     JOIN_IN_FLIGHT_US,
     LEAN_BIAS_RAD,
+    LEAN_COS_MIN,
     LEARN_DRAG_AFTER_S,
     LIGHT_AIR_SIGMA_U_MPS,
     MAG_MAX,
@@ -308,7 +309,6 @@ class Estimator:
         self._last_gyro = (gx, gy, gz)
         ekf.time_us = self.t_filter_us
         ekf.begin_update()
-        resets = ekf.reset_count
         v_pred = self._field_variance()
         control_accel(self, ax, ay, az)
         v_accel = self._field_variance()
@@ -324,11 +324,16 @@ class Estimator:
             c.numeric_resets += 1
             self._reinitialise_in_flight(ax, ay, az, mx, my, mz, mag_ok)
             return True
-        if ekf.reset_count == resets and ekf.mode != MODE_GROUND:
-            nis, dt, corr = self.consistency.nis, ekf.dt, ACCEL_MODEL_CORR_S
+        if ekf.mode != MODE_GROUND:
+            # each source's windowed NIS against the noise it was fused with (the accelerometer's is kept against
+            # its nominal noise), each over its own interval (the alignment's every taut_every steps)
+            nominal = self.accel_taut_var if ekf.mode == MODE_TAUT else self.accel_var
+            nis_accel = self.consistency.nis[ACCEL] * nominal / (nominal + self._accel_var_excess)
+            dt, corr = ekf.dt, ACCEL_MODEL_CORR_S
             ekf.field_att_extra = field_attitude_extra(
                 ekf.field_att_extra, v_pred, v_accel, v_aids, self._field_variance(),
-                correlated_weight(nis[ACCEL], dt, corr), correlated_weight(nis[ALIGN], dt, corr),
+                correlated_weight(nis_accel, dt, corr),
+                correlated_weight(self.consistency.nis[ALIGN], self.schedule.taut_every * dt, corr),
             )  # fmt: skip
         else:
             ekf.field_att_extra = 0.0
@@ -658,7 +663,8 @@ class Estimator:
         zn, ze, zd = r[2], r[5], r[8]  # the body's down axis, along the rope
         lean = math.hypot(zn, ze)
         cross_var = 0.0
-        if lean > 0.0:  # across the lean; and what P does not hold about the field's axis, across and (a half) along
+        if lean > 0.0:  # across the lean; what P does not hold about the field's axis, across and along (the square
+            # law: half the wind's error, a quarter of its variance, as lean_bias_wind's)
             cn, ce = ze / lean, -zn / lean
             cross_var = lean_variance(ekf.P, cn, ce, zn, ze, zd)
             bn, be, bd = self.field_ned
@@ -667,6 +673,8 @@ class Estimator:
                 across = ((-ce * zd) * bn + (cn * zd) * be + (ce * zn - cn * ze) * bd) / b
                 along = ((cn * zd) * bn + (ce * zd) * be + (-cn * zn - ce * ze) * bd) / b
                 cross_var += ekf.field_att_extra * (across * across + 0.25 * along * along)
+            # a displacement across turns the lean's azimuth by itself over sin(lean), a tilt d by d / tan(lean)
+            cross_var /= max(zd, LEAN_COS_MIN) ** 2
         return lean_bias_wind(wn, we, m.lift_n(self.rho), float(ekf.x[DRAG]) * self.rho * m.half_cd_area_m2,
                               LEAN_BIAS_RAD, self.field_ned, cross_var)  # fmt: skip
 

@@ -168,7 +168,7 @@ class WindEkf:
         self.reset_counts = [0] * len(RESET_NAMES)
         self.reset_count = 0
         # the attitude's variance about the magnetic field's axis that P does not hold, rad^2
-        # (consistency.field_attitude_extra); a re-placement starts it again from P
+        # (consistency.field_attitude_extra); an initialisation starts it again from P
         self.field_att_extra = 0.0
 
     _VIEWS = (
@@ -246,7 +246,8 @@ class WindEkf:
         all; the post-flight smoother cuts its chain where ``reset_count`` changes (postflight/reprocess.py)."""
         self.reset_counts[kind] += 1
         self.reset_count += 1
-        self.field_att_extra = 0.0
+        if kind == RESET_INITIALISE:  # the others leave the attitude's block of P as it was
+            self.field_att_extra = 0.0
 
     # ------------------------------------------------------------------ prediction
 

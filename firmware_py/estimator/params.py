@@ -27,6 +27,10 @@ ROPE_SHAPE_S = 60.0
 # the tilt's systematic error (accelerometer bias 1-3 mg, the learnt field's direction): what no averaging
 # removes from the lean, so from the wind in calm air, where the lean is a degree (consistency.py)
 LEAN_BIAS_RAD = 0.0035
+# the attitude's variance across the lean is a displacement of the body's axis, which turns the lean's azimuth by
+# itself over sin(lean) (a tilt d turns it by d / tan(lean)): over cos^2(lean) into lean_bias_wind, the lean taken at
+# most to acos of this (84 deg), where the azimuth is held by the whole of a heading error
+LEAN_COS_MIN = 0.1
 # the drag scale learnt in a free ascent is worth at most this (1-sigma, relative): the ascent's model leaves
 # out the vertical air and the gusts (a downdraft through the climb reads as drag: +20 % in class B gusts).
 # It learns only while the rope's pull is known to this share of the net lift (control._rope_load_known)
@@ -77,8 +81,8 @@ ACCEL_INNOV_S = 2.0  # averaging time of the accelerometer's innovations that se
 # heading lost what the accelerometer tells of it where the model fits (the real rope's multisine: band skill
 # 0.76 -> 0.57), and the bias in light air, where it must be learnt in flight. What the heading's full gain takes from
 # a correlated misfit is stated instead: the accuracy carries the attitude's variance about the field's axis with
-# the accelerometer's and the alignment's information worth dt / ACCEL_MODEL_CORR_S samples per sample wherever
-# their innovations reach the noise assumed (consistency.field_attitude_extra)
+# the accelerometer's and the alignment's information worth dt / (NIS ACCEL_MODEL_CORR_S) of what they fused, NIS
+# against the noise fused (dt / ACCEL_MODEL_CORR_S for a consistent source; consistency.field_attitude_extra)
 ACCEL_MODEL_CORR_S = 1.0
 TAUT_PULL_S = 1.0  # after a slack spell the rope must pull this long before the filter is taut again
 MEAN_WIND_S = 60.0  # averaging time of the mean wind that scales the wind's process noise

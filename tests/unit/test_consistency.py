@@ -8,7 +8,9 @@ import math
 import numpy as np
 import pytest
 
+from firmware_py.estimator.aid_sources.tether import lean_variance
 from firmware_py.estimator.consistency import correlated_weight, field_attitude_extra, field_variance
+from firmware_py.estimator.state import ATT_D, ATT_N
 
 DT = 0.01
 
@@ -34,24 +36,26 @@ def test_a_discounted_fusion_is_the_filter_with_that_much_less_data(w):
         honest = kalman(honest, q, r / w)[1]
     assert p + extra == pytest.approx(honest, rel=1e-9)
     assert (p + extra) / p == pytest.approx(w**-0.5, rel=0.02)
-    assert (extra == 0.0) == (w == 1.0)
+    assert (extra == pytest.approx(0.0, abs=1e-18)) == (w == 1.0)
 
 
 def test_the_other_slots_are_weighted_apart():
     """The three slots are the accelerometer (its weight), the barometer, winch and magnetometer (all of it), the
-    tether (its weight): information in a fully weighted slot adds no extra; a reset (v_pred, nothing fused) keeps
-    what there was, and a fusion that (with a clipped gain) grows the variance takes nothing away."""
-    assert field_attitude_extra(0.0, 2e-5, 2e-5, 1e-5, 1e-5, 0.01, 0.01) == 0.0
+    tether (its weight): information in a fully weighted slot adds no extra; a step with nothing fused keeps what
+    there was; a fusion that (with a clipped gain) grows the variance grows it beside P too (by less: the weight),
+    and a variance that is not there (NaN, 0, negative) skips its slot."""
+    assert field_attitude_extra(0.0, 2e-5, 2e-5, 1e-5, 1e-5, 0.01, 0.01) == pytest.approx(0.0, abs=1e-18)
     assert field_attitude_extra(0.0, 2e-5, 2e-5, 2e-5, 1e-5, 1.0, 0.01) > 0.0
     assert field_attitude_extra(3e-6, 2e-5, 2e-5, 2e-5, 2e-5, 0.01, 0.01) == pytest.approx(3e-6)
-    assert field_attitude_extra(3e-6, 2e-5, 2.1e-5, 2.1e-5, 2.1e-5, 0.01, 0.01) >= 0.0
+    grown = field_attitude_extra(3e-6, 2e-5, 2.1e-5, 2.1e-5, 2.1e-5, 0.01, 0.01)
+    assert 0.0 < grown < 3e-6
     for bad in (math.nan, 0.0, -1e-5):
         assert field_attitude_extra(3e-6, 2e-5, bad, 2e-5, 2e-5, 0.01, 0.01) >= 0.0
 
 
 def test_the_weight_is_the_share_of_independent_samples():
-    """Innovations no larger than the noise the filter assumed count fully (a filter already cautious); beyond
-    that a misfit correlated over tau is worth dt / tau samples per sample, less the larger it is."""
+    """A consistent source (NIS 1) whose misfit is correlated over tau counts dt / tau of what it fused, less the
+    larger its innovations; only innovations far below the noise fused (NIS <= dt / tau) count fully."""
     assert correlated_weight(0.0, DT, 1.0) == 1.0
     assert correlated_weight(DT, DT, 1.0) == 1.0
     assert correlated_weight(1.0, DT, 1.0) == pytest.approx(DT)
@@ -65,4 +69,23 @@ def test_the_field_variance_is_the_covariance_along_its_axis():
     P = a @ a.T
     b = rng.normal(size=3)
     b /= np.linalg.norm(b)
-    assert field_variance(P, *b) == pytest.approx(float(b @ P[6:9, 6:9] @ b), rel=1e-12)
+    att = slice(ATT_N, ATT_D + 1)
+    assert field_variance(P, *b) == pytest.approx(float(b @ P[att, att] @ b), rel=1e-12)
+
+
+@pytest.mark.parametrize("lean_deg", [2.0, 30.0, 70.0])
+def test_the_extra_projects_on_the_lean_as_the_attitudes_covariance_does(lean_deg):
+    """An attitude covariance of e along the field's axis alone, seen across the lean by tether.lean_variance,
+    is what the estimator adds for an extra of e (across^2, control.lean_wind_mps), for any lean and field."""
+    rng = np.random.default_rng(int(lean_deg))
+    for _ in range(20):
+        b = rng.normal(size=3)
+        b /= np.linalg.norm(b)
+        az = rng.uniform(0.0, 2.0 * math.pi)
+        lean = math.radians(lean_deg)
+        zn, ze, zd = math.sin(lean) * math.cos(az), math.sin(lean) * math.sin(az), math.cos(lean)
+        cn, ce = ze / math.sin(lean), -zn / math.sin(lean)
+        P = np.zeros((19, 19))
+        P[ATT_N : ATT_D + 1, ATT_N : ATT_D + 1] = 1e-4 * np.outer(b, b)
+        across = (-ce * zd) * b[0] + (cn * zd) * b[1] + (ce * zn - cn * ze) * b[2]
+        assert lean_variance(P, cn, ce, zn, ze, zd) == pytest.approx(1e-4 * across**2, rel=1e-9, abs=1e-18)

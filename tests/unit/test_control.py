@@ -144,3 +144,32 @@ def test_the_ascent_is_weighed_from_what_it_told_however_long_ago():
     assert est._ascent_var == 0.0 and ekf.reset_counts[RESET_DRAG] == 2
     assert ekf.x[DRAG] == pytest.approx(v * (prior / prior_var + data / data_var))
     assert ekf.P[DRAG, DRAG] == pytest.approx(v + walked)
+
+
+def test_what_p_does_not_hold_about_the_field_is_kept_beside_it_and_stated():
+    """The attitude's variance about the field's axis that P does not hold (consistency.field_attitude_extra): none
+    on the ground, grown in flight (the accelerometer and the alignment misfit in a correlated way), kept through a
+    re-placement (which leaves the attitude's block of P as it was), started again by an initialisation; and the
+    stated wind accuracy on the taut tether carries it (larger with it than without)."""
+    samples, _ = stream("reduced-balloon", 120.0, 5)
+    est = Estimator(_reduced())
+    ground, taut = [], []
+    for s in samples:
+        if s.baro:
+            est.on_baro(s.time_usec, *s.baro)
+        est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
+        (taut if est.ekf.mode == MODE_TAUT else ground if est.mode_name == "ground" else []).append(
+            est.ekf.field_att_extra)
+    ekf = est.ekf
+    assert ground and max(ground) == 0.0
+    assert ekf.mode == MODE_TAUT and max(taut) > 0.0 and all(math.isfinite(v) and v >= 0.0 for v in taut)
+    extra = ekf.field_att_extra
+    stated = est.wind_accuracy()
+    ekf.field_att_extra = 0.0
+    assert est.wind_accuracy() < stated
+    ekf.field_att_extra = extra
+    ekf.reset(RESET_TAUT)
+    ekf.reset(RESET_HEIGHT)
+    assert ekf.field_att_extra == extra
+    ekf.reset(RESET_INITIALISE)
+    assert ekf.field_att_extra == 0.0
