@@ -7,10 +7,11 @@ Flies each flight of ``benchmarks.bench_envelope``'s sample on the Python core (
 prints, over the scored part (from 120 s), the RMS wind error against the truth, the drag scale learnt beside the
 one flown (the truth's C_d over the design's) and the RMS of each term of the reported accuracy
 (``Estimator.wind_accuracy``): the covariance's, the drag scale's and the tilt's systematic terms, the consistency
-monitor's mean factor and its windowed NIS per source; how far the barometer offset state walked in its worst 20 s
-against its own stated 1-sigma (the rope model's disagreement with the barometer, which no single innovation
-shows); and the attitude's RMS error about the magnetic field's axis (which the magnetometer cannot see) against
-its stated 1-sigma, with its correlation with the wind's error across the mean wind."""
+monitor's mean factor and its windowed NIS per source (the accelerometer's also per body axis); how far the
+barometer offset state walked in its worst 20 s against its own stated 1-sigma (the rope model's disagreement with
+the barometer, which no single innovation shows); and the attitude's RMS error about the magnetic field's axis
+(which the magnetometer cannot see) against its stated 1-sigma, with its correlation with the wind's error across
+the mean wind."""
 
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from balloon_core.rotation import quat_from_euler, rotation  # noqa: E402
 from benchmarks.bench_envelope import sample, sections_of  # noqa: E402
-from firmware_py.estimator.consistency import SOURCES, systematic_variance  # noqa: E402
+from firmware_py.estimator.consistency import NIS_CLIP, SOURCES, systematic_variance  # noqa: E402
 from firmware_py.estimator.control import Estimator  # noqa: E402
 from firmware_py.estimator.state import ATT_D, ATT_N, BARO_OFF, DRAG  # noqa: E402
 from sim_hil.simulator import TRUTH_COLUMNS, Simulation  # noqa: E402
@@ -54,7 +55,9 @@ def terms(point: dict, duration_s: float) -> dict[str, float]:
         lean = est.lean_wind_mps()
         rows.append((s.time_usec * 1e-6, wn, we, est.wind_accuracy(), ekf.wind_accuracy() ** 2,
                      systematic_variance(speed, k, kv, 0.0), lean**2, est.consistency.inflation, float(ekf.x[BARO_OFF]),
-                     float(ekf.P[BARO_OFF, BARO_OFF]), k, *est.consistency.nis))  # fmt: skip
+                     float(ekf.P[BARO_OFF, BARO_OFF]), k, *est.consistency.nis,
+                     *(min(a.innov**2 / max(a.innov_var - est._accel_var_excess, 1e-12), NIS_CLIP)
+                       for a in est.accel_status)))  # fmt: skip
         att.append((*ekf.q.tolist(), *est.field_ned, *ekf.P[ATT_N : ATT_D + 1, ATT_N : ATT_D + 1].ravel(),
                     ekf.field_att_extra))
     r = np.array(rows)
@@ -77,6 +80,8 @@ def terms(point: dict, duration_s: float) -> dict[str, float]:
     out["speed_error_pct"] = 100.0 * (speed_est / speed_true - 1.0)
     for j, name in enumerate(SOURCES):
         out[f"nis_{name}"] = float(r[late, 11 + j].mean())
+    for j, axis in enumerate("xyz"):  # the accelerometer's, per body axis (z along the rope)
+        out[f"nis_accel_{axis}"] = float(r[late, 11 + len(SOURCES) + j].mean())
     out.update(about_field(np.array(att)[late], r[late], truth, tn, te))
     return out
 
@@ -121,10 +126,10 @@ def main(argv: list[str] | None = None) -> int:
             return 2
     print("| flight | wind | rope | error | speed error | drag scale (truth's C_d / design's) | accuracy "
           "| = sqrt(P^2 + drag^2 + tilt^2) x inflation | error/accuracy "
-          "| worst 20 s offset walk / its sigma | NIS " + " ".join(SOURCES) + " "
+          "| worst 20 s offset walk / its sigma | NIS " + " ".join(SOURCES) + " | accel NIS body x y z "
           "| attitude about the field: RMS error / P's / stated, deg "
           "| its correlation with the cross-wind error (RMS) |")  # fmt: skip
-    print("|---|---|---|---:|---:|---:|---:|---|---:|---:|---|---:|---:|")
+    print("|---|---|---|---:|---:|---:|---:|---|---:|---:|---|---|---:|---:|")
     for f in a.flights:
         p = points[f]
         t = terms(p, duration)
@@ -134,6 +139,7 @@ def main(argv: list[str] | None = None) -> int:
               f"sqrt({t['P']:.3f}^2 + {t['drag']:.3f}^2 + "
               f"{t['tilt']:.3f}^2) x {t['inflation']:.2f} | {t['error'] / t['accuracy']:.2f} | "
               f"{t['offset_walk_m']:.1f} m / {t['offset_sigma_m']:.2f} m | {nis} | "
+              f"{t['nis_accel_x']:.2f} {t['nis_accel_y']:.2f} {t['nis_accel_z']:.2f} | "
               f"{t['about_field_deg']:.2f} / {t['about_field_sigma_deg']:.2f} / {t['about_field_stated_deg']:.2f} | "
               f"{t['about_field_cross_corr']:+.2f} ({t['cross_error']:.2f} m/s) |", flush=True)  # fmt: skip
     return 0
