@@ -33,7 +33,8 @@ void bw_consistency_evaluate(bw_consistency_t *m)
     m->inflation = BW_SQRT(worst);
 }
 
-/* consistency.py field_variance: the attitude's variance about the field's axis in P (0 while it is unknown) */
+/* control.py _field_variance (consistency.py field_variance on the unit field): the attitude's variance about the
+ * field's axis in P, 0 while the field is unknown */
 bw_real bw_field_variance(const bw_ekf_t *e, const bw_real field_ned[3])
 {
     bw_real b = BW_SQRT(field_ned[0] * field_ned[0] + field_ned[1] * field_ned[1] + field_ned[2] * field_ned[2]), bn,
@@ -67,6 +68,27 @@ bw_real bw_field_attitude_extra(bw_real extra, bw_real v_pred, bw_real v_accel, 
             s = BW_R(1.0) / inv;
     }
     return isfinite(s) ? BW_MAX(BW_R(0.0), s - v_end) : BW_R(0.0);
+}
+
+/* consistency.py lean_tilt_variance: the tilt variance across the lean that bw_lean_bias_wind takes, from P's
+ * displacement variance across it and what P does not hold about the field's axis (across, and a quarter along),
+ * over cos^2(lean) */
+bw_real bw_lean_tilt_variance(bw_real cross_var, bw_real extra, const bw_real field_ned[3], bw_real zn, bw_real ze,
+                              bw_real zd)
+{
+    const bw_real lean = BW_SQRT(zn * zn + ze * ze);
+    bw_real cn, ce, b, across, along, c;
+    if (!(lean > BW_R(0.0)))
+        return cross_var;
+    cn = ze / lean, ce = -zn / lean;
+    b = BW_SQRT(field_ned[0] * field_ned[0] + field_ned[1] * field_ned[1] + field_ned[2] * field_ned[2]);
+    if (b > BW_R(0.0)) {
+        across = ((-ce * zd) * field_ned[0] + (cn * zd) * field_ned[1] + (ce * zn - cn * ze) * field_ned[2]) / b;
+        along = zd * (cn * field_ned[0] + ce * field_ned[1]) / b;
+        cross_var += extra * (across * across + BW_R(0.25) * along * along);
+    }
+    c = BW_MAX(zd, (bw_real)BW_LEAN_COS_MIN);
+    return cross_var / (c * c);
 }
 
 bw_real bw_systematic_variance(bw_real speed_mps, bw_real drag_scale, bw_real drag_scale_var, bw_real lean_wind_mps)

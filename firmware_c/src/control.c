@@ -650,25 +650,14 @@ bw_real bw_wind_accuracy(const bw_estimator_t *est)
         const bw_model_t *m = &e->m;
         bw_real lean = BW_R(0.0);
         if (e->mode == BW_MODE_TAUT) {
-            /* the attitude's variance across the lean (control.py lean_wind_mps) */
+            /* the attitude's variance across the lean, as a tilt (control.py lean_wind_mps) */
             bw_real r[9], zn, ze, zd, tilt, cross_var = BW_R(0.0);
             bw_rotation(e->q, r);
             zn = r[2], ze = r[5], zd = r[8];
             tilt = BW_HYPOT(zn, ze);
-            if (tilt > BW_R(0.0)) {
-                /* and what P does not hold about the field's axis, across and along the lean (a quarter of the
-                 * variance: the square law) */
-                const bw_real cn = ze / tilt, ce = -zn / tilt, *fb = est->field_ned;
-                const bw_real b = BW_SQRT(fb[0] * fb[0] + fb[1] * fb[1] + fb[2] * fb[2]);
-                cross_var = bw_lean_variance(e, cn, ce, zn, ze, zd);
-                if (b > BW_R(0.0)) {
-                    const bw_real across = ((-ce * zd) * fb[0] + (cn * zd) * fb[1] + (ce * zn - cn * ze) * fb[2]) / b;
-                    const bw_real along = ((cn * zd) * fb[0] + (ce * zd) * fb[1] + (-cn * zn - ce * ze) * fb[2]) / b;
-                    cross_var += e->field_att_extra * (across * across + BW_R(0.25) * along * along);
-                }
-                /* a displacement across turns the azimuth by itself over sin(lean), a tilt d by d / tan(lean) */
-                cross_var /= BW_MAX(zd, (bw_real)BW_LEAN_COS_MIN) * BW_MAX(zd, (bw_real)BW_LEAN_COS_MIN);
-            }
+            if (tilt > BW_R(0.0))
+                cross_var = bw_lean_variance(e, ze / tilt, -zn / tilt, zn, ze, zd);
+            cross_var = bw_lean_tilt_variance(cross_var, e->field_att_extra, est->field_ned, zn, ze, zd);
             lean = bw_lean_bias_wind(wn, we, bw_lift_n(m, est->rho), e->x[BW_DRAG] * est->rho * m->half_cd_area_m2,
                                      (bw_real)BW_LEAN_BIAS_RAD, est->field_ned, cross_var);
         }

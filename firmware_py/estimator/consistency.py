@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 
+from firmware_py.estimator.params import LEAN_COS_MIN
 from firmware_py.estimator.state import ATT_D, ATT_E, ATT_N
 
 SOURCES = ("accel", "align", "radius", "baro", "mag")
@@ -89,10 +90,10 @@ def field_variance(P, bn: float, be: float, bd: float) -> float:
 
 def correlated_weight(nis: float, dt_s: float, corr_s: float) -> float:
     """The share of a fusion's information that counts where the source's misfit is correlated over ``corr_s``:
-    ``dt_s / (nis corr_s)``, ``dt_s`` the source's interval and ``nis`` its windowed NIS against the noise it was
-    fused with. Its innovations, ``nis`` times that noise, are a model error worth dt / corr_s independent samples
-    per sample: a consistent filter (nis = 1) counts dt / corr_s of what it fused, one whose innovations are far
-    smaller than its noise (nis <= dt / corr_s) all of it, never more."""
+    ``dt_s / (nis corr_s)``, ``dt_s`` the source's interval and ``nis`` its windowed NIS against (about) the noise it
+    was fused with. Its innovations, ``nis`` times that noise, are a model error worth dt / corr_s independent
+    samples per sample: a consistent filter (nis = 1) counts dt / corr_s of what it fused, one whose innovations are
+    far smaller than its noise (nis <= dt / corr_s) all of it, never more."""
     return 1.0 if nis * corr_s <= dt_s else dt_s / (nis * corr_s)
 
 
@@ -119,6 +120,31 @@ def field_attitude_extra(
         if inv > 0.0:
             s = 1.0 / inv
     return max(0.0, s - v_end) if math.isfinite(s) else 0.0
+
+
+def lean_tilt_variance(
+    cross_var: float, extra: float, field_ned: tuple[float, float, float], zn: float, ze: float, zd: float
+) -> float:  # fmt: skip
+    """The tilt variance across the lean that ``lean_bias_wind`` takes (rad^2: a tilt d turns the lean's azimuth by
+    d / tan(lean)), from the variance of the body's down axis z = (zn, ze, zd) displaced across the lean,
+    ``cross_var`` (P's, tether.lean_variance), and ``extra``, the attitude's variance about the magnetic field's axis
+    that P does not hold (``field_attitude_extra``). A rotation about the field's axis displaces z across the lean by
+    sin(lean) of the azimuth's turn and along it by cos(lean) of the lean's; a quarter of the latter's variance
+    counts (the square law: the speed moves by half the lean's relative change, at the small leans where the
+    barometer does not hold the lean). A displacement across turns the azimuth by itself over sin(lean), so both are
+    taken over cos^2(lean), the lean at most acos(``LEAN_COS_MIN``). The field unknown (NaN): P's alone."""
+    lean = math.sqrt(zn * zn + ze * ze)
+    if not lean > 0.0:
+        return cross_var
+    cn, ce = ze / lean, -zn / lean  # across the lean, horizontal
+    bn, be, bd = field_ned
+    b = math.sqrt(bn * bn + be * be + bd * bd)
+    if b > 0.0:
+        across = ((-ce * zd) * bn + (cn * zd) * be + (ce * zn - cn * ze) * bd) / b
+        along = zd * (cn * bn + ce * be) / b
+        cross_var += extra * (across * across + 0.25 * along * along)
+    c = max(zd, LEAN_COS_MIN)
+    return cross_var / (c * c)
 
 
 def systematic_variance(
@@ -152,10 +178,10 @@ def lean_bias_wind(
     a 30 deg lean F is 2.3 blown towards magnetic north (the rope from the balloon points away from the
     field) and 0.3 blown south (the rope along the field).
 
-    ``cross_tilt_var`` (rad^2): the filter's own attitude variance across the lean (the body axis's displacement,
-    c . d z / d att P_att (..)^T), which turns the azimuth the same way. The alignment takes it as white noise,
-    and the position and the wind average it away; but the attitude's error is slow (about the field's axis
-    only the accelerometer holds it), so its share of the wind is stated here."""
+    ``cross_tilt_var`` (rad^2): the filter's own attitude variance across the lean as a tilt (``lean_tilt_variance``:
+    P's and what P does not hold about the field's axis), which turns the azimuth the same way. The alignment
+    takes it as white noise, and the position and the wind average it away; but the attitude's error is slow (about
+    the field's axis only the accelerometer holds it), so its share of the wind is stated here."""
     speed = math.sqrt(wind_n * wind_n + wind_e * wind_e)
     if not (drag_per_speed2 > 0.0 and lift_n > 0.0):
         return 0.0

@@ -28,6 +28,7 @@ from firmware_py.estimator.consistency import (
     field_attitude_extra,
     field_variance,
     lean_bias_wind,
+    lean_tilt_variance,
     systematic_variance,
 )
 from firmware_py.estimator.ekf import RESET_DRAG, FusionStatus, WindEkf
@@ -50,7 +51,6 @@ from firmware_py.estimator.params import (
     GYRO_MAX,
     JOIN_IN_FLIGHT_US,
     LEAN_BIAS_RAD,
-    LEAN_COS_MIN,
     LEARN_DRAG_AFTER_S,
     LIGHT_AIR_SIGMA_U_MPS,
     MAG_MAX,
@@ -325,8 +325,8 @@ class Estimator:
             self._reinitialise_in_flight(ax, ay, az, mx, my, mz, mag_ok)
             return True
         if ekf.mode != MODE_GROUND:
-            # each source's windowed NIS against the noise it was fused with (the accelerometer's is kept against
-            # its nominal noise), each over its own interval (the alignment's every taut_every steps)
+            # each source's windowed NIS against (about) the noise it was fused with (the accelerometer's is kept
+            # against its nominal noise), each over its own interval (the alignment's every taut_every steps)
             nominal = self.accel_taut_var if ekf.mode == MODE_TAUT else self.accel_var
             nis_accel = self.consistency.nis[ACCEL] * nominal / (nominal + self._accel_var_excess)
             dt, corr = ekf.dt, ACCEL_MODEL_CORR_S
@@ -652,8 +652,9 @@ class Estimator:
         return field_variance(self.ekf.P, bn / b, be / b, bd / b) if b > 0.0 else 0.0
 
     def lean_wind_mps(self) -> float:
-        """The wind error of the tilt's systematic error on the taut tether (consistency.lean_bias_wind), m/s;
-        0 off it."""
+        """The wind error of the tilt's systematic error and of the attitude's variance across the lean (P's and what
+        P does not hold about the field's axis: consistency.lean_tilt_variance) on the taut tether
+        (consistency.lean_bias_wind), m/s; 0 off it."""
         ekf = self.ekf
         if ekf.mode != MODE_TAUT:
             return 0.0
@@ -662,21 +663,10 @@ class Estimator:
         r = rotation(*ekf.q.tolist())
         zn, ze, zd = r[2], r[5], r[8]  # the body's down axis, along the rope
         lean = math.hypot(zn, ze)
-        cross_var = 0.0
-        if lean > 0.0:  # across the lean; what P does not hold about the field's axis, across and along (the square
-            # law: half the wind's error, a quarter of its variance, as lean_bias_wind's)
-            cn, ce = ze / lean, -zn / lean
-            cross_var = lean_variance(ekf.P, cn, ce, zn, ze, zd)
-            bn, be, bd = self.field_ned
-            b = math.sqrt(bn * bn + be * be + bd * bd)
-            if b > 0.0:
-                across = ((-ce * zd) * bn + (cn * zd) * be + (ce * zn - cn * ze) * bd) / b
-                along = ((cn * zd) * bn + (ce * zd) * be + (-cn * zn - ce * ze) * bd) / b
-                cross_var += ekf.field_att_extra * (across * across + 0.25 * along * along)
-            # a displacement across turns the lean's azimuth by itself over sin(lean), a tilt d by d / tan(lean)
-            cross_var /= max(zd, LEAN_COS_MIN) ** 2
+        cross_var = lean_variance(ekf.P, ze / lean, -zn / lean, zn, ze, zd) if lean > 0.0 else 0.0  # across the lean
+        tilt_var = lean_tilt_variance(cross_var, ekf.field_att_extra, self.field_ned, zn, ze, zd)
         return lean_bias_wind(wn, we, m.lift_n(self.rho), float(ekf.x[DRAG]) * self.rho * m.half_cd_area_m2,
-                              LEAN_BIAS_RAD, self.field_ned, cross_var)  # fmt: skip
+                              LEAN_BIAS_RAD, self.field_ned, tilt_var)  # fmt: skip
 
     def wind(self) -> tuple[float, float]:
         return float(self.ekf.x[WIND_N]), float(self.ekf.x[WIND_E])

@@ -28,8 +28,8 @@ ROPE_SHAPE_S = 60.0
 # removes from the lean, so from the wind in calm air, where the lean is a degree (consistency.py)
 LEAN_BIAS_RAD = 0.0035
 # the attitude's variance across the lean is a displacement of the body's axis, which turns the lean's azimuth by
-# itself over sin(lean) (a tilt d turns it by d / tan(lean)): over cos^2(lean) into lean_bias_wind, the lean taken at
-# most to acos of this (84 deg), where the azimuth is held by the whole of a heading error
+# itself over sin(lean) (a tilt d turns it by d / tan(lean)): over cos^2(lean) into lean_bias_wind
+# (consistency.lean_tilt_variance), the lean taken at most to acos of this (84 deg: at most x100 in variance)
 LEAN_COS_MIN = 0.1
 # the drag scale learnt in a free ascent is worth at most this (1-sigma, relative): the ascent's model leaves
 # out the vertical air and the gusts (a downdraft through the climb reads as drag: +20 % in class B gusts).

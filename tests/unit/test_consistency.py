@@ -8,8 +8,12 @@ import math
 import numpy as np
 import pytest
 
-from firmware_py.estimator.aid_sources.tether import lean_variance
-from firmware_py.estimator.consistency import correlated_weight, field_attitude_extra, field_variance
+from firmware_py.estimator.consistency import (
+    correlated_weight,
+    field_attitude_extra,
+    field_variance,
+    lean_tilt_variance,
+)
 from firmware_py.estimator.state import ATT_D, ATT_N
 
 DT = 0.01
@@ -49,8 +53,8 @@ def test_the_other_slots_are_weighted_apart():
     assert field_attitude_extra(3e-6, 2e-5, 2e-5, 2e-5, 2e-5, 0.01, 0.01) == pytest.approx(3e-6)
     grown = field_attitude_extra(3e-6, 2e-5, 2.1e-5, 2.1e-5, 2.1e-5, 0.01, 0.01)
     assert 0.0 < grown < 3e-6
-    for bad in (math.nan, 0.0, -1e-5):
-        assert field_attitude_extra(3e-6, 2e-5, bad, 2e-5, 2e-5, 0.01, 0.01) >= 0.0
+    for bad in (math.nan, 0.0, -1e-5):  # the two slots it bounds are skipped, the third adds nothing
+        assert field_attitude_extra(3e-6, 2e-5, bad, 2e-5, 2e-5, 0.01, 0.01) == pytest.approx(3e-6)
 
 
 def test_the_weight_is_the_share_of_independent_samples():
@@ -73,19 +77,30 @@ def test_the_field_variance_is_the_covariance_along_its_axis():
     assert field_variance(P, *b) == pytest.approx(float(b @ P[att, att] @ b), rel=1e-12)
 
 
+def rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
+    """Rodrigues: v turned by ``angle`` about the unit ``axis``."""
+    return v * math.cos(angle) + np.cross(axis, v) * math.sin(angle) + axis * (axis @ v) * (1.0 - math.cos(angle))
+
+
 @pytest.mark.parametrize("lean_deg", [2.0, 30.0, 70.0])
-def test_the_extra_projects_on_the_lean_as_the_attitudes_covariance_does(lean_deg):
-    """An attitude covariance of e along the field's axis alone, seen across the lean by tether.lean_variance,
-    is what the estimator adds for an extra of e (across^2, control.lean_wind_mps), for any lean and field."""
+def test_what_p_does_not_hold_turns_the_lean_as_a_rotation_about_the_field_does(lean_deg):
+    """An attitude error of d about the field's axis b turns the body's down axis z (along the rope) by the rotation:
+    its azimuth by dpsi, its lean by dlambda. lean_tilt_variance with an extra of d^2 is the tilt whose azimuth
+    turn in lean_bias_wind (d / tan(lean)) is that one, tan^2(lean) dpsi^2, with a quarter of dlambda^2 (the square
+    law); P's displacement across the lean counts over cos^2(lean); an unknown field adds nothing."""
     rng = np.random.default_rng(int(lean_deg))
+    lean = math.radians(lean_deg)
+    d = 1e-6
     for _ in range(20):
         b = rng.normal(size=3)
         b /= np.linalg.norm(b)
         az = rng.uniform(0.0, 2.0 * math.pi)
-        lean = math.radians(lean_deg)
-        zn, ze, zd = math.sin(lean) * math.cos(az), math.sin(lean) * math.sin(az), math.cos(lean)
-        cn, ce = ze / math.sin(lean), -zn / math.sin(lean)
-        P = np.zeros((19, 19))
-        P[ATT_N : ATT_D + 1, ATT_N : ATT_D + 1] = 1e-4 * np.outer(b, b)
-        across = (-ce * zd) * b[0] + (cn * zd) * b[1] + (ce * zn - cn * ze) * b[2]
-        assert lean_variance(P, cn, ce, zn, ze, zd) == pytest.approx(1e-4 * across**2, rel=1e-9, abs=1e-18)
+        z = np.array([math.sin(lean) * math.cos(az), math.sin(lean) * math.sin(az), math.cos(lean)])
+        z2 = rotate(z, b, d)
+        dpsi = (math.atan2(z2[1], z2[0]) - az + math.pi) % (2.0 * math.pi) - math.pi
+        dlam = math.atan2(math.hypot(z2[0], z2[1]), z2[2]) - lean
+        want = math.tan(lean) ** 2 * dpsi**2 + 0.25 * dlam**2
+        got = lean_tilt_variance(0.0, d * d, tuple(3.0 * b), *z)
+        assert got == pytest.approx(want, rel=1e-4, abs=1e-8 * d * d)
+        assert lean_tilt_variance(2e-6, 0.0, tuple(b), *z) == pytest.approx(2e-6 / math.cos(lean) ** 2)
+        assert lean_tilt_variance(2e-6, d * d, (math.nan,) * 3, *z) == pytest.approx(2e-6 / math.cos(lean) ** 2)

@@ -153,15 +153,19 @@ def test_what_p_does_not_hold_about_the_field_is_kept_beside_it_and_stated():
     stated wind accuracy on the taut tether carries it (larger with it than without)."""
     samples, _ = stream("reduced-balloon", 120.0, 5)
     est = Estimator(_reduced())
-    ground, taut = [], []
+    ground, taut, entries = [], [], []
     for s in samples:
         if s.baro:
             est.on_baro(s.time_usec, *s.baro)
+        before, placed = est.ekf.field_att_extra, est.ekf.reset_counts[RESET_TAUT]
         est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
+        if est.ekf.reset_counts[RESET_TAUT] > placed:  # a taut entry or re-placement in this step
+            entries.append((before, est.ekf.field_att_extra))
         (taut if est.ekf.mode == MODE_TAUT else ground if est.mode_name == "ground" else []).append(
             est.ekf.field_att_extra)
     ekf = est.ekf
     assert ground and max(ground) == 0.0
+    assert entries and all(after >= 0.5 * before > 0.0 for before, after in entries), entries
     assert ekf.mode == MODE_TAUT and max(taut) > 0.0 and all(math.isfinite(v) and v >= 0.0 for v in taut)
     extra = ekf.field_att_extra
     stated = est.wind_accuracy()
