@@ -9,9 +9,10 @@ one flown (the truth's C_d over the design's) and the RMS of each term of the re
 (``Estimator.wind_accuracy``): the covariance's, the drag scale's and the tilt's systematic terms, the consistency
 monitor's mean factor and its windowed NIS per source (the accelerometer's also per body axis, the mean of its
 samples'); how far the barometer offset state walked in its worst 20 s against its own stated 1-sigma (the rope
-model's disagreement with the barometer, which no single innovation shows); and the attitude's RMS error about the
-magnetic field's axis (which the magnetometer cannot see) against its stated 1-sigma, with its correlation with the
-wind's error across the mean wind."""
+model's disagreement with the barometer, which no single innovation shows); the accelerometer's misfit along the
+rope against the truth's acceleration there and the spread of the rope's tension; and the attitude's RMS error about
+the magnetic field's axis (which the magnetometer cannot see) against its stated 1-sigma, with its correlation with
+the wind's error across the mean wind."""
 
 from __future__ import annotations
 
@@ -42,7 +43,7 @@ def terms(point: dict, duration_s: float) -> dict[str, float]:
     sim = Simulation(design, wind, truth_cfg, duration_s, point["seed"])
     est = Estimator(design, dataclasses.replace(filt, core="py"))
     every = int(round(sim.n_imu / duration_s / 10.0))  # 10 Hz rows
-    rows, att = [], []
+    rows, att, along = [], [], []
     for i, s in enumerate(sim.samples()):
         if s.baro:
             est.on_baro(s.time_usec, *s.baro)
@@ -60,6 +61,8 @@ def terms(point: dict, duration_s: float) -> dict[str, float]:
                        for a in est.accel_status)))  # fmt: skip
         att.append((*ekf.q.tolist(), *est.field_ned, *ekf.P[ATT_N : ATT_D + 1, ATT_N : ATT_D + 1].ravel(),
                     ekf.field_att_extra))
+        rb = rotation(*ekf.q.tolist())
+        along.append((est.accel_status[2].innov, rb[2], rb[5], rb[8]))  # the body's z misfit; its axis, NED
     r = np.array(rows)
     truth = {c: sim.truth[:, j] for j, c in enumerate(TRUTH_COLUMNS)}
     late = r[:, 0] >= START_S
@@ -85,6 +88,7 @@ def terms(point: dict, duration_s: float) -> dict[str, float]:
     for j, axis in enumerate("xyz"):
         out[f"nis_accel_{axis}"] = float(r[late, 11 + len(SOURCES) + j].mean())
     out.update(about_field(np.array(att)[late], r[late], truth, tn, te))
+    out.update(along_the_rope(np.array(along)[late], r[late, 0], truth))
     return out
 
 
@@ -114,6 +118,18 @@ def about_field(att: np.ndarray, r: np.ndarray, truth: dict, tn: np.ndarray, te:
             "cross_error": float(np.sqrt(np.mean(cross**2))), "about_field_cross_corr": corr}  # fmt: skip
 
 
+def along_the_rope(along: np.ndarray, t: np.ndarray, truth: dict) -> dict[str, float]:
+    """The accelerometer's misfit along the body's z (the rope's axis) against the truth's acceleration along that
+    axis (its correlation: the balloon moving along its rope, which the taut model holds still) and the spread of
+    the truth's rope tension at the balloon, N."""
+    acc = [np.interp(t, truth["time_s"], np.gradient(truth[c], truth["time_s"])) for c in ("vel_n", "vel_e", "vel_d")]
+    a_along = along[:, 1] * acc[0] + along[:, 2] * acc[1] + along[:, 3] * acc[2]
+    z = along[:, 0]
+    ok = np.std(z) > 0.0 and np.std(a_along) > 0.0
+    return {"accel_z_along_corr": float(np.corrcoef(z, a_along)[0, 1]) if ok else math.nan,
+            "tension_sd_n": float(np.std(np.interp(t, truth["time_s"], truth["tension_n"])))}  # fmt: skip
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("flights", type=int, nargs="+", help="flight numbers of the envelope's sample")
@@ -130,8 +146,10 @@ def main(argv: list[str] | None = None) -> int:
           "| = sqrt(P^2 + drag^2 + tilt^2) x inflation | error/accuracy "
           "| worst 20 s offset walk / its sigma | NIS " + " ".join(SOURCES) + " | accel NIS body x y z "
           "| attitude about the field: RMS error / P's / stated, deg "
-          "| its correlation with the cross-wind error (RMS) |")  # fmt: skip
-    print("|---|---|---|---:|---:|---:|---:|---|---:|---:|---|---|---:|---:|")
+          "| its correlation with the cross-wind error (RMS) "
+          "| accel z misfit: its correlation with the truth's acceleration along the rope; "
+          "the tension's SD |")  # fmt: skip
+    print("|---|---|---|---:|---:|---:|---:|---|---:|---:|---|---|---:|---:|---:|")
     for f in a.flights:
         p = points[f]
         t = terms(p, duration)
@@ -143,7 +161,8 @@ def main(argv: list[str] | None = None) -> int:
               f"{t['offset_walk_m']:.1f} m / {t['offset_sigma_m']:.2f} m | {nis} | "
               f"{t['nis_accel_x']:.2f} {t['nis_accel_y']:.2f} {t['nis_accel_z']:.2f} | "
               f"{t['about_field_deg']:.2f} / {t['about_field_sigma_deg']:.2f} / {t['about_field_stated_deg']:.2f} | "
-              f"{t['about_field_cross_corr']:+.2f} ({t['cross_error']:.2f} m/s) |", flush=True)  # fmt: skip
+              f"{t['about_field_cross_corr']:+.2f} ({t['cross_error']:.2f} m/s) | "
+              f"{t['accel_z_along_corr']:+.2f}; {t['tension_sd_n']:.1f} N |", flush=True)  # fmt: skip
     return 0
 
 

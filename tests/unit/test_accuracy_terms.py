@@ -31,3 +31,13 @@ def test_a_flight_outside_the_sample_is_a_user_error():
     r = subprocess.run([sys.executable, str(ROOT / "tools" / "accuracy_terms.py"), "64", "--quick"],
                        capture_output=True, text=True, cwd=ROOT)  # fmt: skip
     assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "no flight 64" in r.stderr
+
+
+def test_the_misfit_along_the_rope_is_the_balloon_moving_along_it():
+    """In IEC class B gusts on the real rope the accelerometer's misfit along the body's z (the rope's axis, which
+    the taut model holds still) is the balloon's acceleration along its rope, as the truth has it: the rope's pull
+    swings by newtons."""
+    gusts = next(i for i, p in enumerate(sample(64)) if p["wind_kind"] == "gusts" and p["rope_model"] == "lumped")
+    t = terms(sample(64)[gusts], 150.0)
+    assert t["accel_z_along_corr"] > 0.9 and t["nis_accel_z"] > 2.0 > max(t["nis_accel_x"], t["nis_accel_y"])
+    assert t["tension_sd_n"] > 1.0
