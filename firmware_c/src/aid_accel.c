@@ -40,11 +40,17 @@ static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, 
                  BW_R(1.0) - misfit * (BW_R(1.0) - tilt));
 }
 
+/* accel.py accel_nominal_var: the accelerometer's nominal noise in the filter's mode */
+bw_real bw_accel_nominal_var(const bw_estimator_t *est)
+{
+    const int32_t mode = est->ekf.mode;
+    return mode == BW_MODE_GROUND ? est->accel_static_var : mode == BW_MODE_FREE ? est->accel_var : est->accel_taut_var;
+}
+
 void bw_control_accel(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
 {
     const bw_ekf_t *e = &est->ekf;
-    bw_real var = e->mode == BW_MODE_GROUND ? est->accel_static_var : e->mode == BW_MODE_FREE ? est->accel_var
-                                                                                              : est->accel_taut_var;
+    bw_real var = bw_accel_nominal_var(est);
     bw_real nominal = var, i2, misfit;
     const bw_status_t *st = est->accel_status;
     var = BW_MAX(var, est->accel_innov2);

@@ -606,7 +606,7 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
     if (e->mode != BW_MODE_GROUND) {
         /* control.py: each source's NIS against the noise it was fused with, over its own interval */
         const bw_real corr = (bw_real)BW_ACCEL_MODEL_CORR_S;
-        const bw_real nominal = e->mode == BW_MODE_TAUT ? est->accel_taut_var : est->accel_var;
+        const bw_real nominal = bw_accel_nominal_var(est);
         const bw_real nis_accel = est->consistency.nis[BW_ACCEL] * nominal / (nominal + est->accel_var_excess);
         e->field_att_extra = bw_field_attitude_extra(
             e->field_att_extra, v_pred, v_accel, v_aids, bw_field_variance(e, est->field_ned),

@@ -79,6 +79,7 @@ bw_real bw_lean_bias_wind(bw_real wind_n, bw_real wind_e, bw_real lift_n, bw_rea
                           bw_real lean_bias_rad, const bw_real field_ned[3], bw_real cross_tilt_var);
 
 /* aid sources */
+bw_real bw_accel_nominal_var(const bw_estimator_t *est);
 void bw_control_accel(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az);
 int bw_baro_sample(bw_estimator_t *est, int64_t t_us, bw_real pressure_hpa, bw_real temperature_c);
 void bw_control_baro(bw_estimator_t *est);

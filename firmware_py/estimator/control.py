@@ -9,7 +9,7 @@ import math
 from balloon_core.atmosphere import G0, air_density
 from balloon_core.config import Design
 from balloon_core.rotation import quat_from_euler, rotation
-from firmware_py.estimator.aid_sources.accel import control_accel
+from firmware_py.estimator.aid_sources.accel import accel_nominal_var, control_accel
 from firmware_py.estimator.aid_sources.baro import baro_sample, control_baro, reset_height
 from firmware_py.estimator.aid_sources.ground_ref import ground_baro_sample, init_ground_ref
 from firmware_py.estimator.aid_sources.magnetometer import control_mag
@@ -327,7 +327,7 @@ class Estimator:
         if ekf.mode != MODE_GROUND:
             # each source's windowed NIS against (about) the noise it was fused with (the accelerometer's is kept
             # against its nominal noise), each over its own interval (the alignment's every taut_every steps)
-            nominal = self.accel_taut_var if ekf.mode == MODE_TAUT else self.accel_var
+            nominal = accel_nominal_var(self)
             nis_accel = self.consistency.nis[ACCEL] * nominal / (nominal + self._accel_var_excess)
             dt, corr = ekf.dt, ACCEL_MODEL_CORR_S
             ekf.field_att_extra = field_attitude_extra(

@@ -71,14 +71,18 @@ def fuse_accel(
     ekf.fuse3(fx - pred[0], fy - pred[1], fz - pred[2], var, status, var_z_extra, tilt_gain, heading_gain)
 
 
+def accel_nominal_var(est: Estimator) -> float:
+    """The accelerometer's nominal noise in the filter's mode (on the ground, free, taut), (m/s^2)^2."""
+    return (est.accel_static_var, est.accel_var, est.accel_taut_var)[est.ekf.mode]
+
+
 def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
     """Fuse the specific force every step; its noise follows its recent innovations (the force model's
     own error grows when the state is far from the truth, after a placement, or the physics departs from
     the model: a drag crisis, a gust the rate state cannot follow), so that a model that is off does not
     drag the attitude with it (the magnetometer and the gyro keep it)."""
     ekf = est.ekf
-    var = (est.accel_static_var, est.accel_var, est.accel_taut_var)[ekf.mode]
-    nominal = var
+    var = nominal = accel_nominal_var(est)
     var = max(var, est._accel_innov2)
     est._accel_var_excess = var - nominal  # what the consistency monitor takes back out (control._monitor)
     # the accelerometer's windowed NIS (the consistency monitor) from FLAG_NIS to twice that: the model stops
