@@ -305,7 +305,36 @@ def summary(df) -> tuple[str, list[tuple[str, bool]]]:
     ]  # fmt: skip
     lines += ["", "| target | result |", "|---|---|"]
     lines += [f"| {t} | {'PASS' if p else 'FAIL'} |" for t, p in targets]
+    causes = speed_causes(ok)
+    if causes:
+        lines += ["", causes]
     return "\n".join(lines), targets
+
+
+def drag_share_pct(cd_scale, drag_scale):
+    """The speed error (%) the drag scale alone makes: the lean is the truth's pull, k_true U^2 (F ~ C_d U^2), and the
+    filter reads it with its own k, so its wind is sqrt(k_true / k) of the truth's; the truth's C_d is ``cd_scale``
+    times the design's and the filter's ``drag_scale`` times it."""
+    return 100.0 * (np.sqrt(np.asarray(cd_scale, float) / np.asarray(drag_scale, float)) - 1.0)
+
+
+def speed_causes(ok) -> str:
+    """Not a target: how much of the speed misses is the C_d the flight could not learn (``drag_share_pct``)."""
+    if "drag_scale" not in ok or "cd_scale" not in ok or not ok["drag_scale"].notna().any():
+        return ""
+    sp = ok["speed_err_pct"]
+    share = drag_share_pct(ok["cd_scale"], ok["drag_scale"])
+    miss = sp.abs() > 4.0
+    mostly = miss & (np.sign(share) == np.sign(sp)) & (np.abs(share) >= 0.5 * sp.abs())
+    rest = (sp - share).abs()
+    z = (ok["drag_scale"] - ok["cd_scale"]).abs() / ok["drag_scale_sigma"]
+    return (
+        f"what the speed misses are made of (not a target): {int(miss.sum())} flights beyond 4 %, {int(mostly.sum())} "
+        f"of them with at least half the error (same sign) from the drag scale alone (sqrt(truth's C_d / the "
+        f"filter's) - 1: the C_d the flight could not learn); less that share {100 * np.mean(rest <= 4.0):.1f} % of "
+        f"flights are within 4 % (p95 {_pct(rest, 95):.3g} %); the drag scale's error over its stated 1-sigma: p50 "
+        f"{_pct(z, 50):.2f}, p95 {_pct(z, 95):.2f} (honest: 0.67, 1.96)"
+    )
 
 
 def _far(s) -> float:
@@ -319,7 +348,7 @@ def worst_flights(df, k: int = 5) -> str:
     ok["abs_dir"] = ok["dir_err_deg"].abs()
     top = ok.sort_values("abs_dir", ascending=False).head(k)
     cols = ["flight", *PARAMS, "dir_err_deg", "worst_60s_dir_err_deg", "speed_err_pct", "err_acc",
-            "beyond_3sigma", "taut_resets", "band_skill"]  # fmt: skip
+            "beyond_3sigma", "taut_resets", "band_skill", *(["drag_scale"] if "drag_scale" in ok else [])]  # fmt: skip
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for _, r in top.iterrows():
         lines.append("| " + " | ".join(f"{r[c]:.3g}" if isinstance(r[c], float) else str(r[c]) for c in cols) + " |")
@@ -386,7 +415,29 @@ def plots(df, out: Path) -> list[Path]:
     p2 = out / "calibration.png"
     fig.savefig(p2, dpi=110)
     plt.close(fig)
-    return [p1, p2]
+    if "drag_scale" not in ok or not ok["drag_scale"].notna().any():
+        return [p1, p2]
+
+    share = drag_share_pct(ok["cd_scale"], ok["drag_scale"])
+    fig, ax = plt.subplots(figsize=(6.5, 5.5))
+    for kind in WIND_KINDS:
+        m = (ok["wind_kind"] == kind).to_numpy()
+        ax.scatter(share[m], ok["speed_err_pct"][m], s=12, label=kind)
+    lim = float(np.nanmax(np.abs(np.concatenate([share, ok["speed_err_pct"].to_numpy()])))) * 1.05
+    ax.plot([-lim, lim], [-lim, lim], "k--", lw=0.8, label="all of it the drag scale")
+    ax.axhspan(-4.0, 4.0, color="0.88", zorder=0, label="|speed error| <= 4 %")
+    ax.set_xlim(-lim, lim)
+    ax.set_ylim(-lim, lim)
+    ax.set_xlabel("the drag scale's share: sqrt(truth's C_d / the filter's) - 1, %")
+    ax.set_ylabel("speed error of the flight's mean wind, %")
+    ax.set_title(f"speed error against the C_d the flight could not learn, {len(ok)} flights", fontsize=10)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    p3 = out / "speed_error_vs_drag_scale.png"
+    fig.savefig(p3, dpi=110)
+    plt.close(fig)
+    return [p1, p2, p3]
 
 
 # ---------------------------------------------------------------- main

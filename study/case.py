@@ -14,7 +14,7 @@ from balloon_core.config import Design
 from balloon_core.rotation import euler_from_quat
 from balloon_core.score import response, score
 from firmware_py.core_c import new_core
-from firmware_py.estimator.state import ATT_E, ATT_N, FilterConfig
+from firmware_py.estimator.state import ATT_E, ATT_N, DRAG, FilterConfig
 from sim_hil.dynamics import TruthConfig
 from sim_hil.simulator import TRUTH_COLUMNS, Simulation
 from sim_hil.wind import WindConfig
@@ -101,6 +101,9 @@ def metrics(design: Design, wind: WindConfig, rows, truth, est, start_s: float) 
     out["tilt_sigma_deg"] = (
         float(np.degrees(np.sqrt(np.mean(rows[t >= start_s, 7] ** 2)))) if rows.shape[1] > 7 else math.nan
     )
+    # the drag scale the flight ended with and its 1-sigma: against the truth's C_d, the speed error it alone makes
+    out["drag_scale"] = float(est.ekf.x[DRAG])
+    out["drag_scale_sigma"] = math.sqrt(max(0.0, float(est.ekf.P[DRAG, DRAG])))
     return {k: float(v) for k, v in out.items()}
 
 

@@ -28,6 +28,9 @@ METRICS: dict[str, tuple[str, str]] = {
     "resets": ("max", "estimator resets: taut placements + numeric + time + barometer"),
     "tilt_err_deg": ("max", "RMS roll/pitch error of the on-board orientation, deg"),
     "yaw_err_deg": ("max", "RMS heading error of the on-board orientation, deg"),
+    "tilt_sigma_deg": ("max", "RMS of the filter's own 1-sigma tilt (tilt_err_deg over it: honest?), deg"),
+    "drag_scale": ("ratio", "the filter's drag scale at the end (its C_d over the design's; 1: the design's)"),
+    "drag_scale_sigma": ("max", "the drag scale's 1-sigma at the end (relative)"),
     "wall_time_s": ("max", "wall time of the case on its worker, s"),
 }
 #: the default set summarised and plotted

@@ -99,9 +99,28 @@ def test_summary_verdicts():
     assert "| |direction error| deg |" in text and "FAIL" in text
 
 
+def test_the_speed_error_the_drag_scale_alone_makes():
+    # F ~ C_d U^2: a truth with 21 % more drag than the filter's reads 10 % fast, 21 % less drag ~9 % slow
+    assert np.allclose(be.drag_share_pct([1.21, 1.0, 1.0], [1.0, 1.21, 1.0]), [10.0, -100.0 / 11.0, 0.0])
+    n = 10
+    df = pd.DataFrame({
+        "status": ["ok"] * n, "speed_err_pct": [1.0] * (n - 2) + [10.5, -9.0], "dir_err_deg": [0.5] * n,
+        "worst_60s_dir_err_deg": [2.0] * n, "err_acc": [1.0] * n, "beyond_3sigma": [0.0] * n,
+        "replacements_per_h": [0.0] * n, "taut_resets": [0.0] * n, "band_skill": [0.8] * n,
+        "wind_kind": ["kaimal"] * n,
+        # the ninth's miss is its drag scale (the truth's C_d 21 % above the filter's), the tenth's is not
+        "cd_scale": [1.0] * (n - 2) + [1.21, 1.0], "drag_scale": [1.0] * n, "drag_scale_sigma": [0.1] * n,
+    })  # fmt: skip
+    df.attrs["duration_s"] = 600.0
+    text, _ = be.summary(df)
+    assert "2 flights beyond 4 %, 1 of them with at least half the error" in text
+    assert "less that share 90.0 % of flights are within 4 %" in text
+
+
 def test_one_short_flight_through_the_envelope_case():
     c = be.cases(be.sample(3), 100.0, 20.0)[1]
     row = be.envelope_case(c.payload())
     assert row["status"] == "ok", row["error"]
+    assert 0.5 < row["drag_scale"] < 1.5 and 0.0 < row["drag_scale_sigma"] < 2.0 * be.CD_SIGMA
     for k in ("dir_err_deg", "err_acc", "worst_60s_dir_err_deg", "beyond_3sigma", "replacements_per_h", "resets"):
         assert math.isfinite(row[k]), k
