@@ -104,17 +104,25 @@ def test_the_speed_error_the_drag_scale_alone_makes():
     assert np.allclose(be.drag_share_pct([1.21, 1.0, 1.0], [1.0, 1.21, 1.0]), [10.0, -100.0 / 11.0, 0.0])
     n = 10
     df = pd.DataFrame({
-        "status": ["ok"] * n, "speed_err_pct": [1.0] * (n - 2) + [10.5, -9.0], "dir_err_deg": [0.5] * n,
+        "status": ["ok"] * n, "speed_err_pct": [1.0] * (n - 3) + [10.5, -9.0, -9.0], "dir_err_deg": [0.5] * n,
         "worst_60s_dir_err_deg": [2.0] * n, "err_acc": [1.0] * n, "beyond_3sigma": [0.0] * n,
         "replacements_per_h": [0.0] * n, "taut_resets": [0.0] * n, "band_skill": [0.8] * n,
         "wind_kind": ["kaimal"] * n,
-        # the ninth's miss is its drag scale (the truth's C_d 21 % above the filter's), the tenth's is not
-        "cd_scale": [1.0] * (n - 2) + [1.21, 1.0], "drag_scale": [1.0] * n, "drag_scale_sigma": [0.1] * n,
+        # the eighth's miss is its drag scale (the truth's C_d 21 % above the filter's: +10 %); the ninth's is not (no
+        # share), nor the tenth's (a share of +10 % against an error of -9 %: the other sign)
+        "cd_scale": [1.0] * (n - 3) + [1.21, 1.0, 1.21], "drag_scale": [1.0] * n,
+        "drag_scale_sigma": [0.21] * (n - 3) + [0.21, 0.1, 0.21],
     })  # fmt: skip
     df.attrs["duration_s"] = 600.0
     text, _ = be.summary(df)
-    assert "2 flights beyond 4 %, 1 of them with at least half the error" in text
-    assert "less that share 90.0 % of flights are within 4 %" in text
+    assert "3 of 10 flights beyond 4 %, 1 of them with at least half the error" in text
+    # taken out: the eighth is 0.45 % off; the tenth (-9 % less +10 %) is 17 % off
+    assert "with that share taken out 80.0 % of flights are within 4 %" in text
+    # the drag scale's error over its 1-sigma: 0 in eight flights, 1 in two
+    assert "p50 0.00, p95 1.00" in text
+    # rows without a drag scale (an older part) are left out, not counted as misses
+    df.loc[0, "drag_scale"] = np.nan
+    assert "3 of 9 flights beyond 4 %" in be.summary(df)[0]
 
 
 def test_one_short_flight_through_the_envelope_case():
