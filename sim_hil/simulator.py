@@ -50,6 +50,17 @@ def _every(imu_hz: float, rate_hz: float, n_imu: int) -> int:
     return max(1, min(round(min(imu_hz / rate_hz, n_imu + 1.0)), n_imu + 1))
 
 
+def rope_steps_per_imu(physics: BalloonPhysics, winch: WinchConfig | None, imu_hz: float) -> int:
+    """The physics steps per IMU sample the lumped rope needs to be integrated at all (``LumpedRope.stable_step_s``)
+    at the shortest line it flies (the winch's, else the tether's): a stiff rope (a high-modulus fibre's EA is
+    hundreds of kN) or a short line of many segments needs more than [truth] physics_hz. 1 without a lumped rope."""
+    if physics.rope is None:
+        return 1
+    shortest = min(winch.lengths_m) if winch is not None and winch.enabled and winch.lengths_m else None
+    rope = physics.rope.at_length(shortest, 0.0) if shortest else physics.rope
+    return max(1, math.ceil(1.0 / (rope.stable_step_s() * imu_hz) - 1e-9))
+
+
 class SimulationDiverged(ValueError):
     """The truth integration blew up: the design is too stiff for the physics step (a user error)."""
 
@@ -90,7 +101,8 @@ class Simulation:
             raise ValueError(f"duration must be finite and > 0, got {duration_s}")
         self.design, self.truth_cfg = design, truth
         self.physics = BalloonPhysics.from_design(design, truth)
-        self.steps_per_imu = max(1, round(truth.physics_hz / imu_hz))
+        # [truth] physics_hz, or finer where the lumped rope needs it (its shortest line is its stiffest)
+        self.steps_per_imu = max(1, round(truth.physics_hz / imu_hz), rope_steps_per_imu(self.physics, winch, imu_hz))
         self.h = 1.0 / (imu_hz * self.steps_per_imu)
         self.baro_every = max(1, round(imu_hz / baro_hz))
         self.n_imu = int(round(duration_s * imu_hz))

@@ -5,14 +5,16 @@ equations written out here, independently of the code under test."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
+import numpy as np
 import pytest
 
 from balloon_core.atmosphere import G0
 from balloon_core.config import Design
 from firmware_py.estimator.catenary import anchored_rope_spread, calm_weight_share, effective_rod, rope_chord
 from sim_hil.dynamics import BalloonPhysics, TruthConfig
-from sim_hil.rope import LumpedRope, rope_airborne, rope_derivative
+from sim_hil.rope import GROUND_STIFFNESS_N_M, RK4_H_LAMBDA_MAX, LumpedRope, rope_airborne, rope_derivative
 
 EA = 20000.0
 LENGTH = 100.0
@@ -185,3 +187,50 @@ def test_anchored_rope_spread_limits():
     spreads = [anchored_rope_spread(W, 50.0 * math.sin(b), 50.0 * math.cos(b)) for b in (0.1, 0.4, 0.8, 1.2)]
     assert all(b > a for a, b in zip(spreads, spreads[1:]))
     assert spreads[2] > 0.5 * W * 50.0  # at 46 deg from the vertical the two differ by half the rope's weight
+
+
+def _chain_eigenvalues(rope: LumpedRope) -> np.ndarray:
+    """The axial chain's eigenvalues, written out here: N - 1 free nodes of mass m between two fixed ends,
+    springs k and dashpots c between neighbours (x'' = -(K x + C x') / m, K = k tridiag(-1, 2, -1))."""
+    n = rope.n_nodes
+    t = 2.0 * np.eye(n) - np.eye(n, k=1) - np.eye(n, k=-1)
+    m = rope.node_mass_kg
+    a = np.block([[np.zeros((n, n)), np.eye(n)], [-rope.seg_k_n_m * t / m, -rope.seg_c_ns_m * t / m]])
+    return np.linalg.eigvals(a)
+
+
+@pytest.mark.parametrize(("ea", "zeta", "length"), [(EA, 0.5, LENGTH), (200000.0, 0.5, LENGTH), (EA, 0.9, 30.0),
+                                                    (1.26e6, 0.2, 150.0)])  # fmt: skip
+def test_the_stable_step_covers_the_stiffest_mode(ea, zeta, length):
+    # the analytic bound against the chain's own eigenvalues: never longer than the stiffest allows, at most a few
+    # per cent shorter (the finite chain's top mode is 2 omega0 sin((N - 1) pi / 2N), a little under 2 omega0)
+    rope = LumpedRope.build(length, KG_M, 0.005, ea, 12, zeta, 1.1, True, 0.0, 0.0)
+    lam = float(np.max(np.abs(_chain_eigenvalues(rope))))
+    h = rope.stable_step_s()
+    assert h * lam <= RK4_H_LAMBDA_MAX + 1e-9
+    assert h * lam >= 0.9 * RK4_H_LAMBDA_MAX or h * math.sqrt(GROUND_STIFFNESS_N_M / rope.node_mass_kg) > 2.4
+
+
+def test_a_stiff_rope_is_integrated_not_rung():
+    # 200 kN (a high-modulus fibre: Dyneema of 4 mm is ~1 MN) on the reference rope at the default physics_hz
+    # 200 Hz would put the chain's top mode at h |lambda| = 3.8, beyond RK4's 2.8: the rope rang, slack and taut at
+    # random (the tension's spread 130 N, 70 % of the time slack). The simulator steps finer where the rope needs it,
+    # and the stiff rope then flies as the reference does (its stretch is a tenth: the same balloon, the same pull)
+    from sim_hil.scenarios import SCENARIOS
+    from sim_hil.simulator import TRUTH_COLUMNS, Simulation, rope_steps_per_imu
+
+    sc = SCENARIOS["field-rope"]
+    out = {}
+    for ea in (EA, 200000.0):
+        truth = replace(sc.truth, tether_ea_n=ea)
+        sim = Simulation(sc.design, sc.wind, truth, 90.0, 3)
+        for _ in sim.samples():
+            pass
+        col = {c: sim.truth[:, k] for k, c in enumerate(TRUTH_COLUMNS)}
+        late = col["time_s"] > 45.0
+        out[ea] = (sim.steps_per_imu, col["tension_n"][late].std(), np.mean(col["tether_taut"][late] < 0.5))
+    assert out[EA][0] == round(sc.truth.physics_hz / 100.0)  # the reference keeps its step
+    assert out[200000.0][0] > out[EA][0]
+    assert out[200000.0][2] == 0.0 and out[200000.0][1] < 2.0 * out[EA][1] + 0.5, out
+    assert rope_steps_per_imu(BalloonPhysics.from_design(sc.design, replace(sc.truth, rope_model="paper")), None,
+                              100.0) == 1  # fmt: skip
