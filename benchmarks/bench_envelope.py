@@ -70,6 +70,9 @@ WINDOW_S = 60.0
 CAL_EDGES = np.geomspace(0.02, 5.0, 15)  # stated accuracy bins, m/s
 ENVELOPE_VERSION = 3
 #: the study's metric names as the envelope's table names them (one row per flight, envelope.csv)
+# a flight's length (the wind's realisation depends on it: the same flight is the same only at the same length)
+FULL_DURATION_S = 600.0
+QUICK_DURATION_S = 300.0
 CONTRACT_NAMES = {"speed_error_pct": "speed_err_pct", "direction_error_deg": "dir_err_deg", "error_ratio": "err_acc"}
 
 # ---------------------------------------------------------------- the sample
@@ -283,7 +286,7 @@ def summary(df) -> tuple[str, list[tuple[str, bool]]]:
                      + f" | {worst:.3g} |")  # fmt: skip
     d, sp, r = cols["|direction error| deg"], cols["|speed error| %"], cols["err/acc"]
     n_ok, n_all = len(ok), len(df)
-    flown_h = float(df.attrs.get("duration_s", 600.0)) * n_ok / 3600.0
+    flown_h = float(df.attrs.get("duration_s", FULL_DURATION_S)) * n_ok / 3600.0
     hours = float(ok["taut_resets"].sum()) / flown_h if n_ok else math.nan
     skill = cols["band skill (fluctuating winds)"].dropna()
     targets = [
@@ -448,9 +451,11 @@ def plots(df, out: Path) -> list[Path]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="64 flights of 300 s (the default: 200 of 600 s)")
+    ap.add_argument("--quick", action="store_true",
+                    help=f"64 flights of {QUICK_DURATION_S:g} s (else 200 of {FULL_DURATION_S:g} s)")  # fmt: skip
     ap.add_argument("--flights", type=int, help="number of flights (quick: 64, else 200)")
-    ap.add_argument("--duration", type=float, help="simulated seconds per flight (quick: 300, else 600)")
+    ap.add_argument("--duration", type=float,
+                    help=f"seconds per flight (quick: {QUICK_DURATION_S:g}, else {FULL_DURATION_S:g})")  # fmt: skip
     ap.add_argument("--start", type=float, default=120.0, help="scoring starts here, s")
     ap.add_argument("--out", default="out/envelope", help="output directory (default out/envelope)")
     ap.add_argument("--serial", action="store_true", help="in this process, no Dask")
@@ -468,7 +473,7 @@ def main(argv: list[str] | None = None) -> int:
     import pandas as pd
 
     n = args.flights or (64 if args.quick else 200)
-    duration = args.duration or (300.0 if args.quick else 600.0)
+    duration = args.duration or (QUICK_DURATION_S if args.quick else FULL_DURATION_S)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     params = sample(n, cd_sigma=args.cd_sigma)

@@ -1,10 +1,11 @@
 """What the free ascent learns of the balloon's drag, over the envelope benchmark's flights of one wind kind.
 
     .venv/bin/python tools/ascent_scale.py steady        # the full sample's 50 steady flights (about 10 s)
-    .venv/bin/python tools/ascent_scale.py gusts --flights 64
+    .venv/bin/python tools/ascent_scale.py gusts --flights 64 --duration 300   # the quick sample's
 
 Flies each flight of ``benchmarks.bench_envelope``'s sample whose wind is of that kind on the Python core until
-the ascent's drag scale is taken (the cap at the end of its learning, ``Estimator._ascent_data``) and prints, over
+the taut entry, and takes the ascent's drag scale that the taut flight weighs (``Estimator._ascent_data``: the
+cap at the end of its last spell of learning; the learning stops while the rope's pull is not known) and prints, over
 those flights, how far it is from the truth's (``cd_scale``, the truth's C_d over the design's): the RMS, the
 worst and the mean relative error, and the median 1-sigma the ascent's data claimed. ``DRAG_ASCENT_FLOOR`` is the
 steady flights' RMS.
@@ -22,40 +23,51 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.bench_envelope import WIND_KINDS, sample, sections_of  # noqa: E402
+from benchmarks.bench_envelope import FULL_DURATION_S, WIND_KINDS, sample, sections_of  # noqa: E402
 from firmware_py.estimator.control import Estimator  # noqa: E402
+from firmware_py.estimator.state import MODE_TAUT  # noqa: E402
 from sim_hil.simulator import Simulation  # noqa: E402
 from study.spec import build  # noqa: E402
 
-ASCENT_S = 90.0  # long enough for every sampled tether's climb
 
-
-def ascent_error(point: dict) -> tuple[float, float] | None:
-    """(the ascent's scale over the truth's - 1, the 1-sigma its data claimed), None if it learnt nothing."""
+def ascent_error(point: dict, duration_s: float = FULL_DURATION_S) -> tuple[float, float, float, float] | None:
+    """(the ascent's scale over the truth's - 1, the 1-sigma its data claimed, the ascent's scale, its climb m/s),
+    None if it learnt nothing. The flight is the benchmark's of ``duration_s`` (its wind depends on the length), flown
+    until the ascent is weighed."""
     design, wind, truth_cfg, filt = build(sections_of(point))
     est = Estimator(design, dataclasses.replace(filt, core="py"))
-    for s in Simulation(design, wind, truth_cfg, ASCENT_S, point["seed"]).samples():
+    for s in Simulation(design, wind, truth_cfg, duration_s, point["seed"]).samples():
         if s.baro:
             est.on_baro(s.time_usec, *s.baro)
         est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
-        if est._ascent_var > 0.0:
-            return est._ascent_data / point["cd_scale"] - 1.0, math.sqrt(est._ascent_var)
-    return None
+        if est.ekf.mode == MODE_TAUT and not est.ekf.learn_drag and est._ascent_var > 0.0:  # the ascent over and its
+            # last spell of learning capped: what the taut flight weighs
+            break
+    if not est._ascent_var > 0.0:
+        return None
+    return (est._ascent_data / point["cd_scale"] - 1.0, math.sqrt(est._ascent_var), est._ascent_data,
+            est._ascent_climb)  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("kind", choices=WIND_KINDS)
     ap.add_argument("--flights", type=int, default=200, help="the sample's size (200: the full benchmark's)")
+    ap.add_argument("--duration", type=float, default=FULL_DURATION_S,
+                    help=f"the flights' length, s ({FULL_DURATION_S:g}: the full benchmark's; the wind depends on it)")
     a = ap.parse_args(argv)
-    res = [r for p in sample(a.flights) if p["wind_kind"] == a.kind and (r := ascent_error(p)) is not None]
+    points = sample(a.flights)
+    res = [(i, r) for i, p in enumerate(points) if p["wind_kind"] == a.kind and (r := ascent_error(p, a.duration))]
     if not res:
         print(f"ascent_scale: no {a.kind} flight learnt a drag scale", file=sys.stderr)
         return 2
-    e, sd = np.array(res).T
+    e, sd, _, _ = np.array([r for _, r in res]).T
     rms, worst, mean = 100 * np.sqrt(np.mean(e**2)), 100 * np.abs(e).max(), 100 * e.mean()
     print(f"{len(e)} {a.kind} flights: the ascent's drag scale against the truth's C_d: RMS {rms:.1f} %, worst "
           f"{worst:.1f} %, mean {mean:+.1f} %; its claimed 1-sigma, median {100 * np.median(sd):.1f} %")  # fmt: skip
+    for i, (err, _, scale, climb) in sorted(res, key=lambda x: -abs(x[1][0]))[:3]:
+        print(f"  flight {i}: the ascent read {scale:.2f} against the truth's {points[i]['cd_scale']:.2f} "
+              f"({100 * err:+.0f} %), climbing at {climb:.1f} m/s")  # fmt: skip
     return 0
 
 
