@@ -53,10 +53,11 @@ def _every(imu_hz: float, rate_hz: float, n_imu: int) -> int:
 def rope_steps_per_imu(physics: BalloonPhysics, winch: WinchConfig | None, imu_hz: float) -> int:
     """The physics steps per IMU sample the lumped rope needs to be integrated at all (``LumpedRope.stable_step_s``)
     at the shortest line it flies (the winch's, else the tether's): a stiff rope (a high-modulus fibre's EA is
-    hundreds of kN) or a short line of many segments needs more than [truth] physics_hz. 1 without a lumped rope."""
+    hundreds of kN) or a short line of many segments needs more than [truth] physics_hz. 1 without a lumped rope.
+    ``winch``: the enabled winch, or None."""
     if physics.rope is None:
         return 1
-    shortest = min(winch.lengths_m) if winch is not None and winch.enabled and winch.lengths_m else None
+    shortest = min(winch.lengths_m) if winch is not None and winch.lengths_m else None
     rope = physics.rope.at_length(shortest, 0.0) if shortest else physics.rope
     return max(1, math.ceil(1.0 / (rope.stable_step_s() * imu_hz) - 1e-9))
 
@@ -101,8 +102,10 @@ class Simulation:
             raise ValueError(f"duration must be finite and > 0, got {duration_s}")
         self.design, self.truth_cfg = design, truth
         self.physics = BalloonPhysics.from_design(design, truth)
+        self.winch = winch if winch is not None and winch.enabled else None
         # [truth] physics_hz, or finer where the lumped rope needs it (its shortest line is its stiffest)
-        self.steps_per_imu = max(1, round(truth.physics_hz / imu_hz), rope_steps_per_imu(self.physics, winch, imu_hz))
+        rope_spi = rope_steps_per_imu(self.physics, self.winch, imu_hz)
+        self.steps_per_imu = max(1, round(truth.physics_hz / imu_hz), rope_spi)
         self.h = 1.0 / (imu_hz * self.steps_per_imu)
         self.baro_every = max(1, round(imu_hz / baro_hz))
         self.n_imu = int(round(duration_s * imu_hz))
@@ -121,7 +124,6 @@ class Simulation:
         self._truth_base = 0  # flight row index of self.truth[0]
         self._truth_rows = 0  # rows filled so far (whole flight)
         self.samples_done = 0  # IMU samples yielded so far
-        self.winch = winch if winch is not None and winch.enabled else None
         self.winch_every = _every(imu_hz, self.winch.status_hz, self.n_imu) if self.winch else 0
         self.ground_every = _every(imu_hz, truth.ground_baro_hz, self.n_imu) if truth.ground_baro_hz > 0.0 else 0
         # the winch's load cell and the ground barometer draw from their own streams: the flight's other

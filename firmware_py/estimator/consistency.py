@@ -79,8 +79,13 @@ class Consistency:
         return [name for i, name in enumerate(SOURCES) if self.flags >> i & 1]
 
 
-def field_variance(P, bn: float, be: float, bd: float) -> float:
-    """The attitude's variance about the unit axis (bn, be, bd) (the magnetic field's), b^T P_att b, rad^2."""
+def field_variance(P, fn: float, fe: float, fd: float) -> float:
+    """The attitude's variance about the magnetic field's axis (fn, fe, fd, any length), b^T P_att b with b the unit
+    axis, rad^2; 0 while the field is unknown (zero or NaN)."""
+    b = math.sqrt(fn * fn + fe * fe + fd * fd)
+    if not b > 0.0:
+        return 0.0
+    bn, be, bd = fn / b, fe / b, fd / b
     return float(
         bn * (bn * P[ATT_N, ATT_N] + 2.0 * (be * P[ATT_N, ATT_E] + bd * P[ATT_N, ATT_D]))
         + be * (be * P[ATT_E, ATT_E] + 2.0 * bd * P[ATT_E, ATT_D])

@@ -647,9 +647,7 @@ class Estimator:
 
     def _field_variance(self) -> float:
         """The attitude's variance about the magnetic field's axis in P, rad^2; 0 while the field is unknown."""
-        bn, be, bd = self.field_ned
-        b = math.sqrt(bn * bn + be * be + bd * bd)
-        return field_variance(self.ekf.P, bn / b, be / b, bd / b) if b > 0.0 else 0.0
+        return field_variance(self.ekf.P, *self.field_ned)
 
     def lean_wind_mps(self) -> float:
         """The wind error of the tilt's systematic error and of the attitude's variance across the lean (P's and what

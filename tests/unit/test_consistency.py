@@ -75,6 +75,8 @@ def test_the_field_variance_is_the_covariance_along_its_axis():
     b /= np.linalg.norm(b)
     att = slice(ATT_N, ATT_D + 1)
     assert field_variance(P, *b) == pytest.approx(float(b @ P[att, att] @ b), rel=1e-12)
+    assert field_variance(P, *(0.45 * b)) == pytest.approx(field_variance(P, *b), rel=1e-12)  # the axis, any length
+    assert field_variance(P, 0.0, 0.0, 0.0) == 0.0 and field_variance(P, math.nan, 0.0, 0.0) == 0.0  # unknown
 
 
 def rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
