@@ -2,7 +2,7 @@
 every scenario x several seeds, and the frequency response on the multisine winds.
 
     .venv/bin/python -m benchmarks.bench_accuracy [--seeds 5] [--duration 600] [--jobs 2]
-        [--scenarios NAME ...] [--quiet] [--json FILE]
+        [--scenarios NAME ...] [--directions N] [--quiet] [--json FILE]
 
 Metrics after 120 s, per flight (the tables: mean over seeds and [worst seed]):
 - band skill: 1 - band RMSE / band RMSE of a constant equal to the true mean (both low-passed below
@@ -14,7 +14,10 @@ Metrics after 120 s, per flight (the tables: mean over seeds and [worst seed]):
   the truth drives that axis), by a least-squares sinusoid fit: gain, phase (deg), |H - 1|.
 
 A cell ending in '!' misses its target on at least one seed. Names not (yet) in
-sim_hil.scenarios.SCENARIOS are skipped with a note. ``--json`` writes every flight's results.
+sim_hil.scenarios.SCENARIOS are skipped with a note. ``NAME@DEG`` flies a scenario with its wind from DEG
+degrees (the rest unchanged: the same wind in the wind's own axes, the balloon blown another way, so that the
+magnetic field and the lean meet at another angle); ``--directions N`` flies every named scenario from N
+directions 360/N apart, starting at its own. ``--json`` writes every flight's results.
 """
 
 from __future__ import annotations
@@ -85,9 +88,35 @@ def variants() -> dict:
 
 
 def lookup(name: str):
+    """A scenario or a variant by name; ``NAME@DEG``: that one with its wind from DEG degrees (None if unknown)."""
+    from dataclasses import replace
+
     from sim_hil.scenarios import SCENARIOS
 
-    return SCENARIOS.get(name) or variants().get(name)
+    base, at, deg = name.partition("@")
+    sc = SCENARIOS.get(base) or variants().get(base)
+    if not at or sc is None:
+        return sc
+    try:
+        from_deg = float(deg)
+    except ValueError:
+        return None
+    return replace(sc, wind=replace(sc.wind, from_deg=from_deg % 360.0)) if math.isfinite(from_deg) else None
+
+
+def directions(names: list[str], n: int) -> list[str]:
+    """Each name flown from ``n`` directions 360/n apart, from its own wind's (``NAME@DEG``; n <= 1: as named)."""
+    if n <= 1:
+        return list(names)
+    out = []
+    for name in names:
+        sc = lookup(name)
+        if sc is None:
+            out.append(name)
+            continue
+        base = name.partition("@")[0]
+        out += [f"{base}@{(sc.wind.from_deg + k * 360.0 / n) % 360.0:g}" for k in range(n)]
+    return out
 
 
 def is_multisine(name: str, sc) -> bool:
@@ -238,16 +267,25 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--scenarios", nargs="+", default=list(DEFAULT_SCENARIOS), metavar="NAME",
                     help="scenario names (sim_hil.scenarios.SCENARIOS, or " + ", ".join(variants()) + ")")  # fmt: skip
+    ap.add_argument(
+        "--directions",
+        type=int,
+        default=1,
+        metavar="N",
+        help="fly each scenario from N wind directions 360/N apart (NAME@DEG; default 1: as named)",
+    )
     ap.add_argument("--quiet", action="store_true", help="no progress bar / per-flight lines on stderr")
     ap.add_argument("--json", metavar="FILE", help="write every flight's results here")
     args = ap.parse_args(argv)
     try:  # the one rule for output options, before any flight is flown
         userargs.check_outputs({}, {"--json": args.json})
+        if not 1 <= args.directions <= 360:
+            raise userargs.UserError(f"--directions {args.directions}: give 1 to 360")
     except userargs.UserError as exc:
         raise SystemExit(userargs.fail("bench_accuracy", exc)) from None
 
     names, skipped = [], []
-    for n in dict.fromkeys(args.scenarios):
+    for n in dict.fromkeys(directions(args.scenarios, args.directions)):
         (names if lookup(n) is not None else skipped).append(n)
     for n in skipped:
         print(f"note: skipping '{n}': not in sim_hil.scenarios.SCENARIOS")

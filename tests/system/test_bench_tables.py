@@ -66,3 +66,30 @@ def test_unknown_scenarios_are_skipped_and_json_written(tmp_path, capsys, monkey
     assert "skipping 'no-such-scenario'" in cap.out and "[2/2] paper-reference" in cap.err
     doc = json.loads(out.read_text())
     assert doc["skipped"] == ["no-such-scenario"] and [r["seed"] for r in doc["results"]] == [1, 2]
+
+
+def test_a_scenario_flies_from_another_direction_with_its_own_wind():
+    """NAME@DEG is the scenario with only the wind's direction changed (the wind in its own axes, the design, the
+    truth and the filter as they were); --directions N spreads N of them 360/N apart from the scenario's own."""
+    from sim_hil.scenarios import SCENARIOS
+
+    base = SCENARIOS["multisine-2d"]
+    turned = ba.lookup("multisine-2d@170")
+    assert turned.wind.from_deg == 170.0 and turned.wind.from_deg != base.wind.from_deg
+    assert turned.wind.multisine_hz == base.wind.multisine_hz and turned.wind.mean_mps == base.wind.mean_mps
+    assert (turned.design, turned.truth, turned.filter) == (base.design, base.truth, base.filter)
+    assert ba.lookup("multisine-2d@-90").wind.from_deg == 270.0
+    for bad in ("multisine-2d@north", "multisine-2d@nan", "no-such-scenario@10"):
+        assert ba.lookup(bad) is None
+    names = ba.directions(["multisine-2d", "steady"], 4)
+    w = base.wind.from_deg
+    assert names[:4] == [f"multisine-2d@{(w + k * 90.0) % 360.0:g}" for k in range(4)] and len(names) == 8
+    assert ba.directions(["multisine-2d"], 1) == ["multisine-2d"]
+
+
+def test_directions_out_of_range_is_a_user_error(capsys):
+    import pytest
+
+    with pytest.raises(SystemExit) as e:
+        ba.main(["--directions", "0", "--scenarios", "steady"])
+    assert e.value.code == 2 and "--directions 0" in capsys.readouterr().err
