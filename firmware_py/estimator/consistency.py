@@ -205,6 +205,5 @@ def lean_bias_wind(
         f2 = 1.0 + t * t + 2.0 * t * (wind_n * bn + wind_e * be) / (speed * bh)
     d2 = lean_bias_rad * lean_bias_rad
     both = lift_n + inertia_n
-    v = math.sqrt(lift_n * lift_n * d2 * (f2 + 0.25) + both * both * cross_tilt_var)
-    v /= drag_per_speed2 * max(speed, 1e-3)
+    v = math.sqrt(lift_n * lift_n * d2 * (f2 + 0.25) + both * both * cross_tilt_var) / (drag_per_speed2 * max(speed, 1e-3))
     return min(v, max(speed, 0.5))
