@@ -99,12 +99,11 @@ bw_real bw_systematic_variance(bw_real speed_mps, bw_real drag_scale, bw_real dr
 }
 
 /* consistency.py lean_bias_wind: the wind error of a tilt error on the taut balloon, with the field's geometry
- * (the rotation about the field's axis that only the accelerometer holds turns the lean's azimuth); the attitude's
- * variance through the lean and through the acceleration the accelerometer reads in it (inertia_n = m_eff g) */
+ * (the rotation about the field's axis that only the accelerometer holds turns the lean's azimuth) */
 bw_real bw_lean_bias_wind(bw_real wind_n, bw_real wind_e, bw_real lift_n, bw_real drag_per_speed2,
-                          bw_real lean_bias_rad, const bw_real field_ned[3], bw_real cross_tilt_var, bw_real inertia_n)
+                          bw_real lean_bias_rad, const bw_real field_ned[3], bw_real cross_tilt_var)
 {
-    bw_real speed = BW_SQRT(wind_n * wind_n + wind_e * wind_e), f2 = BW_R(1.0), bh, t, v, both;
+    bw_real speed = BW_SQRT(wind_n * wind_n + wind_e * wind_e), f2 = BW_R(1.0), bh, t, v;
     if (!(drag_per_speed2 > BW_R(0.0) && lift_n > BW_R(0.0)))
         return BW_R(0.0);
     bh = BW_SQRT(field_ned[0] * field_ned[0] + field_ned[1] * field_ned[1]);
@@ -112,8 +111,7 @@ bw_real bw_lean_bias_wind(bw_real wind_n, bw_real wind_e, bw_real lift_n, bw_rea
         t = field_ned[2] / bh * drag_per_speed2 * speed * speed / lift_n;
         f2 = BW_R(1.0) + t * t + BW_R(2.0) * t * (wind_n * field_ned[0] + wind_e * field_ned[1]) / (speed * bh);
     }
-    both = lift_n + inertia_n;
-    v = BW_SQRT(lift_n * lift_n * lean_bias_rad * lean_bias_rad * (f2 + BW_R(0.25)) + both * both * cross_tilt_var) /
+    v = lift_n * BW_SQRT(lean_bias_rad * lean_bias_rad * (f2 + BW_R(0.25)) + cross_tilt_var) /
         (drag_per_speed2 * BW_MAX(speed, BW_R(1e-3)));
     return BW_MIN(v, BW_MAX(speed, BW_R(0.5)));
 }

@@ -165,7 +165,7 @@ def systematic_variance(
 
 def lean_bias_wind(
     wind_n: float, wind_e: float, lift_n: float, drag_per_speed2: float, lean_bias_rad: float,
-    field_ned: tuple[float, float, float], cross_tilt_var: float = 0.0, inertia_n: float = 0.0,
+    field_ned: tuple[float, float, float], cross_tilt_var: float = 0.0,
 ) -> float:  # fmt: skip
     """The wind error (m/s, horizontal) of a tilt error ``lean_bias_rad`` on the taut balloon: its lean is the
     pull, tan(lean) = D / N_b with D = c |w|^2, so a tilt d across the lean turns its azimuth by d / tan(lean),
@@ -186,14 +186,7 @@ def lean_bias_wind(
     ``cross_tilt_var`` (rad^2): the filter's own attitude variance across the lean as a tilt (``lean_tilt_variance``:
     P's and what P does not hold about the field's axis), which turns the azimuth the same way. The alignment
     takes it as white noise, and the position and the wind average it away; but the attitude's error is slow (about
-    the field's axis only the accelerometer holds it), so its share of the wind is stated here.
-
-    That share takes a second path too: the accelerometer reads a tilt error d as a horizontal acceleration g d, which
-    the force model can only explain by a pull m_eff g d more across the wind, a wind c |w| dw = m_eff g d more
-    (``inertia_n`` = m_eff g; tools/attitude_step.py: a 1 deg step about the field moves the reference's wind 0.3-0.5
-    m/s within 5 s, where the lean alone gives 0.1). It is the error's fluctuating part that moves the wind so, the
-    covariance's, so ``cross_tilt_var`` is taken with N_b + m_eff g (both paths at once); the systematic
-    ``lean_bias_rad``, which the accelerometer takes for a lean at rest, with N_b alone."""
+    the field's axis only the accelerometer holds it), so its share of the wind is stated here."""
     speed = math.sqrt(wind_n * wind_n + wind_e * wind_e)
     if not (drag_per_speed2 > 0.0 and lift_n > 0.0):
         return 0.0
@@ -204,6 +197,5 @@ def lean_bias_wind(
         t = bd / bh * drag_per_speed2 * speed * speed / lift_n
         f2 = 1.0 + t * t + 2.0 * t * (wind_n * bn + wind_e * be) / (speed * bh)
     d2 = lean_bias_rad * lean_bias_rad
-    both = lift_n + inertia_n
-    v = math.sqrt(lift_n * lift_n * d2 * (f2 + 0.25) + both * both * cross_tilt_var) / (drag_per_speed2 * max(speed, 1e-3))
+    v = lift_n * math.sqrt(d2 * (f2 + 0.25) + cross_tilt_var) / (drag_per_speed2 * max(speed, 1e-3))
     return min(v, max(speed, 0.5))

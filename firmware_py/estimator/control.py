@@ -664,7 +664,7 @@ class Estimator:
         cross_var = lean_variance(ekf.P, ze / lean, -zn / lean, zn, ze, zd) if lean > 0.0 else 0.0  # across the lean
         tilt_var = lean_tilt_variance(cross_var, ekf.field_att_extra, self.field_ned, zn, ze, zd)
         return lean_bias_wind(wn, we, m.lift_n(self.rho), float(ekf.x[DRAG]) * self.rho * m.half_cd_area_m2,
-                              LEAN_BIAS_RAD, self.field_ned, tilt_var, ekf.forces.m_eff_kg * G0)  # fmt: skip
+                              LEAN_BIAS_RAD, self.field_ned, tilt_var)  # fmt: skip
 
     def wind(self) -> tuple[float, float]:
         return float(self.ekf.x[WIND_N]), float(self.ekf.x[WIND_E])
