@@ -22,7 +22,6 @@ directions 360/N apart, starting at its own. ``--json`` writes every flight's re
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import time
@@ -97,26 +96,38 @@ def lookup(name: str):
     sc = SCENARIOS.get(base) or variants().get(base)
     if not at or sc is None:
         return sc
+    from_deg = direction_deg(deg)
+    return None if from_deg is None else replace(sc, wind=replace(sc.wind, from_deg=from_deg))
+
+
+def direction_deg(text: str) -> float | None:
+    """A direction in [0, 360) from its text, as ``NAME@DEG`` writes it (None if it is not a finite number)."""
     try:
-        from_deg = float(deg)
+        deg = float(text)
     except ValueError:
         return None
-    return replace(sc, wind=replace(sc.wind, from_deg=from_deg % 360.0)) if math.isfinite(from_deg) else None
+    if not math.isfinite(deg):
+        return None
+    deg %= 360.0
+    return 0.0 if deg >= 360.0 else deg  # -1e-20 % 360 is 360.0
 
 
 def directions(names: list[str], n: int) -> list[str]:
-    """Each name flown from ``n`` directions 360/n apart, from its own wind's (``NAME@DEG``; n <= 1: as named)."""
-    if n <= 1:
-        return list(names)
+    """Each name flown from ``n`` directions 360/n apart, from its own wind's (``NAME@DEG``), without repeats; a
+    ``NAME@DEG`` written the one way its direction prints (``steady@450`` is ``steady@90``). A scenario that exists with
+    a direction that is not a number is a user error (``userargs.UserError``); unknown names pass through."""
     out = []
     for name in names:
-        sc = lookup(name)
+        base, at, deg = name.partition("@")
+        sc = lookup(base)
         if sc is None:
             out.append(name)
             continue
-        base = name.partition("@")[0]
-        out += [f"{base}@{(sc.wind.from_deg + k * 360.0 / n) % 360.0:g}" for k in range(n)]
-    return out
+        if at and direction_deg(deg) is None:
+            raise userargs.UserError(f"'{name}': the direction after '@' must be a number of degrees")
+        own = direction_deg(deg) if at else sc.wind.from_deg
+        out += [f"{base}@{direction_deg(str(own + k * 360.0 / n)):g}" for k in range(n)] if n > 1 or at else [name]
+    return list(dict.fromkeys(out))
 
 
 def is_multisine(name: str, sc) -> bool:
@@ -261,7 +272,7 @@ def jsonable(r: dict) -> dict:
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = userargs.Parser(prog="bench_accuracy", description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=5, help="seeds 1..N per scenario")
     ap.add_argument("--duration", type=float, default=600.0, help="flight length [s]")
     ap.add_argument("--jobs", type=int, default=2)
@@ -281,11 +292,12 @@ def main(argv: list[str] | None = None) -> None:
         userargs.check_outputs({}, {"--json": args.json})
         if not 1 <= args.directions <= 360:
             raise userargs.UserError(f"--directions {args.directions}: give 1 to 360")
+        flights = directions(args.scenarios, args.directions)
     except userargs.UserError as exc:
         raise SystemExit(userargs.fail("bench_accuracy", exc)) from None
 
     names, skipped = [], []
-    for n in dict.fromkeys(directions(args.scenarios, args.directions)):
+    for n in flights:
         (names if lookup(n) is not None else skipped).append(n)
     for n in skipped:
         print(f"note: skipping '{n}': not in sim_hil.scenarios.SCENARIOS")
