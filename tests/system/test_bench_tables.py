@@ -18,6 +18,22 @@ def flight(name, seed, skill=0.8, speed=1.0, direction=0.5, ratio=1.0, response=
     return r
 
 
+class NoPool:
+    """multiprocessing.Pool's part main uses, in this process (a monkeypatched ``one`` is not picklable)."""
+
+    def __init__(self, n):
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *a):
+        return False
+
+    def imap_unordered(self, fn, jobs):
+        return map(fn, jobs)
+
+
 def row(lines, name, axis=""):
     return next(ln for ln in lines if ln.startswith(f"{name:28s} {axis}"))
 
@@ -47,19 +63,6 @@ def test_response_table_marks_h_error_and_leaves_undriven_cross_out():
 
 def test_unknown_scenarios_are_skipped_and_json_written(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(ba, "one", lambda job: flight(job[0], job[1]))
-
-    class NoPool:
-        def __init__(self, n):
-            pass
-
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *a):
-            return False
-
-        def imap_unordered(self, fn, jobs):
-            return map(fn, jobs)
 
     monkeypatch.setattr(ba, "Pool", NoPool)
     out = tmp_path / "r.json"
@@ -95,19 +98,6 @@ def test_a_scenario_flies_from_another_direction_with_its_own_wind():
 def test_directions_fly_each_turned_scenario_once(capsys, monkeypatch):
     flown = []
     monkeypatch.setattr(ba, "one", lambda job: flown.append(job[:2]) or flight(job[0], job[1]))
-
-    class NoPool:
-        def __init__(self, n):
-            pass
-
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *a):
-            return False
-
-        def imap_unordered(self, fn, jobs):
-            return map(fn, jobs)
 
     monkeypatch.setattr(ba, "Pool", NoPool)
     ba.main(["--seeds", "1", "--scenarios", "steady", "steady@0", "--directions", "4", "--quiet"])
