@@ -311,7 +311,32 @@ def summary(df) -> tuple[str, list[tuple[str, bool]]]:
     causes = speed_causes(ok)
     if causes:
         lines += ["", causes]
+    if "from_deg" in ok:
+        lines += ["", by_direction(ok)]
     return "\n".join(lines), targets
+
+
+SECTORS = ("N", "E", "S", "W")  # where the wind comes from: 90 deg sectors centred on these
+
+
+def by_direction(ok) -> str:
+    """Not a target: the flights by where the wind comes from, as a user flies one direction. Blown towards magnetic
+    north the cross-lean turn of the balloon's axis is nearly one about the field, which only the accelerometer holds
+    (docs/estimator.md, "What limits the envelope now"): a target met on average can be missed in one sector."""
+    sector = ((ok["from_deg"].to_numpy(float) + 45.0) % 360.0 // 90.0).astype(int)
+    fluct = (ok["wind_kind"] != "steady").to_numpy()
+    skill = ok["band_skill"].to_numpy(float) >= 0.6
+    dir_ok = ok["dir_err_deg"].abs().to_numpy(float) <= 3.0
+    ratio = ok["err_acc"].to_numpy(float)
+    parts = []
+    for k, name in enumerate(SECTORS):
+        m = sector == k
+        f = m & fluct
+        skill_pct = f"{100 * np.mean(skill[f]):.0f} %" if f.any() else "-"
+        dir_pct = f"{100 * np.mean(dir_ok[m]):.0f} %" if m.any() else "-"
+        parts.append(f"from {name} ({int(m.sum())}): band skill >= 0.6 {skill_pct}, |dir| <= 3 deg {dir_pct}, "
+                     f"err/acc p50 {_pct(ratio[m], 50):.2f}")  # fmt: skip
+    return "by where the wind comes from (not a target): " + "; ".join(parts)
 
 
 def drag_share_pct(cd_scale, drag_scale):

@@ -97,6 +97,29 @@ def test_summary_verdicts():
         verdict["|speed| <= 4 % in 95 % of flights"] and verdict["band skill >= 0.6 on fluctuating winds, every flight"]
     )
     assert "| |direction error| deg |" in text and "FAIL" in text
+    assert "by where the wind comes from" not in text  # no directions in this table
+
+
+def test_the_summary_splits_the_flights_by_where_the_wind_comes_from():
+    """Four flights per 90 deg sector centred on N, E, S, W (315 deg is north, 314.9 west, 45 east): the
+    southern sector's band skill and direction misses show in its own counts, not spread over all."""
+    deg = [0.0, 44.9, 315.0, 330.0, 45.0, 90.0, 120.0, 134.9, 135.0, 180.0, 200.0, 224.9, 225.0, 270.0, 300.0, 314.9]
+    south = [8, 9, 10, 11]
+    n = len(deg)
+    df = pd.DataFrame({
+        "status": ["ok"] * n, "from_deg": deg, "speed_err_pct": [1.0] * n,
+        "dir_err_deg": [5.0 if i in (9, 10) else 0.5 for i in range(n)], "worst_60s_dir_err_deg": [2.0] * n,
+        "err_acc": [1.6 if i in south else 0.8 for i in range(n)], "beyond_3sigma": [0.0] * n,
+        "replacements_per_h": [0.0] * n, "taut_resets": [0.0] * n,
+        "band_skill": [0.3 if i in (8, 9, 10) else (float("nan") if i == 11 else 0.8) for i in range(n)],
+        "wind_kind": ["steady" if i == 11 else "multisine" for i in range(n)],
+    })  # fmt: skip
+    df.attrs["duration_s"] = 600.0
+    line = next(ln for ln in be.summary(df)[0].splitlines() if ln.startswith("by where the wind comes from"))
+    assert "from N (4): band skill >= 0.6 100 %, |dir| <= 3 deg 100 %, err/acc p50 0.80" in line
+    assert "from E (4): band skill >= 0.6 100 %" in line and "from W (4): band skill >= 0.6 100 %" in line
+    # the steady one has no band skill to count: 0 of the three fluctuating flights; two of four off in direction
+    assert "from S (4): band skill >= 0.6 0 %, |dir| <= 3 deg 50 %, err/acc p50 1.60" in line
 
 
 def test_the_speed_error_the_drag_scale_alone_makes():
