@@ -120,13 +120,13 @@ def directions(names: list[str], n: int) -> list[str]:
     for name in names:
         base, at, deg = name.partition("@")
         sc = lookup(base)
-        if sc is None:
+        if sc is None or not (at or n > 1):  # unknown, or as named
             out.append(name)
             continue
-        if at and direction_deg(deg) is None:
-            raise userargs.UserError(f"'{name}': the direction after '@' must be a number of degrees")
         own = direction_deg(deg) if at else sc.wind.from_deg
-        out += [f"{base}@{direction_deg(str(own + k * 360.0 / n)):g}" for k in range(n)] if n > 1 or at else [name]
+        if own is None:
+            raise userargs.UserError(f"'{name}': the direction after '@' must be a number of degrees")
+        out += [f"{base}@{direction_deg(str(own + k * 360.0 / n)):g}" for k in range(n)]
     return list(dict.fromkeys(out))
 
 
