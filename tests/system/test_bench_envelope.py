@@ -183,3 +183,15 @@ def test_one_short_flight_through_the_envelope_case():
     assert 0.5 < row["drag_scale"] < 1.5 and 0.0 < row["drag_scale_sigma"] < 2.0 * be.CD_SIGMA
     for k in ("dir_err_deg", "err_acc", "worst_60s_dir_err_deg", "beyond_3sigma", "replacements_per_h", "resets"):
         assert math.isfinite(row[k]), k
+
+
+def test_what_the_err_acc_band_asks():
+    """One factor on every stated accuracy fixes a flight set that is uniformly cautious (all at 0.5: 100 % within
+    0.75-1.33 at a factor 0.38-0.67), not one whose ratios spread by factors of four (0.25, 1, 4: at most a third)."""
+    line = be.ratio_spread(pd.DataFrame({"err_acc": [0.5] * 12}))
+    assert "spreads by 0.00" in line and "at most 100.0 % within it" in line
+    factor = float(line.rsplit("x ", 1)[1].rstrip(")"))
+    assert 0.5 / 1.33 <= factor <= 0.5 / 0.75
+    line = be.ratio_spread(pd.DataFrame({"err_acc": [0.25, 1.0, 4.0] * 4 + [float("nan")]}))
+    assert "at most 33.3 % within it" in line and "needs about 0.17" in line
+    assert be.ratio_spread(pd.DataFrame({"err_acc": [1.0]})) == ""
