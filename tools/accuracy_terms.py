@@ -2,6 +2,8 @@
 
     python tools/accuracy_terms.py 23 17 --quick          # flights of the --quick sample, 300 s
     python tools/accuracy_terms.py 0 4 8 --duration 600    # flights of the full sample
+    python tools/accuracy_terms.py 103 --set truth.accel_bias_mps2=0 --set truth.accel_bias_walk_mps2_rt_s=0
+                                                           # the same flight with one thing of its world changed
 
 Flies each flight of ``benchmarks.bench_envelope``'s sample on the Python core (the C core is held equal to it) and
 prints, over the scored part (from 120 s), the RMS wind error against the truth, the drag scale learnt beside the
@@ -38,8 +40,27 @@ START_S = 120.0
 WALK_WINDOW_S = 20.0
 
 
-def terms(point: dict, duration_s: float) -> dict[str, float]:
-    design, wind, truth_cfg, filt = build(sections_of(point))
+def override(sections: dict, setting: str) -> None:
+    """``SECTION.KEY=VALUE`` into the flight's sections (a number, true/false, or text), in place; ValueError
+    naming what is wrong for a section or key the flight does not have."""
+    name, sep, text = setting.partition("=")
+    section, dot, key = name.strip().partition(".")
+    if not (sep and dot and section in sections and key in sections[section]):
+        raise ValueError(f"--set {setting!r}: not SECTION.KEY=VALUE of the flight's sections "
+                         f"({', '.join(sorted(sections))})")  # fmt: skip
+    text = text.strip()
+    try:
+        value: object = float(text)
+    except ValueError:
+        value = {"true": True, "false": False}.get(text.lower(), text)
+    sections[section][key] = value
+
+
+def terms(point: dict, duration_s: float, settings: tuple[str, ...] = ()) -> dict[str, float]:
+    sections = sections_of(point)
+    for setting in settings:
+        override(sections, setting)
+    design, wind, truth_cfg, filt = build(sections)
     sim = Simulation(design, wind, truth_cfg, duration_s, point["seed"])
     est = Estimator(design, dataclasses.replace(filt, core="py"))
     every = int(round(sim.n_imu / duration_s / 10.0))  # 10 Hz rows
@@ -81,6 +102,8 @@ def terms(point: dict, duration_s: float) -> dict[str, float]:
     out["drag_scale"] = float(r[late, 10].mean())
     speed_est, speed_true = math.hypot(r[late, 1].mean(), r[late, 2].mean()), math.hypot(tn.mean(), te.mean())
     out["speed_error_pct"] = 100.0 * (speed_est / speed_true - 1.0)
+    turn = math.atan2(r[late, 2].mean(), r[late, 1].mean()) - math.atan2(te.mean(), tn.mean())
+    out["direction_error_deg"] = math.degrees(math.remainder(turn, 2.0 * math.pi))
     for j, name in enumerate(SOURCES):
         out[f"nis_{name}"] = float(r[late, 11 + j].mean())
     # the accelerometer's per body axis (z along the rope), the mean of each sample's (the monitor clips their mean at
@@ -135,6 +158,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("flights", type=int, nargs="+", help="flight numbers of the envelope's sample")
     ap.add_argument("--quick", action="store_true", help="the --quick sample (64 flights) and 300 s")
     ap.add_argument("--duration", type=float, default=None, help="simulated seconds (default 300 quick, else 600)")
+    ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="change one thing of every flight's world or design (repeatable), e.g. sensors.gyro_dps=0.1")
     a = ap.parse_args(argv)
     points = sample(64 if a.quick else 200)
     duration = a.duration or (300.0 if a.quick else 600.0)
@@ -142,20 +167,30 @@ def main(argv: list[str] | None = None) -> int:
         if not 0 <= f < len(points):
             print(f"accuracy_terms: no flight {f} in a sample of {len(points)}", file=sys.stderr)
             return 2
-    print("| flight | wind | rope | error | speed error | drag scale (truth's C_d / design's) | accuracy "
+    try:
+        for setting in a.set:
+            override(sections_of(points[a.flights[0]]), setting)
+    except ValueError as e:
+        print(f"accuracy_terms: {e}", file=sys.stderr)
+        return 2
+    if a.set:
+        print("changed: " + ", ".join(a.set))
+    print("| flight | wind | rope | error | speed error | direction error | drag scale (truth's C_d / design's) "
+          "| accuracy "
           "| = sqrt(P^2 + drag^2 + tilt^2) x inflation | error/accuracy "
           "| worst 20 s offset walk / its sigma | NIS " + " ".join(SOURCES) + " | accel NIS body x y z "
           "| attitude about the field: RMS error / P's / stated, deg "
           "| its correlation with the cross-wind error (RMS) "
           "| accel z misfit: its correlation with the truth's acceleration along the rope; "
           "the tension's SD |")  # fmt: skip
-    print("|---|---|---|---:|---:|---:|---:|---|---:|---:|---|---|---:|---:|---:|")
+    print("|---|---|---|---:|---:|---:|---:|---:|---|---:|---:|---|---|---:|---:|---:|")
     for f in a.flights:
         p = points[f]
-        t = terms(p, duration)
+        t = terms(p, duration, tuple(a.set))
         nis = " ".join(f"{t['nis_' + s]:.2f}" for s in SOURCES)
         print(f"| {f} | {p['wind_kind']} {p['mean_mps']:.1f} m/s | {p['rope_model']} | {t['error']:.3f} | "
-              f"{t['speed_error_pct']:+.1f} % | {t['drag_scale']:.3f} ({p['cd_scale']:.3f}) | {t['accuracy']:.3f} | "
+              f"{t['speed_error_pct']:+.1f} % | {t['direction_error_deg']:+.1f} deg | "
+              f"{t['drag_scale']:.3f} ({p['cd_scale']:.3f}) | {t['accuracy']:.3f} | "
               f"sqrt({t['P']:.3f}^2 + {t['drag']:.3f}^2 + "
               f"{t['tilt']:.3f}^2) x {t['inflation']:.2f} | {t['error'] / t['accuracy']:.2f} | "
               f"{t['offset_walk_m']:.1f} m / {t['offset_sigma_m']:.2f} m | {nis} | "

@@ -3,14 +3,15 @@ a user error."""
 
 from __future__ import annotations
 
+import math
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
-from benchmarks.bench_envelope import sample
-from tools.accuracy_terms import terms
+from benchmarks.bench_envelope import sample, sections_of
+from tools.accuracy_terms import override, terms
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -25,6 +26,25 @@ def test_the_terms_add_up_to_the_reported_accuracy():
     assert t["accuracy"] ** 2 == pytest.approx(parts, rel=1e-6)
     assert 0.0 < t["error"] < t["accuracy"] * 3.0 and t["error"] != pytest.approx(t["accuracy"])
     assert t["offset_sigma_m"] > 0.0 and t["offset_walk_m"] >= 0.0
+    assert math.isfinite(t["direction_error_deg"]) and abs(t["direction_error_deg"]) < 180.0
+
+
+def test_one_thing_of_the_flight_changed():
+    """``--set SECTION.KEY=VALUE``: a number, a flag or a word into the flight's own sections; a key or a section the
+    flight does not have is refused, naming the sections, and on the command line it is a user error."""
+    secs = sections_of(sample(64)[0])
+    override(secs, "truth.accel_bias_mps2 = 0")
+    override(secs, "sensors.gyro_dps=0.1")
+    override(secs, "truth.froude_krylov=false")
+    override(secs, "truth.rope_model=paper")
+    assert secs["truth"]["accel_bias_mps2"] == 0.0 and secs["sensors"]["gyro_dps"] == 0.1
+    assert secs["truth"]["froude_krylov"] is False and secs["truth"]["rope_model"] == "paper"
+    for bad in ("truth.nope=1", "nope.gyro_dps=1", "sensors.gyro_dps", "gyro_dps=1"):
+        with pytest.raises(ValueError, match="SECTION.KEY=VALUE"):
+            override(secs, bad)
+    cmd = [sys.executable, str(ROOT / "tools" / "accuracy_terms.py"), "3", "--quick", "--set", "truth.x=1"]
+    r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "truth.x=1" in r.stderr
 
 
 def test_a_flight_outside_the_sample_is_a_user_error():
