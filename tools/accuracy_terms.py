@@ -3,10 +3,11 @@
     python tools/accuracy_terms.py 23 17 --quick          # flights of the --quick sample, 300 s
     python tools/accuracy_terms.py 0 4 8 --duration 600    # flights of the full sample
     python tools/accuracy_terms.py 103 --set truth.accel_bias_mps2=0 --set truth.accel_bias_walk_mps2_rt_s=0
-                                                           # the same flight with one thing of its world changed
+                                                           # the same flight, its world changed (TOML values)
 
 Flies each flight of ``benchmarks.bench_envelope``'s sample on the Python core (the C core is held equal to it) and
-prints, over the scored part (from 120 s), the RMS wind error against the truth, the drag scale learnt beside the
+prints, over the scored part (from 120 s), the RMS wind error against the truth, the mean vector's speed and
+direction errors, the drag scale learnt beside the
 one flown (the truth's C_d over the design's) and the RMS of each term of the reported accuracy
 (``Estimator.wind_accuracy``): the covariance's, the drag scale's and the tilt's systematic terms, the consistency
 monitor's mean factor and its windowed NIS per source (the accelerometer's also per body axis, the mean of its
@@ -22,6 +23,7 @@ import argparse
 import dataclasses
 import math
 import sys
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -41,19 +43,20 @@ WALK_WINDOW_S = 20.0
 
 
 def override(sections: dict, setting: str) -> None:
-    """``SECTION.KEY=VALUE`` into the flight's sections (a number, true/false, or text), in place; ValueError
-    naming what is wrong for a section or key the flight does not have."""
+    """``SECTION.KEY=VALUE`` into the flight's sections, in place, the value as a design file writes it (TOML: a
+    number, true/false, an array; a bare word is taken as text); ValueError naming what is wrong for a section or key
+    the flight does not have (``build`` judges the value)."""
     name, sep, text = setting.partition("=")
     section, dot, key = name.strip().partition(".")
     if not (sep and dot and section in sections and key in sections[section]):
-        raise ValueError(f"--set {setting!r}: not SECTION.KEY=VALUE of the flight's sections "
-                         f"({', '.join(sorted(sections))})")  # fmt: skip
+        known = ", ".join(sorted(sections[section])) if section in sections else ", ".join(sorted(sections))
+        raise ValueError(f"--set {setting!r}: not SECTION.KEY=VALUE of the flight's ({known})")
     text = text.strip()
     try:
-        value: object = float(text)
-    except ValueError:
-        value = {"true": True, "false": False}.get(text.lower(), text)
-    sections[section][key] = value
+        value = tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = text
+    sections[section][key] = float(value) if isinstance(value, int) and not isinstance(value, bool) else value
 
 
 def terms(point: dict, duration_s: float, settings: tuple[str, ...] = ()) -> dict[str, float]:
@@ -167,12 +170,17 @@ def main(argv: list[str] | None = None) -> int:
         if not 0 <= f < len(points):
             print(f"accuracy_terms: no flight {f} in a sample of {len(points)}", file=sys.stderr)
             return 2
-    try:
-        for setting in a.set:
-            override(sections_of(points[a.flights[0]]), setting)
-    except ValueError as e:
-        print(f"accuracy_terms: {e}", file=sys.stderr)
-        return 2
+    worlds = {}
+    for f in a.flights:  # every change judged before the first flight flies: a bad one is a user error
+        try:
+            worlds[f] = sections_of(points[f])
+            for setting in a.set:
+                override(worlds[f], setting)
+            build(worlds[f])
+        except (ValueError, TypeError) as e:  # ConfigError is a ValueError
+            print(f"accuracy_terms: flight {f}: {str(e).splitlines()[0] if str(e) else type(e).__name__}",
+                  file=sys.stderr)  # fmt: skip
+            return 2
     if a.set:
         print("changed: " + ", ".join(a.set))
     print("| flight | wind | rope | error | speed error | direction error | drag scale (truth's C_d / design's) "
@@ -185,12 +193,15 @@ def main(argv: list[str] | None = None) -> int:
           "the tension's SD |")  # fmt: skip
     print("|---|---|---|---:|---:|---:|---:|---:|---|---:|---:|---|---|---:|---:|---:|")
     for f in a.flights:
-        p = points[f]
+        p, w = points[f], worlds[f]
         t = terms(p, duration, tuple(a.set))
         nis = " ".join(f"{t['nis_' + s]:.2f}" for s in SOURCES)
-        print(f"| {f} | {p['wind_kind']} {p['mean_mps']:.1f} m/s | {p['rope_model']} | {t['error']:.3f} | "
+        # the flight as flown: the sample's names, or with --set the sections' (the wind's kind and IEC class)
+        kind = " ".join(str(w["wind"][k]) for k in ("kind", "iec_class") if w["wind"][k]) if a.set else p["wind_kind"]
+        print(f"| {f} | {kind} {w['wind']['mean_mps']:.1f} m/s | {w['truth']['rope_model']} | "
+              f"{t['error']:.3f} | "
               f"{t['speed_error_pct']:+.1f} % | {t['direction_error_deg']:+.1f} deg | "
-              f"{t['drag_scale']:.3f} ({p['cd_scale']:.3f}) | {t['accuracy']:.3f} | "
+              f"{t['drag_scale']:.3f} ({w['truth']['drag_coefficient_scale']:.3f}) | {t['accuracy']:.3f} | "
               f"sqrt({t['P']:.3f}^2 + {t['drag']:.3f}^2 + "
               f"{t['tilt']:.3f}^2) x {t['inflation']:.2f} | {t['error'] / t['accuracy']:.2f} | "
               f"{t['offset_walk_m']:.1f} m / {t['offset_sigma_m']:.2f} m | {nis} | "

@@ -12,6 +12,7 @@ import pandas as pd
 from balloon_core.config import lift_balance
 from benchmarks import bench_envelope as be
 from firmware_py.estimator.state import FilterConfig
+from study.case import lift_margin
 from study.spec import build
 
 
@@ -124,30 +125,37 @@ def test_the_summary_splits_the_flights_by_where_the_wind_comes_from():
 
 def test_a_balloon_near_its_lift_limit_is_held_to_the_lower_skill_bar():
     """The issue's bar: band skill >= 0.6 on fluctuating winds, >= 0.4 for a balloon within 30 % of its lift limit
-    (buoyancy < 1.3 x what it carries). The spare lift from the row's free lift over buoyancy: 20 % spare is
-    1 - 1 / 1.2 of it, 35 % spare 1 - 1 / 1.35. A marginal balloon at 0.5 passes where a roomy one fails; 0.35 fails
-    both; a flight whose row has no lift margin is held to 0.6."""
-    frac = lambda spare: 1.0 - 1.0 / (1.0 + spare)  # noqa: E731
-    rows = pd.DataFrame({"lift_margin_frac": [frac(0.2), frac(0.29), frac(0.31), frac(1.0)]})
-    assert be.skill_bar(rows).tolist() == [0.4, 0.4, 0.6, 0.6]
+    (buoyancy < 1.3 x what it carries). Balloons sized by the lift balance for 20 %, 29 %, 31 % and 100 % spare on a
+    100 m tether, their rows' lift margin from the study's own metric: the first two at 0.4. In a summary a marginal
+    balloon at 0.5 passes where a roomy one fails, 0.35 fails both, whatever steady or unscored flights come first;
+    a row without a lift margin is held to 0.6."""
+    frac = []
+    for spare in (0.2, 0.29, 0.31, 1.0):
+        secs = be.sections_of(be.sample(1)[0])
+        secs["tether"]["length_m"] = 100.0
+        secs["balloon"]["radius_m"] = be.min_radius(100.0, spare=spare)
+        frac.append(lift_margin(build(secs)[0])[1])
+    assert be.skill_bar(pd.DataFrame({"lift_margin_frac": frac})).tolist() == [0.4, 0.4, 0.6, 0.6]
     assert be.skill_bar(pd.DataFrame({"band_skill": [0.5]})).tolist() == [0.6]
+    marginal, roomy = frac[0], frac[3]
 
-    def verdict(skill, spare):
+    def verdict(skill, margin):
+        skill, margin = [0.1, float("nan"), *skill], [roomy, roomy, *margin]  # a steady flight, an unscored one
         n = len(skill)
         df = pd.DataFrame({
             "status": ["ok"] * n, "speed_err_pct": [1.0] * n, "dir_err_deg": [0.5] * n,
             "worst_60s_dir_err_deg": [2.0] * n, "err_acc": [1.0] * n, "beyond_3sigma": [0.0] * n,
             "replacements_per_h": [0.0] * n, "taut_resets": [0.0] * n, "band_skill": skill,
-            "wind_kind": ["gusts"] * n, "lift_margin_frac": [frac(s) for s in spare],
+            "wind_kind": ["steady", *["gusts"] * (n - 1)], "lift_margin_frac": margin,
         })  # fmt: skip
         df.attrs["duration_s"] = 600.0
         (text, ok), = [t for t in be.summary(df)[1] if t[0].startswith("band skill")]
         return ok, text
 
-    ok, text = verdict([0.8, 0.5], [1.0, 0.25])
+    ok, text = verdict([0.8, 0.5], [roomy, marginal])
     assert ok and "1 flights; 100.0 %, worst 0.50)" in text
-    assert not verdict([0.8, 0.5], [1.0, 0.35])[0]
-    assert not verdict([0.8, 0.35], [1.0, 0.25])[0]
+    assert not verdict([0.8, 0.5], [roomy, roomy])[0]
+    assert not verdict([0.8, 0.35], [roomy, marginal])[0]
 
 
 def test_the_speed_error_the_drag_scale_alone_makes():
