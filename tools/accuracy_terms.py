@@ -31,6 +31,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from balloon_core.rotation import quat_from_euler, rotation  # noqa: E402
+from balloon_core.score import score  # noqa: E402
 from benchmarks.bench_envelope import sample, sections_of  # noqa: E402
 from firmware_py.estimator.consistency import NIS_CLIP, SOURCES, systematic_variance  # noqa: E402
 from firmware_py.estimator.control import Estimator  # noqa: E402
@@ -59,11 +60,16 @@ def override(sections: dict, setting: str) -> None:
     sections[section][key] = float(value) if isinstance(value, int) and not isinstance(value, bool) else value
 
 
-def terms(point: dict, duration_s: float, settings: tuple[str, ...] = ()) -> dict[str, float]:
+def world(point: dict, settings: tuple[str, ...] = ()) -> dict:
+    """The flight's sections with ``settings`` (``SECTION.KEY=VALUE``) applied."""
     sections = sections_of(point)
     for setting in settings:
         override(sections, setting)
-    design, wind, truth_cfg, filt = build(sections)
+    return sections
+
+
+def terms(point: dict, duration_s: float, settings: tuple[str, ...] = ()) -> dict[str, float]:
+    design, wind, truth_cfg, filt = build(world(point, settings))
     sim = Simulation(design, wind, truth_cfg, duration_s, point["seed"])
     est = Estimator(design, dataclasses.replace(filt, core="py"))
     every = int(round(sim.n_imu / duration_s / 10.0))  # 10 Hz rows
@@ -103,10 +109,8 @@ def terms(point: dict, duration_s: float, settings: tuple[str, ...] = ()) -> dic
     out["offset_walk_m"] = float(np.max(np.abs(off[n:] - off[:-n]))) if len(off) > n else math.nan
     out["offset_sigma_m"] = float(np.mean(sd))
     out["drag_scale"] = float(r[late, 10].mean())
-    speed_est, speed_true = math.hypot(r[late, 1].mean(), r[late, 2].mean()), math.hypot(tn.mean(), te.mean())
-    out["speed_error_pct"] = 100.0 * (speed_est / speed_true - 1.0)
-    turn = math.atan2(r[late, 2].mean(), r[late, 1].mean()) - math.atan2(te.mean(), tn.mean())
-    out["direction_error_deg"] = math.degrees(math.remainder(turn, 2.0 * math.pi))
+    sc = score(r[:, 0], r[:, 1], r[:, 2], r[:, 3], truth["time_s"], truth["wind_n"], truth["wind_e"], start_s=START_S)
+    out["speed_error_pct"], out["direction_error_deg"] = sc.speed_error_pct, sc.direction_error_deg
     for j, name in enumerate(SOURCES):
         out[f"nis_{name}"] = float(r[late, 11 + j].mean())
     # the accelerometer's per body axis (z along the rope), the mean of each sample's (the monitor clips their mean at
@@ -173,9 +177,7 @@ def main(argv: list[str] | None = None) -> int:
     worlds = {}
     for f in a.flights:  # every change judged before the first flight flies: a bad one is a user error
         try:
-            worlds[f] = sections_of(points[f])
-            for setting in a.set:
-                override(worlds[f], setting)
+            worlds[f] = world(points[f], tuple(a.set))
             build(worlds[f])
         except (ValueError, TypeError) as e:  # ConfigError is a ValueError
             print(f"accuracy_terms: flight {f}: {str(e).splitlines()[0] if str(e) else type(e).__name__}",
