@@ -95,7 +95,14 @@ def _structs(real):
         ]  # fmt: skip
 
     class Consistency(C.Structure):
-        _fields_ = [("nis", real * 5), ("flags", i32), ("inflation", real), ("flag_changes", i32)]
+        _fields_ = [
+            ("nis", real * 5),
+            ("flags", i32),
+            ("inflation", real),
+            ("flag_changes", i32),
+            ("slow_tilt", real),
+            ("slow_tilt_var", real),
+        ]
 
     class Schedule(C.Structure):
         _fields_ = [(n, i32) for n in ("taut_every", "align_reset", "baro_reset", "baro_recover", "mag_recover",
@@ -261,6 +268,14 @@ class _Consistency:
     @property
     def nis(self) -> list[float]:
         return list(self._m.nis)
+
+    @property
+    def slow_tilt(self) -> float:
+        return self._m.slow_tilt
+
+    @property
+    def slow_tilt_var(self) -> float:
+        return self._m.slow_tilt_var
 
     def names(self) -> list[str]:
         return [name for i, name in enumerate(SOURCES) if self._m.flags >> i & 1]

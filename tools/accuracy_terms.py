@@ -33,7 +33,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from balloon_core.rotation import quat_from_euler, rotation  # noqa: E402
 from balloon_core.score import score  # noqa: E402
 from benchmarks.bench_envelope import sample, sections_of  # noqa: E402
-from firmware_py.estimator.consistency import NIS_CLIP, SOURCES, systematic_variance  # noqa: E402
+from firmware_py.estimator.consistency import (  # noqa: E402
+    ACCEL,
+    NIS_CLIP,
+    SOURCES,
+    heading_misfit_variance,
+    systematic_variance,
+)
 from firmware_py.estimator.control import Estimator  # noqa: E402
 from firmware_py.estimator.state import ATT_D, ATT_N, BARO_OFF, DRAG  # noqa: E402
 from sim_hil.simulator import TRUTH_COLUMNS, Simulation  # noqa: E402
@@ -89,8 +95,9 @@ def terms(point: dict, duration_s: float, settings: tuple[str, ...] = ()) -> dic
                      float(ekf.P[BARO_OFF, BARO_OFF]), k, *est.consistency.nis,
                      *(min(a.innov**2 / max(a.innov_var - est._accel_var_excess, 1e-12), 3.0 * NIS_CLIP)
                        for a in est.accel_status)))  # fmt: skip
+        mon = est.consistency
         att.append((*ekf.q.tolist(), *est.field_ned, *ekf.P[ATT_N : ATT_D + 1, ATT_N : ATT_D + 1].ravel(),
-                    ekf.field_att_extra))
+                    ekf.field_att_extra + heading_misfit_variance(mon.nis[ACCEL], mon.slow_tilt_var), mon.slow_tilt))
         rb = rotation(*ekf.q.tolist())
         along.append((est.accel_status[2].innov, rb[2], rb[5], rb[8]))  # the body's z misfit; its axis, NED
     r = np.array(rows)
@@ -124,9 +131,9 @@ def terms(point: dict, duration_s: float, settings: tuple[str, ...] = ()) -> dic
 
 def about_field(att: np.ndarray, r: np.ndarray, truth: dict, tn: np.ndarray, te: np.ndarray) -> dict[str, float]:
     """The attitude's error about the magnetic field's axis (true = (I + [d x]) estimate, d . b), RMS in deg, its
-    stated 1-sigma (sqrt(b' P_att b), and with what P does not hold there, consistency.field_attitude_extra) and the
-    correlation of the error with the wind's error across the mean
-    wind (m/s)."""
+    stated 1-sigma (sqrt(b' P_att b), and with what P does not hold there: consistency.field_attitude_extra and
+    consistency.heading_misfit_variance), the accelerometer's slow innovation read as that rotation (RMS in deg, its
+    correlation with the error) and the correlation of the error with the wind's error across the mean wind (m/s)."""
     eb, sb, sx = [], [], []
     for row, (t, *_rest) in zip(att, r):
         ri = [float(np.interp(t, truth["time_s"], truth[c])) for c in ("roll_deg", "pitch_deg", "yaw_deg")]
@@ -142,7 +149,10 @@ def about_field(att: np.ndarray, r: np.ndarray, truth: dict, tn: np.ndarray, te:
     cross = -(r[:, 1] - tn) * math.sin(ang) + (r[:, 2] - te) * math.cos(ang)
     eb_a = np.array(eb)
     corr = float(np.corrcoef(eb_a, cross)[0, 1]) if np.std(eb_a) > 0.0 and np.std(cross) > 0.0 else math.nan
+    slow = att[:, 17]
+    slow_corr = float(np.corrcoef(eb_a, slow)[0, 1]) if np.std(eb_a) > 0.0 and np.std(slow) > 0.0 else math.nan
     return {"about_field_deg": math.degrees(math.sqrt(np.mean(eb_a**2))),
+            "slow_innovation_deg": math.degrees(math.sqrt(np.mean(slow**2))), "slow_innovation_corr": slow_corr,
             "about_field_sigma_deg": math.degrees(math.sqrt(np.mean(sb))),
             "about_field_stated_deg": math.degrees(math.sqrt(np.mean(sx))),
             "cross_error": float(np.sqrt(np.mean(cross**2))), "about_field_cross_corr": corr}  # fmt: skip
@@ -189,11 +199,12 @@ def main(argv: list[str] | None = None) -> int:
           "| accuracy "
           "| = sqrt(P^2 + drag^2 + tilt^2) x inflation | error/accuracy "
           "| worst 20 s offset walk / its sigma | NIS " + " ".join(SOURCES) + " | accel NIS body x y z "
-          "| attitude about the field: RMS error / P's / stated, deg "
+          "| attitude about the field: RMS error / P's / stated, deg | the accelerometer's slow innovation as that "
+          "rotation: RMS, deg (its correlation with the error) "
           "| its correlation with the cross-wind error (RMS) "
           "| accel z misfit: its correlation with the truth's acceleration along the rope; "
           "the tension's SD |")  # fmt: skip
-    print("|---|---|---|---:|---:|---:|---:|---:|---|---:|---:|---|---|---:|---:|---:|")
+    print("|---|---|---|---:|---:|---:|---:|---:|---|---:|---:|---|---|---:|---:|---:|---:|")
     for f in a.flights:
         p, w = points[f], worlds[f]
         t = terms(p, duration, tuple(a.set))
@@ -209,6 +220,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{t['offset_walk_m']:.1f} m / {t['offset_sigma_m']:.2f} m | {nis} | "
               f"{t['nis_accel_x']:.2f} {t['nis_accel_y']:.2f} {t['nis_accel_z']:.2f} | "
               f"{t['about_field_deg']:.2f} / {t['about_field_sigma_deg']:.2f} / {t['about_field_stated_deg']:.2f} | "
+              f"{t['slow_innovation_deg']:.2f} ({t['slow_innovation_corr']:+.2f}) | "
               f"{t['about_field_cross_corr']:+.2f} ({t['cross_error']:.2f} m/s) | "
               f"{t['accel_z_along_corr']:+.2f}; {t['tension_sd_n']:.1f} N |", flush=True)  # fmt: skip
     return 0

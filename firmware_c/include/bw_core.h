@@ -118,6 +118,7 @@ typedef struct {
     int32_t flags;
     bw_real inflation;
     int32_t flag_changes;
+    bw_real slow_tilt, slow_tilt_var;  /* the accelerometer's slow innovation as a tilt about the field, its mean square */
 } bw_consistency_t;
 
 typedef struct {

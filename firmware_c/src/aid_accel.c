@@ -38,6 +38,12 @@ static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, 
     tilt = ground ? BW_R(1.0) : BW_MIN(BW_R(1.0), BW_SQRT(e->dt / (bw_real)BW_ACCEL_MODEL_CORR_S));
     bw_ekf_fuse3(e, fx - pred[0], fy - pred[1], fz - pred[2], var, est->accel_status, var_z_extra, tilt,
                  BW_R(1.0) - misfit * (BW_R(1.0) - tilt));
+    if (!ground) { /* accel.py: its slow horizontal innovation, NED, for the stated accuracy */
+        const bw_status_t *st = est->accel_status;
+        bw_real in = r[0] * st[0].innov + r[1] * st[1].innov + r[2] * st[2].innov;
+        bw_real ie = r[3] * st[0].innov + r[4] * st[1].innov + r[5] * st[2].innov;
+        bw_consistency_add_slow_tilt(&est->consistency, bw_field_tilt_reading(in, ie, est->field_ned), est->a_accel);
+    }
 }
 
 /* accel.py accel_nominal_var: the accelerometer's nominal noise in the filter's mode */
@@ -56,8 +62,7 @@ void bw_control_accel(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
     var = BW_MAX(var, est->accel_innov2);
     est->accel_var_excess = var - nominal;
     /* accel.py: the windowed NIS from BW_FLAG_NIS to twice that, the model stops explaining the accelerometer */
-    misfit = est->consistency.nis[BW_ACCEL] / (bw_real)BW_FLAG_NIS - BW_R(1.0);
-    misfit = BW_MIN(BW_R(1.0), BW_MAX(BW_R(0.0), misfit));
+    misfit = bw_accel_misfit(est->consistency.nis[BW_ACCEL]);
     fuse_accel(est, ax, ay, az, var, e->mode != BW_MODE_GROUND ? est->vertical_gust_var : BW_R(0.0), misfit);
     i2 = (st[0].innov * st[0].innov + st[1].innov * st[1].innov + st[2].innov * st[2].innov) / BW_R(3.0);
     est->accel_innov2 += est->innov_alpha * (i2 - est->accel_innov2);

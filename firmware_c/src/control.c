@@ -657,7 +657,8 @@ bw_real bw_wind_accuracy(const bw_estimator_t *est)
             tilt = BW_HYPOT(zn, ze);
             if (tilt > BW_R(0.0))
                 cross_var = bw_lean_variance(e, ze / tilt, -zn / tilt, zn, ze, zd);
-            cross_var = bw_lean_tilt_variance(cross_var, e->field_att_extra, est->field_ned, zn, ze, zd);
+            cross_var = bw_lean_tilt_variance(cross_var, e->field_att_extra + bw_heading_misfit_variance(&est->consistency),
+                                              est->field_ned, zn, ze, zd);
             lean = bw_lean_bias_wind(wn, we, bw_lift_n(m, est->rho), e->x[BW_DRAG] * est->rho * m->half_cd_area_m2,
                                      (bw_real)BW_LEAN_BIAS_RAD, est->field_ned, cross_var);
         }

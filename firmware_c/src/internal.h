@@ -68,6 +68,10 @@ void bw_status_init(bw_status_t *st, int32_t recover_after);
 void bw_consistency_reset(bw_consistency_t *m);
 void bw_consistency_add(bw_consistency_t *m, int source, bw_real nis, bw_real alpha);
 void bw_consistency_evaluate(bw_consistency_t *m);
+void bw_consistency_add_slow_tilt(bw_consistency_t *m, bw_real reading, bw_real alpha);
+bw_real bw_heading_misfit_variance(const bw_consistency_t *m);
+bw_real bw_accel_misfit(bw_real nis);
+bw_real bw_field_tilt_reading(bw_real innov_n, bw_real innov_e, const bw_real field_ned[3]);
 bw_real bw_field_variance(const bw_ekf_t *e, const bw_real field_ned[3]);
 bw_real bw_correlated_weight(bw_real nis, bw_real dt_s, bw_real corr_s);
 bw_real bw_field_attitude_extra(bw_real extra, bw_real v_pred, bw_real v_accel, bw_real v_aids, bw_real v_end,

@@ -22,13 +22,18 @@ whatever the rope below does (the full envelope's truths, the rope's C_n drawn t
 moves 0.9 % per unit of it, 0.3 % at one sigma; a steady 7 m/s flight with half and 1.5 times the
 rope's C_n: within 0.7 %).
 
-Plain floats, fixed memory: a C port is a struct of five floats.
+The attitude's slow error about the magnetic field's axis, which P does not hold, is stated from two sides: the
+information its sources fused counted as correlated (``field_attitude_extra``), and what the accelerometer's slow
+innovation shows of it (``heading_misfit_variance``).
+
+Plain floats, fixed memory: a C port is a struct of seven floats.
 """
 
 from __future__ import annotations
 
 import math
 
+from balloon_core.atmosphere import G0
 from firmware_py.estimator.params import LEAN_COS_MIN
 from firmware_py.estimator.state import ATT_D, ATT_E, ATT_N
 
@@ -37,29 +42,48 @@ ACCEL, ALIGN, RADIUS, BARO, MAG = range(len(SOURCES))
 CONSISTENCY_S = 20.0  # averaging time of each source's NIS
 NIS_CLIP = 25.0  # one innovation counts at most as a 5-sigma one: a transient does not rule the window
 FLAG_NIS = 2.0  # a windowed NIS above this flags the source: its innovations are 1.4x their expectation
+# the accelerometer's slow innovation (``field_tilt_reading``) is low-passed over this long: longer than the rope's
+# waves and the balloon's response to a gust (seconds), shorter than the attitude's wander about the field's axis
+# (tens of seconds); over 20 s it lost what turns a 1.9 m/s multisine's heading (envelope flight 181: 3.4 % beyond 3
+# sigma where 10 s gave 2.1 %)
+SLOW_INNOV_S = 10.0
+# the attitude's error about the field's axis over what the slow innovation shows of it, RMS over a flight: the
+# innovation keeps only the share of the misfit that the attitude did not take. 1.15 / 0.53, 0.84 / 0.31 and
+# 0.41 / 0.27 deg (2.2, 2.7, 1.5) in the envelope's three light-air multisines that went beyond 3 sigma without it
+# (python tools/accuracy_terms.py 187 181 151: the attitude's error about the field against the slow innovation)
+HEADING_MISFIT_RATIO = 2.0
 
 
 class Consistency:
     """Windowed NIS per aid source, the status bits and the accuracy factor."""
 
-    __slots__ = ("nis", "flags", "inflation", "flag_changes")
+    __slots__ = ("nis", "flags", "inflation", "flag_changes", "slow_tilt", "slow_tilt_var")
 
     def __init__(self) -> None:
         self.nis = [0.0] * len(SOURCES)
         self.flags = 0
         self.inflation = 1.0
         self.flag_changes = 0
+        self.slow_tilt = 0.0  # the accelerometer's innovation as a tilt about the field (field_tilt_reading), rad
+        self.slow_tilt_var = 0.0  # its square's mean over CONSISTENCY_S, rad^2
 
     def reset(self) -> None:
         for i in range(len(SOURCES)):
             self.nis[i] = 0.0
         self.flags = 0
         self.inflation = 1.0
+        self.slow_tilt = self.slow_tilt_var = 0.0
 
     def add(self, source: int, nis: float, alpha: float) -> None:
         """One normalised innovation squared of ``source``, weight ``alpha`` (its interval / window)."""
         if nis == nis:  # NaN: not evaluated
             self.nis[source] += alpha * (min(nis, NIS_CLIP) - self.nis[source])
+
+    def add_slow_tilt(self, reading: float, alpha: float) -> None:
+        """One accelerometer step's ``field_tilt_reading`` (rad), weight ``alpha`` (its interval / CONSISTENCY_S):
+        low-passed over SLOW_INNOV_S, its square averaged over the window."""
+        self.slow_tilt += alpha * (CONSISTENCY_S / SLOW_INNOV_S) * (reading - self.slow_tilt)
+        self.slow_tilt_var += alpha * (self.slow_tilt * self.slow_tilt - self.slow_tilt_var)
 
     def evaluate(self) -> None:
         """The flags and the accuracy factor from the windowed NIS."""
@@ -77,6 +101,40 @@ class Consistency:
 
     def names(self) -> list[str]:
         return [name for i, name in enumerate(SOURCES) if self.flags >> i & 1]
+
+
+def accel_misfit(nis: float) -> float:
+    """How far the force model has stopped explaining the accelerometer, 0..1: its windowed NIS from FLAG_NIS (0)
+    to twice that (1)."""
+    return min(1.0, max(0.0, nis / FLAG_NIS - 1.0))
+
+
+def field_tilt_reading(innov_n: float, innov_e: float, field_ned: tuple[float, float, float]) -> float:
+    """The accelerometer's horizontal innovation (NED, m/s^2) read as a rotation about the magnetic field's axis,
+    rad: such a rotation d tilts the body about the field's horizontal direction by d cos I (I the inclination),
+    so the specific force moves by g d cos I across that direction. 0 while the field is unknown (NaN)."""
+    bn, be, bd = field_ned
+    bh2 = bn * bn + be * be
+    if not bh2 > 0.0:
+        return 0.0
+    return (innov_e * bn - innov_n * be) * math.sqrt(bh2 + bd * bd) / (G0 * bh2)
+
+
+def heading_misfit_variance(nis_accel: float, slow_tilt_var: float) -> float:
+    """The attitude's variance about the magnetic field's axis that the accelerometer's slow misfit shows, rad^2, from
+    its windowed NIS ``nis_accel`` and the mean square of its slow innovation read as that rotation (Consistency).
+
+    The heading takes the accelerometer at its full gain until the monitor flags it (aid_sources/accel.py), so
+    a force model that misfits slowly (light air swinging by half its mean at 0.05-0.2 Hz: the balloon's lag
+    behind it is seconds, the rope's shape a minute) turns the attitude about the field's axis with it, where
+    the magnetometer sees nothing. What the attitude did not take stays in the innovation: low-passed and read
+    as a tilt about the field (``field_tilt_reading``) it follows that error (correlation 0.6-0.9 in the
+    envelope's light-air multisines, 0.0 in steady air), HEADING_MISFIT_RATIO times smaller. Flagged, the
+    heading takes the tilt's reduced gain and the inflation states the misfit (a gust's force misfit is not
+    an attitude error: its slow innovation is uncorrelated with it), so the share falls with the heading's
+    gain: none at twice FLAG_NIS."""
+    share = HEADING_MISFIT_RATIO * (1.0 - accel_misfit(nis_accel))
+    return share * share * slow_tilt_var
 
 
 def field_variance(P, fn: float, fe: float, fd: float) -> float:

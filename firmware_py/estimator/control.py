@@ -27,6 +27,7 @@ from firmware_py.estimator.consistency import (
     correlated_weight,
     field_attitude_extra,
     field_variance,
+    heading_misfit_variance,
     lean_bias_wind,
     lean_tilt_variance,
     systematic_variance,
@@ -651,7 +652,8 @@ class Estimator:
 
     def lean_wind_mps(self) -> float:
         """The wind error of the tilt's systematic error and of the attitude's variance across the lean (P's and what
-        P does not hold about the field's axis: consistency.lean_tilt_variance) on the taut tether
+        P does not hold about the field's axis, counted and seen: consistency.field_attitude_extra,
+        consistency.heading_misfit_variance; consistency.lean_tilt_variance) on the taut tether
         (consistency.lean_bias_wind), m/s; 0 off it."""
         ekf = self.ekf
         if ekf.mode != MODE_TAUT:
@@ -662,7 +664,9 @@ class Estimator:
         zn, ze, zd = r[2], r[5], r[8]  # the body's down axis, along the rope
         lean = math.hypot(zn, ze)
         cross_var = lean_variance(ekf.P, ze / lean, -zn / lean, zn, ze, zd) if lean > 0.0 else 0.0  # across the lean
-        tilt_var = lean_tilt_variance(cross_var, ekf.field_att_extra, self.field_ned, zn, ze, zd)
+        mon = self.consistency
+        extra = ekf.field_att_extra + heading_misfit_variance(mon.nis[ACCEL], mon.slow_tilt_var)
+        tilt_var = lean_tilt_variance(cross_var, extra, self.field_ned, zn, ze, zd)
         return lean_bias_wind(wn, we, m.lift_n(self.rho), float(ekf.x[DRAG]) * self.rho * m.half_cd_area_m2,
                               LEAN_BIAS_RAD, self.field_ned, tilt_var)  # fmt: skip
 

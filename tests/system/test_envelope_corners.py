@@ -2,7 +2,8 @@
 worst case: every wind direction of one multisine flight on the paper's and the real rope (one in nine
 locked 100 deg off at the taut entry), a balloon near its lift limit on a short real rope (a stiff rope's
 modes aliased into the accelerometer), a calm steady wind (a degree of lean: honest, not confident), a
-multisine in light air (the wind meanders by half its speed: followed, and honestly stated).
+multisine in light air (the wind meanders by half its speed: followed, and honestly stated; over ten minutes it
+turns the heading, and says so).
 
 Each judgement is also passed through two references that must fail it: the constant true mean and the
 truth delayed by 4 s, both with the filter's own stated accuracy. The C core and the compiled truth: a
@@ -26,12 +27,12 @@ DURATION_S = 240.0
 DELAY_S = 4.0
 
 
-def flights(p: dict[str, Any]) -> dict[str, dict[str, float]]:
-    """The estimate and the two references, each scored against the truth (after ``START_S``)."""
+def flights(p: dict[str, Any], duration_s: float = DURATION_S, start_s: float = START_S) -> dict[str, dict[str, float]]:
+    """The estimate and the two references, each scored against the truth (after ``start_s``)."""
     design, wind, truth_cfg, filt = build(be.sections_of(p))
-    rows, truth, est = fly(design, wind, truth_cfg, filt, DURATION_S, p["seed"])
+    rows, truth, est = fly(design, wind, truth_cfg, filt, duration_s, p["seed"])
     t, tn, te = truth["time_s"], truth["wind_n"], truth["wind_e"]
-    late = t >= START_S
+    late = t >= start_s
     candidates = {
         "estimate": (rows[:, 0], rows[:, 1], rows[:, 2]),
         "constant": (t, np.full_like(tn, tn[late].mean()), np.full_like(te, te[late].mean())),
@@ -40,8 +41,8 @@ def flights(p: dict[str, Any]) -> dict[str, dict[str, float]]:
     out = {}
     for name, (tt, en, ee) in candidates.items():
         acc = np.interp(tt, rows[:, 0], rows[:, 3])
-        sc = score(tt, en, ee, acc, t, tn, te, START_S)
-        _, gn, ge, ac, gtn, gte = on_grid(tt, en, ee, acc, t, tn, te, START_S)
+        sc = score(tt, en, ee, acc, t, tn, te, start_s)
+        _, gn, ge, ac, gtn, gte = on_grid(tt, en, ee, acc, t, tn, te, start_s)
         out[name] = {
             "dir": abs(sc.direction_error_deg), "speed": abs(sc.speed_error_pct), "skill": sc.band_skill,
             "err_acc": sc.error_ratio, "beyond_3sigma": float(np.mean(np.hypot(gn - gtn, ge - gte) > 3.0 * ac)),
@@ -145,6 +146,33 @@ def test_a_multisine_in_light_air(name):
     m = flights(base(**LIGHT_AIR[name]))
     assert ok(m["estimate"]), m["estimate"]
     assert not ok(m["constant"]) and not ok(m["delayed"])
+
+
+HEADING_TURNED = {  # the envelope's flights 187 and 151: the two-axis multisine in light air, the C_d drawn
+    "lumped 1.10 m/s": dict(from_deg=247.5, mean_mps=1.102, rope_model="lumped", radius_m=1.1859, tether_m=121.27,
+                            pressure_drift_hpa_h=1.0, bias_scale=0.2802, sensor_grade="table2", seed=467609,
+                            cd_scale=0.835, rope_cd_scale=1.15),
+    "paper 1.48 m/s": dict(from_deg=208.13, mean_mps=1.477, radius_m=1.006, tether_m=93.64,
+                           pressure_drift_hpa_h=-0.744, bias_scale=0.7927, sensor_grade="tactical", seed=820760,
+                           cd_scale=0.92, rope_cd_scale=0.744),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("name", HEADING_TURNED)
+def test_light_air_that_turns_the_heading_says_so(name):
+    """Ten minutes of a multisine swinging by half its 1.1-1.5 m/s mean: the force model's slow misfit turns the
+    attitude about the magnetic field's axis (1.2 and 0.4 deg RMS), which only the accelerometer holds, and the
+    lean's azimuth with it (the first: 22 deg off and 32 % low over the flight; its C_d 16 % below the design's).
+    Where the heading's error was stated only from the information its sources fused, 5.2 and 4.0 % of the estimates
+    were beyond 3 sigma; the accelerometer's slow innovation (consistency.heading_misfit_variance) now states it.
+    The envelope's honesty bars: error/accuracy 0.5-2, at most 3 % beyond 3 sigma (1.3 and 1.2 % now)."""
+
+    def honest(x: dict[str, float]) -> bool:
+        return 0.5 <= x["err_acc"] <= 2.0 and x["beyond_3sigma"] <= 0.03
+
+    m = flights(base(**HEADING_TURNED[name]), duration_s=be.FULL_DURATION_S, start_s=120.0)
+    assert honest(m["estimate"]), m["estimate"]
+    assert not honest(m["constant"]) and not honest(m["delayed"])
 
 
 ASCENTS = {  # the balloon's C_d unlike its design's, as a user's would be

@@ -1,5 +1,6 @@
-"""What P does not hold about the magnetic field's axis (consistency.field_attitude_extra): a fusion whose misfit
-is correlated counts as that much less data, and nothing else changes."""
+"""What P does not hold about the magnetic field's axis: counted (consistency.field_attitude_extra: a fusion whose
+misfit is correlated counts as that much less data, and nothing else changes) and seen (the accelerometer's slow
+innovation read as a rotation about the field, consistency.heading_misfit_variance)."""
 
 from __future__ import annotations
 
@@ -8,10 +9,17 @@ import math
 import numpy as np
 import pytest
 
+from balloon_core.atmosphere import G0
 from firmware_py.estimator.consistency import (
+    CONSISTENCY_S,
+    FLAG_NIS,
+    HEADING_MISFIT_RATIO,
+    Consistency,
     correlated_weight,
     field_attitude_extra,
+    field_tilt_reading,
     field_variance,
+    heading_misfit_variance,
     lean_tilt_variance,
 )
 from firmware_py.estimator.state import ATT_D, ATT_N
@@ -106,3 +114,55 @@ def test_what_p_does_not_hold_turns_the_lean_as_a_rotation_about_the_field_does(
         assert got == pytest.approx(want, rel=1e-4, abs=1e-8 * d * d)
         assert lean_tilt_variance(2e-6, 0.0, tuple(b), *z) == pytest.approx(2e-6 / math.cos(lean) ** 2)
         assert lean_tilt_variance(2e-6, d * d, (math.nan,) * 3, *z) == pytest.approx(2e-6 / math.cos(lean) ** 2)
+
+
+@pytest.mark.parametrize("incl_deg", [-70.0, 10.0, 45.0, 66.0, 85.0])
+def test_the_accelerometers_innovation_reads_a_rotation_about_the_field(incl_deg):
+    """At rest the accelerometer reads f = (0, 0, -g) (NED). An estimate turned by d about the field's axis b from the
+    truth predicts it turned the other way: the innovation, rotated to NED with the estimate, is d (b x f)'s negative,
+    horizontal, across the field's horizontal direction. field_tilt_reading gives back d, whatever the field's
+    strength, declination and inclination; an innovation along the field's horizontal direction reads nothing, and
+    so does any innovation while the field is unknown."""
+    rng = np.random.default_rng(int(incl_deg) + 100)
+    incl = math.radians(incl_deg)
+    f = np.array([0.0, 0.0, -G0])
+    for _ in range(10):
+        dec = rng.uniform(0.0, 2.0 * math.pi)
+        strength = rng.uniform(0.2, 0.6)
+        b = strength * np.array([math.cos(incl) * math.cos(dec), math.cos(incl) * math.sin(dec), math.sin(incl)])
+        d = rng.uniform(-0.02, 0.02)
+        truth_from_estimate = d * b / np.linalg.norm(b)
+        innov = np.cross(f, truth_from_estimate)  # R_est (R_true^T f) - f for R_true = (I + [delta x]) R_est
+        assert field_tilt_reading(innov[0], innov[1], tuple(b)) == pytest.approx(-d, rel=1e-9, abs=1e-15)
+        along = b[:2] / np.linalg.norm(b[:2])
+        assert field_tilt_reading(0.3 * along[0], 0.3 * along[1], tuple(b)) == pytest.approx(0.0, abs=1e-15)
+        assert field_tilt_reading(innov[0], innov[1], (math.nan,) * 3) == 0.0
+
+
+def test_the_slow_innovation_keeps_a_persistent_misfit_and_drops_the_waves():
+    """A reading held for a minute is the slow tilt and its mean square; one that changes sign every step (the rope's
+    waves, a sample's noise) averages out of both."""
+    rate = 100.0
+    alpha = 1.0 / (CONSISTENCY_S * rate)
+    held, waves = Consistency(), Consistency()
+    for i in range(int(120.0 * rate)):
+        held.add_slow_tilt(0.01, alpha)
+        waves.add_slow_tilt(0.01 if i % 2 else -0.01, alpha)
+    assert held.slow_tilt == pytest.approx(0.01, rel=1e-3)
+    assert held.slow_tilt_var == pytest.approx(1e-4, rel=1e-2)
+    assert waves.slow_tilt_var < 1e-4 * 1e-3
+    held.reset()
+    assert held.slow_tilt == held.slow_tilt_var == 0.0
+
+
+def test_a_flagged_accelerometer_leaves_the_heading_to_the_inflation():
+    """The seen variance is HEADING_MISFIT_RATIO^2 times the slow innovation's mean square while the accelerometer
+    is unflagged, falls with its heading gain as the monitor flags it, and is none at twice the flag's NIS."""
+    v = 1e-4
+    full = HEADING_MISFIT_RATIO**2 * v
+    assert heading_misfit_variance(0.3, v) == pytest.approx(full)
+    assert heading_misfit_variance(FLAG_NIS, v) == pytest.approx(full)
+    assert heading_misfit_variance(1.5 * FLAG_NIS, v) == pytest.approx(0.25 * full)
+    assert heading_misfit_variance(2.0 * FLAG_NIS, v) == 0.0
+    assert heading_misfit_variance(25.0, v) == 0.0
+    assert heading_misfit_variance(0.3, 0.0) == 0.0

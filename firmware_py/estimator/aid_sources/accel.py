@@ -9,7 +9,7 @@ import numpy as np
 
 from balloon_core.atmosphere import G0
 from balloon_core.rotation import rotation
-from firmware_py.estimator.consistency import ACCEL, FLAG_NIS
+from firmware_py.estimator.consistency import ACCEL, CONSISTENCY_S, accel_misfit, field_tilt_reading
 from firmware_py.estimator.ekf import FusionStatus, WindEkf
 from firmware_py.estimator.params import ACCEL_MODEL_CORR_S
 from firmware_py.estimator.state import (
@@ -87,9 +87,15 @@ def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
     est._accel_var_excess = var - nominal  # what the consistency monitor takes back out (control._monitor)
     # the accelerometer's windowed NIS (the consistency monitor) from FLAG_NIS to twice that: the model stops
     # explaining it; the vertical air the model leaves out moves the balloon along its body z (_vertical_gust_var)
-    misfit = min(1.0, max(0.0, est.consistency.nis[ACCEL] / FLAG_NIS - 1.0))
+    misfit = accel_misfit(est.consistency.nis[ACCEL])
     fuse_accel(ekf, ax, ay, az, var, est.accel_status, est.vertical_gust_var if ekf.mode != MODE_GROUND else 0.0,
                misfit)  # fmt: skip
     st = est.accel_status
     i2 = (st[0].innov ** 2 + st[1].innov ** 2 + st[2].innov ** 2) / 3.0
     est._accel_innov2 += est._innov_alpha * (i2 - est._accel_innov2)
+    if ekf.mode != MODE_GROUND:  # its slow horizontal innovation, NED (R^T's columns), for the stated accuracy
+        rt = ekf.rt
+        innov_n = rt[0, 0] * st[0].innov + rt[1, 0] * st[1].innov + rt[2, 0] * st[2].innov
+        innov_e = rt[0, 1] * st[0].innov + rt[1, 1] * st[1].innov + rt[2, 1] * st[2].innov
+        est.consistency.add_slow_tilt(field_tilt_reading(innov_n, innov_e, est.field_ned),
+                                      1.0 / (CONSISTENCY_S * est.cfg.imu_rate_hz))  # fmt: skip
