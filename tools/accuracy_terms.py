@@ -96,8 +96,9 @@ def terms(point: dict, duration_s: float, settings: tuple[str, ...] = ()) -> dic
                      *(min(a.innov**2 / max(a.innov_var - est._accel_var_excess, 1e-12), 3.0 * NIS_CLIP)
                        for a in est.accel_status)))  # fmt: skip
         mon = est.consistency
-        att.append((*ekf.q.tolist(), *est.field_ned, *ekf.P[ATT_N : ATT_D + 1, ATT_N : ATT_D + 1].ravel(),
-                    ekf.field_att_extra + heading_misfit_variance(mon.nis[ACCEL], mon.slow_tilt_var), mon.slow_tilt))
+        extra = max(ekf.field_att_extra, heading_misfit_variance(mon.nis[ACCEL], mon.slow_tilt_var))
+        att.append((*ekf.q.tolist(), *est.field_ned, *ekf.P[ATT_N : ATT_D + 1, ATT_N : ATT_D + 1].ravel(), extra,
+                    mon.slow_tilt))
         rb = rotation(*ekf.q.tolist())
         along.append((est.accel_status[2].innov, rb[2], rb[5], rb[8]))  # the body's z misfit; its axis, NED
     r = np.array(rows)

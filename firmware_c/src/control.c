@@ -650,15 +650,16 @@ bw_real bw_wind_accuracy(const bw_estimator_t *est)
         const bw_model_t *m = &e->m;
         bw_real lean = BW_R(0.0);
         if (e->mode == BW_MODE_TAUT) {
-            /* the attitude's variance across the lean, as a tilt (control.py lean_wind_mps) */
-            bw_real r[9], zn, ze, zd, tilt, cross_var = BW_R(0.0);
+            /* the attitude's variance across the lean, as a tilt, with the larger of what P does not hold about the
+             * field's axis counted and seen (control.py lean_wind_mps) */
+            bw_real r[9], zn, ze, zd, tilt, extra, cross_var = BW_R(0.0);
             bw_rotation(e->q, r);
             zn = r[2], ze = r[5], zd = r[8];
             tilt = BW_HYPOT(zn, ze);
             if (tilt > BW_R(0.0))
                 cross_var = bw_lean_variance(e, ze / tilt, -zn / tilt, zn, ze, zd);
-            cross_var = bw_lean_tilt_variance(cross_var, e->field_att_extra + bw_heading_misfit_variance(&est->consistency),
-                                              est->field_ned, zn, ze, zd);
+            extra = BW_MAX(e->field_att_extra, bw_heading_misfit_variance(&est->consistency));
+            cross_var = bw_lean_tilt_variance(cross_var, extra, est->field_ned, zn, ze, zd);
             lean = bw_lean_bias_wind(wn, we, bw_lift_n(m, est->rho), e->x[BW_DRAG] * est->rho * m->half_cd_area_m2,
                                      (bw_real)BW_LEAN_BIAS_RAD, est->field_ned, cross_var);
         }

@@ -652,8 +652,9 @@ class Estimator:
 
     def lean_wind_mps(self) -> float:
         """The wind error of the tilt's systematic error and of the attitude's variance across the lean (P's and what
-        P does not hold about the field's axis, counted and seen: consistency.field_attitude_extra,
-        consistency.heading_misfit_variance; consistency.lean_tilt_variance) on the taut tether
+        P does not hold about the field's axis, the larger of what is counted and what is seen:
+        consistency.field_attitude_extra, consistency.heading_misfit_variance; consistency.lean_tilt_variance) on the
+        taut tether
         (consistency.lean_bias_wind), m/s; 0 off it."""
         ekf = self.ekf
         if ekf.mode != MODE_TAUT:
@@ -665,7 +666,7 @@ class Estimator:
         lean = math.hypot(zn, ze)
         cross_var = lean_variance(ekf.P, ze / lean, -zn / lean, zn, ze, zd) if lean > 0.0 else 0.0  # across the lean
         mon = self.consistency
-        extra = ekf.field_att_extra + heading_misfit_variance(mon.nis[ACCEL], mon.slow_tilt_var)
+        extra = max(ekf.field_att_extra, heading_misfit_variance(mon.nis[ACCEL], mon.slow_tilt_var))
         tilt_var = lean_tilt_variance(cross_var, extra, self.field_ned, zn, ze, zd)
         return lean_bias_wind(wn, we, m.lift_n(self.rho), float(ekf.x[DRAG]) * self.rho * m.half_cd_area_m2,
                               LEAN_BIAS_RAD, self.field_ned, tilt_var)  # fmt: skip
