@@ -38,11 +38,11 @@ static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, 
     tilt = ground ? BW_R(1.0) : BW_MIN(BW_R(1.0), BW_SQRT(e->dt / (bw_real)BW_ACCEL_MODEL_CORR_S));
     bw_ekf_fuse3(e, fx - pred[0], fy - pred[1], fz - pred[2], var, est->accel_status, var_z_extra, tilt,
                  BW_R(1.0) - misfit * (BW_R(1.0) - tilt));
-    if (!ground) { /* accel.py: its slow horizontal innovation, NED, for the stated accuracy */
+    if (!ground && e->taut_phase == 0) { /* accel.py: its slow horizontal innovation, NED, at the tether's rate */
         const bw_status_t *st = est->accel_status;
         bw_real in = r[0] * st[0].innov + r[1] * st[1].innov + r[2] * st[2].innov;
         bw_real ie = r[3] * st[0].innov + r[4] * st[1].innov + r[5] * st[2].innov;
-        bw_consistency_add_slow_tilt(&est->consistency, bw_field_tilt_reading(in, ie, est->field_ned), est->a_accel);
+        bw_consistency_add_slow_tilt(&est->consistency, bw_field_tilt_reading(in, ie, est->field_ned), est->a_taut);
     }
 }
 

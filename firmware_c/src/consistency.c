@@ -11,35 +11,12 @@ void bw_consistency_reset(bw_consistency_t *m)
     m->slow_tilt = m->slow_tilt_var = BW_R(0.0);
 }
 
-/* consistency.py Consistency.add_slow_tilt: low-passed over BW_SLOW_INNOV_S, its square over the window */
-void bw_consistency_add_slow_tilt(bw_consistency_t *m, bw_real reading, bw_real alpha)
-{
-    m->slow_tilt += alpha * (bw_real)(BW_CONSISTENCY_S / BW_SLOW_INNOV_S) * (reading - m->slow_tilt);
-    m->slow_tilt_var += alpha * (m->slow_tilt * m->slow_tilt - m->slow_tilt_var);
-}
-
 /* consistency.py Consistency.heading_misfit_variance: the attitude's variance about the field's axis that the
  * accelerometer's slow misfit shows, none of it once the monitor flags the accelerometer */
 bw_real bw_heading_misfit_variance(const bw_consistency_t *m)
 {
     const bw_real share = (bw_real)BW_HEADING_MISFIT_RATIO * (BW_R(1.0) - bw_accel_misfit(m->nis[BW_ACCEL]));
     return share * share * m->slow_tilt_var;
-}
-
-/* consistency.py accel_misfit: the accelerometer's windowed NIS from BW_FLAG_NIS (0) to twice that (1) */
-bw_real bw_accel_misfit(bw_real nis)
-{
-    return BW_MIN(BW_R(1.0), BW_MAX(BW_R(0.0), nis / (bw_real)BW_FLAG_NIS - BW_R(1.0)));
-}
-
-/* consistency.py field_tilt_reading: the horizontal innovation (NED) read as a rotation about the field's axis */
-bw_real bw_field_tilt_reading(bw_real innov_n, bw_real innov_e, const bw_real field_ned[3])
-{
-    const bw_real bh2 = field_ned[0] * field_ned[0] + field_ned[1] * field_ned[1];
-    if (!(bh2 > BW_R(0.0)))
-        return BW_R(0.0);
-    return (innov_e * field_ned[0] - innov_n * field_ned[1]) * BW_SQRT(bh2 + field_ned[2] * field_ned[2]) /
-           ((bw_real)BW_G0 * bh2);
 }
 
 void bw_consistency_add(bw_consistency_t *m, int source, bw_real nis, bw_real alpha)

@@ -68,10 +68,7 @@ void bw_status_init(bw_status_t *st, int32_t recover_after);
 void bw_consistency_reset(bw_consistency_t *m);
 void bw_consistency_add(bw_consistency_t *m, int source, bw_real nis, bw_real alpha);
 void bw_consistency_evaluate(bw_consistency_t *m);
-void bw_consistency_add_slow_tilt(bw_consistency_t *m, bw_real reading, bw_real alpha);
 bw_real bw_heading_misfit_variance(const bw_consistency_t *m);
-bw_real bw_accel_misfit(bw_real nis);
-bw_real bw_field_tilt_reading(bw_real innov_n, bw_real innov_e, const bw_real field_ned[3]);
 bw_real bw_field_variance(const bw_ekf_t *e, const bw_real field_ned[3]);
 bw_real bw_correlated_weight(bw_real nis, bw_real dt_s, bw_real corr_s);
 bw_real bw_field_attitude_extra(bw_real extra, bw_real v_pred, bw_real v_accel, bw_real v_aids, bw_real v_end,
@@ -81,6 +78,29 @@ bw_real bw_lean_tilt_variance(bw_real cross_var, bw_real extra, const bw_real fi
 bw_real bw_systematic_variance(bw_real speed_mps, bw_real drag_scale, bw_real drag_scale_var, bw_real lean_wind_mps);
 bw_real bw_lean_bias_wind(bw_real wind_n, bw_real wind_e, bw_real lift_n, bw_real drag_per_speed2,
                           bw_real lean_bias_rad, const bw_real field_ned[3], bw_real cross_tilt_var);
+/* inline: every step's */
+/* consistency.py accel_misfit: the accelerometer's windowed NIS from BW_FLAG_NIS (0) to twice that (1) */
+static inline bw_real bw_accel_misfit(bw_real nis)
+{
+    return BW_MIN(BW_R(1.0), BW_MAX(BW_R(0.0), nis / (bw_real)BW_FLAG_NIS - BW_R(1.0)));
+}
+
+/* consistency.py field_tilt_reading: the horizontal innovation (NED) read as a rotation about the field's axis */
+static inline bw_real bw_field_tilt_reading(bw_real innov_n, bw_real innov_e, const bw_real field_ned[3])
+{
+    const bw_real bh2 = field_ned[0] * field_ned[0] + field_ned[1] * field_ned[1];
+    if (!(bh2 > BW_R(0.0)))
+        return BW_R(0.0);
+    return (innov_e * field_ned[0] - innov_n * field_ned[1]) * BW_SQRT(bh2 + field_ned[2] * field_ned[2]) /
+           ((bw_real)BW_G0 * bh2);
+}
+
+/* consistency.py Consistency.add_slow_tilt: low-passed over BW_SLOW_INNOV_S, its square over the window */
+static inline void bw_consistency_add_slow_tilt(bw_consistency_t *m, bw_real reading, bw_real alpha)
+{
+    m->slow_tilt += alpha * (bw_real)(BW_CONSISTENCY_S / BW_SLOW_INNOV_S) * (reading - m->slow_tilt);
+    m->slow_tilt_var += alpha * (m->slow_tilt * m->slow_tilt - m->slow_tilt_var);
+}
 
 /* aid sources */
 bw_real bw_accel_nominal_var(const bw_estimator_t *est);
