@@ -33,13 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from balloon_core.rotation import quat_from_euler, rotation  # noqa: E402
 from balloon_core.score import score  # noqa: E402
 from benchmarks.bench_envelope import sample, sections_of  # noqa: E402
-from firmware_py.estimator.consistency import (  # noqa: E402
-    ACCEL,
-    NIS_CLIP,
-    SOURCES,
-    heading_misfit_variance,
-    systematic_variance,
-)
+from firmware_py.estimator.consistency import NIS_CLIP, SOURCES, systematic_variance  # noqa: E402
 from firmware_py.estimator.control import Estimator  # noqa: E402
 from firmware_py.estimator.state import ATT_D, ATT_N, BARO_OFF, DRAG  # noqa: E402
 from sim_hil.simulator import TRUTH_COLUMNS, Simulation  # noqa: E402
@@ -95,10 +89,8 @@ def terms(point: dict, duration_s: float, settings: tuple[str, ...] = ()) -> dic
                      float(ekf.P[BARO_OFF, BARO_OFF]), k, *est.consistency.nis,
                      *(min(a.innov**2 / max(a.innov_var - est._accel_var_excess, 1e-12), 3.0 * NIS_CLIP)
                        for a in est.accel_status)))  # fmt: skip
-        mon = est.consistency
-        extra = max(ekf.field_att_extra, heading_misfit_variance(mon.nis[ACCEL], mon.slow_tilt_var))
-        att.append((*ekf.q.tolist(), *est.field_ned, *ekf.P[ATT_N : ATT_D + 1, ATT_N : ATT_D + 1].ravel(), extra,
-                    mon.slow_tilt))
+        att.append((*ekf.q.tolist(), *est.field_ned, *ekf.P[ATT_N : ATT_D + 1, ATT_N : ATT_D + 1].ravel(),
+                    est.field_extra_variance(), est.consistency.slow_tilt))
         rb = rotation(*ekf.q.tolist())
         along.append((est.accel_status[2].innov, rb[2], rb[5], rb[8]))  # the body's z misfit; its axis, NED
     r = np.array(rows)

@@ -5,7 +5,7 @@
 #include "internal.h"
 
 static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, bw_real var, bw_real var_z_extra,
-                       bw_real misfit)
+                       bw_real misfit, bw_real nominal)
 {
     bw_ekf_t *e = &est->ekf;
     const bw_forces_t *f = &e->forces;
@@ -38,11 +38,15 @@ static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, 
     tilt = ground ? BW_R(1.0) : BW_MIN(BW_R(1.0), BW_SQRT(e->dt / (bw_real)BW_ACCEL_MODEL_CORR_S));
     bw_ekf_fuse3(e, fx - pred[0], fy - pred[1], fz - pred[2], var, est->accel_status, var_z_extra, tilt,
                  BW_R(1.0) - misfit * (BW_R(1.0) - tilt));
-    if (!ground && e->taut_phase == 0) { /* accel.py: its slow horizontal innovation, NED, at the tether's rate */
+    if (!ground && e->taut_phase == 0) {
+        /* accel.py: its slow horizontal innovation, NED, at the tether's rate, with the share that counts
+         * (consistency.py slow_innovation_share) */
         const bw_status_t *st = est->accel_status;
         bw_real in = r[0] * st[0].innov + r[1] * st[1].innov + r[2] * st[2].innov;
         bw_real ie = r[3] * st[0].innov + r[4] * st[1].innov + r[5] * st[2].innov;
-        bw_consistency_add_slow_tilt(&est->consistency, bw_field_tilt_reading(in, ie, est->field_ned), est->a_taut);
+        bw_real share = (BW_R(1.0) - misfit) * BW_SQRT(nominal / var);
+        bw_consistency_add_slow_tilt(&est->consistency, share * bw_field_tilt_reading(in, ie, est->field_ned),
+                                     est->a_taut);
     }
 }
 
@@ -63,7 +67,7 @@ void bw_control_accel(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
     est->accel_var_excess = var - nominal;
     /* accel.py: the windowed NIS from BW_FLAG_NIS to twice that, the model stops explaining the accelerometer */
     misfit = bw_accel_misfit(est->consistency.nis[BW_ACCEL]);
-    fuse_accel(est, ax, ay, az, var, e->mode != BW_MODE_GROUND ? est->vertical_gust_var : BW_R(0.0), misfit);
+    fuse_accel(est, ax, ay, az, var, e->mode != BW_MODE_GROUND ? est->vertical_gust_var : BW_R(0.0), misfit, nominal);
     i2 = (st[0].innov * st[0].innov + st[1].innov * st[1].innov + st[2].innov * st[2].innov) / BW_R(3.0);
     est->accel_innov2 += est->innov_alpha * (i2 - est->accel_innov2);
 }

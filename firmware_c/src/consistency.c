@@ -11,12 +11,11 @@ void bw_consistency_reset(bw_consistency_t *m)
     m->slow_tilt = m->slow_tilt_var = BW_R(0.0);
 }
 
-/* consistency.py Consistency.heading_misfit_variance: the attitude's variance about the field's axis that the
- * accelerometer's slow misfit shows, none of it once the monitor flags the accelerometer */
+/* consistency.py heading_misfit_variance: the attitude's variance about the field's axis that the accelerometer's
+ * slow misfit shows */
 bw_real bw_heading_misfit_variance(const bw_consistency_t *m)
 {
-    const bw_real share = (bw_real)BW_HEADING_MISFIT_RATIO * (BW_R(1.0) - bw_accel_misfit(m->nis[BW_ACCEL]));
-    return share * share * m->slow_tilt_var;
+    return (bw_real)BW_HEADING_MISFIT_RATIO * (bw_real)BW_HEADING_MISFIT_RATIO * m->slow_tilt_var;
 }
 
 void bw_consistency_add(bw_consistency_t *m, int source, bw_real nis, bw_real alpha)

@@ -28,7 +28,7 @@ the accelerometer's slow innovation shows of it (``heading_misfit_variance``). T
 twice: flights that were honest grew more cautious (the envelope: 30.0 % of flights with error/accuracy within
 0.75-1.33 where the larger gives 32.0 %), the tails beyond 3 sigma no better.
 
-Plain floats, fixed memory: a C port is a struct of seven floats.
+Plain numbers, fixed memory: a C port is a struct of eight floats and two integers.
 """
 
 from __future__ import annotations
@@ -57,7 +57,8 @@ HEADING_MISFIT_RATIO = 2.0
 
 
 class Consistency:
-    """Windowed NIS per aid source, the status bits and the accuracy factor."""
+    """Windowed NIS per aid source, the status bits and the accuracy factor; the accelerometer's slow innovation
+    read as a rotation about the field, and its mean square (``heading_misfit_variance``)."""
 
     __slots__ = ("nis", "flags", "inflation", "flag_changes", "slow_tilt", "slow_tilt_var")
 
@@ -82,8 +83,8 @@ class Consistency:
             self.nis[source] += alpha * (min(nis, NIS_CLIP) - self.nis[source])
 
     def add_slow_tilt(self, reading: float, alpha: float) -> None:
-        """One accelerometer step's ``field_tilt_reading`` (rad), weight ``alpha`` (its interval / CONSISTENCY_S):
-        low-passed over SLOW_INNOV_S, its square averaged over the window."""
+        """One ``field_tilt_reading`` (rad, with the share that counts: aid_sources/accel.py), weight ``alpha`` (its
+        interval / CONSISTENCY_S): low-passed over SLOW_INNOV_S, its square averaged over the window."""
         self.slow_tilt += alpha * (CONSISTENCY_S / SLOW_INNOV_S) * (reading - self.slow_tilt)
         self.slow_tilt_var += alpha * (self.slow_tilt * self.slow_tilt - self.slow_tilt_var)
 
@@ -114,7 +115,11 @@ def accel_misfit(nis: float) -> float:
 def field_tilt_reading(innov_n: float, innov_e: float, field_ned: tuple[float, float, float]) -> float:
     """The accelerometer's horizontal innovation (NED, m/s^2) read as a rotation about the magnetic field's axis,
     rad: such a rotation d tilts the body about the field's horizontal direction by d cos I (I the inclination),
-    so the specific force moves by g d cos I across that direction. 0 while the field is unknown (NaN)."""
+    so the specific force moves by g d cos I across that direction. Its sign: an estimate turned by d from the
+    truth, R_est = (I + [d b x]) R_true (b the field's unit axis), reads d; a misfit that the attitude followed reads
+    the part it did not follow, with the attitude's sign (tools/accuracy_terms.py's error about the field is the
+    truth's from the estimate: the first correlates negatively with it, the second positively). 0 while the field
+    is unknown (NaN)."""
     bn, be, bd = field_ned
     bh2 = bn * bn + be * be
     if not bh2 > 0.0:
@@ -122,21 +127,28 @@ def field_tilt_reading(innov_n: float, innov_e: float, field_ned: tuple[float, f
     return (innov_e * bn - innov_n * be) * math.sqrt(bh2 + bd * bd) / (G0 * bh2)
 
 
-def heading_misfit_variance(nis_accel: float, slow_tilt_var: float) -> float:
+def slow_innovation_share(misfit: float, nominal_var: float, var: float) -> float:
+    """The share of the accelerometer's innovation that counts as the settled force model's slow misfit that the
+    heading took: the heading's share of the gain, ``1 - misfit`` (``accel_misfit``: none once the monitor flags the
+    accelerometer, whose factor then states the misfit), times the nominal noise's share of the noise fused, as an RMS
+    (``nominal_var`` against ``var``, which follows the innovations: after a placement they are metres a second
+    squared while the state settles and the attitude is right; the taut entry of realistic-mems read 2.5 deg about
+    the field that way, and stated it for a minute, where the attitude was 0.3 deg off)."""
+    return (1.0 - misfit) * math.sqrt(nominal_var / var)
+
+
+def heading_misfit_variance(slow_tilt_var: float) -> float:
     """The attitude's variance about the magnetic field's axis that the accelerometer's slow misfit shows, rad^2, from
-    its windowed NIS ``nis_accel`` and the mean square of its slow innovation read as that rotation (Consistency).
+    the mean square of its slow innovation read as that rotation (Consistency.slow_tilt_var).
 
     The heading takes the accelerometer at its full gain until the monitor flags it (aid_sources/accel.py), so
     a force model that misfits slowly (light air swinging by half its mean at 0.05-0.2 Hz: the balloon's lag
     behind it is seconds, the rope's shape a minute) turns the attitude about the field's axis with it, where
     the magnetometer sees nothing. What the attitude did not take stays in the innovation: low-passed and read
-    as a tilt about the field (``field_tilt_reading``) it follows that error (correlation 0.6-0.9 in the
-    envelope's light-air multisines, 0.0 in steady air), HEADING_MISFIT_RATIO times smaller. Flagged, the
-    heading takes the tilt's reduced gain and the inflation states the misfit (a gust's force misfit is not
-    an attitude error: its slow innovation is uncorrelated with it), so the share falls with the heading's
-    gain: none at twice FLAG_NIS."""
-    share = HEADING_MISFIT_RATIO * (1.0 - accel_misfit(nis_accel))
-    return share * share * slow_tilt_var
+    as a rotation about the field (``field_tilt_reading``) it follows that error (correlation 0.6-0.9 in the
+    envelope's light-air multisines; an RMS of 0.00 deg in steady air), HEADING_MISFIT_RATIO times smaller. It is
+    fed with the share that counts (``slow_innovation_share``)."""
+    return HEADING_MISFIT_RATIO * HEADING_MISFIT_RATIO * slow_tilt_var
 
 
 def field_variance(P, fn: float, fe: float, fd: float) -> float:

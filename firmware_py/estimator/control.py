@@ -210,6 +210,7 @@ class Estimator:
         # the taut wind speed at the measuring window's start, its departures from it summed, and squared
         self._turbulence = [0.0, 0.0, 0.0]
         self._align_alpha = self.schedule.taut_every / (ALIGN_INNOV_S * self.cfg.imu_rate_hz)
+        self._taut_alpha = self.schedule.taut_every / (CONSISTENCY_S * self.cfg.imu_rate_hz)
         self.consistency.reset()
 
     def _init_baro(self) -> None:
@@ -431,7 +432,7 @@ class Estimator:
             ex = self._accel_var_excess
             nis = sum(s.innov**2 / max(s.innov_var - ex, 1e-12) for s in st) / 3.0
             mon.add(ACCEL, nis, 1.0 / (CONSISTENCY_S * rate))
-        taut_alpha = self.schedule.taut_every / (CONSISTENCY_S * rate)
+        taut_alpha = self._taut_alpha
         radius, _, an, ae = self.taut_status
         if an.time_test_us == t and an.innov_var > 0.0 and ae.innov_var > 0.0:
             # against the noise it was fused with: the alignment's noise follows the rocking (aid_sources/tether.py),
@@ -650,6 +651,12 @@ class Estimator:
         """The attitude's variance about the magnetic field's axis in P, rad^2; 0 while the field is unknown."""
         return field_variance(self.ekf.P, *self.field_ned)
 
+    def field_extra_variance(self) -> float:
+        """The attitude's variance about the magnetic field's axis that P does not hold, rad^2: the larger of what is
+        counted (consistency.field_attitude_extra) and what is seen (consistency.heading_misfit_variance), two
+        estimates of one error (their sum counted it twice)."""
+        return max(self.ekf.field_att_extra, heading_misfit_variance(self.consistency.slow_tilt_var))
+
     def lean_wind_mps(self) -> float:
         """The wind error of the tilt's systematic error and of the attitude's variance across the lean (P's and what
         P does not hold about the field's axis, the larger of what is counted and what is seen:
@@ -665,8 +672,7 @@ class Estimator:
         zn, ze, zd = r[2], r[5], r[8]  # the body's down axis, along the rope
         lean = math.hypot(zn, ze)
         cross_var = lean_variance(ekf.P, ze / lean, -zn / lean, zn, ze, zd) if lean > 0.0 else 0.0  # across the lean
-        mon = self.consistency
-        extra = max(ekf.field_att_extra, heading_misfit_variance(mon.nis[ACCEL], mon.slow_tilt_var))
+        extra = self.field_extra_variance()
         tilt_var = lean_tilt_variance(cross_var, extra, self.field_ned, zn, ze, zd)
         return lean_bias_wind(wn, we, m.lift_n(self.rho), float(ekf.x[DRAG]) * self.rho * m.half_cd_area_m2,
                               LEAN_BIAS_RAD, self.field_ned, tilt_var)  # fmt: skip

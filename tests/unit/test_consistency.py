@@ -14,13 +14,16 @@ from firmware_py.estimator.consistency import (
     CONSISTENCY_S,
     FLAG_NIS,
     HEADING_MISFIT_RATIO,
+    SLOW_INNOV_S,
     Consistency,
+    accel_misfit,
     correlated_weight,
     field_attitude_extra,
     field_tilt_reading,
     field_variance,
     heading_misfit_variance,
     lean_tilt_variance,
+    slow_innovation_share,
 )
 from firmware_py.estimator.state import ATT_D, ATT_N
 
@@ -119,10 +122,10 @@ def test_what_p_does_not_hold_turns_the_lean_as_a_rotation_about_the_field_does(
 @pytest.mark.parametrize("incl_deg", [-70.0, 10.0, 45.0, 66.0, 85.0])
 def test_the_accelerometers_innovation_reads_a_rotation_about_the_field(incl_deg):
     """At rest the accelerometer reads f = (0, 0, -g) (NED). An estimate turned by d about the field's axis b from the
-    truth predicts it turned the other way: the innovation, rotated to NED with the estimate, is d (b x f)'s negative,
-    horizontal, across the field's horizontal direction. field_tilt_reading gives back d, whatever the field's
-    strength, declination and inclination; an innovation along the field's horizontal direction reads nothing, and
-    so does any innovation while the field is unknown."""
+    truth (R_est = (I + [d b x]) R_true) predicts f turned the other way: the innovation, rotated to NED with the
+    estimate, is d (b x f), horizontal, across the field's horizontal direction. field_tilt_reading gives back d,
+    whatever the field's strength, declination and inclination; an innovation along the field's horizontal
+    direction reads nothing, and so does any innovation while the field is unknown."""
     rng = np.random.default_rng(int(incl_deg) + 100)
     incl = math.radians(incl_deg)
     f = np.array([0.0, 0.0, -G0])
@@ -130,24 +133,28 @@ def test_the_accelerometers_innovation_reads_a_rotation_about_the_field(incl_deg
         dec = rng.uniform(0.0, 2.0 * math.pi)
         strength = rng.uniform(0.2, 0.6)
         b = strength * np.array([math.cos(incl) * math.cos(dec), math.cos(incl) * math.sin(dec), math.sin(incl)])
-        d = rng.uniform(-0.02, 0.02)
-        truth_from_estimate = d * b / np.linalg.norm(b)
-        innov = np.cross(f, truth_from_estimate)  # R_est (R_true^T f) - f for R_true = (I + [delta x]) R_est
-        assert field_tilt_reading(innov[0], innov[1], tuple(b)) == pytest.approx(-d, rel=1e-9, abs=1e-15)
+        d = rng.uniform(-0.002, 0.002)
+        axis = b / np.linalg.norm(b)
+        r_est = np.column_stack([rotate(e, axis, d) for e in np.eye(3)])  # the truth's frame is NED's here
+        innov = r_est @ (f - r_est.T @ f)  # measured minus predicted, turned to NED with the estimate
+        assert field_tilt_reading(innov[0], innov[1], tuple(b)) == pytest.approx(d, rel=2e-3)
         along = b[:2] / np.linalg.norm(b[:2])
         assert field_tilt_reading(0.3 * along[0], 0.3 * along[1], tuple(b)) == pytest.approx(0.0, abs=1e-15)
         assert field_tilt_reading(innov[0], innov[1], (math.nan,) * 3) == 0.0
 
 
 def test_the_slow_innovation_keeps_a_persistent_misfit_and_drops_the_waves():
-    """A reading held for a minute is the slow tilt and its mean square; one that changes sign every step (the rope's
-    waves, a sample's noise) averages out of both."""
+    """A reading held is the slow tilt after SLOW_INNOV_S to 1 - 1/e of it (a first-order low-pass of that time
+    constant), and after two minutes it and its mean square are the reading's; one that changes sign every step (the
+    rope's waves, a sample's noise) averages out of both."""
     rate = 100.0
     alpha = 1.0 / (CONSISTENCY_S * rate)
     held, waves = Consistency(), Consistency()
     for i in range(int(120.0 * rate)):
         held.add_slow_tilt(0.01, alpha)
         waves.add_slow_tilt(0.01 if i % 2 else -0.01, alpha)
+        if i + 1 == int(SLOW_INNOV_S * rate):
+            assert held.slow_tilt == pytest.approx(0.01 * (1.0 - math.exp(-1.0)), rel=2e-3)
     assert held.slow_tilt == pytest.approx(0.01, rel=1e-3)
     assert held.slow_tilt_var == pytest.approx(1e-4, rel=1e-2)
     assert waves.slow_tilt_var < 1e-4 * 1e-3
@@ -155,14 +162,17 @@ def test_the_slow_innovation_keeps_a_persistent_misfit_and_drops_the_waves():
     assert held.slow_tilt == held.slow_tilt_var == 0.0
 
 
-def test_a_flagged_accelerometer_leaves_the_heading_to_the_inflation():
-    """The seen variance is HEADING_MISFIT_RATIO^2 times the slow innovation's mean square while the accelerometer
-    is unflagged, falls with its heading gain as the monitor flags it, and is none at twice the flag's NIS."""
-    v = 1e-4
-    full = HEADING_MISFIT_RATIO**2 * v
-    assert heading_misfit_variance(0.3, v) == pytest.approx(full)
-    assert heading_misfit_variance(FLAG_NIS, v) == pytest.approx(full)
-    assert heading_misfit_variance(1.5 * FLAG_NIS, v) == pytest.approx(0.25 * full)
-    assert heading_misfit_variance(2.0 * FLAG_NIS, v) == 0.0
-    assert heading_misfit_variance(25.0, v) == 0.0
-    assert heading_misfit_variance(0.3, 0.0) == 0.0
+def test_what_counts_of_the_innovation():
+    """The innovation counts in full from a consistent accelerometer fused at its nominal noise; with the heading's
+    share of the gain as the monitor flags it (half at 1.5 FLAG_NIS, none at twice it); and as an RMS with the
+    nominal noise's share of the noise fused (after a placement the noise follows innovations 50 times the nominal
+    RMS: a fiftieth counts). The variance seen is HEADING_MISFIT_RATIO^2 times the slow innovation's mean square."""
+    nominal = 0.01
+    assert slow_innovation_share(accel_misfit(0.3), nominal, nominal) == 1.0
+    assert slow_innovation_share(accel_misfit(FLAG_NIS), nominal, nominal) == 1.0
+    assert slow_innovation_share(accel_misfit(1.5 * FLAG_NIS), nominal, nominal) == pytest.approx(0.5)
+    assert slow_innovation_share(accel_misfit(2.0 * FLAG_NIS), nominal, nominal) == 0.0
+    assert slow_innovation_share(accel_misfit(25.0), nominal, nominal) == 0.0
+    assert slow_innovation_share(0.0, nominal, 2500.0 * nominal) == pytest.approx(0.02)
+    assert heading_misfit_variance(1e-4) == pytest.approx(HEADING_MISFIT_RATIO**2 * 1e-4)
+    assert heading_misfit_variance(0.0) == 0.0

@@ -9,7 +9,7 @@ import numpy as np
 
 from balloon_core.atmosphere import G0
 from balloon_core.rotation import rotation
-from firmware_py.estimator.consistency import ACCEL, CONSISTENCY_S, accel_misfit, field_tilt_reading
+from firmware_py.estimator.consistency import ACCEL, accel_misfit, field_tilt_reading, slow_innovation_share
 from firmware_py.estimator.ekf import FusionStatus, WindEkf
 from firmware_py.estimator.params import ACCEL_MODEL_CORR_S
 from firmware_py.estimator.state import (
@@ -93,12 +93,12 @@ def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
     st = est.accel_status
     i2 = (st[0].innov ** 2 + st[1].innov ** 2 + st[2].innov ** 2) / 3.0
     est._accel_innov2 += est._innov_alpha * (i2 - est._accel_innov2)
-    every = est.schedule.taut_every
-    if ekf.mode != MODE_GROUND and est.step % every == 0:
-        # its slow horizontal innovation, NED (R^T's columns), for the stated accuracy; at the tether's rate (20 Hz),
-        # plenty for a 10 s low-pass (consistency.SLOW_INNOV_S), and off the steps that are the median's
+    if ekf.mode != MODE_GROUND and est.step % est.schedule.taut_every == 0:
+        # its slow horizontal innovation, NED (R^T's columns), for the stated accuracy, at the tether's rate (20 Hz:
+        # plenty for a 10 s low-pass, consistency.SLOW_INNOV_S, and off the steps that are the median's), with the
+        # share that counts (consistency.slow_innovation_share)
         rt = ekf.rt
         innov_n = rt[0, 0] * st[0].innov + rt[1, 0] * st[1].innov + rt[2, 0] * st[2].innov
         innov_e = rt[0, 1] * st[0].innov + rt[1, 1] * st[1].innov + rt[2, 1] * st[2].innov
-        est.consistency.add_slow_tilt(field_tilt_reading(innov_n, innov_e, est.field_ned),
-                                      every / (CONSISTENCY_S * est.cfg.imu_rate_hz))  # fmt: skip
+        share = slow_innovation_share(misfit, nominal, var)
+        est.consistency.add_slow_tilt(share * field_tilt_reading(innov_n, innov_e, est.field_ned), est._taut_alpha)
