@@ -192,8 +192,9 @@ def main(argv: list[str] | None = None) -> int:
           "| accuracy "
           "| = sqrt(P^2 + drag^2 + tilt^2) x inflation | error/accuracy "
           "| worst 20 s offset walk / its sigma | NIS " + " ".join(SOURCES) + " | accel NIS body x y z "
-          "| attitude about the field: RMS error / P's / stated, deg | the accelerometer's slow innovation as that "
-          "rotation: RMS, deg (its correlation with the error) "
+          "| attitude about the field: RMS error (the truth's turn from the estimate) / P's / stated, deg "
+          "| the accelerometer's slow innovation as that rotation: RMS, deg (its correlation with the error: positive "
+          "where the attitude followed a misfit, negative where the accelerometer sees the error) "
           "| its correlation with the cross-wind error (RMS) "
           "| accel z misfit: its correlation with the truth's acceleration along the rope; "
           "the tension's SD |")  # fmt: skip
