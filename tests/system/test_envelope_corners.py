@@ -246,3 +246,44 @@ def test_an_hour_of_steady_wind_keeps_its_stated_accuracy():
     err = np.hypot(rows[late, 1] - np.interp(t[late], truth["time_s"], truth["wind_n"]),
                    rows[late, 2] - np.interp(t[late], truth["time_s"], truth["wind_e"]))  # fmt: skip
     assert np.sqrt(np.mean(err**2)) < rows[late, 3].mean()
+
+
+@pytest.mark.parametrize("name", ["realistic-mems", "field-rope"])
+def test_the_taut_entrys_settling_is_not_read_as_the_headings_error(name):
+    """At the taut entry the balloon is placed on the tether's sphere and the state settles for tens of seconds: the
+    accelerometer's innovations are metres a second squared, its noise follows them, the attitude is right. Fed in
+    full, that settling read 2.5 deg about the field in realistic-mems and the stated accuracy carried it for a
+    minute (0.31 m/s at 40 s where the error was 0.03-0.09 m/s). Fed with the nominal noise's share
+    (consistency.slow_innovation_share), the seen error about the field stays within the attitude's actual one
+    there. The Python core, which exposes the per-step state (the C core is held equal to it)."""
+    import dataclasses
+
+    from balloon_core.rotation import quat_from_euler, rotation
+    from firmware_py.estimator.consistency import heading_misfit_variance
+    from firmware_py.estimator.control import Estimator
+    from firmware_py.estimator.state import MODE_TAUT
+    from sim_hil.scenarios import SCENARIOS
+    from sim_hil.simulator import TRUTH_COLUMNS, Simulation
+
+    sc = SCENARIOS[name]
+    sim = Simulation(sc.design, sc.wind, sc.truth, 100.0, 1)
+    est = Estimator(sc.design, dataclasses.replace(sc.filter, core="py"))
+    col = {c: j for j, c in enumerate(TRUTH_COLUMNS)}
+    entry, seen, actual = None, [], []
+    for i, s in enumerate(sim.samples()):
+        if s.baro:
+            est.on_baro(s.time_usec, *s.baro)
+        est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
+        t = s.time_usec * 1e-6
+        if entry is None and est.ekf.mode == MODE_TAUT:
+            entry = t
+        if entry is None or t > entry + 60.0 or i % 50:
+            continue
+        seen.append(math.degrees(math.sqrt(heading_misfit_variance(est.consistency.slow_tilt_var))))
+        row = sim.truth[i]
+        q_true = quat_from_euler(*np.radians([row[col["roll_deg"]], row[col["pitch_deg"]], row[col["yaw_deg"]]]))
+        m = np.array(rotation(*q_true)).reshape(3, 3) @ np.array(rotation(*est.ekf.q.tolist())).reshape(3, 3).T
+        b = np.array(est.field_ned) / np.linalg.norm(est.field_ned)
+        actual.append(abs(math.degrees(0.5 * np.array([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]]) @ b)))
+    assert entry is not None and len(seen) > 100
+    assert max(seen) < max(0.5, 2.0 * max(actual)), (max(seen), max(actual))
