@@ -35,3 +35,11 @@ def euler_from_quat(q0: float, q1: float, q2: float, q3: float) -> tuple[float, 
     pitch = math.asin(max(-1.0, min(1.0, 2 * (q0 * q2 - q3 * q1))))
     yaw = math.atan2(2 * (q0 * q3 + q1 * q2), 1 - 2 * (q2 * q2 + q3 * q3))
     return roll, pitch, yaw
+
+
+def rotation_error(q_true: tuple[float, ...], q_est: tuple[float, ...]) -> tuple[float, float, float]:
+    """The small rotation vector d (NED, radians) that turns the estimate into the truth, R_true = (I + [d x]) R_est:
+    the skew part of R_true R_est^T (the estimator's attitude error, ekf.py's ATT_N..ATT_D)."""
+    t, e = rotation(*q_true), rotation(*q_est)
+    m = [[sum(t[3 * i + k] * e[3 * j + k] for k in range(3)) for j in range(3)] for i in range(3)]
+    return 0.5 * (m[2][1] - m[1][2]), 0.5 * (m[0][2] - m[2][0]), 0.5 * (m[1][0] - m[0][1])

@@ -30,7 +30,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from balloon_core.rotation import quat_from_euler, rotation  # noqa: E402
+from balloon_core.rotation import quat_from_euler, rotation, rotation_error  # noqa: E402
 from balloon_core.score import score  # noqa: E402
 from benchmarks.bench_envelope import sample, sections_of  # noqa: E402
 from firmware_py.estimator.consistency import NIS_CLIP, SOURCES, systematic_variance  # noqa: E402
@@ -122,6 +122,11 @@ def terms(point: dict, duration_s: float, settings: tuple[str, ...] = ()) -> dic
     return out
 
 
+def correlation(a: np.ndarray, b: np.ndarray) -> float:
+    """Pearson's correlation of two series, NaN where either is constant."""
+    return float(np.corrcoef(a, b)[0, 1]) if np.std(a) > 0.0 and np.std(b) > 0.0 else math.nan
+
+
 def about_field(att: np.ndarray, r: np.ndarray, truth: dict, tn: np.ndarray, te: np.ndarray) -> dict[str, float]:
     """The attitude's error about the magnetic field's axis (true = (I + [d x]) estimate, d . b), RMS in deg, its
     stated 1-sigma (sqrt(b' P_att b), and with what P does not hold there: consistency.field_attitude_extra and
@@ -130,20 +135,15 @@ def about_field(att: np.ndarray, r: np.ndarray, truth: dict, tn: np.ndarray, te:
     eb, sb, sx = [], [], []
     for row, (t, *_rest) in zip(att, r):
         ri = [float(np.interp(t, truth["time_s"], truth[c])) for c in ("roll_deg", "pitch_deg", "yaw_deg")]
-        rt = np.array(rotation(*quat_from_euler(*np.radians(ri)))).reshape(3, 3)
-        re = np.array(rotation(*row[:4])).reshape(3, 3)
-        m = rt @ re.T
-        d = 0.5 * np.array([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]])
+        d = np.array(rotation_error(quat_from_euler(*np.radians(ri)), tuple(row[:4])))
         b = np.array(row[4:7]) / np.linalg.norm(row[4:7])
         eb.append(float(d @ b))
         sb.append(float(b @ row[7:16].reshape(3, 3) @ b))
         sx.append(sb[-1] + float(row[16]))
     ang = math.atan2(te.mean(), tn.mean())
     cross = -(r[:, 1] - tn) * math.sin(ang) + (r[:, 2] - te) * math.cos(ang)
-    eb_a = np.array(eb)
-    corr = float(np.corrcoef(eb_a, cross)[0, 1]) if np.std(eb_a) > 0.0 and np.std(cross) > 0.0 else math.nan
-    slow = att[:, 17]
-    slow_corr = float(np.corrcoef(eb_a, slow)[0, 1]) if np.std(eb_a) > 0.0 and np.std(slow) > 0.0 else math.nan
+    eb_a, slow = np.array(eb), att[:, 17]
+    corr, slow_corr = correlation(eb_a, cross), correlation(eb_a, slow)
     return {"about_field_deg": math.degrees(math.sqrt(np.mean(eb_a**2))),
             "slow_innovation_deg": math.degrees(math.sqrt(np.mean(slow**2))), "slow_innovation_corr": slow_corr,
             "about_field_sigma_deg": math.degrees(math.sqrt(np.mean(sb))),
@@ -157,9 +157,7 @@ def along_the_rope(along: np.ndarray, t: np.ndarray, truth: dict) -> dict[str, f
     the truth's rope tension at the balloon, N."""
     acc = [np.interp(t, truth["time_s"], np.gradient(truth[c], truth["time_s"])) for c in ("vel_n", "vel_e", "vel_d")]
     a_along = along[:, 1] * acc[0] + along[:, 2] * acc[1] + along[:, 3] * acc[2]
-    z = along[:, 0]
-    ok = np.std(z) > 0.0 and np.std(a_along) > 0.0
-    return {"accel_z_along_corr": float(np.corrcoef(z, a_along)[0, 1]) if ok else math.nan,
+    return {"accel_z_along_corr": correlation(along[:, 0], a_along),
             "tension_sd_n": float(np.std(np.interp(t, truth["time_s"], truth["tension_n"])))}  # fmt: skip
 
 

@@ -258,7 +258,7 @@ def test_the_taut_entrys_settling_is_not_read_as_the_headings_error(name):
     there. The Python core, which exposes the per-step state (the C core is held equal to it)."""
     import dataclasses
 
-    from balloon_core.rotation import quat_from_euler, rotation
+    from balloon_core.rotation import quat_from_euler, rotation_error
     from firmware_py.estimator.consistency import heading_misfit_variance
     from firmware_py.estimator.control import Estimator
     from firmware_py.estimator.state import MODE_TAUT
@@ -282,8 +282,7 @@ def test_the_taut_entrys_settling_is_not_read_as_the_headings_error(name):
         seen.append(math.degrees(math.sqrt(heading_misfit_variance(est.consistency.slow_tilt_var))))
         row = sim.truth[i]
         q_true = quat_from_euler(*np.radians([row[col["roll_deg"]], row[col["pitch_deg"]], row[col["yaw_deg"]]]))
-        m = np.array(rotation(*q_true)).reshape(3, 3) @ np.array(rotation(*est.ekf.q.tolist())).reshape(3, 3).T
         b = np.array(est.field_ned) / np.linalg.norm(est.field_ned)
-        actual.append(abs(math.degrees(0.5 * np.array([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]]) @ b)))
+        actual.append(abs(math.degrees(np.array(rotation_error(q_true, tuple(est.ekf.q.tolist()))) @ b)))
     assert entry is not None and len(seen) > 100
     assert max(seen) < max(0.5, 2.0 * max(actual)), (max(seen), max(actual))
