@@ -160,6 +160,7 @@ class Estimator:
         self.counters = Counters()
         self._probe = Forces()  # scratch for the taut-entry check
         self.accel_status = [FusionStatus(f"accel_{a}") for a in "xyz"]
+        self.accel_bias_status = FusionStatus("accel_bias_z")  # the bias in flight (accel.fuse_bias_magnitude)
         self.schedule = sched = Schedule.at(self.cfg.imu_rate_hz, self.cfg.recover_after_s)
         self.baro_status = FusionStatus("baro", sched.baro_recover)
         self.heading_status = FusionStatus("heading", sched.mag_recover)

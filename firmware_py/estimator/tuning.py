@@ -25,6 +25,7 @@ import math
 from dataclasses import dataclass
 
 KAIMAL_LENGTH_M = 8.1 * 42.0  # IEC 61400-1 longitudinal integral scale above 60 m
+KAIMAL_VERTICAL_LENGTH_M = 0.66 * 42.0  # IEC 61400-1 vertical integral scale above 60 m
 BAND_HZ = (0.005, 0.2)
 MIN_WIND_MPS = 0.5
 
@@ -59,6 +60,13 @@ def kaimal_window_share(window_s: float, mean_mps: float) -> float:
     too small)."""
     x = window_s * max(mean_mps, MIN_WIND_MPS) / KAIMAL_LENGTH_M
     return 1.0 - (1.0 + 0.465 * x**0.714) ** -1.538
+
+
+def vertical_air_samples(dt_s: float, mean_mps: float) -> float:
+    """How many samples of ``dt_s`` one vertical gust lasts: the vertical Kaimal spectrum's integral time scale
+    L_w / U (its one-sided S(0) = 4 sigma_w^2 L_w / U), at least one. A misfit correlated that long is worth one
+    independent sample in that many: 6.5 s at 4.25 m/s, 130 samples at 20 Hz."""
+    return max(1.0, KAIMAL_VERTICAL_LENGTH_M / (max(mean_mps, MIN_WIND_MPS) * dt_s))
 
 
 def wind_process(mean_mps: float, turbulence_intensity: float, diameter_m: float, points: int = 40) -> WindProcess:

@@ -20,6 +20,7 @@ from firmware_py.estimator.state import (
     DRAG,
     MODE_GROUND,
 )
+from firmware_py.estimator.tuning import vertical_air_samples
 
 if TYPE_CHECKING:
     from firmware_py.estimator.control import Estimator
@@ -71,6 +72,30 @@ def fuse_accel(
     ekf.fuse3(fx - pred[0], fy - pred[1], fz - pred[2], var, status, var_z_extra, tilt_gain, heading_gain)
 
 
+def fuse_bias_magnitude(
+    ekf: WindEkf, fx: float, fy: float, fz: float, accel: list[FusionStatus], var: float, status: FusionStatus
+) -> None:
+    """The body-z bias in flight, from the specific force along itself (paper Eq. 9 read as a magnitude): the
+    innovations ``fuse_accel`` left in ``accel`` projected on the predicted specific force (FRD), whose z share is the
+    bias's row. A tethered balloon does not accelerate on average, and f = R^T (a - g) + b has the length |a - g|
+    whatever the attitude: a tilt turns f and moves the innovation across it, never along it. So no tilt, lean or
+    wind can take what this sees; the accelerometer's own rows leave the bias out in flight, where it traded with the
+    lean (the paper's reduced balloon learnt 0.11 m/s^2 where there was none, and read the wind 6 % low), and the
+    lean needs the z row's gravity (docs/estimator.md, "Vertical air and the accelerometer's z"). Its noise ``var``
+    per sample at the tether's rate: along f the accelerometer's misfit is the rope's axial bounce, which changes
+    sign within half a second (not the drag's lag behind the wind that ACCEL_MODEL_CORR_S holds for the tilt), and the
+    vertical air's lasts as long as a vertical gust (``tuning.vertical_air_samples``: the caller weighs it so).
+    Gated as any source, never forced: a rejected sample is left out."""
+    nx, ny, nz = accel[0].innov, accel[1].innov, accel[2].innov
+    px, py, pz = fx - nx, fy - ny, fz - nz
+    pred = math.sqrt(px * px + py * py + pz * pz)
+    if not pred > 0.5 * G0:  # no gravity to read the magnitude against (a numeric fault; the next step resets)
+        return
+    ekf.h.fill(0.0)
+    ekf.h[ABIAS_Z] = pz / pred
+    ekf.fuse((nx * px + ny * py + nz * pz) / pred, var, status, recover=False)
+
+
 def accel_nominal_var(est: Estimator) -> float:
     """The accelerometer's nominal noise in the filter's mode (on the ground, free, taut), (m/s^2)^2."""
     return (est.accel_static_var, est.accel_var, est.accel_taut_var)[est.ekf.mode]
@@ -102,3 +127,5 @@ def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
         innov_e = rt[0, 1] * st[0].innov + rt[1, 1] * st[1].innov + rt[2, 1] * st[2].innov
         share = slow_innovation_share(misfit, nominal, var)
         est.consistency.add_slow_tilt(share * field_tilt_reading(innov_n, innov_e, est.field_ned), est._taut_alpha)
+        fuse_bias_magnitude(ekf, ax, ay, az, st, var + est.vertical_gust_var * vertical_air_samples(
+            est.schedule.taut_every * ekf.dt, est._mean_speed), est.accel_bias_status)  # fmt: skip
