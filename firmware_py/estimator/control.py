@@ -28,6 +28,7 @@ from firmware_py.estimator.consistency import (
     field_attitude_extra,
     field_variance,
     heading_misfit_variance,
+    lean_bias_rad,
     lean_bias_wind,
     lean_tilt_variance,
     systematic_variance,
@@ -51,7 +52,6 @@ from firmware_py.estimator.params import (
     FALSE_RELEASE_S,
     GYRO_MAX,
     JOIN_IN_FLIGHT_US,
-    LEAN_BIAS_RAD,
     LEARN_DRAG_AFTER_S,
     LIGHT_AIR_SIGMA_U_MPS,
     MAG_MAX,
@@ -675,8 +675,10 @@ class Estimator:
         cross_var = lean_variance(ekf.P, ze / lean, -zn / lean, zn, ze, zd) if lean > 0.0 else 0.0  # across the lean
         extra = self.field_extra_variance()
         tilt_var = lean_tilt_variance(cross_var, extra, self.field_ned, zn, ze, zd)
-        return lean_bias_wind(wn, we, m.lift_n(self.rho), float(ekf.x[DRAG]) * self.rho * m.half_cd_area_m2,
-                              LEAN_BIAS_RAD, self.field_ned, tilt_var)  # fmt: skip
+        c = self.cfg
+        bias = lean_bias_rad(c.accel_bias_walk_mps2_rt_s, 1e-6 * (ekf.time_us - self.t_boot_us), c.init_accel_bias_mps2)
+        return lean_bias_wind(wn, we, m.lift_n(self.rho), float(ekf.x[DRAG]) * self.rho * m.half_cd_area_m2, bias,
+                              self.field_ned, tilt_var)  # fmt: skip
 
     def wind(self) -> tuple[float, float]:
         return float(self.ekf.x[WIND_N]), float(self.ekf.x[WIND_E])

@@ -138,12 +138,14 @@ def test_a_multisine_in_light_air(name):
     """The multisine's 0.3 m/s lines in a 1.1-1.5 m/s mean: the wind meanders by half its speed, where the
     filter's noise for sigma_u = TI U expects a fifth. It once lagged (band skill 0, 24 % low), and said
     so too little (error/accuracy 1.8, 14 % beyond 3 sigma); its own turbulence now raises the noise. The floor of
-    error/accuracy is 0.45: the attitude's slow error about the field's axis is stated at twice what the
+    error/accuracy is 0.42: the attitude's slow error about the field's axis is stated at twice what the
     accelerometer's slow innovation shows of it (consistency.HEADING_MISFIT_RATIO), and in the paper's 1.39 m/s the
-    error is 1.5 times it (0.32 deg, 0.51 stated): 0.47 where it was 0.51 (the lumped 1.13 m/s: 0.52 either way)."""
+    error is 1.5 times it (0.32 deg, 0.51 stated): 0.47 where it was 0.51 (the lumped 1.13 m/s: 0.52 either way); and
+    the tilt's systematic error carries the accelerometer's horizontal bias wandering since the boot
+    (consistency.lean_bias_rad: 0.22 deg after these 240 s where it was 0.20): 0.45."""
 
     def ok(x: dict[str, float]) -> bool:
-        return (x["dir"] <= 5.0 and x["speed"] <= 12.0 and x["skill"] >= 0.4 and 0.45 <= x["err_acc"] <= 1.6
+        return (x["dir"] <= 5.0 and x["speed"] <= 12.0 and x["skill"] >= 0.4 and 0.42 <= x["err_acc"] <= 1.6
                 and x["beyond_3sigma"] <= 0.03)  # fmt: skip
 
     m = flights(base(**LIGHT_AIR[name]))
@@ -232,8 +234,11 @@ def test_an_hour_of_steady_wind_keeps_its_stated_accuracy():
     """A field day's hour in a steady 3 m/s on the real rope (``field-catenary``): nothing measures the drag scale on
     the taut tether, so its stated uncertainty grows only by its random walk, the balloon's gas (3 % an hour). At
     0.002 per sqrt(s) it grew from 7 % to 12 % in the hour and the stated accuracy with it, the estimate the same
-    to a centimetre a second. The accuracy after an hour within 5 % of the one after ten minutes, the error
-    within it."""
+    to a centimetre a second. The tilt's systematic error grows too, by the accelerometer's horizontal bias
+    wandering within its range (consistency.lean_bias_rad: 0.25 deg after ten minutes, 0.35 deg after the hour), so
+    the accuracy after an hour within 5 % of the one after ten minutes times that growth (it grew 13 %; 19 % with the
+    wander unbounded), the error within it."""
+    from firmware_py.estimator.consistency import lean_bias_rad
     from firmware_py.estimator.state import DRAG
     from sim_hil.scenarios import SCENARIOS
 
@@ -241,7 +246,11 @@ def test_an_hour_of_steady_wind_keeps_its_stated_accuracy():
     rows, truth, est = fly(sc.design, sc.wind, sc.truth, sc.filter, 3600.0, 1)
     t = rows[:, 0]
     early, late = (t > 540.0) & (t < 660.0), t > 3480.0
-    assert rows[late, 3].mean() < 1.05 * rows[early, 3].mean(), (rows[early, 3].mean(), rows[late, 3].mean())
+    c = sc.filter
+    tilt = lean_bias_rad(c.accel_bias_walk_mps2_rt_s, 3540.0, c.init_accel_bias_mps2) / lean_bias_rad(
+        c.accel_bias_walk_mps2_rt_s, 600.0, c.init_accel_bias_mps2)
+    assert rows[late, 3].mean() < 1.05 * tilt * rows[early, 3].mean(), (rows[early, 3].mean(), rows[late, 3].mean())
+    assert rows[late, 3].mean() > rows[early, 3].mean()
     assert math.sqrt(float(est.ekf.P[DRAG, DRAG])) < 0.06
     err = np.hypot(rows[late, 1] - np.interp(t[late], truth["time_s"], truth["wind_n"]),
                    rows[late, 2] - np.interp(t[late], truth["time_s"], truth["wind_e"]))  # fmt: skip
