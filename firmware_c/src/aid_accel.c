@@ -4,26 +4,31 @@
 
 #include "internal.h"
 
-/* tuning.py vertical_air_samples: how many samples of dt_s one vertical gust lasts (L_w / U), at least one */
+/* tuning.py vertical_air_samples: how many samples of dt_s one independent sample of the vertical air is worth
+ * (2 L_w / U over dt_s), at least one */
 static bw_real vertical_air_samples(bw_real dt_s, bw_real mean_mps)
 {
-    return BW_MAX(BW_R(1.0), (bw_real)BW_KAIMAL_VERTICAL_LENGTH_M / (BW_MAX(mean_mps, (bw_real)BW_MIN_WIND_MPS) * dt_s));
+    return BW_MAX(BW_R(1.0),
+                  BW_R(2.0) * (bw_real)BW_KAIMAL_VERTICAL_LENGTH_M / (BW_MAX(mean_mps, (bw_real)BW_MIN_WIND_MPS) * dt_s));
 }
 
-/* accel.py fuse_bias_magnitude: the body-z bias in flight, from the innovations along the predicted specific
- * force (a tilt moves them across it, never along); its status is the step's own (telemetry: accel.py's) */
+/* accel.py fuse_bias_magnitude: the body-z bias on the tether, from the innovations along the predicted specific
+ * force (a tilt moves them across it, along only to second order); its status is the call's own (Python keeps one
+ * for diagnosis) */
 static void fuse_bias_magnitude(bw_ekf_t *e, bw_real fx, bw_real fy, bw_real fz, const bw_status_t st[3], bw_real var)
 {
     bw_status_t bias;
     const bw_real nx = st[0].innov, ny = st[1].innov, nz = st[2].innov;
     const bw_real px = fx - nx, py = fy - ny, pz = fz - nz;
     const bw_real pred = BW_SQRT(px * px + py * py + pz * pz);
-    if (!(pred > BW_R(0.5) * (bw_real)BW_G0)) /* no gravity to read the magnitude against */
+    bw_real inv;
+    if (!(pred > BW_R(0.5) * (bw_real)BW_G0)) /* no gravity to read the length against */
         return;
+    inv = BW_R(1.0) / pred;
     memset(&bias, 0, sizeof bias);
     memset(e->h, 0, sizeof e->h);
-    e->h[BW_ABIAS_Z] = pz / pred;
-    bw_ekf_fuse(e, (nx * px + ny * py + nz * pz) / pred, var, &bias, BW_R(0.0), 0);
+    e->h[BW_ABIAS_Z] = pz * inv;
+    bw_ekf_fuse(e, (nx * px + ny * py + nz * pz) * inv, var, &bias, BW_R(0.0), 0);
 }
 
 static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, bw_real var, bw_real var_z_extra,
@@ -69,9 +74,10 @@ static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, 
         bw_real share = (BW_R(1.0) - misfit) * BW_SQRT(nominal / var);
         bw_consistency_add_slow_tilt(&est->consistency, share * bw_field_tilt_reading(in, ie, est->field_ned),
                                      est->a_taut);
-        fuse_bias_magnitude(e, fx, fy, fz, st,
-                            var + var_z_extra * vertical_air_samples((bw_real)est->sched.taut_every * e->dt,
-                                                                     est->mean_speed));
+        if (e->mode == BW_MODE_TAUT)
+            fuse_bias_magnitude(e, fx, fy, fz, st,
+                                var + var_z_extra * vertical_air_samples((bw_real)est->sched.taut_every * e->dt,
+                                                                         est->mean_speed));
     }
 }
 

@@ -662,8 +662,7 @@ bw_real bw_wind_accuracy(const bw_estimator_t *est)
             cross_var = bw_lean_tilt_variance(cross_var, extra, est->field_ned, zn, ze, zd);
             lean = bw_lean_bias_wind(wn, we, bw_lift_n(m, est->rho), e->x[BW_DRAG] * est->rho * m->half_cd_area_m2,
                                      bw_lean_bias_rad((bw_real)est->cfg->accel_bias_walk_mps2_rt_s,
-                                                      (bw_real)(e->time_us - est->t_boot_us) * BW_R(1e-6),
-                                                      (bw_real)est->cfg->init_accel_bias_mps2),
+                                                      (bw_real)(e->time_us - est->t_boot_us) * BW_R(1e-6)),
                                      est->field_ned, cross_var);
         }
         sys_var = bw_systematic_variance(speed, e->x[BW_DRAG], e->P[BW_DRAG][BW_DRAG], lean);

@@ -36,7 +36,7 @@ from __future__ import annotations
 import math
 
 from balloon_core.atmosphere import G0
-from firmware_py.estimator.params import LEAN_BIAS_RAD, LEAN_COS_MIN
+from firmware_py.estimator.params import ACCEL_BIAS_WANDER_MPS2, LEAN_BIAS_RAD, LEAN_COS_MIN
 from firmware_py.estimator.state import ATT_D, ATT_E, ATT_N
 
 SOURCES = ("accel", "align", "radius", "baro", "mag")
@@ -235,15 +235,14 @@ def systematic_variance(
     return speed_mps * speed_mps * rel_k * rel_k + lean_wind_mps * lean_wind_mps
 
 
-def lean_bias_rad(walk_mps2_rt_s: float, seconds: float, range_mps2: float) -> float:
+def lean_bias_rad(walk_mps2_rt_s: float, seconds: float) -> float:
     """The tilt's systematic error, rad: LEAN_BIAS_RAD (the accelerometer's turn-on bias and the learnt field's
     direction) and what the accelerometer's horizontal bias has wandered since the boot, read as a tilt (b / g): a
-    walk of ``walk_mps2_rt_s`` (m/s^2 per sqrt(s)) within the bias's own range ``range_mps2`` (its turn-on 1-sigma:
-    a MEMS bias wanders with the temperature, within what its datasheet gives). No state holds the horizontal bias,
-    so no measurement bounds it: over an hour a MEMS part's 0.001 walks 0.06 m/s^2, which the default range holds to
-    0.05, a 0.29 deg tilt where the turn-on term is 0.2 deg."""
-    walk = min(walk_mps2_rt_s * walk_mps2_rt_s * max(seconds, 0.0), range_mps2 * range_mps2) / (G0 * G0)
-    return math.sqrt(LEAN_BIAS_RAD * LEAN_BIAS_RAD + walk)
+    walk of ``walk_mps2_rt_s`` (m/s^2 per sqrt(s)) within ACCEL_BIAS_WANDER_MPS2. No state holds the horizontal bias,
+    so no measurement bounds it: a MEMS part's 0.001 walks 0.025 m/s^2 in ten minutes (0.25 deg with the turn-on
+    term's 0.2) and reaches the wander's 0.05 within the hour (0.35 deg)."""
+    walk = min(walk_mps2_rt_s * walk_mps2_rt_s * max(seconds, 0.0), ACCEL_BIAS_WANDER_MPS2 * ACCEL_BIAS_WANDER_MPS2)
+    return math.sqrt(LEAN_BIAS_RAD * LEAN_BIAS_RAD + walk / (G0 * G0))
 
 
 def lean_bias_wind(

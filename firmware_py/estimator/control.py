@@ -675,8 +675,7 @@ class Estimator:
         cross_var = lean_variance(ekf.P, ze / lean, -zn / lean, zn, ze, zd) if lean > 0.0 else 0.0  # across the lean
         extra = self.field_extra_variance()
         tilt_var = lean_tilt_variance(cross_var, extra, self.field_ned, zn, ze, zd)
-        c = self.cfg
-        bias = lean_bias_rad(c.accel_bias_walk_mps2_rt_s, 1e-6 * (ekf.time_us - self.t_boot_us), c.init_accel_bias_mps2)
+        bias = lean_bias_rad(self.cfg.accel_bias_walk_mps2_rt_s, 1e-6 * (ekf.time_us - self.t_boot_us))
         return lean_bias_wind(wn, we, m.lift_n(self.rho), float(ekf.x[DRAG]) * self.rho * m.half_cd_area_m2, bias,
                               self.field_ned, tilt_var)  # fmt: skip
 

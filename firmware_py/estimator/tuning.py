@@ -63,10 +63,10 @@ def kaimal_window_share(window_s: float, mean_mps: float) -> float:
 
 
 def vertical_air_samples(dt_s: float, mean_mps: float) -> float:
-    """How many samples of ``dt_s`` one vertical gust lasts: the vertical Kaimal spectrum's integral time scale
-    L_w / U (its one-sided S(0) = 4 sigma_w^2 L_w / U), at least one. A misfit correlated that long is worth one
-    independent sample in that many: 6.5 s at 4.25 m/s, 130 samples at 20 Hz."""
-    return max(1.0, KAIMAL_VERTICAL_LENGTH_M / (max(mean_mps, MIN_WIND_MPS) * dt_s))
+    """How many samples of ``dt_s`` one independent sample of the vertical air is worth: its Kaimal spectrum's
+    one-sided S(0) = 4 sigma_w^2 L_w / U equals white samples' 2 R dt when R = sigma_w^2 (2 L_w / U) / dt, twice the
+    integral time scale L_w / U over the interval (at least one): 13 s at 4.25 m/s, 261 samples at 20 Hz."""
+    return max(1.0, 2.0 * KAIMAL_VERTICAL_LENGTH_M / (max(mean_mps, MIN_WIND_MPS) * dt_s))
 
 
 def wind_process(mean_mps: float, turbulence_intensity: float, diameter_m: float, points: int = 40) -> WindProcess:

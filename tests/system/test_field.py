@@ -144,7 +144,8 @@ def test_an_hour_of_wandering_accelerometer_bias_is_followed():
     0.06 m/s^2 in an hour). Along the body's z (the rope) a bias is read as the rope's pull, 3 % of the wind per 0.02
     m/s^2; the filter learnt it on the ground only and read the wind up to 17 % low in a 10-minute window, stated 2.5
     times too confidently. Followed in flight from the specific force along itself (accel.fuse_bias_magnitude): the
-    bias within 3 sigma of the truth's after the hour, every 10-minute mean speed within 8 % and honest (error /
+    bias within 3 sigma of the truth's after the hour, its sigma under what the walk alone leaves (0.06 m/s^2), every
+    10-minute mean speed after the first within 8 % and honest (error /
     accuracy at most 1.6: the filter that kept the ground's value made 17 % and 2.5 in the same windows)."""
     from firmware_py.estimator.state import ABIAS_Z
 
@@ -162,7 +163,8 @@ def test_an_hour_of_wandering_accelerometer_bias_is_followed():
     tt = sim.truth[:, TRUTH_COLUMNS.index("time_s")]
     tn, te = sim.truth[:, TRUTH_COLUMNS.index("wind_n")], sim.truth[:, TRUTH_COLUMNS.index("wind_e")]
     bias, sigma = float(est.ekf.x[ABIAS_Z]), float(est.ekf.P[ABIAS_Z, ABIAS_Z]) ** 0.5
-    assert abs(bias - sim.sensors.accel_bias[2]) < 3.0 * sigma, (bias, sim.sensors.accel_bias[2], sigma)
+    assert abs(bias - sim.sensors.accel_bias[2]) < 3.0 * sigma and sigma < 0.035, (bias, sim.sensors.accel_bias[2],
+                                                                                  sigma)  # unfollowed: 0.06
     for start in range(600, 3600, 600):
         w = (r[:, 0] >= start) & (r[:, 0] < start + 600)
         gn, ge = np.interp(r[w, 0], tt, tn), np.interp(r[w, 0], tt, te)

@@ -19,6 +19,7 @@ from firmware_py.estimator.state import (
     ATT_N,
     DRAG,
     MODE_GROUND,
+    MODE_TAUT,
 )
 from firmware_py.estimator.tuning import vertical_air_samples
 
@@ -33,8 +34,9 @@ def fuse_accel(
     """Specific force in FRD against the force model, f = R^T (a(x) - g) + (0, 0, b_z): tilt (through
     g) and the balloon's dynamics (drag of the wind, the air's push, the rope) through a(x), with the
     body-z bias b_z (a persistent vertical misfit would otherwise be read as a lean of the wind). On
-    the ground the balloon is held (a = 0): a gravity reference, where b_z is learnt (in flight a
-    model's misfit would pass for a bias). The three axes are fused as one vector."""
+    the ground the balloon is held (a = 0): a gravity reference, where b_z is learnt; in flight these rows leave it
+    out (there it would trade with the lean) and ``fuse_bias_magnitude`` follows it. The three axes are fused as
+    one vector."""
     r = rotation(*ekf.q.tolist())
     f = ekf.forces
     ground = ekf.mode == MODE_GROUND
@@ -62,7 +64,7 @@ def fuse_accel(
         np.copyto(ekf.H3_wk, ekf.hja_wk)
         if not ekf.learn_drag:
             H[0, DRAG] = H[1, DRAG] = H[2, DRAG] = 0.0
-    if ground:  # learnt at rest, where g is the only force; in flight its value only (a misfit is not a bias)
+    if ground:  # learnt at rest, where g is the only force; in flight from the length of f (fuse_bias_magnitude)
         H[2, ABIAS_Z] = 1.0
     pred[2] += float(ekf.x[ABIAS_Z])
     # in flight the tilt takes only what a correlated model error allows (params.ACCEL_MODEL_CORR_S); the heading and
@@ -75,21 +77,21 @@ def fuse_accel(
 def fuse_bias_magnitude(
     ekf: WindEkf, fx: float, fy: float, fz: float, accel: list[FusionStatus], var: float, status: FusionStatus
 ) -> None:
-    """The body-z bias in flight, from the specific force along itself (paper Eq. 9 read as a magnitude): the
-    innovations ``fuse_accel`` left in ``accel`` projected on the predicted specific force (FRD), whose z share is the
-    bias's row. A tethered balloon does not accelerate on average, and f = R^T (a - g) + b has the length |a - g|
-    whatever the attitude: a tilt turns f and moves the innovation across it, never along it. So no tilt, lean or
-    wind can take what this sees; the accelerometer's own rows leave the bias out in flight, where it traded with the
-    lean (the paper's reduced balloon learnt 0.11 m/s^2 where there was none, and read the wind 6 % low), and the
-    lean needs the z row's gravity (docs/estimator.md, "Vertical air and the accelerometer's z"). Its noise ``var``
-    per sample at the tether's rate: along f the accelerometer's misfit is the rope's axial bounce, which changes
-    sign within half a second (not the drag's lag behind the wind that ACCEL_MODEL_CORR_S holds for the tilt), and the
-    vertical air's lasts as long as a vertical gust (``tuning.vertical_air_samples``: the caller weighs it so).
-    Gated as any source, never forced: a rejected sample is left out."""
+    """The body-z bias on the tether, from the specific force along itself (paper Eq. 9 read as a length): the
+    innovations ``fuse_accel`` left in ``accel`` projected on the predicted specific force (FRD), whose z share is
+    the bias's row. A tethered balloon does not accelerate on average, and R^T (a - g) has the length |a - g|
+    whatever the attitude: a tilt turns f and moves the innovation across it (along it only to second order,
+    g d^2 / 2), so no tilt, lean or wind can take what this sees. The accelerometer's own rows leave the bias out in
+    flight: there it traded with the lean (the paper's reduced balloon learnt 0.11 m/s^2 where there was none, and
+    read the wind 6 % low), whose hold is the z row's gravity (docs/estimator.md, "Vertical air and the
+    accelerometer's z"). Its noise ``var`` per sample at the tether's rate: along f the accelerometer's misfit is the
+    rope's axial bounce, which changes sign within half a second (not the drag's lag behind the wind that
+    ACCEL_MODEL_CORR_S holds for the tilt), and the vertical air's is worth one sample in
+    ``tuning.vertical_air_samples`` (the caller weighs it so). Gated as any source, never forced."""
     nx, ny, nz = accel[0].innov, accel[1].innov, accel[2].innov
     px, py, pz = fx - nx, fy - ny, fz - nz
     pred = math.sqrt(px * px + py * py + pz * pz)
-    if not pred > 0.5 * G0:  # no gravity to read the magnitude against (a numeric fault; the next step resets)
+    if not pred > 0.5 * G0:  # no gravity to read the length against
         return
     ekf.h.fill(0.0)
     ekf.h[ABIAS_Z] = pz / pred
@@ -127,5 +129,6 @@ def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
         innov_e = rt[0, 1] * st[0].innov + rt[1, 1] * st[1].innov + rt[2, 1] * st[2].innov
         share = slow_innovation_share(misfit, nominal, var)
         est.consistency.add_slow_tilt(share * field_tilt_reading(innov_n, innov_e, est.field_ned), est._taut_alpha)
-        fuse_bias_magnitude(ekf, ax, ay, az, st, var + est.vertical_gust_var * vertical_air_samples(
-            est.schedule.taut_every * ekf.dt, est._mean_speed), est.accel_bias_status)  # fmt: skip
+        if ekf.mode == MODE_TAUT:  # on the tether (the free ascent is a minute: the ground's value holds)
+            fuse_bias_magnitude(ekf, ax, ay, az, st, var + est.vertical_gust_var * vertical_air_samples(
+                est.schedule.taut_every * ekf.dt, est._mean_speed), est.accel_bias_status)  # fmt: skip
