@@ -659,7 +659,8 @@ class Estimator:
         return max(self.ekf.field_att_extra, heading_misfit_variance(self.consistency.slow_tilt_var))
 
     def lean_wind_mps(self) -> float:
-        """The wind error of the tilt's systematic error and of the attitude's variance across the lean (P's and what
+        """The wind error of the tilt's systematic error (with the horizontal accelerometer bias's wander since the
+        boot, consistency.lean_bias_rad) and of the attitude's variance across the lean (P's and what
         P does not hold about the field's axis, the larger of what is counted and what is seen:
         consistency.field_attitude_extra, consistency.heading_misfit_variance; consistency.lean_tilt_variance) on the
         taut tether
