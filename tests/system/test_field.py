@@ -147,7 +147,9 @@ def test_an_hour_of_wandering_accelerometer_bias_is_followed():
     times too confidently. Followed in flight from the specific force along itself (accel.fuse_bias_magnitude): the
     bias within 3 sigma of the truth's after the hour, its sigma under what the walk alone leaves (0.06 m/s^2), every
     10-minute mean speed after the first within 8 % and honest (error /
-    accuracy at most 1.6: the filter that kept the ground's value made 17 % and 2.5 in the same windows)."""
+    accuracy at most 1.6: the filter that kept the ground's value made 17 % and 2.5 in the same windows). The hour's
+    constant true mean fails it; the truth delayed by 4 s passes, as it should: this judges the mean's drift over
+    the hour and the bias, the band's dynamics are the other field tests'."""
     from firmware_py.estimator.state import ABIAS_Z
 
     sc = SCENARIOS["field-all"]
@@ -166,7 +168,13 @@ def test_an_hour_of_wandering_accelerometer_bias_is_followed():
     bias, sigma = float(est.ekf.x[ABIAS_Z]), float(est.ekf.P[ABIAS_Z, ABIAS_Z]) ** 0.5
     assert abs(bias - sim.sensors.accel_bias[2]) < 3.0 * sigma and sigma < 0.035, (bias, sim.sensors.accel_bias[2],
                                                                                   sigma)  # unfollowed: 0.06
-    for start in range(600, 3600, 600):
-        w = r[:, 0] < start + 600
-        s = score(r[w, 0], r[w, 1], r[w, 2], r[w, 3], tt, tn, te, float(start))
-        assert abs(s.speed_error_pct) <= 8.0 and s.error_ratio <= 1.6, (start, s)
+    late = tt >= 600.0
+    constant = (np.full_like(tn, tn[late].mean()), np.full_like(te, te[late].mean()), np.interp(tt, r[:, 0], r[:, 3]))
+
+    def windows_ok(t, n, e, acc) -> bool:
+        scores = [score(t[t < start + 600], n[t < start + 600], e[t < start + 600], acc[t < start + 600], tt, tn, te,
+                        float(start)) for start in range(600, 3600, 600)]  # fmt: skip
+        return all(abs(s.speed_error_pct) <= 8.0 and s.error_ratio <= 1.6 for s in scores)
+
+    assert windows_ok(r[:, 0], r[:, 1], r[:, 2], r[:, 3])
+    assert not windows_ok(tt, *constant)  # the hour's true mean: 29 % off in the first window, error/accuracy 6.4
