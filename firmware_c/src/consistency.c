@@ -107,11 +107,10 @@ bw_real bw_systematic_variance(bw_real speed_mps, bw_real drag_scale, bw_real dr
 }
 
 /* consistency.py lean_bias_rad: the tilt's systematic error, the turn-on term and the horizontal bias's wander since
- * the boot (a walk within BW_ACCEL_BIAS_WANDER_MPS2) read as a tilt */
+ * the boot (the declared random walk) read as a tilt */
 bw_real bw_lean_bias_rad(bw_real walk_mps2_rt_s, bw_real seconds)
 {
-    const bw_real walk = BW_MIN(walk_mps2_rt_s * walk_mps2_rt_s * BW_MAX(seconds, BW_R(0.0)),
-                                (bw_real)(BW_ACCEL_BIAS_WANDER_MPS2 * BW_ACCEL_BIAS_WANDER_MPS2));
+    const bw_real walk = walk_mps2_rt_s * walk_mps2_rt_s * BW_MAX(seconds, BW_R(0.0));
     return BW_SQRT((bw_real)(BW_LEAN_BIAS_RAD * BW_LEAN_BIAS_RAD) + walk / (bw_real)(BW_G0 * BW_G0));
 }
 

@@ -27,10 +27,6 @@ ROPE_SHAPE_S = 60.0
 # the tilt's systematic error (accelerometer bias 1-3 mg, the learnt field's direction): what no averaging
 # removes from the lean, so from the wind in calm air, where the lean is a degree (consistency.py)
 LEAN_BIAS_RAD = 0.0035
-# how far a MEMS accelerometer's horizontal bias wanders from its turn-on value with the temperature (0.1-0.3 mg/K over
-# a day's 10-20 K: the top of the 1-5 mg a datasheet gives), within which [filter] accel_bias_walk_mps2_rt_s walks it
-# (consistency.lean_bias_rad)
-ACCEL_BIAS_WANDER_MPS2 = 0.05
 # the attitude's variance across the lean is a displacement of the body's axis, which turns the lean's azimuth by
 # itself over sin(lean) (a tilt d turns it by d / tan(lean)): over cos^2(lean) into lean_bias_wind
 # (consistency.lean_tilt_variance), the lean taken at most to acos of this (84 deg: at most x100 in variance)

@@ -111,3 +111,19 @@ def test_the_c_defaults_are_the_design_files_and_the_filters():
     for name, _ in Config._fields_:
         a, b = getattr(c, name), getattr(want, name)
         assert (math.isnan(a) and math.isnan(b)) or a == pytest.approx(b, rel=1e-12), name
+
+
+def test_the_c_tilt_term_follows_the_declared_walk_as_the_pythons():
+    """``bw_lean_bias_rad`` is ``consistency.lean_bias_rad`` over a long field day: no bound on the walk in either core
+    (a short lockstep flight cannot tell: the walk's variance passes a bound only after tens of minutes)."""
+    import ctypes
+
+    from firmware_py.core_c import load
+    from firmware_py.estimator.consistency import lean_bias_rad
+
+    lib, _, _, _ = load("double")
+    f = lib.bw_lean_bias_rad
+    f.restype, f.argtypes = ctypes.c_double, [ctypes.c_double, ctypes.c_double]
+    for walk in (0.0, 0.0005, 0.001, 0.002):
+        for t in (-1.0, 0.0, 600.0, 3600.0, 14400.0, 28800.0):
+            assert f(walk, t) == pytest.approx(lean_bias_rad(walk, t), rel=1e-12), (walk, t)

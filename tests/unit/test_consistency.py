@@ -22,9 +22,11 @@ from firmware_py.estimator.consistency import (
     field_tilt_reading,
     field_variance,
     heading_misfit_variance,
+    lean_bias_rad,
     lean_tilt_variance,
     slow_innovation_share,
 )
+from firmware_py.estimator.params import LEAN_BIAS_RAD
 from firmware_py.estimator.state import ATT_D, ATT_N
 
 DT = 0.01
@@ -176,3 +178,19 @@ def test_what_counts_of_the_innovation():
     assert slow_innovation_share(0.0, nominal, 2500.0 * nominal) == pytest.approx(0.02)
     assert heading_misfit_variance(1e-4) == pytest.approx(HEADING_MISFIT_RATIO**2 * 1e-4)
     assert heading_misfit_variance(0.0) == 0.0
+
+
+def test_the_tilts_systematic_error_follows_the_declared_walk_of_the_horizontal_bias():
+    """No state holds the accelerometer's horizontal bias, so what it has walked since the boot is the random walk
+    the design declares, unbounded: its variance grows by walk^2 per second, read as a tilt b / g beside the turn-on
+    term. A bound at a guessed range (0.05 m/s^2) had a four-hour field-all 10-17 deg off at error/accuracy 3.5 where
+    the walk had gone 0.15-0.22 m/s^2 (docs/estimator.md, "The long day")."""
+    walk = 0.001
+    assert lean_bias_rad(0.0, 14400.0) == pytest.approx(LEAN_BIAS_RAD)
+    assert lean_bias_rad(walk, -5.0) == pytest.approx(LEAN_BIAS_RAD)  # before the boot's clock: the turn-on term
+    for hours in (1.0, 4.0, 8.0):
+        t = 3600.0 * hours
+        added = lean_bias_rad(walk, t) ** 2 - LEAN_BIAS_RAD**2
+        assert added == pytest.approx(walk * walk * t / (G0 * G0), rel=1e-12)
+    # four hours of the default walk: 0.12 m/s^2, a tilt of 0.7 deg, where the guessed bound held 0.3
+    assert math.degrees(lean_bias_rad(walk, 4 * 3600.0)) == pytest.approx(0.73, abs=0.01)
