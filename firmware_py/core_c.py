@@ -157,8 +157,8 @@ def _structs(real):
         ("turbulence", real * 3),
         ("p_ref_pa", real), ("zeroing", i32), ("ref_pos_d", real), ("t_ref_k", real),
         ("zero_sum", real), ("zero_n", i32), ("join_height", real), ("rho", real), ("height_baro", real),
-        ("baro_pending", i32), ("baro_outside", i32), ("winch_samples", i64), ("winch_t_us", i64),
-        ("winch_tension_n", real),
+        ("baro_pending", i32), ("baro_outside", i32), ("winch_tension_n", real), ("winch_samples", i64),
+        ("winch_t_us", i64), ("accel_hbias", real * 2),
         ("ground_samples", i64), ("ground_t_us", i64), ("ground_p_pa", real), ("ground_p0_pa", real),
         ("p_ref0_pa", real), ("winch_rejected", i64), ("ground_rejected", i64), ("winch_reject_reason", i32),
         ("ground_reject_reason", i32),
@@ -387,6 +387,11 @@ class CEstimator:
     @property
     def winch_tension_n(self) -> float:
         return self._s.winch_tension_n
+
+    @property
+    def accel_hbias(self) -> list[float]:
+        """The accelerometer's body x, y biases walked since the field was learnt (accel.follow_horizontal_bias)."""
+        return [float(v) for v in self._s.accel_hbias]
 
     @property
     def p_ref_pa(self) -> float:

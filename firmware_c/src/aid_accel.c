@@ -31,6 +31,24 @@ static void fuse_bias_magnitude(bw_ekf_t *e, bw_real fx, bw_real fy, bw_real fz,
     bw_ekf_fuse(e, (nx * px + ny * py + nz * pz) * inv, var, &bias, BW_R(0.0), 0);
 }
 
+/* accel.py follow_horizontal_bias: the body x, y biases walked since the field was learnt, from the horizontal
+ * innovation (NED) the accelerometer's fusion left, its share along the field's horizontal direction, back in the body
+ * frame (r: R), weight w (interval / BW_ACCEL_HBIAS_S x the share that counts); nothing while the field is unknown */
+static void follow_horizontal_bias(bw_real hbias[2], bw_real innov_n, bw_real innov_e, const bw_real field[3],
+                                   const bw_real r[9], bw_real w)
+{
+    const bw_real lim = (bw_real)BW_ACCEL_HBIAS_MAX_MPS2, bn = field[0], be = field[1];
+    const bw_real bh2 = bn * bn + be * be;
+    bw_real s, vn, ve;
+    int i;
+    if (!(bh2 > BW_R(0.0)))
+        return;
+    s = w * (innov_n * bn + innov_e * be) / bh2;
+    vn = s * bn, ve = s * be;
+    for (i = 0; i < 2; i++) /* row i of R^T */
+        hbias[i] = BW_MAX(-lim, BW_MIN(lim, hbias[i] + r[i] * vn + r[3 + i] * ve));
+}
+
 static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, bw_real var, bw_real var_z_extra,
                        bw_real misfit, bw_real nominal)
 {
@@ -74,10 +92,13 @@ static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, 
         bw_real share = (BW_R(1.0) - misfit) * BW_SQRT(nominal / var);
         bw_consistency_add_slow_tilt(&est->consistency, share * bw_field_tilt_reading(in, ie, est->field_ned),
                                      est->a_taut);
-        if (e->mode == BW_MODE_TAUT)
+        if (e->mode == BW_MODE_TAUT) {
             fuse_bias_magnitude(e, fx, fy, fz, st,
                                 var + var_z_extra * vertical_air_samples((bw_real)est->sched.taut_every * e->dt,
                                                                          est->mean_speed));
+            follow_horizontal_bias(est->accel_hbias, in, ie, est->field_ned, r,
+                                   share * (bw_real)est->sched.taut_every * e->dt / (bw_real)BW_ACCEL_HBIAS_S);
+        }
     }
 }
 
@@ -98,7 +119,7 @@ void bw_control_accel(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
     est->accel_var_excess = var - nominal;
     /* accel.py: the windowed NIS from BW_FLAG_NIS to twice that, the model stops explaining the accelerometer */
     misfit = bw_accel_misfit(est->consistency.nis[BW_ACCEL]);
-    fuse_accel(est, ax, ay, az, var, e->mode != BW_MODE_GROUND ? est->vertical_gust_var : BW_R(0.0), misfit, nominal);
+    fuse_accel(est, ax - est->accel_hbias[0], ay - est->accel_hbias[1], az, var, e->mode != BW_MODE_GROUND ? est->vertical_gust_var : BW_R(0.0), misfit, nominal);
     i2 = (st[0].innov * st[0].innov + st[1].innov * st[1].innov + st[2].innov * st[2].innov) / BW_R(3.0);
     est->accel_innov2 += est->innov_alpha * (i2 - est->accel_innov2);
 }

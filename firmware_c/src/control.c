@@ -99,6 +99,7 @@ static void init_clock(bw_estimator_t *est)
     est->was_slack = 0;
     est->height_above = 0;
     est->accel_var_excess = BW_R(0.0);
+    est->accel_hbias[0] = est->accel_hbias[1] = BW_R(0.0);
     est->align_innov2[0] = est->align_innov2[1] = est->align_mean = BW_R(0.0);
     est->drag_prior[0] = BW_R(1.0), est->drag_prior[1] = BW_R(0.0);
     est->ascent_data = est->ascent_var = est->ascent_climb = BW_R(0.0);

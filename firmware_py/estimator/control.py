@@ -203,6 +203,8 @@ class Estimator:
         self._was_slack = False
         self._height_above = 0
         self._accel_var_excess = 0.0
+        # the accelerometer's body x and y biases walked since the field was learnt (accel.follow_horizontal_bias)
+        self.accel_hbias = [0.0, 0.0]
         self._align_innov2 = [0.0, 0.0]  # along, cross (aid_sources/tether.py)
         self._align_mean = 0.0  # the along innovations' running mean (their spread is the noise)
         self._drag_prior = (1.0, 0.0)  # the drag scale and its variance when a free ascent starts to learn it

@@ -178,3 +178,48 @@ def test_an_hour_of_wandering_accelerometer_bias_is_followed():
 
     assert windows_ok(r[:, 0], r[:, 1], r[:, 2], r[:, 3])
     assert not windows_ok(tt, *constant)  # the hour's true mean: 29 % off in the first window, error/accuracy 6.4
+
+
+@pytest.mark.slow
+def test_a_days_walk_of_the_horizontal_bias_in_an_hour_is_followed():
+    """``field-all`` with its accelerometer biases walking at 0.002 m/s^2 per sqrt(s), the filter told so: in an hour
+    they go as far as the default's 0.001 in four (0.12 m/s^2, a field day's temperature swing). Along the field's
+    horizontal direction no tilt can take a horizontal bias (the field holds the attitude about east), so the filter
+    read it as a force across the rope and turned the wind: 11.8 deg off at error/accuracy 2.1 in a 10-minute window
+    of this flight (seed 4; a four-hour field-all at the default walk: 12.6 deg at 3.5). Followed from the innovation
+    along that direction (accel.follow_horizontal_bias): every 10-minute window from the second within 8 deg (the
+    issue's every-flight bar; it is 5.4) and honest (error/accuracy at most 1.5; 1.19). The followed bias lies along
+    magnetic north only. The truth delayed by 4 s passes, as it should (this judges the mean's direction over the
+    hour); the hour's constant true mean does not."""
+    sc = SCENARIOS["field-all"]
+    walk = 0.002
+    truth = replace(sc.truth, accel_bias_walk_mps2_rt_s=walk)
+    sim = Simulation(sc.design, sc.wind, truth, 3600.0, 4)
+    est, _ = new_core(sc.design, replace(sc.filter, accel_bias_walk_mps2_rt_s=walk))
+    rows = []
+    for s in sim.samples():
+        if s.baro:
+            est.on_baro(s.time_usec, *s.baro)
+        est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
+        if s.time_usec % 100_000 == 0:
+            rows.append((s.time_usec * 1e-6, *est.wind(), est.wind_accuracy()))
+    r = np.array(rows)
+    tt = sim.truth[:, TRUTH_COLUMNS.index("time_s")]
+    tn, te = sim.truth[:, TRUTH_COLUMNS.index("wind_n")], sim.truth[:, TRUTH_COLUMNS.index("wind_e")]
+
+    def worst(t, n, e, acc) -> tuple[float, float]:
+        scores = [score(t[t < start + 600], n[t < start + 600], e[t < start + 600], acc[t < start + 600], tt, tn, te,
+                        float(start)) for start in range(1200, 3600, 600)]  # fmt: skip
+        return max(abs(s.direction_error_deg) for s in scores), max(s.error_ratio for s in scores)
+
+    direction, ratio = worst(r[:, 0], r[:, 1], r[:, 2], r[:, 3])
+    assert direction <= 8.0 and ratio <= 1.5, (direction, ratio)
+    from balloon_core.rotation import quat_from_euler, rotation
+
+    att = np.radians([sim.truth[-1, TRUTH_COLUMNS.index(c)] for c in ("roll_deg", "pitch_deg", "yaw_deg")])
+    followed = np.reshape(rotation(*quat_from_euler(*att)), (3, 3)) @ np.array([*est.accel_hbias, 0.0])  # NED
+    assert abs(followed[1]) < 0.01 < abs(followed[0]), followed  # north: the field's horizontal direction
+    late = tt >= 600.0
+    acc = np.interp(tt, r[:, 0], r[:, 3])
+    const = worst(tt, np.full_like(tn, tn[late].mean()), np.full_like(te, te[late].mean()), acc)
+    assert not (const[0] <= 8.0 and const[1] <= 1.5), const

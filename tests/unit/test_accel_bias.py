@@ -1,6 +1,7 @@
 """The accelerometer's body-z bias in flight (aid_sources/accel.fuse_bias_magnitude): read from the innovations along
-the predicted specific force, which a tilt cannot move; and how long a vertical gust lasts
-(tuning.vertical_air_samples), which weighs the vertical air's misfit in it."""
+the predicted specific force, which a tilt cannot move; how long a vertical gust lasts (tuning.vertical_air_samples),
+which weighs the vertical air's misfit in it; and the horizontal biases (accel.follow_horizontal_bias), followed along
+the field's horizontal direction only."""
 
 from __future__ import annotations
 
@@ -11,9 +12,10 @@ import pytest
 
 from balloon_core.atmosphere import G0
 from balloon_core.config import Design
-from firmware_py.estimator.aid_sources.accel import fuse_bias_magnitude
+from firmware_py.estimator.aid_sources.accel import follow_horizontal_bias, fuse_bias_magnitude
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.ekf import FusionStatus
+from firmware_py.estimator.params import ACCEL_HBIAS_MAX_MPS2
 from firmware_py.estimator.state import ABIAS_Z, FilterConfig
 from firmware_py.estimator.tuning import KAIMAL_VERTICAL_LENGTH_M, vertical_air_samples
 
@@ -88,3 +90,26 @@ def test_the_vertical_air_is_worth_one_sample_in_twice_its_integral_time_scale()
     assert vertical_air_samples(0.05, 4.25) == pytest.approx(260.9, rel=0.01)
     assert vertical_air_samples(100.0, 8.0) == 1.0
     assert vertical_air_samples(0.05, 0.0) == vertical_air_samples(0.05, 0.5)
+
+
+FIELD = (0.2, 0.0, 0.45)  # gauss, NED: a 66 deg field, magnetic north along north
+
+
+@pytest.mark.parametrize("yaw_deg", [0.0, 30.0, 135.0])
+def test_the_horizontal_bias_follows_what_the_field_holds_and_leaves_the_turn_about_it(yaw_deg):
+    """An innovation along the field's horizontal direction (a bias no tilt can take: the field holds the attitude about
+    east) moves the body's bias by the weight of it, back in the body frame; one across it (east: where a turn about
+    the field's axis moves g, which the tilt's systematic term states) leaves it; nothing while the field is unknown;
+    the bias stays within its guard."""
+    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    rt = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # R^T of a level body yawed by yaw_deg
+    hb = [0.0, 0.0]
+    follow_horizontal_bias(hb, 0.0, 0.05, FIELD, rt, 0.1)
+    assert hb == [0.0, 0.0]
+    follow_horizontal_bias(hb, 0.05, 0.0, (math.nan, math.nan, math.nan), rt, 0.1)
+    assert hb == [0.0, 0.0]
+    follow_horizontal_bias(hb, 0.05, 0.03, FIELD, rt, 0.1)  # north 0.05 (taken), east 0.03 (not)
+    assert hb == pytest.approx([0.005 * c, -0.005 * s], abs=1e-15)  # north in the body: R^T (1, 0, 0)
+    for _ in range(1000):
+        follow_horizontal_bias(hb, 10.0, 0.0, FIELD, rt, 1.0)
+    assert max(abs(v) for v in hb) == ACCEL_HBIAS_MAX_MPS2

@@ -11,7 +11,7 @@ from balloon_core.atmosphere import G0
 from balloon_core.rotation import rotation
 from firmware_py.estimator.consistency import ACCEL, accel_misfit, field_tilt_reading, slow_innovation_share
 from firmware_py.estimator.ekf import FusionStatus, WindEkf
-from firmware_py.estimator.params import ACCEL_MODEL_CORR_S
+from firmware_py.estimator.params import ACCEL_HBIAS_MAX_MPS2, ACCEL_HBIAS_S, ACCEL_MODEL_CORR_S
 from firmware_py.estimator.state import (
     ABIAS_Z,
     ATT_D,
@@ -98,6 +98,36 @@ def fuse_bias_magnitude(
     ekf.fuse((nx * px + ny * py + nz * pz) / pred, var, status, recover=False)
 
 
+def follow_horizontal_bias(
+    hbias: list[float], innov_n: float, innov_e: float, field_ned: tuple[float, float, float], rt, weight: float
+) -> None:  # fmt: skip
+    """One step of the accelerometer's body x and y biases walked since the earth field was learnt, in place, from the
+    horizontal innovation ``fuse_accel`` left (NED, m/s^2): its share along the field's horizontal direction, back in
+    the body frame (``rt``: R^T), ``weight`` of it (the step's interval over ACCEL_HBIAS_S, times the share of the
+    innovation that counts, consistency.slow_innovation_share), within +-ACCEL_HBIAS_MAX_MPS2. The caller subtracts
+    them from the samples. Nothing while the field is unknown.
+
+    A tethered balloon does not accelerate on average, so over minutes the accelerometer reads gravity in the body
+    frame plus its bias. The field learnt at the boot holds the attitude about every axis but its own, so a bias that
+    walks after the boot is read as a tilt only where that is a turn about the field's axis (g cos I of it, across
+    the field's horizontal direction: there a bias and a turn are the same to every sensor, and the tilt's systematic
+    term states it, consistency.lean_bias_rad). Along the field's horizontal direction no tilt can take it: the filter
+    reads it as a force across the rope and turns the wind (a 0.1 m/s^2 step on body x, a 3 m/s wind: 9 deg), and
+    about a quarter of it stays in the innovation. Summed, that residue moves the bias until none stays; where the
+    model misfits (a gust, light air swinging faster than the balloon follows) the share that counts falls, and the
+    step with it: a misfit is not a bias. No state (the Cortex-M4F's RAM holds 19): two floats and their own loop
+    (docs/estimator.md, "The long day")."""
+    bn, be = field_ned[0], field_ned[1]
+    bh2 = bn * bn + be * be
+    if not bh2 > 0.0:
+        return
+    s = weight * (innov_n * bn + innov_e * be) / bh2  # the innovation along the field's horizontal direction, x weight
+    vn, ve = s * bn, s * be
+    for i in range(2):
+        b = hbias[i] + rt[i, 0] * vn + rt[i, 1] * ve
+        hbias[i] = max(-ACCEL_HBIAS_MAX_MPS2, min(ACCEL_HBIAS_MAX_MPS2, b))
+
+
 def accel_nominal_var(est: Estimator) -> float:
     """The accelerometer's nominal noise in the filter's mode (on the ground, free, taut), (m/s^2)^2."""
     return (est.accel_static_var, est.accel_var, est.accel_taut_var)[est.ekf.mode]
@@ -109,6 +139,9 @@ def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
     the model: a drag crisis, a gust the rate state cannot follow), so that a model that is off does not
     drag the attitude with it (the magnetometer and the gyro keep it)."""
     ekf = est.ekf
+    hbias = est.accel_hbias
+    ax -= hbias[0]
+    ay -= hbias[1]
     var = nominal = accel_nominal_var(est)
     var = max(var, est._accel_innov2)
     est._accel_var_excess = var - nominal  # what the consistency monitor takes back out (control._monitor)
@@ -132,3 +165,5 @@ def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
         if ekf.mode == MODE_TAUT:  # on the tether (the free ascent is a minute: the ground's value holds)
             fuse_bias_magnitude(ekf, ax, ay, az, st, var + est.vertical_gust_var * vertical_air_samples(
                 est.schedule.taut_every * ekf.dt, est._mean_speed), est.accel_bias_status)  # fmt: skip
+            follow_horizontal_bias(hbias, innov_n, innov_e, est.field_ned, rt,
+                                   share * est.schedule.taut_every * ekf.dt / ACCEL_HBIAS_S)  # fmt: skip
