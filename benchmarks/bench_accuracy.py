@@ -2,7 +2,7 @@
 every scenario x several seeds, and the frequency response on the multisine winds.
 
     .venv/bin/python -m benchmarks.bench_accuracy [--seeds 5] [--duration 600] [--jobs 2]
-        [--scenarios NAME ...] [--directions N] [--quiet] [--json FILE]
+        [--scenarios NAME ...] [--directions N] [--window S] [--quiet] [--json FILE]
 
 Metrics after 120 s, per flight (the tables: mean over seeds and [worst seed]):
 - band skill: 1 - band RMSE / band RMSE of a constant equal to the true mean (both low-passed below
@@ -17,7 +17,10 @@ A cell ending in '!' misses its target on at least one seed. Names not (yet) in
 sim_hil.scenarios.SCENARIOS are skipped with a note. ``NAME@DEG`` flies a scenario with its wind from DEG
 degrees (the rest unchanged: the same wind in the wind's own axes, the balloon blown another way, so that the
 magnetic field and the lean meet at another angle); ``--directions N`` flies every named scenario from N
-directions 360/N apart, starting at its own. ``--json`` writes every flight's results.
+directions 360/N apart, starting at its own. ``--window S`` also scores every flight in windows of S seconds (from
+S on; the first from 120 s) and adds a table of the worst window per scenario over its seeds and windows: what a
+user flying a long day reads in any stretch of it (the whole flight's mean hides a drift that comes and goes).
+``--json`` writes every flight's results.
 """
 
 from __future__ import annotations
@@ -154,9 +157,17 @@ def skill_target(name: str) -> float:
     return SKILL_MIN_REDUCED if name.startswith("reduced") else SKILL_MIN
 
 
+def windows(duration_s: float, window_s: float) -> list[tuple[float, float]]:
+    """The scored windows of a flight: [START_S, W), [W, 2W), ... up to the flight's end (a last one shorter than
+    half a window is left out: too short to judge a mean)."""
+    edges = [START_S] + [k * window_s for k in range(1, int(duration_s // window_s) + 1) if k * window_s > START_S]
+    edges = [e for e in edges if e < duration_s] + [duration_s]
+    return [(a, b) for a, b in zip(edges[:-1], edges[1:], strict=False) if b - a >= 0.5 * window_s]
+
+
 def one(job) -> dict:
     """Fly one scenario with one seed; every number a table or the JSON needs (errors caught, reported)."""
-    name, seed, duration = job
+    name, seed, duration, window = job
     t0 = time.perf_counter()
     out = {"scenario": name, "seed": seed, "duration_s": duration}
     try:
@@ -167,6 +178,9 @@ def one(job) -> dict:
             out["response"] = response_flight(rows, truth, FREQS_HZ, START_S, extra_hz=wind_lines_hz(sc))
         out["taut_resets"] = int(est.counters.taut_resets)
         out["tilt_err_deg"], out["yaw_err_deg"] = attitude_errors(rows, truth, START_S)
+        if window:
+            out["windows"] = [{"start_s": a, "end_s": b, **asdict(score_flight(rows[rows[:, 0] < b], truth, a))}
+                              for a, b in windows(duration, window)]  # fmt: skip
     except Exception as e:  # one broken scenario must not lose the others
         out["error"] = f"{type(e).__name__}: {e}"
     out["elapsed_s"] = time.perf_counter() - t0
@@ -225,6 +239,28 @@ def summary_table(names: list[str], results: list[dict]) -> list[str]:
     return lines
 
 
+def window_table(names: list[str], results: list[dict]) -> list[str]:
+    """Per scenario, the worst window over its seeds and windows: |speed error|, |direction error| and the
+    error/accuracy farthest from 1, each with the seed and the window's start where it was."""
+    head = ("worst |speed err| %", "worst |dir err| deg", "worst error/accuracy")
+    lines = [f"{'scenario':28s} " + " ".join(f"{h:>24s}" for h in head)]
+    for name in names:
+        ws = [(r["seed"], w) for r in results if r["scenario"] == name and "error" not in r for w in r["windows"]]
+        if not ws:
+            lines.append(f"{name:28s} (no window scored)")
+            continue
+
+        def log_off(v: float) -> float:
+            return abs(math.log(min(max(v, 1e-9), 1e9))) if math.isfinite(v) else -1.0
+
+        cells = []
+        for key, size in (("speed_error_pct", abs), ("direction_error_deg", abs), ("error_ratio", log_off)):
+            seed, w = max(ws, key=lambda sw, key=key, size=size: size(sw[1][key]))
+            cells.append(f"{w[key]:+7.2f} (seed {seed}, {w['start_s']:5.0f} s)".rjust(24))
+        lines.append(f"{name:28s} " + " ".join(cells))
+    return lines
+
+
 def response_cell(hs: list[complex], target: bool) -> str:
     """gain, phase (deg, of the mean phasor), |H-1| mean [worst] over the seeds."""
     if not hs:
@@ -266,6 +302,8 @@ def jsonable(r: dict) -> dict:
             return None
         if isinstance(x, dict):
             return {str(k): fix(v) for k, v in x.items()}
+        if isinstance(x, list):
+            return [fix(v) for v in x]
         return x
 
     return fix(r)
@@ -285,6 +323,8 @@ def main(argv: list[str] | None = None) -> None:
         metavar="N",
         help="fly each scenario from N wind directions 360/N apart (NAME@DEG; default 1: as named)",
     )
+    ap.add_argument("--window", type=float, default=0.0, metavar="S",
+                    help="also score each flight in windows of S seconds; the worst window per scenario")  # fmt: skip
     ap.add_argument("--quiet", action="store_true", help="no progress bar / per-flight lines on stderr")
     ap.add_argument("--json", metavar="FILE", help="write every flight's results here")
     args = ap.parse_args(argv)
@@ -292,6 +332,8 @@ def main(argv: list[str] | None = None) -> None:
         userargs.check_outputs({}, {"--json": args.json})
         if not 1 <= args.directions <= 360:
             raise userargs.UserError(f"--directions {args.directions}: give 1 to 360")
+        if args.window and not (math.isfinite(args.window) and 2.0 * START_S <= args.window <= args.duration):
+            raise userargs.UserError(f"--window {args.window:g}: give {2.0 * START_S:g} s up to --duration")
         flights = directions(args.scenarios, args.directions)
     except userargs.UserError as exc:
         raise SystemExit(userargs.fail("bench_accuracy", exc)) from None
@@ -301,7 +343,7 @@ def main(argv: list[str] | None = None) -> None:
         (names if lookup(n) is not None else skipped).append(n)
     for n in skipped:
         print(f"note: skipping '{n}': not in sim_hil.scenarios.SCENARIOS")
-    jobs = [(n, s, args.duration) for n in names for s in range(1, args.seeds + 1)]
+    jobs = [(n, s, args.duration, args.window) for n in names for s in range(1, args.seeds + 1)]
     results = []
     with Pool(max(1, args.jobs)) as pool, Progress("bench_accuracy", total=len(jobs), unit="flights",
                                                    quiet=args.quiet) as bar:  # fmt: skip
@@ -315,6 +357,11 @@ def main(argv: list[str] | None = None) -> None:
     print(TARGETS)
     for line in summary_table(names, results):
         print(line)
+    if args.window:
+        print()
+        print(f"windows of {args.window:.0f} s (the first from {START_S:.0f} s), the worst per scenario:")
+        for line in window_table(names, results):
+            print(line)
     multi = [n for n in names if is_multisine(n, lookup(n))]
     if multi:
         print()
@@ -327,7 +374,8 @@ def main(argv: list[str] | None = None) -> None:
     for r in failed:
         print(f"FAILED {r['scenario']} seed {r['seed']}: {r['error']}")
     if args.json:
-        doc = {"seeds": args.seeds, "duration_s": args.duration, "start_s": START_S, "freqs_hz": list(FREQS_HZ),
+        doc = {"seeds": args.seeds, "duration_s": args.duration, "start_s": START_S, "window_s": args.window,
+               "freqs_hz": list(FREQS_HZ),
                "targets": {"h_err_max": H_ERR_MAX, "h_err_hz": list(TARGET_HZ), "band_skill_min": SKILL_MIN,
                            "band_skill_min_reduced": SKILL_MIN_REDUCED, "speed_err_max_pct": SPEED_MAX_PCT,
                            "dir_err_max_deg": DIR_MAX_DEG, "error_ratio_range": list(RATIO_RANGE)},

@@ -1,5 +1,5 @@
 """benchmarks.bench_accuracy's tables from made-up flight results: targets marked, steady skill '-',
-cross-wind rows only where driven, missing scenarios skipped, JSON written."""
+cross-wind rows only where driven, missing scenarios skipped, JSON written, the worst window named."""
 
 import json
 
@@ -107,9 +107,37 @@ def test_directions_fly_each_turned_scenario_once(capsys, monkeypatch):
 
 @pytest.mark.parametrize("argv, says", [(["--directions", "0"], "--directions 0"),
                                         (["--directions", "abc"], "invalid int value"),
-                                        (["--scenarios", "steady@north"], "'steady@north'")])  # fmt: skip
+                                        (["--scenarios", "steady@north"], "'steady@north'"),
+                                        (["--window", "100"], "--window 100"),
+                                        (["--window", "900"], "--window 900")])  # fmt: skip
 def test_bad_directions_are_a_user_error(argv, says, capsys):
     with pytest.raises(SystemExit) as e:
         ba.main(argv + (["--scenarios", "steady"] if "--scenarios" not in argv else []))
     err = capsys.readouterr().err
     assert e.value.code == 2 and says in err and err.strip().count("\n") == 0
+
+
+def test_windows_cover_the_scored_flight_and_leave_a_short_tail_out():
+    assert ba.windows(3600.0, 600.0) == [(120.0, 600.0), (600.0, 1200.0), (1200.0, 1800.0), (1800.0, 2400.0),
+                                         (2400.0, 3000.0), (3000.0, 3600.0)]  # fmt: skip
+    assert ba.windows(14400.0, 3600.0)[0] == (120.0, 3600.0) and ba.windows(14400.0, 3600.0)[-1] == (10800.0, 14400.0)
+    assert ba.windows(1000.0, 600.0) == [(120.0, 600.0), (600.0, 1000.0)]  # 400 s: at least half a window
+    assert ba.windows(1300.0, 600.0) == [(120.0, 600.0), (600.0, 1200.0)]  # the last 100 s left out
+
+
+def test_the_window_table_names_the_worst_window_of_any_seed(capsys, monkeypatch):
+    def flown(job):
+        r = flight(job[0], job[1])
+        r["windows"] = [{"start_s": a, "speed_error_pct": 1.0, "direction_error_deg": -0.5, "error_ratio": 1.1}
+                        for a, _ in ba.windows(job[2], job[3])]  # fmt: skip
+        if job[1] == 2:
+            r["windows"][1].update(speed_error_pct=-7.5, error_ratio=0.2)
+            r["windows"][2].update(direction_error_deg=12.6, error_ratio=3.5)
+        return r
+
+    monkeypatch.setattr(ba, "one", flown)
+    monkeypatch.setattr(ba, "Pool", NoPool)
+    ba.main(["--seeds", "3", "--scenarios", "field-all", "--duration", "3600", "--window", "600", "--quiet"])
+    line = row(capsys.readouterr().out.splitlines()[-2:], "field-all")
+    assert "-7.50 (seed 2,   600 s)" in line and "+12.60 (seed 2,  1200 s)" in line
+    assert "+0.20 (seed 2,   600 s)" in line  # farther from 1 than 3.5 is: |log 0.2| = 1.61 > |log 3.5| = 1.25
