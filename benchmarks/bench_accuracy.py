@@ -250,11 +250,14 @@ def window_table(names: list[str], results: list[dict]) -> list[str]:
             lines.append(f"{name:28s} (no window scored)")
             continue
 
+        def off(v: float) -> float:  # a window that could not be judged (NaN, infinite) is the worst
+            return abs(v) if math.isfinite(v) else math.inf
+
         def log_off(v: float) -> float:
-            return abs(math.log(min(max(v, 1e-9), 1e9))) if math.isfinite(v) else -1.0
+            return abs(math.log(v)) if math.isfinite(v) and v > 0.0 else math.inf
 
         cells = []
-        for key, size in (("speed_error_pct", abs), ("direction_error_deg", abs), ("error_ratio", log_off)):
+        for key, size in (("speed_error_pct", off), ("direction_error_deg", off), ("error_ratio", log_off)):
             seed, w = max(ws, key=lambda sw, key=key, size=size: size(sw[1][key]))
             cells.append(f"{w[key]:+7.2f} (seed {seed}, {w['start_s']:5.0f} s)".rjust(24))
         lines.append(f"{name:28s} " + " ".join(cells))

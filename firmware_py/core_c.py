@@ -160,7 +160,8 @@ def _structs(real):
         ("baro_pending", i32), ("baro_outside", i32), ("winch_tension_n", real), ("winch_samples", i64),
         ("winch_t_us", i64), ("accel_hbias", real * 2),
         ("ground_samples", i64), ("ground_t_us", i64), ("ground_p_pa", real), ("ground_p0_pa", real),
-        ("p_ref0_pa", real), ("winch_rejected", i64), ("ground_rejected", i64), ("winch_reject_reason", i32),
+        ("p_ref0_pa", real), ("accel_hbias_var", real),
+        ("winch_rejected", i64), ("ground_rejected", i64), ("winch_reject_reason", i32),
         ("ground_reject_reason", i32),
     ]  # fmt: skip
 
@@ -392,6 +393,11 @@ class CEstimator:
     def accel_hbias(self) -> list[float]:
         """The accelerometer's body x, y biases walked since the field was learnt (accel.follow_horizontal_bias)."""
         return [float(v) for v in self._s.accel_hbias]
+
+    @property
+    def accel_hbias_var(self) -> float:
+        """Its error variance, (m/s^2)^2 (accel.horizontal_bias_variance)."""
+        return float(self._s.accel_hbias_var)
 
     @property
     def p_ref_pa(self) -> float:

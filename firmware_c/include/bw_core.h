@@ -189,12 +189,13 @@ typedef struct {
     int32_t zero_n;
     bw_real join_height, rho, height_baro;
     int32_t baro_pending, baro_outside; /* a sample to fuse; samples in a row outside the gate (aid_baro.c) */
-    bw_real winch_tension_n;
     /* the winch (aid_sources/winch.py) and the ground reference (aid_sources/ground_ref.py) */
+    bw_real winch_tension_n;
     int64_t winch_samples, winch_t_us;
     bw_real accel_hbias[2];      /* the accelerometer's body x, y biases walked since the field was learnt (aid_accel.c) */
     int64_t ground_samples, ground_t_us;
     bw_real ground_p_pa, ground_p0_pa, p_ref0_pa;
+    bw_real accel_hbias_var;     /* the followed horizontal bias's error variance (aid_accel.c) */
     /* implausible WINCH_STATUS and ground references, rejected and counted; why the last one was */
     int64_t winch_rejected, ground_rejected;
     int32_t winch_reject_reason, ground_reject_reason;

@@ -44,6 +44,8 @@ static void follow_horizontal_bias(bw_real hbias[2], bw_real innov_n, bw_real in
     if (!(bh2 > BW_R(0.0)))
         return;
     s = w * (innov_n * bn + innov_e * be) / bh2;
+    if (!isfinite(s)) /* a numeric reset's step */
+        return;
     vn = s * bn, ve = s * be;
     for (i = 0; i < 2; i++) /* row i of R^T */
         hbias[i] = BW_MAX(-lim, BW_MIN(lim, hbias[i] + r[i] * vn + r[3 + i] * ve));
@@ -92,13 +94,19 @@ static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, 
         bw_real share = (BW_R(1.0) - misfit) * BW_SQRT(nominal / var);
         bw_consistency_add_slow_tilt(&est->consistency, share * bw_field_tilt_reading(in, ie, est->field_ned),
                                      est->a_taut);
+        const bw_real step_s = (bw_real)est->sched.taut_every * e->dt;
+        const bw_real walk = (bw_real)est->cfg->accel_bias_walk_mps2_rt_s;
+        const bw_real weight =
+            e->mode == BW_MODE_TAUT && isfinite(share) ? share * step_s / (bw_real)BW_ACCEL_HBIAS_S : BW_R(0.0);
         if (e->mode == BW_MODE_TAUT) {
             fuse_bias_magnitude(e, fx, fy, fz, st,
-                                var + var_z_extra * vertical_air_samples((bw_real)est->sched.taut_every * e->dt,
-                                                                         est->mean_speed));
-            follow_horizontal_bias(est->accel_hbias, in, ie, est->field_ned, r,
-                                   share * (bw_real)est->sched.taut_every * e->dt / (bw_real)BW_ACCEL_HBIAS_S);
+                                var + var_z_extra * vertical_air_samples(step_s, est->mean_speed));
+            follow_horizontal_bias(est->accel_hbias, in, ie, est->field_ned, r, weight);
         }
+        /* accel.py horizontal_bias_variance */
+        est->accel_hbias_var = BW_MAX(BW_R(0.0), est->accel_hbias_var + walk * walk * step_s -
+                                                     BW_R(2.0) * (bw_real)BW_ACCEL_HBIAS_RESIDUE * weight *
+                                                         est->accel_hbias_var);
     }
 }
 

@@ -114,20 +114,30 @@ bw_real bw_lean_bias_rad(bw_real walk_mps2_rt_s, bw_real seconds)
     return BW_SQRT((bw_real)(BW_LEAN_BIAS_RAD * BW_LEAN_BIAS_RAD) + walk / (bw_real)(BW_G0 * BW_G0));
 }
 
+/* consistency.py held_lean_bias_rad: the tilt's systematic error about the magnetic east, the turn-on term and the
+ * followed horizontal bias's error (variance hbias_var) read as a tilt */
+bw_real bw_held_lean_bias_rad(bw_real hbias_var)
+{
+    return BW_SQRT((bw_real)(BW_LEAN_BIAS_RAD * BW_LEAN_BIAS_RAD) + BW_MAX(hbias_var, BW_R(0.0)) / (bw_real)(BW_G0 * BW_G0));
+}
+
 /* consistency.py lean_bias_wind: the wind error of a tilt error on the taut balloon, with the field's geometry
  * (the rotation about the field's axis that only the accelerometer holds turns the lean's azimuth) */
 bw_real bw_lean_bias_wind(bw_real wind_n, bw_real wind_e, bw_real lift_n, bw_real drag_per_speed2,
-                          bw_real lean_bias_rad, const bw_real field_ned[3], bw_real cross_tilt_var)
+                          bw_real lean_bias_rad, const bw_real field_ned[3], bw_real cross_tilt_var, bw_real held_bias_rad)
 {
-    bw_real speed = BW_SQRT(wind_n * wind_n + wind_e * wind_e), f2 = BW_R(1.0), bh, t, v;
+    bw_real speed = BW_SQRT(wind_n * wind_n + wind_e * wind_e), about = BW_R(1.0), across = BW_R(0.0), bh, t, cos_a, v;
     if (!(drag_per_speed2 > BW_R(0.0) && lift_n > BW_R(0.0)))
         return BW_R(0.0);
     bh = BW_SQRT(field_ned[0] * field_ned[0] + field_ned[1] * field_ned[1]);
     if (bh > BW_R(0.0) && speed > BW_R(0.0)) { /* false while the field is unknown (NaN) */
         t = field_ned[2] / bh * drag_per_speed2 * speed * speed / lift_n;
-        f2 = BW_R(1.0) + t * t + BW_R(2.0) * t * (wind_n * field_ned[0] + wind_e * field_ned[1]) / (speed * bh);
+        cos_a = (wind_n * field_ned[0] + wind_e * field_ned[1]) / (speed * bh);
+        about = (t + cos_a) * (t + cos_a), across = BW_MAX(BW_R(0.0), BW_R(1.0) - cos_a * cos_a);
     }
-    v = lift_n * BW_SQRT(lean_bias_rad * lean_bias_rad * (f2 + BW_R(0.25)) + cross_tilt_var) /
+    v = lift_n *
+        BW_SQRT(lean_bias_rad * lean_bias_rad * (about + BW_R(0.25)) + held_bias_rad * held_bias_rad * across +
+                cross_tilt_var) /
         (drag_per_speed2 * BW_MAX(speed, BW_R(1e-3)));
     return BW_MIN(v, BW_MAX(speed, BW_R(0.5)));
 }

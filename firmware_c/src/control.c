@@ -100,6 +100,7 @@ static void init_clock(bw_estimator_t *est)
     est->height_above = 0;
     est->accel_var_excess = BW_R(0.0);
     est->accel_hbias[0] = est->accel_hbias[1] = BW_R(0.0);
+    est->accel_hbias_var = BW_R(0.0);
     est->align_innov2[0] = est->align_innov2[1] = est->align_mean = BW_R(0.0);
     est->drag_prior[0] = BW_R(1.0), est->drag_prior[1] = BW_R(0.0);
     est->ascent_data = est->ascent_var = est->ascent_climb = BW_R(0.0);
@@ -311,6 +312,11 @@ static void reinitialise_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, 
     }
     bw_ekf_initialise(e, est->cfg, q, est->ref_pos_d - h);
     est->ascent_var = BW_R(0.0); /* the drag scale starts afresh: no ascent to weigh again */
+    /* the attitude was taken from this raw sample: the horizontal bias is in its tilt now, and all it walked since the
+     * boot unfollowed (aid_accel.c follow_horizontal_bias) */
+    est->accel_hbias[0] = est->accel_hbias[1] = BW_R(0.0);
+    est->accel_hbias_var = (bw_real)est->cfg->accel_bias_walk_mps2_rt_s * (bw_real)est->cfg->accel_bias_walk_mps2_rt_s *
+                           BW_MAX(BW_R(0.0), (bw_real)(e->time_us - est->t_boot_us) * BW_R(1e-6));
     e->P[0][0] = e->P[1][1] = BW_R(100.0) * BW_R(100.0);
     e->mode = h > e->m.release_height_m ? BW_MODE_FREE : BW_MODE_GROUND;
 }
@@ -664,7 +670,7 @@ bw_real bw_wind_accuracy(const bw_estimator_t *est)
             lean = bw_lean_bias_wind(wn, we, bw_lift_n(m, est->rho), e->x[BW_DRAG] * est->rho * m->half_cd_area_m2,
                                      bw_lean_bias_rad((bw_real)est->cfg->accel_bias_walk_mps2_rt_s,
                                                       (bw_real)(e->time_us - est->t_boot_us) * BW_R(1e-6)),
-                                     est->field_ned, cross_var);
+                                     est->field_ned, cross_var, bw_held_lean_bias_rad(est->accel_hbias_var));
         }
         sys_var = bw_systematic_variance(speed, e->x[BW_DRAG], e->P[BW_DRAG][BW_DRAG], lean);
     }

@@ -247,9 +247,16 @@ def lean_bias_rad(walk_mps2_rt_s: float, seconds: float) -> float:
     return math.sqrt(LEAN_BIAS_RAD * LEAN_BIAS_RAD + walk / (G0 * G0))
 
 
+def held_lean_bias_rad(hbias_var: float) -> float:
+    """The tilt's systematic error about the magnetic east, rad: the turn-on term and the error of the horizontal bias
+    followed along the field's horizontal direction (variance ``hbias_var``, accel.horizontal_bias_variance), read as a
+    tilt. There the magnetometer tells a tilt from a bias, and what walks is followed; across it (lean_bias_rad) not."""
+    return math.sqrt(LEAN_BIAS_RAD * LEAN_BIAS_RAD + max(hbias_var, 0.0) / (G0 * G0))
+
+
 def lean_bias_wind(
     wind_n: float, wind_e: float, lift_n: float, drag_per_speed2: float, lean_bias_rad: float,
-    field_ned: tuple[float, float, float], cross_tilt_var: float = 0.0,
+    field_ned: tuple[float, float, float], cross_tilt_var: float = 0.0, held_bias_rad: float | None = None,
 ) -> float:  # fmt: skip
     """The wind error (m/s, horizontal) of a tilt error ``lean_bias_rad`` on the taut balloon: its lean is the
     pull, tan(lean) = D / N_b with D = c |w|^2, so a tilt d across the lean turns its azimuth by d / tan(lean),
@@ -270,16 +277,24 @@ def lean_bias_wind(
     ``cross_tilt_var`` (rad^2): the filter's own attitude variance across the lean as a tilt (``lean_tilt_variance``:
     P's and what P does not hold about the field's axis), which turns the azimuth the same way. The alignment
     takes it as white noise, and the position and the wind average it away; but the attitude's error is slow (about
-    the field's axis only the accelerometer holds it), so its share of the wind is stated here."""
+    the field's axis only the accelerometer holds it), so its share of the wind is stated here.
+
+    ``held_bias_rad``: the tilt about the horizontal across the field has its own systematic error where the horizontal
+    bias is followed along the field (``held_lean_bias_rad``; None: ``lean_bias_rad``). F^2 is (t + cos a)^2 from the
+    tilt about the field's horizontal direction and sin^2 a from the one across it, so each takes its own: the
+    quarter along the lean and an unknown field take ``lean_bias_rad``, the larger."""
     speed = math.sqrt(wind_n * wind_n + wind_e * wind_e)
     if not (drag_per_speed2 > 0.0 and lift_n > 0.0):
         return 0.0
-    f2 = 1.0
+    held = lean_bias_rad if held_bias_rad is None else held_bias_rad
+    about, across = 1.0, 0.0  # (t + cos a)^2 and sin^2 a: the field unknown, all of it as the tilt about the field's
     bn, be, bd = field_ned
     bh = math.sqrt(bn * bn + be * be)
     if bh > 0.0 and speed > 0.0:  # False while the field is unknown (NaN)
         t = bd / bh * drag_per_speed2 * speed * speed / lift_n
-        f2 = 1.0 + t * t + 2.0 * t * (wind_n * bn + wind_e * be) / (speed * bh)
+        cos_a = (wind_n * bn + wind_e * be) / (speed * bh)
+        about, across = (t + cos_a) * (t + cos_a), max(0.0, 1.0 - cos_a * cos_a)
     d2 = lean_bias_rad * lean_bias_rad
-    v = lift_n * math.sqrt(d2 * (f2 + 0.25) + cross_tilt_var) / (drag_per_speed2 * max(speed, 1e-3))
+    v2 = d2 * (about + 0.25) + held * held * across + cross_tilt_var
+    v = lift_n * math.sqrt(v2) / (drag_per_speed2 * max(speed, 1e-3))
     return min(v, max(speed, 0.5))

@@ -28,6 +28,7 @@ from firmware_py.estimator.consistency import (
     field_attitude_extra,
     field_variance,
     heading_misfit_variance,
+    held_lean_bias_rad,
     lean_bias_rad,
     lean_bias_wind,
     lean_tilt_variance,
@@ -205,6 +206,7 @@ class Estimator:
         self._accel_var_excess = 0.0
         # the accelerometer's body x and y biases walked since the field was learnt (accel.follow_horizontal_bias)
         self.accel_hbias = [0.0, 0.0]
+        self.accel_hbias_var = 0.0  # its error variance, (m/s^2)^2 (accel.horizontal_bias_variance)
         self._align_innov2 = [0.0, 0.0]  # along, cross (aid_sources/tether.py)
         self._align_mean = 0.0  # the along innovations' running mean (their spread is the noise)
         self._drag_prior = (1.0, 0.0)  # the drag scale and its variance when a free ascent starts to learn it
@@ -531,6 +533,11 @@ class Estimator:
         ekf.initialise(q, self.ref_pos_d - h)
         ekf.P[0, 0] = ekf.P[1, 1] = 100.0**2
         self._ascent_var = 0.0  # the drag scale starts afresh: no ascent to weigh again
+        # the attitude was taken from this raw sample: the horizontal bias is in its tilt now, and all it walked since
+        # the boot unfollowed (accel.follow_horizontal_bias)
+        self.accel_hbias[0] = self.accel_hbias[1] = 0.0
+        walk = self.cfg.accel_bias_walk_mps2_rt_s
+        self.accel_hbias_var = walk * walk * max(0.0, 1e-6 * (ekf.time_us - self.t_boot_us))
         ekf.mode = MODE_FREE if h > self.cfg.release_height_m else MODE_GROUND
 
     def _height_for_taut(self) -> float:
@@ -680,7 +687,7 @@ class Estimator:
         tilt_var = lean_tilt_variance(cross_var, extra, self.field_ned, zn, ze, zd)
         bias = lean_bias_rad(self.cfg.accel_bias_walk_mps2_rt_s, 1e-6 * (ekf.time_us - self.t_boot_us))
         return lean_bias_wind(wn, we, m.lift_n(self.rho), float(ekf.x[DRAG]) * self.rho * m.half_cd_area_m2, bias,
-                              self.field_ned, tilt_var)  # fmt: skip
+                              self.field_ned, tilt_var, held_lean_bias_rad(self.accel_hbias_var))  # fmt: skip
 
     def wind(self) -> tuple[float, float]:
         return float(self.ekf.x[WIND_N]), float(self.ekf.x[WIND_E])

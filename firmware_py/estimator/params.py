@@ -36,6 +36,10 @@ LEAN_BIAS_RAD = 0.0035
 # runaway only)
 ACCEL_HBIAS_S = 300.0
 ACCEL_HBIAS_MAX_MPS2 = 1.0
+# the share of a bias along the field's horizontal direction that stays in the accelerometer's innovation, the loop's
+# gain on it (a 0.1 m/s^2 step on body x on field-rope: 0.023 m/s^2 of it stayed; the followed bias closed on it over
+# 1000-1400 s at ACCEL_HBIAS_S 300): the followed bias's error variance settles at walk^2 ACCEL_HBIAS_S / (2 x this)
+ACCEL_HBIAS_RESIDUE = 0.25
 # the attitude's variance across the lean is a displacement of the body's axis, which turns the lean's azimuth by
 # itself over sin(lean) (a tilt d turns it by d / tan(lean)): over cos^2(lean) into lean_bias_wind
 # (consistency.lean_tilt_variance), the lean taken at most to acos of this (84 deg: at most x100 in variance)

@@ -141,3 +141,12 @@ def test_the_window_table_names_the_worst_window_of_any_seed(capsys, monkeypatch
     line = row(capsys.readouterr().out.splitlines()[-2:], "field-all")
     assert "-7.50 (seed 2,   600 s)" in line and "+12.60 (seed 2,  1200 s)" in line
     assert "+0.20 (seed 2,   600 s)" in line  # farther from 1 than 3.5 is: |log 0.2| = 1.61 > |log 3.5| = 1.25
+
+
+def test_a_window_that_could_not_be_judged_is_the_worst():
+    ws = [{"start_s": a, "speed_error_pct": 9.0, "direction_error_deg": 1.0, "error_ratio": 5.0}
+          for a in (120.0, 600.0)]  # fmt: skip
+    ws[1].update(speed_error_pct=float("nan"), error_ratio=float("inf"))
+    r = flight("field-all", 1) | {"windows": ws}
+    line = row(ba.window_table(["field-all"], [r]), "field-all")
+    assert "nan (seed 1,   600 s)" in line and "inf (seed 1,   600 s)" in line

@@ -12,10 +12,14 @@ import pytest
 
 from balloon_core.atmosphere import G0
 from balloon_core.config import Design
-from firmware_py.estimator.aid_sources.accel import follow_horizontal_bias, fuse_bias_magnitude
+from firmware_py.estimator.aid_sources.accel import (
+    follow_horizontal_bias,
+    fuse_bias_magnitude,
+    horizontal_bias_variance,
+)
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.ekf import FusionStatus
-from firmware_py.estimator.params import ACCEL_HBIAS_MAX_MPS2
+from firmware_py.estimator.params import ACCEL_HBIAS_MAX_MPS2, ACCEL_HBIAS_RESIDUE, ACCEL_HBIAS_S
 from firmware_py.estimator.state import ABIAS_Z, FilterConfig
 from firmware_py.estimator.tuning import KAIMAL_VERTICAL_LENGTH_M, vertical_air_samples
 
@@ -113,3 +117,34 @@ def test_the_horizontal_bias_follows_what_the_field_holds_and_leaves_the_turn_ab
     for _ in range(1000):
         follow_horizontal_bias(hb, 10.0, 0.0, FIELD, rt, 1.0)
     assert max(abs(v) for v in hb) == ACCEL_HBIAS_MAX_MPS2
+
+
+def test_the_followed_bias_takes_the_fields_direction_with_a_declination_and_no_nan():
+    """With the field 20 deg east of north the bias moves along it, not along north; a step that is not finite (an
+    innovation or a weight of NaN, a numeric reset's) leaves the bias as it was: min/max would pin it at the guard."""
+    dec = math.radians(20.0)
+    field = (0.2 * math.cos(dec), 0.2 * math.sin(dec), 0.45)
+    rt = np.eye(3)  # level, heading north: body x north, body y east
+    hb = [0.0, 0.0]
+    follow_horizontal_bias(hb, 0.05, 0.0, field, rt, 0.1)  # north 0.05: cos(20 deg) of it lies along the field
+    assert hb == pytest.approx([0.005 * math.cos(dec) ** 2, 0.005 * math.cos(dec) * math.sin(dec)], abs=1e-15)
+    before = list(hb)
+    follow_horizontal_bias(hb, math.nan, 0.0, field, rt, 0.1)
+    follow_horizontal_bias(hb, 0.05, 0.0, field, rt, math.nan)
+    follow_horizontal_bias(hb, math.inf, 0.0, field, rt, 0.1)
+    assert hb == before
+
+
+def test_the_followed_bias_error_settles_where_the_loop_meets_the_walk():
+    """At the full share the variance settles at walk^2 ACCEL_HBIAS_S / (2 ACCEL_HBIAS_RESIDUE), the walk's over
+    ACCEL_HBIAS_S / (2 x its residue) seconds; with the loop stopped (a misfit) it grows as the walk does."""
+    walk, dt = 0.001, 0.05
+    v = 0.0
+    for _ in range(int(20 * ACCEL_HBIAS_S / dt)):
+        v = horizontal_bias_variance(v, walk * walk * dt, dt / ACCEL_HBIAS_S)
+    assert v == pytest.approx(walk * walk * ACCEL_HBIAS_S / (2.0 * ACCEL_HBIAS_RESIDUE), rel=0.01)
+    stopped = v
+    for _ in range(1000):
+        stopped = horizontal_bias_variance(stopped, walk * walk * dt, 0.0)
+    assert stopped == pytest.approx(v + 1000 * walk * walk * dt, rel=1e-9)
+    assert horizontal_bias_variance(1e-6, 0.0, 1e9) == 0.0  # never negative

@@ -11,7 +11,12 @@ from balloon_core.atmosphere import G0
 from balloon_core.rotation import rotation
 from firmware_py.estimator.consistency import ACCEL, accel_misfit, field_tilt_reading, slow_innovation_share
 from firmware_py.estimator.ekf import FusionStatus, WindEkf
-from firmware_py.estimator.params import ACCEL_HBIAS_MAX_MPS2, ACCEL_HBIAS_S, ACCEL_MODEL_CORR_S
+from firmware_py.estimator.params import (
+    ACCEL_HBIAS_MAX_MPS2,
+    ACCEL_HBIAS_RESIDUE,
+    ACCEL_HBIAS_S,
+    ACCEL_MODEL_CORR_S,
+)
 from firmware_py.estimator.state import (
     ABIAS_Z,
     ATT_D,
@@ -99,13 +104,14 @@ def fuse_bias_magnitude(
 
 
 def follow_horizontal_bias(
-    hbias: list[float], innov_n: float, innov_e: float, field_ned: tuple[float, float, float], rt, weight: float
+    hbias: list[float], innov_n: float, innov_e: float, field_ned: tuple[float, float, float], rt: np.ndarray,
+    weight: float,
 ) -> None:  # fmt: skip
     """One step of the accelerometer's body x and y biases walked since the earth field was learnt, in place, from the
     horizontal innovation ``fuse_accel`` left (NED, m/s^2): its share along the field's horizontal direction, back in
     the body frame (``rt``: R^T), ``weight`` of it (the step's interval over ACCEL_HBIAS_S, times the share of the
     innovation that counts, consistency.slow_innovation_share), within +-ACCEL_HBIAS_MAX_MPS2. The caller subtracts
-    them from the samples. Nothing while the field is unknown.
+    them from the samples. Nothing while the field is unknown, nor from a step that is not finite (a numeric reset's).
 
     A tethered balloon does not accelerate on average, so over minutes the accelerometer reads gravity in the body
     frame plus its bias. The field learnt at the boot holds the attitude about every axis but its own, so a bias that
@@ -122,10 +128,21 @@ def follow_horizontal_bias(
     if not bh2 > 0.0:
         return
     s = weight * (innov_n * bn + innov_e * be) / bh2  # the innovation along the field's horizontal direction, x weight
+    if not math.isfinite(s):
+        return
     vn, ve = s * bn, s * be
     for i in range(2):
-        b = hbias[i] + rt[i, 0] * vn + rt[i, 1] * ve
+        b = hbias[i] + float(rt[i, 0]) * vn + float(rt[i, 1]) * ve
         hbias[i] = max(-ACCEL_HBIAS_MAX_MPS2, min(ACCEL_HBIAS_MAX_MPS2, b))
+
+
+def horizontal_bias_variance(var: float, walk_var: float, weight: float) -> float:
+    """One step of the error variance of the bias ``follow_horizontal_bias`` follows, (m/s^2)^2: the walk's
+    ``walk_var`` (its variance over the step) added, and what the loop's step ``weight`` removes, twice its gain on a
+    bias (ACCEL_HBIAS_RESIDUE of the step) times the variance. With the full share it settles at walk^2
+    ACCEL_HBIAS_S / (2 ACCEL_HBIAS_RESIDUE) (0.001 m/s^2 per sqrt(s): 0.025 m/s^2); where the model misfits and the loop
+    stops it grows as the unfollowed walk does."""
+    return max(0.0, var + walk_var - 2.0 * ACCEL_HBIAS_RESIDUE * weight * var)
 
 
 def accel_nominal_var(est: Estimator) -> float:
@@ -162,8 +179,11 @@ def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
         innov_e = rt[0, 1] * st[0].innov + rt[1, 1] * st[1].innov + rt[2, 1] * st[2].innov
         share = slow_innovation_share(misfit, nominal, var)
         est.consistency.add_slow_tilt(share * field_tilt_reading(innov_n, innov_e, est.field_ned), est._taut_alpha)
+        step_s = est.schedule.taut_every * ekf.dt
+        weight = share * step_s / ACCEL_HBIAS_S if ekf.mode == MODE_TAUT and math.isfinite(share) else 0.0
         if ekf.mode == MODE_TAUT:  # on the tether (the free ascent is a minute: the ground's value holds)
             fuse_bias_magnitude(ekf, ax, ay, az, st, var + est.vertical_gust_var * vertical_air_samples(
-                est.schedule.taut_every * ekf.dt, est._mean_speed), est.accel_bias_status)  # fmt: skip
-            follow_horizontal_bias(hbias, innov_n, innov_e, est.field_ned, rt,
-                                   share * est.schedule.taut_every * ekf.dt / ACCEL_HBIAS_S)  # fmt: skip
+                step_s, est._mean_speed), est.accel_bias_status)  # fmt: skip
+            follow_horizontal_bias(hbias, innov_n, innov_e, est.field_ned, rt, weight)
+        walk = est.cfg.accel_bias_walk_mps2_rt_s
+        est.accel_hbias_var = horizontal_bias_variance(est.accel_hbias_var, walk * walk * step_s, weight)
