@@ -139,6 +139,29 @@ def test_designs_near_the_envelope_stay_healthy_on_the_real_rope(radius, length,
     assert est.counters.taut_resets <= 10
 
 
+def fly_hour(truth: TruthConfig, filt: FilterConfig, seed: int):
+    """``field-all``'s design and wind for an hour with ``truth`` and ``filt``: the simulation, the estimator, its rows
+    (time s, wind N, wind E, stated accuracy) at 10 Hz and the truth's time and wind."""
+    sc = SCENARIOS["field-all"]
+    sim = Simulation(sc.design, sc.wind, truth, 3600.0, seed)
+    est, _ = new_core(sc.design, filt)
+    rows = []
+    for s in sim.samples():
+        if s.baro:
+            est.on_baro(s.time_usec, *s.baro)
+        est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
+        if s.time_usec % 100_000 == 0:
+            rows.append((s.time_usec * 1e-6, *est.wind(), est.wind_accuracy()))
+    truth_wind = tuple(sim.truth[:, TRUTH_COLUMNS.index(c)] for c in ("time_s", "wind_n", "wind_e"))
+    return sim, est, np.array(rows), truth_wind
+
+
+def ten_minute_scores(t, n, e, acc, truth_wind, first_s: float) -> list:
+    """``balloon_core.score.score`` of each 10-minute window of the hour from ``first_s``."""
+    return [score(t[t < a + 600], n[t < a + 600], e[t < a + 600], acc[t < a + 600], *truth_wind, float(a))
+            for a in range(int(first_s), 3600, 600)]  # fmt: skip
+
+
 @pytest.mark.slow
 def test_an_hour_of_wandering_accelerometer_bias_is_followed():
     """``field-all`` for an hour: among everything else its accelerometer's biases wander (0.001 m/s^2 per sqrt(s),
@@ -153,18 +176,8 @@ def test_an_hour_of_wandering_accelerometer_bias_is_followed():
     from firmware_py.estimator.state import ABIAS_Z
 
     sc = SCENARIOS["field-all"]
-    sim = Simulation(sc.design, sc.wind, sc.truth, 3600.0, 1)
-    est, _ = new_core(sc.design, sc.filter)
-    rows = []
-    for s in sim.samples():
-        if s.baro:
-            est.on_baro(s.time_usec, *s.baro)
-        est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
-        if s.time_usec % 100_000 == 0:
-            rows.append((s.time_usec * 1e-6, *est.wind(), est.wind_accuracy()))
-    r = np.array(rows)
-    tt = sim.truth[:, TRUTH_COLUMNS.index("time_s")]
-    tn, te = sim.truth[:, TRUTH_COLUMNS.index("wind_n")], sim.truth[:, TRUTH_COLUMNS.index("wind_e")]
+    sim, est, r, truth_wind = fly_hour(sc.truth, sc.filter, 1)
+    tt, tn, te = truth_wind
     bias, sigma = float(est.ekf.x[ABIAS_Z]), float(est.ekf.P[ABIAS_Z, ABIAS_Z]) ** 0.5
     assert abs(bias - sim.sensors.accel_bias[2]) < 3.0 * sigma and sigma < 0.035, (bias, sim.sensors.accel_bias[2],
                                                                                   sigma)  # unfollowed: 0.06
@@ -172,8 +185,7 @@ def test_an_hour_of_wandering_accelerometer_bias_is_followed():
     constant = (np.full_like(tn, tn[late].mean()), np.full_like(te, te[late].mean()), np.interp(tt, r[:, 0], r[:, 3]))
 
     def windows_ok(t, n, e, acc) -> bool:
-        scores = [score(t[t < start + 600], n[t < start + 600], e[t < start + 600], acc[t < start + 600], tt, tn, te,
-                        float(start)) for start in range(600, 3600, 600)]  # fmt: skip
+        scores = ten_minute_scores(t, n, e, acc, truth_wind, 600.0)
         return all(abs(s.speed_error_pct) <= 8.0 and s.error_ratio <= 1.6 for s in scores)
 
     assert windows_ok(r[:, 0], r[:, 1], r[:, 2], r[:, 3])
@@ -194,23 +206,12 @@ def test_a_days_walk_of_the_horizontal_bias_in_an_hour_is_followed():
     true mean does not, so the bars can fail."""
     sc = SCENARIOS["field-all"]
     walk = 0.002
-    truth = replace(sc.truth, accel_bias_walk_mps2_rt_s=walk)
-    sim = Simulation(sc.design, sc.wind, truth, 3600.0, 4)
-    est, _ = new_core(sc.design, replace(sc.filter, accel_bias_walk_mps2_rt_s=walk))
-    rows = []
-    for s in sim.samples():
-        if s.baro:
-            est.on_baro(s.time_usec, *s.baro)
-        est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
-        if s.time_usec % 100_000 == 0:
-            rows.append((s.time_usec * 1e-6, *est.wind(), est.wind_accuracy()))
-    r = np.array(rows)
-    tt = sim.truth[:, TRUTH_COLUMNS.index("time_s")]
-    tn, te = sim.truth[:, TRUTH_COLUMNS.index("wind_n")], sim.truth[:, TRUTH_COLUMNS.index("wind_e")]
+    sim, est, r, truth_wind = fly_hour(replace(sc.truth, accel_bias_walk_mps2_rt_s=walk),
+                                       replace(sc.filter, accel_bias_walk_mps2_rt_s=walk), 4)  # fmt: skip
+    tt, tn, te = truth_wind
 
     def worst(t, n, e, acc) -> tuple[float, float]:
-        scores = [score(t[t < start + 600], n[t < start + 600], e[t < start + 600], acc[t < start + 600], tt, tn, te,
-                        float(start)) for start in range(1200, 3600, 600)]  # fmt: skip
+        scores = ten_minute_scores(t, n, e, acc, truth_wind, 1200.0)
         return max(abs(s.direction_error_deg) for s in scores), max(s.error_ratio for s in scores)
 
     direction, ratio = worst(r[:, 0], r[:, 1], r[:, 2], r[:, 3])
