@@ -33,22 +33,27 @@ static void fuse_bias_magnitude(bw_ekf_t *e, bw_real fx, bw_real fy, bw_real fz,
 
 /* accel.py follow_horizontal_bias: the body x, y biases walked since the field was learnt, from the horizontal
  * innovation (NED) the accelerometer's fusion left, its share along the field's horizontal direction, back in the body
- * frame (r: R), weight w (interval / BW_ACCEL_HBIAS_S x the share that counts); nothing while the field is unknown */
-static void follow_horizontal_bias(bw_real hbias[2], bw_real innov_n, bw_real innov_e, const bw_real field[3],
-                                   const bw_real r[9], bw_real w)
+ * frame (r: R), weight w (interval / BW_ACCEL_HBIAS_S x the share that counts); nothing while the field is unknown or
+ * from a step that is not finite: 0 then, and where the guard holds the bias (the step did not follow) */
+static int follow_horizontal_bias(bw_real hbias[2], bw_real innov_n, bw_real innov_e, const bw_real field[3],
+                                  const bw_real r[9], bw_real w)
 {
     const bw_real lim = (bw_real)BW_ACCEL_HBIAS_MAX_MPS2, bn = field[0], be = field[1];
     const bw_real bh2 = bn * bn + be * be;
-    bw_real s, vn, ve;
-    int i;
+    bw_real s, vn, ve, b;
+    int i, free = 1;
     if (!(bh2 > BW_R(0.0)))
-        return;
+        return 0;
     s = w * (innov_n * bn + innov_e * be) / bh2;
     if (!isfinite(s)) /* a numeric reset's step */
-        return;
+        return 0;
     vn = s * bn, ve = s * be;
-    for (i = 0; i < 2; i++) /* row i of R^T */
-        hbias[i] = BW_MAX(-lim, BW_MIN(lim, hbias[i] + r[i] * vn + r[3 + i] * ve));
+    for (i = 0; i < 2; i++) { /* row i of R^T */
+        b = hbias[i] + r[i] * vn + r[3 + i] * ve;
+        hbias[i] = BW_MAX(-lim, BW_MIN(lim, b));
+        free = free && hbias[i] == b;
+    }
+    return free;
 }
 
 static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, bw_real var, bw_real var_z_extra,
@@ -85,25 +90,27 @@ static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, 
     tilt = ground ? BW_R(1.0) : BW_MIN(BW_R(1.0), BW_SQRT(e->dt / (bw_real)BW_ACCEL_MODEL_CORR_S));
     bw_ekf_fuse3(e, fx - pred[0], fy - pred[1], fz - pred[2], var, est->accel_status, var_z_extra, tilt,
                  BW_R(1.0) - misfit * (BW_R(1.0) - tilt));
-    if (!ground && e->taut_phase == 0) {
-        /* accel.py: its slow horizontal innovation, NED, at the tether's rate, with the share that counts
-         * (consistency.py slow_innovation_share) */
-        const bw_status_t *st = est->accel_status;
-        bw_real in = r[0] * st[0].innov + r[1] * st[1].innov + r[2] * st[2].innov;
-        bw_real ie = r[3] * st[0].innov + r[4] * st[1].innov + r[5] * st[2].innov;
-        bw_real share = (BW_R(1.0) - misfit) * BW_SQRT(nominal / var);
-        bw_consistency_add_slow_tilt(&est->consistency, share * bw_field_tilt_reading(in, ie, est->field_ned),
-                                     est->a_taut);
+    if (e->taut_phase == 0) {
         const bw_real step_s = (bw_real)est->sched.taut_every * e->dt;
         const bw_real walk = (bw_real)est->cfg->accel_bias_walk_mps2_rt_s;
-        const bw_real weight =
-            e->mode == BW_MODE_TAUT && isfinite(share) ? share * step_s / (bw_real)BW_ACCEL_HBIAS_S : BW_R(0.0);
-        if (e->mode == BW_MODE_TAUT) {
-            fuse_bias_magnitude(e, fx, fy, fz, st,
-                                var + var_z_extra * vertical_air_samples(step_s, est->mean_speed));
-            follow_horizontal_bias(est->accel_hbias, in, ie, est->field_ned, r, weight);
+        bw_real weight = BW_R(0.0); /* the horizontal bias's loop step, 0 where it did not follow */
+        if (!ground) {
+            /* accel.py: its slow horizontal innovation, NED, at the tether's rate, with the share that counts
+             * (consistency.py slow_innovation_share) */
+            const bw_status_t *st = est->accel_status;
+            bw_real in = r[0] * st[0].innov + r[1] * st[1].innov + r[2] * st[2].innov;
+            bw_real ie = r[3] * st[0].innov + r[4] * st[1].innov + r[5] * st[2].innov;
+            bw_real share = (BW_R(1.0) - misfit) * BW_SQRT(nominal / var);
+            bw_consistency_add_slow_tilt(&est->consistency, share * bw_field_tilt_reading(in, ie, est->field_ned),
+                                         est->a_taut);
+            if (e->mode == BW_MODE_TAUT) {
+                bw_real w = isfinite(share) ? share * step_s / (bw_real)BW_ACCEL_HBIAS_S : BW_R(0.0);
+                fuse_bias_magnitude(e, fx, fy, fz, st,
+                                    var + var_z_extra * vertical_air_samples(step_s, est->mean_speed));
+                weight = follow_horizontal_bias(est->accel_hbias, in, ie, est->field_ned, r, w) ? w : BW_R(0.0);
+            }
         }
-        /* accel.py horizontal_bias_variance */
+        /* accel.py horizontal_bias_variance: it walks in every mode, the ground's too */
         est->accel_hbias_var = BW_MAX(BW_R(0.0), est->accel_hbias_var + walk * walk * step_s -
                                                      BW_R(2.0) * (bw_real)BW_ACCEL_HBIAS_RESIDUE * weight *
                                                          est->accel_hbias_var);

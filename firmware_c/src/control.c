@@ -299,8 +299,8 @@ static void reinitialise_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, 
     bw_ekf_t *e = &est->ekf;
     bw_real h = isfinite(est->height_baro) ? est->height_baro : BW_R(0.0);
     bw_real q[4];
-    if (mag_ok) {
-        quat_from_accel_mag(ax, ay, az, mx, my, mz, est->declination, q);
+    if (mag_ok) { /* the accelerometer corrected by the horizontal bias followed, which is kept (the field's frame) */
+        quat_from_accel_mag(ax - est->accel_hbias[0], ay - est->accel_hbias[1], az, mx, my, mz, est->declination, q);
     } else { /* keep the heading we had if it is still a rotation, else level */
         bw_real n = BW_SQRT(e->q[0] * e->q[0] + e->q[1] * e->q[1] + e->q[2] * e->q[2] + e->q[3] * e->q[3]);
         int i;
@@ -312,11 +312,6 @@ static void reinitialise_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, 
     }
     bw_ekf_initialise(e, est->cfg, q, est->ref_pos_d - h);
     est->ascent_var = BW_R(0.0); /* the drag scale starts afresh: no ascent to weigh again */
-    /* the attitude was taken from this raw sample: the horizontal bias is in its tilt now, and all it walked since the
-     * boot unfollowed (aid_accel.c follow_horizontal_bias) */
-    est->accel_hbias[0] = est->accel_hbias[1] = BW_R(0.0);
-    est->accel_hbias_var = (bw_real)est->cfg->accel_bias_walk_mps2_rt_s * (bw_real)est->cfg->accel_bias_walk_mps2_rt_s *
-                           BW_MAX(BW_R(0.0), (bw_real)(e->time_us - est->t_boot_us) * BW_R(1e-6));
     e->P[0][0] = e->P[1][1] = BW_R(100.0) * BW_R(100.0);
     e->mode = h > e->m.release_height_m ? BW_MODE_FREE : BW_MODE_GROUND;
 }
@@ -601,8 +596,8 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
         confirm(est, ax, ay, az);
     bw_control_baro(est);
     bw_control_winch(est);
-    if (mag_ok)
-        bw_control_mag(est, ax, ay, az, mx, my, mz);
+    if (mag_ok) /* the field is learnt in the frame the followed horizontal bias is corrected in (a landing's) */
+        bw_control_mag(est, ax - est->accel_hbias[0], ay - est->accel_hbias[1], az, mx, my, mz);
     v_aids = bw_field_variance(e, est->field_ned);
     bw_control_tether(est);
     if (!bw_ekf_end_update(e)) {

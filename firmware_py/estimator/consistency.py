@@ -287,7 +287,7 @@ def lean_bias_wind(
     if not (drag_per_speed2 > 0.0 and lift_n > 0.0):
         return 0.0
     held = lean_bias_rad if held_bias_rad is None else held_bias_rad
-    about, across = 1.0, 0.0  # (t + cos a)^2 and sin^2 a: the field unknown, all of it as the tilt about the field's
+    about, across = 1.0, 0.0  # (t + cos a)^2 and sin^2 a; the field unknown: all of it the unfollowed tilt's
     bn, be, bd = field_ned
     bh = math.sqrt(bn * bn + be * be)
     if bh > 0.0 and speed > 0.0:  # False while the field is unknown (NaN)

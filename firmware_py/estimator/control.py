@@ -323,8 +323,8 @@ class Estimator:
             self._confirm(ax, ay, az)
         control_baro(self)
         control_winch(self)
-        if mag_ok:
-            control_mag(self, ax, ay, az, mx, my, mz)
+        if mag_ok:  # the field is learnt in the frame the followed horizontal bias is corrected in (a landing's)
+            control_mag(self, ax - self.accel_hbias[0], ay - self.accel_hbias[1], az, mx, my, mz)
         v_aids = self._field_variance()
         control_tether(self)
         if not ekf.end_update():
@@ -524,8 +524,9 @@ class Estimator:
         take the attitude afresh from this sample's accelerometer (tilt) and magnetometer (heading)."""
         ekf = self.ekf
         h = self.height_baro if math.isfinite(self.height_baro) else 0.0
-        if mag_ok:
-            q = quat_from_accel_mag(ax, ay, az, mx, my, mz, self.declination)
+        if mag_ok:  # the accelerometer corrected by the horizontal bias followed, which is kept (the field's frame)
+            q = quat_from_accel_mag(ax - self.accel_hbias[0], ay - self.accel_hbias[1], az, mx, my, mz,
+                                    self.declination)  # fmt: skip
         else:  # keep the heading we had if it is still a rotation, else level
             q0, q1, q2, q3 = self.ekf.q.tolist()
             n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
@@ -533,11 +534,6 @@ class Estimator:
         ekf.initialise(q, self.ref_pos_d - h)
         ekf.P[0, 0] = ekf.P[1, 1] = 100.0**2
         self._ascent_var = 0.0  # the drag scale starts afresh: no ascent to weigh again
-        # the attitude was taken from this raw sample: the horizontal bias is in its tilt now, and all it walked since
-        # the boot unfollowed (accel.follow_horizontal_bias)
-        self.accel_hbias[0] = self.accel_hbias[1] = 0.0
-        walk = self.cfg.accel_bias_walk_mps2_rt_s
-        self.accel_hbias_var = walk * walk * max(0.0, 1e-6 * (ekf.time_us - self.t_boot_us))
         ekf.mode = MODE_FREE if h > self.cfg.release_height_m else MODE_GROUND
 
     def _height_for_taut(self) -> float:

@@ -29,7 +29,7 @@ ROPE_SHAPE_S = 60.0
 LEAN_BIAS_RAD = 0.0035
 # the accelerometer's horizontal bias walked since the field was learnt is followed from its slow innovation over this
 # long (aid_sources/accel.py follow_horizontal_bias). About a quarter of a new bias stays in the innovation, so the
-# bias is followed over about 1000 s: a walk of 0.001 m/s^2 per sqrt(s) to 0.02 m/s^2 (0.12 unfollowed over four
+# bias is followed over about 1200 s: a walk of 0.001 m/s^2 per sqrt(s) to 0.025 m/s^2 (0.12 unfollowed over four
 # hours). Faster it takes more of the force model's slow misfit for a bias: at 120 s the envelope's worst light-air
 # multisine (flight 187) read 2 % further off and a steady 7.6 m/s flight 1.3 %, where at 300 s none reads more than
 # 1.1 % further off. Within +-ACCEL_HBIAS_MAX_MPS2 (100 mg: beyond any MEMS part's bias in flight, a guard against a

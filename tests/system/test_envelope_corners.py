@@ -235,8 +235,10 @@ def test_an_hour_of_steady_wind_keeps_its_stated_accuracy():
     the taut tether, so its stated uncertainty grows only by its random walk, the balloon's gas (3 % an hour). At
     0.002 per sqrt(s) it grew from 7 % to 12 % in the hour and the stated accuracy with it, the estimate the same
     to a centimetre a second. The tilt's systematic error grows too, by the accelerometer's horizontal bias
-    walking as the design declares (consistency.lean_bias_rad: 0.25 deg after ten minutes, 0.40 deg after the hour),
-    and the stated accuracy with it: 19 % over the hour, under 22 %, the error within it."""
+    walking as the design declares (consistency.lean_bias_rad: 0.25 deg after ten minutes, 0.40 deg after the hour)
+    across the field's horizontal direction, and along it by what the followed bias misses (held_lean_bias_rad), and
+    the stated accuracy with it: 8 % over the hour, under 12 % (19 % with the walk whole on both tilts), the error
+    within it."""
     from firmware_py.estimator.consistency import lean_bias_rad
     from firmware_py.estimator.state import DRAG
     from sim_hil.scenarios import SCENARIOS
@@ -248,7 +250,7 @@ def test_an_hour_of_steady_wind_keeps_its_stated_accuracy():
     c = sc.filter
     walk = c.accel_bias_walk_mps2_rt_s
     assert lean_bias_rad(walk, 3540.0) > lean_bias_rad(walk, 600.0)
-    assert rows[early, 3].mean() < rows[late, 3].mean() < 1.22 * rows[early, 3].mean(), (rows[early, 3].mean(),
+    assert rows[early, 3].mean() < rows[late, 3].mean() < 1.12 * rows[early, 3].mean(), (rows[early, 3].mean(),
                                                                                        rows[late, 3].mean())
     assert math.sqrt(float(est.ekf.P[DRAG, DRAG])) < 0.06
     err = np.hypot(rows[late, 1] - np.interp(t[late], truth["time_s"], truth["wind_n"]),

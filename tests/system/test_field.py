@@ -200,7 +200,7 @@ def test_a_days_walk_of_the_horizontal_bias_in_an_hour_is_followed():
     read it as a force across the rope and turned the wind: 11.8 deg off at error/accuracy 2.1 in a 10-minute window
     of this flight (seed 4; a four-hour field-all at the default walk: 12.6 deg at 3.5). Followed from the innovation
     along that direction (accel.follow_horizontal_bias): every 10-minute window from 20 minutes on (before, the walk
-    has gone little and the loop, a quarter of an hour long, has not closed on it) within 8 deg (the issue's
+    has gone little and the loop, 20 minutes long, has not closed on it) within 8 deg (the issue's
     every-flight bar) and honest (error/accuracy at most 1.5). The followed bias lies along magnetic north only. The
     truth delayed by 4 s passes, as it should (this judges the mean's direction over the hour); the hour's constant
     true mean does not, so the bars can fail."""

@@ -108,15 +108,16 @@ def test_the_horizontal_bias_follows_what_the_field_holds_and_leaves_the_turn_ab
     c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
     rt = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # R^T of a level body yawed by yaw_deg
     hb = [0.0, 0.0]
-    follow_horizontal_bias(hb, 0.0, 0.05, FIELD, rt, 0.1)
+    assert follow_horizontal_bias(hb, 0.0, 0.05, FIELD, rt, 0.1)
     assert hb == [0.0, 0.0]
-    follow_horizontal_bias(hb, 0.05, 0.0, (math.nan, math.nan, math.nan), rt, 0.1)
+    assert not follow_horizontal_bias(hb, 0.05, 0.0, (math.nan, math.nan, math.nan), rt, 0.1)
     assert hb == [0.0, 0.0]
-    follow_horizontal_bias(hb, 0.05, 0.03, FIELD, rt, 0.1)  # north 0.05 (taken), east 0.03 (not)
+    assert follow_horizontal_bias(hb, 0.05, 0.03, FIELD, rt, 0.1)  # north 0.05 (taken), east 0.03 (not)
     assert hb == pytest.approx([0.005 * c, -0.005 * s], abs=1e-15)  # north in the body: R^T (1, 0, 0)
     for _ in range(1000):
         follow_horizontal_bias(hb, 10.0, 0.0, FIELD, rt, 1.0)
     assert max(abs(v) for v in hb) == ACCEL_HBIAS_MAX_MPS2
+    assert not follow_horizontal_bias(hb, 10.0, 0.0, FIELD, rt, 1.0)  # the guard holds it: the step did not follow
 
 
 def test_the_followed_bias_takes_the_fields_direction_with_a_declination_and_no_nan():
@@ -129,9 +130,9 @@ def test_the_followed_bias_takes_the_fields_direction_with_a_declination_and_no_
     follow_horizontal_bias(hb, 0.05, 0.0, field, rt, 0.1)  # north 0.05: cos(20 deg) of it lies along the field
     assert hb == pytest.approx([0.005 * math.cos(dec) ** 2, 0.005 * math.cos(dec) * math.sin(dec)], abs=1e-15)
     before = list(hb)
-    follow_horizontal_bias(hb, math.nan, 0.0, field, rt, 0.1)
-    follow_horizontal_bias(hb, 0.05, 0.0, field, rt, math.nan)
-    follow_horizontal_bias(hb, math.inf, 0.0, field, rt, 0.1)
+    assert not follow_horizontal_bias(hb, math.nan, 0.0, field, rt, 0.1)
+    assert not follow_horizontal_bias(hb, 0.05, 0.0, field, rt, math.nan)
+    assert not follow_horizontal_bias(hb, math.inf, 0.0, field, rt, 0.1)
     assert hb == before
 
 

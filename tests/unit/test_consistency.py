@@ -204,8 +204,12 @@ def test_the_held_tilt_takes_the_share_of_the_lean_across_the_field():
 
     field = (0.2, 0.0, 0.45)
     lift_n, c, d = 32.0, 0.58, 0.007
-    for wn, we in ((3.0, 0.0), (0.0, 3.0), (-2.0, 2.0)):
-        assert lean_bias_wind(wn, we, lift_n, c, d, field) == lean_bias_wind(wn, we, lift_n, c, d, field, 0.0, d)
+    for wn, we in ((3.0, 0.0), (0.0, 3.0), (-2.0, 2.0)):  # one error on both: 1 + t^2 + 2 t cos a whole
+        speed = math.hypot(wn, we)
+        t, cos_a = 0.45 / 0.2 * c * speed * speed / lift_n, wn / speed
+        whole = lift_n * d * math.sqrt(1.0 + t * t + 2.0 * t * cos_a + 0.25) / (c * speed)
+        assert lean_bias_wind(wn, we, lift_n, c, d, field) == pytest.approx(whole, rel=1e-12)
+        assert lean_bias_wind(wn, we, lift_n, c, d, field, 0.0, d) == pytest.approx(whole, rel=1e-12)
     held = held_lean_bias_rad(0.0)
     assert held == pytest.approx(LEAN_BIAS_RAD)
     assert lean_bias_wind(3.0, 0.0, lift_n, c, d, field, 0.0, held) == pytest.approx(

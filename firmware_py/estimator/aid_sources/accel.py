@@ -106,12 +106,13 @@ def fuse_bias_magnitude(
 def follow_horizontal_bias(
     hbias: list[float], innov_n: float, innov_e: float, field_ned: tuple[float, float, float], rt: np.ndarray,
     weight: float,
-) -> None:  # fmt: skip
+) -> bool:  # fmt: skip
     """One step of the accelerometer's body x and y biases walked since the earth field was learnt, in place, from the
     horizontal innovation ``fuse_accel`` left (NED, m/s^2): its share along the field's horizontal direction, back in
     the body frame (``rt``: R^T), ``weight`` of it (the step's interval over ACCEL_HBIAS_S, times the share of the
     innovation that counts, consistency.slow_innovation_share), within +-ACCEL_HBIAS_MAX_MPS2. The caller subtracts
-    them from the samples. Nothing while the field is unknown, nor from a step that is not finite (a numeric reset's).
+    them from the samples. Nothing while the field is unknown, nor from a step that is not finite (a numeric reset's);
+    False then, and where the guard holds the bias: the step did not follow (``horizontal_bias_variance``).
 
     A tethered balloon does not accelerate on average, so over minutes the accelerometer reads gravity in the body
     frame plus its bias. The field learnt at the boot holds the attitude about every axis but its own, so a bias that
@@ -126,14 +127,17 @@ def follow_horizontal_bias(
     bn, be = field_ned[0], field_ned[1]
     bh2 = bn * bn + be * be
     if not bh2 > 0.0:
-        return
+        return False
     s = weight * (innov_n * bn + innov_e * be) / bh2  # the innovation along the field's horizontal direction, x weight
     if not math.isfinite(s):
-        return
+        return False
     vn, ve = s * bn, s * be
+    free = True
     for i in range(2):
         b = hbias[i] + float(rt[i, 0]) * vn + float(rt[i, 1]) * ve
         hbias[i] = max(-ACCEL_HBIAS_MAX_MPS2, min(ACCEL_HBIAS_MAX_MPS2, b))
+        free = free and hbias[i] == b
+    return free
 
 
 def horizontal_bias_variance(var: float, walk_var: float, weight: float) -> float:
@@ -170,7 +174,11 @@ def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
     st = est.accel_status
     i2 = (st[0].innov ** 2 + st[1].innov ** 2 + st[2].innov ** 2) / 3.0
     est._accel_innov2 += est._innov_alpha * (i2 - est._accel_innov2)
-    if ekf.mode != MODE_GROUND and est.step % est.schedule.taut_every == 0:
+    if est.step % est.schedule.taut_every:
+        return
+    step_s = est.schedule.taut_every * ekf.dt
+    weight = 0.0  # the horizontal bias's loop step (follow_horizontal_bias), 0 where it did not follow
+    if ekf.mode != MODE_GROUND:
         # its slow horizontal innovation, NED (R^T's columns), for the stated accuracy, at the tether's rate (20 Hz:
         # plenty for a 10 s low-pass, consistency.SLOW_INNOV_S, and off the steps that are the median's), with the
         # share that counts (consistency.slow_innovation_share)
@@ -179,11 +187,10 @@ def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
         innov_e = rt[0, 1] * st[0].innov + rt[1, 1] * st[1].innov + rt[2, 1] * st[2].innov
         share = slow_innovation_share(misfit, nominal, var)
         est.consistency.add_slow_tilt(share * field_tilt_reading(innov_n, innov_e, est.field_ned), est._taut_alpha)
-        step_s = est.schedule.taut_every * ekf.dt
-        weight = share * step_s / ACCEL_HBIAS_S if ekf.mode == MODE_TAUT and math.isfinite(share) else 0.0
         if ekf.mode == MODE_TAUT:  # on the tether (the free ascent is a minute: the ground's value holds)
             fuse_bias_magnitude(ekf, ax, ay, az, st, var + est.vertical_gust_var * vertical_air_samples(
                 step_s, est._mean_speed), est.accel_bias_status)  # fmt: skip
-            follow_horizontal_bias(hbias, innov_n, innov_e, est.field_ned, rt, weight)
-        walk = est.cfg.accel_bias_walk_mps2_rt_s
-        est.accel_hbias_var = horizontal_bias_variance(est.accel_hbias_var, walk * walk * step_s, weight)
+            w = share * step_s / ACCEL_HBIAS_S if math.isfinite(share) else 0.0
+            weight = w if follow_horizontal_bias(hbias, innov_n, innov_e, est.field_ned, rt, w) else 0.0
+    walk = est.cfg.accel_bias_walk_mps2_rt_s  # it walks in every mode, the ground's too
+    est.accel_hbias_var = horizontal_bias_variance(est.accel_hbias_var, walk * walk * step_s, weight)
