@@ -192,7 +192,8 @@ typedef struct {
     /* the winch (aid_sources/winch.py) and the ground reference (aid_sources/ground_ref.py) */
     bw_real winch_tension_n;
     int64_t winch_samples, winch_t_us;
-    bw_real accel_hbias[2];      /* the accelerometer's body x, y biases walked since the field was learnt (aid_accel.c) */
+    bw_real accel_hbias[2];      /* the accelerometer's body x, y biases walked since the field was learnt
+                                  * (aid_accel.c) */
     int64_t ground_samples, ground_t_us;
     bw_real ground_p_pa, ground_p0_pa, p_ref0_pa;
     bw_real accel_hbias_var;     /* the followed horizontal bias's error variance (aid_accel.c) */

@@ -8,8 +8,8 @@
  * (2 L_w / U over dt_s), at least one */
 static bw_real vertical_air_samples(bw_real dt_s, bw_real mean_mps)
 {
-    return BW_MAX(BW_R(1.0),
-                  BW_R(2.0) * (bw_real)BW_KAIMAL_VERTICAL_LENGTH_M / (BW_MAX(mean_mps, (bw_real)BW_MIN_WIND_MPS) * dt_s));
+    const bw_real u = BW_MAX(mean_mps, (bw_real)BW_MIN_WIND_MPS);
+    return BW_MAX(BW_R(1.0), BW_R(2.0) * (bw_real)BW_KAIMAL_VERTICAL_LENGTH_M / (u * dt_s));
 }
 
 /* accel.py fuse_bias_magnitude: the body-z bias on the tether, from the innovations along the predicted specific
@@ -134,7 +134,8 @@ void bw_control_accel(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
     est->accel_var_excess = var - nominal;
     /* accel.py: the windowed NIS from BW_FLAG_NIS to twice that, the model stops explaining the accelerometer */
     misfit = bw_accel_misfit(est->consistency.nis[BW_ACCEL]);
-    fuse_accel(est, ax - est->accel_hbias[0], ay - est->accel_hbias[1], az, var, e->mode != BW_MODE_GROUND ? est->vertical_gust_var : BW_R(0.0), misfit, nominal);
+    fuse_accel(est, ax - est->accel_hbias[0], ay - est->accel_hbias[1], az, var,
+               e->mode != BW_MODE_GROUND ? est->vertical_gust_var : BW_R(0.0), misfit, nominal);
     i2 = (st[0].innov * st[0].innov + st[1].innov * st[1].innov + st[2].innov * st[2].innov) / BW_R(3.0);
     est->accel_innov2 += est->innov_alpha * (i2 - est->accel_innov2);
 }

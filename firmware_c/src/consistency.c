@@ -106,25 +106,26 @@ bw_real bw_systematic_variance(bw_real speed_mps, bw_real drag_scale, bw_real dr
     return speed_mps * speed_mps * rel_k * rel_k + lean_wind_mps * lean_wind_mps;
 }
 
-/* consistency.py lean_bias_rad: the tilt's systematic error, the turn-on term and the horizontal bias's wander since
- * the boot (the declared random walk) read as a tilt */
-bw_real bw_lean_bias_rad(bw_real walk_mps2_rt_s, bw_real seconds)
+/* consistency.py bias_tilt_rad: the tilt's systematic error of a horizontal bias of variance hbias_var read as a
+ * tilt, beside the turn-on term */
+bw_real bw_bias_tilt_rad(bw_real hbias_var)
 {
-    const bw_real walk = walk_mps2_rt_s * walk_mps2_rt_s * BW_MAX(seconds, BW_R(0.0));
-    return BW_SQRT((bw_real)(BW_LEAN_BIAS_RAD * BW_LEAN_BIAS_RAD) + walk / (bw_real)(BW_G0 * BW_G0));
+    return BW_SQRT((bw_real)(BW_LEAN_BIAS_RAD * BW_LEAN_BIAS_RAD) +
+                   BW_MAX(hbias_var, BW_R(0.0)) / (bw_real)(BW_G0 * BW_G0));
 }
 
-/* consistency.py held_lean_bias_rad: the tilt's systematic error about the magnetic east, the turn-on term and the
- * followed horizontal bias's error (variance hbias_var) read as a tilt */
-bw_real bw_held_lean_bias_rad(bw_real hbias_var)
+/* consistency.py lean_bias_rad: the turn-on term and the horizontal bias's walk since the boot (the declared random
+ * walk) read as a tilt */
+bw_real bw_lean_bias_rad(bw_real walk_mps2_rt_s, bw_real seconds)
 {
-    return BW_SQRT((bw_real)(BW_LEAN_BIAS_RAD * BW_LEAN_BIAS_RAD) + BW_MAX(hbias_var, BW_R(0.0)) / (bw_real)(BW_G0 * BW_G0));
+    return bw_bias_tilt_rad(walk_mps2_rt_s * walk_mps2_rt_s * BW_MAX(seconds, BW_R(0.0)));
 }
 
 /* consistency.py lean_bias_wind: the wind error of a tilt error on the taut balloon, with the field's geometry
  * (the rotation about the field's axis that only the accelerometer holds turns the lean's azimuth) */
 bw_real bw_lean_bias_wind(bw_real wind_n, bw_real wind_e, bw_real lift_n, bw_real drag_per_speed2,
-                          bw_real lean_bias_rad, const bw_real field_ned[3], bw_real cross_tilt_var, bw_real held_bias_rad)
+                          bw_real lean_bias_rad, const bw_real field_ned[3], bw_real cross_tilt_var,
+                          bw_real held_bias_rad)
 {
     bw_real speed = BW_SQRT(wind_n * wind_n + wind_e * wind_e), about = BW_R(1.0), across = BW_R(0.0), bh, t, cos_a, v;
     if (!(drag_per_speed2 > BW_R(0.0) && lift_n > BW_R(0.0)))

@@ -665,7 +665,7 @@ bw_real bw_wind_accuracy(const bw_estimator_t *est)
             lean = bw_lean_bias_wind(wn, we, bw_lift_n(m, est->rho), e->x[BW_DRAG] * est->rho * m->half_cd_area_m2,
                                      bw_lean_bias_rad((bw_real)est->cfg->accel_bias_walk_mps2_rt_s,
                                                       (bw_real)(e->time_us - est->t_boot_us) * BW_R(1e-6)),
-                                     est->field_ned, cross_var, bw_held_lean_bias_rad(est->accel_hbias_var));
+                                     est->field_ned, cross_var, bw_bias_tilt_rad(est->accel_hbias_var));
         }
         sys_var = bw_systematic_variance(speed, e->x[BW_DRAG], e->P[BW_DRAG][BW_DRAG], lean);
     }

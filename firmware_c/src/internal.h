@@ -76,8 +76,8 @@ bw_real bw_field_attitude_extra(bw_real extra, bw_real v_pred, bw_real v_accel, 
 bw_real bw_lean_tilt_variance(bw_real cross_var, bw_real extra, const bw_real field_ned[3], bw_real zn, bw_real ze,
                               bw_real zd);
 bw_real bw_systematic_variance(bw_real speed_mps, bw_real drag_scale, bw_real drag_scale_var, bw_real lean_wind_mps);
+bw_real bw_bias_tilt_rad(bw_real hbias_var);
 bw_real bw_lean_bias_rad(bw_real walk_mps2_rt_s, bw_real seconds);
-bw_real bw_held_lean_bias_rad(bw_real hbias_var);
 bw_real bw_lean_bias_wind(bw_real wind_n, bw_real wind_e, bw_real lift_n, bw_real drag_per_speed2,
                           bw_real lean_bias_rad, const bw_real field_ned[3], bw_real cross_tilt_var,
                           bw_real held_bias_rad);

@@ -243,14 +243,14 @@ def lean_bias_rad(walk_mps2_rt_s: float, seconds: float) -> float:
     with the turn-on term's 0.2), 0.06 in an hour (0.40 deg), 0.12 in four (0.73 deg). Bounded at a guessed range
     (0.05 m/s^2, a temperature drift's), a four-hour field-all read the direction 10-17 deg off at error/accuracy 3.5
     where the walk had gone 0.15-0.22 m/s^2 (docs/estimator.md, "The long day")."""
-    walk = walk_mps2_rt_s * walk_mps2_rt_s * max(seconds, 0.0)
-    return math.sqrt(LEAN_BIAS_RAD * LEAN_BIAS_RAD + walk / (G0 * G0))
+    return bias_tilt_rad(walk_mps2_rt_s * walk_mps2_rt_s * max(seconds, 0.0))
 
 
-def held_lean_bias_rad(hbias_var: float) -> float:
-    """The tilt's systematic error about the magnetic east, rad: the turn-on term and the error of the horizontal bias
-    followed along the field's horizontal direction (variance ``hbias_var``, accel.horizontal_bias_variance), read as a
-    tilt. There the magnetometer tells a tilt from a bias, and what walks is followed; across it (lean_bias_rad) not."""
+def bias_tilt_rad(hbias_var: float) -> float:
+    """The tilt's systematic error, rad, of a horizontal bias of variance ``hbias_var`` ((m/s^2)^2) read as a tilt
+    (b / g), beside the turn-on term LEAN_BIAS_RAD: the walk since the boot across the field's horizontal direction
+    (lean_bias_rad), and the error of the bias followed along it (accel.horizontal_bias_variance), where the
+    magnetometer tells a tilt from a bias."""
     return math.sqrt(LEAN_BIAS_RAD * LEAN_BIAS_RAD + max(hbias_var, 0.0) / (G0 * G0))
 
 
@@ -280,7 +280,7 @@ def lean_bias_wind(
     the field's axis only the accelerometer holds it), so its share of the wind is stated here.
 
     ``held_bias_rad``: the tilt about the horizontal across the field has its own systematic error where the horizontal
-    bias is followed along the field (``held_lean_bias_rad``; None: ``lean_bias_rad``). F^2 is (t + cos a)^2 from the
+    bias is followed along the field (``bias_tilt_rad``; None: ``lean_bias_rad``). F^2 is (t + cos a)^2 from the
     tilt about the field's horizontal direction and sin^2 a from the one across it, so each takes its own: the
     quarter along the lean and an unknown field take ``lean_bias_rad``, the larger."""
     speed = math.sqrt(wind_n * wind_n + wind_e * wind_e)

@@ -24,11 +24,11 @@ from firmware_py.estimator.consistency import (
     MAG,
     RADIUS,
     Consistency,
+    bias_tilt_rad,
     correlated_weight,
     field_attitude_extra,
     field_variance,
     heading_misfit_variance,
-    held_lean_bias_rad,
     lean_bias_rad,
     lean_bias_wind,
     lean_tilt_variance,
@@ -683,7 +683,7 @@ class Estimator:
         tilt_var = lean_tilt_variance(cross_var, extra, self.field_ned, zn, ze, zd)
         bias = lean_bias_rad(self.cfg.accel_bias_walk_mps2_rt_s, 1e-6 * (ekf.time_us - self.t_boot_us))
         return lean_bias_wind(wn, we, m.lift_n(self.rho), float(ekf.x[DRAG]) * self.rho * m.half_cd_area_m2, bias,
-                              self.field_ned, tilt_var, held_lean_bias_rad(self.accel_hbias_var))  # fmt: skip
+                              self.field_ned, tilt_var, bias_tilt_rad(self.accel_hbias_var))  # fmt: skip
 
     def wind(self) -> tuple[float, float]:
         return float(self.ekf.x[WIND_N]), float(self.ekf.x[WIND_E])

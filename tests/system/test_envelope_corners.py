@@ -236,7 +236,7 @@ def test_an_hour_of_steady_wind_keeps_its_stated_accuracy():
     0.002 per sqrt(s) it grew from 7 % to 12 % in the hour and the stated accuracy with it, the estimate the same
     to a centimetre a second. The tilt's systematic error grows too, by the accelerometer's horizontal bias
     walking as the design declares (consistency.lean_bias_rad: 0.25 deg after ten minutes, 0.40 deg after the hour)
-    across the field's horizontal direction, and along it by what the followed bias misses (held_lean_bias_rad), and
+    across the field's horizontal direction, and along it by what the followed bias misses (bias_tilt_rad), and
     the stated accuracy with it: 8 % over the hour, under 12 % (19 % with the walk whole on both tilts), the error
     within it."""
     from firmware_py.estimator.consistency import lean_bias_rad

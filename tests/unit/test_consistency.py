@@ -198,9 +198,9 @@ def test_the_tilts_systematic_error_follows_the_declared_walk_of_the_horizontal_
 
 def test_the_held_tilt_takes_the_share_of_the_lean_across_the_field():
     """F^2 = (t + cos a)^2 + sin^2 a: the tilt about the field's horizontal direction (unfollowed, lean_bias_rad) and
-    the one across it (the followed bias's, held_lean_bias_rad). The same error on both is the whole formula; blown
+    the one across it (the followed bias's, bias_tilt_rad). The same error on both is the whole formula; blown
     along the field's direction the held one does not count, blown across it it does."""
-    from firmware_py.estimator.consistency import held_lean_bias_rad, lean_bias_wind
+    from firmware_py.estimator.consistency import bias_tilt_rad, lean_bias_wind
 
     field = (0.2, 0.0, 0.45)
     lift_n, c, d = 32.0, 0.58, 0.007
@@ -210,7 +210,7 @@ def test_the_held_tilt_takes_the_share_of_the_lean_across_the_field():
         whole = lift_n * d * math.sqrt(1.0 + t * t + 2.0 * t * cos_a + 0.25) / (c * speed)
         assert lean_bias_wind(wn, we, lift_n, c, d, field) == pytest.approx(whole, rel=1e-12)
         assert lean_bias_wind(wn, we, lift_n, c, d, field, 0.0, d) == pytest.approx(whole, rel=1e-12)
-    held = held_lean_bias_rad(0.0)
+    held = bias_tilt_rad(0.0)
     assert held == pytest.approx(LEAN_BIAS_RAD)
     assert lean_bias_wind(3.0, 0.0, lift_n, c, d, field, 0.0, held) == pytest.approx(
         lean_bias_wind(3.0, 0.0, lift_n, c, d, field), rel=1e-12)  # fmt: skip
@@ -219,4 +219,4 @@ def test_the_held_tilt_takes_the_share_of_the_lean_across_the_field():
     t = 0.45 / 0.2 * c * 9.0 / lift_n  # tan I tan(lean), a = 90 deg
     want = lift_n * math.sqrt(d * d * (t * t + 0.25) + held * held) / (c * 3.0)
     assert across == pytest.approx(want, rel=1e-12)
-    assert held_lean_bias_rad(0.02**2) == pytest.approx(math.hypot(LEAN_BIAS_RAD, 0.02 / G0), rel=1e-12)
+    assert bias_tilt_rad(0.02**2) == pytest.approx(math.hypot(LEAN_BIAS_RAD, 0.02 / G0), rel=1e-12)
