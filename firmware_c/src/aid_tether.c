@@ -52,14 +52,30 @@ void bw_enter_taut(bw_ekf_t *e, bw_real height_m, bw_real rho, int from_tilt)
 }
 
 
-/* tether.py lean_variance: the attitude's variance along a horizontal component (cn, ce) of the body's down axis */
-bw_real bw_lean_variance(const bw_ekf_t *e, bw_real cn, bw_real ce, bw_real zn, bw_real ze, bw_real zd)
+/* tether.py attitude_variance: g^T P_att g */
+static bw_real attitude_variance(const bw_ekf_t *e, bw_real g0, bw_real g1, bw_real g2)
 {
-    const bw_real g0 = -ce * zd, g1 = cn * zd, g2 = ce * zn - cn * ze; /* c . d z / d att */
     return g0 * (g0 * e->P[BW_ATT_N][BW_ATT_N] +
                  BW_R(2.0) * (g1 * e->P[BW_ATT_N][BW_ATT_E] + g2 * e->P[BW_ATT_N][BW_ATT_D])) +
            g1 * (g1 * e->P[BW_ATT_E][BW_ATT_E] + BW_R(2.0) * g2 * e->P[BW_ATT_E][BW_ATT_D]) +
            g2 * g2 * e->P[BW_ATT_D][BW_ATT_D];
+}
+
+/* tether.py lean_variance: the attitude's variance along a horizontal component (cn, ce) of the body's down axis */
+bw_real bw_lean_variance(const bw_ekf_t *e, bw_real cn, bw_real ce, bw_real zn, bw_real ze, bw_real zd)
+{
+    return attitude_variance(e, -ce * zd, cn * zd, ce * zn - cn * ze); /* c . d z / d att */
+}
+
+/* tether.py field_axis_row: the alignment's attitude column about the magnetic field's axis */
+static void field_axis_row(const bw_real g[3], const bw_real *field, bw_real weight, bw_real out[3])
+{
+    const bw_real b2 = field[0] * field[0] + field[1] * field[1] + field[2] * field[2];
+    bw_real s;
+    if (!(b2 > BW_R(0.0)))
+        return;
+    s = weight * (g[0] * field[0] + g[1] * field[1] + g[2] * field[2]) / b2;
+    out[0] = s * field[0], out[1] = s * field[1], out[2] = s * field[2];
 }
 
 static void fuse_taut(bw_estimator_t *est, bw_real along_var, bw_real cross_var)
@@ -92,7 +108,7 @@ static void fuse_taut(bw_estimator_t *est, bw_real along_var, bw_real cross_var)
         return;
     {
         const bw_real s[BW_NCOL] = {pn, pe, pd, vn, ve, vd, x[12], x[13], x[14], x[15], x[16]};
-        bw_real n[BW_ROPE_DIRECTION_SIZE], r[9], zn, ze, zd, horiz, lean, an, ae, c[2][2], var[2];
+        bw_real n[BW_ROPE_DIRECTION_SIZE], r[9], zn, ze, zd, horiz, lean, an, ae, c[2][2], var[2], share;
         if (e->m.rope_drag)
             bw_rope_direction(s, f->params, n);
         else
@@ -110,14 +126,20 @@ static void fuse_taut(bw_estimator_t *est, bw_real along_var, bw_real cross_var)
         c[0][0] = an, c[0][1] = ae, c[1][0] = -ae, c[1][1] = an; /* along, cross */
         var[0] = along_var, var[1] = cross_var;
         ncol = BW_NCOL - (e->learn_drag ? 0 : 1);
+        share = (bw_real)BW_ALIGN_FIELD_AXIS_SHARE * (BW_R(1.0) - bw_accel_misfit(est->consistency.nis[BW_ACCEL]));
         for (cc = 0; cc < 2; cc++) {
-            /* the attitude is a parameter (tether.py fuse_taut): no attitude columns; its uncertainty along
-             * the component, c . d z / d att P_att (..)^T, is added to the noise */
+            /* the attitude (tether.py fuse_taut): a column about the magnetic field's axis, weighed by the share
+             * the rope's model explains; the rest of c . d z / d att a parameter whose uncertainty is noise */
             const bw_real cn = c[cc][0], ce = c[cc][1];
-            const bw_real var_att = bw_lean_variance(e, cn, ce, zn, ze, zd);
+            bw_real g[3], hb[3] = {BW_R(0.0), BW_R(0.0), BW_R(0.0)}, var_att;
+            g[0] = -ce * zd, g[1] = cn * zd, g[2] = ce * zn - cn * ze;
+            if (var[cc] > BW_R(0.0))
+                field_axis_row(g, est->field_ned, share * est->align_var / var[cc], hb);
+            var_att = attitude_variance(e, g[0] - hb[0], g[1] - hb[1], g[2] - hb[2]);
             memset(e->h, 0, sizeof e->h);
             for (j = 0; j < ncol; j++)
                 e->h[BW_MODEL_COLS[j]] = -(cn * n[2 + j] + ce * n[2 + BW_NCOL + j]); /* residual c . (z - n(x)) */
+            e->h[BW_ATT_N] = hb[0], e->h[BW_ATT_E] = hb[1], e->h[BW_ATT_D] = hb[2];
             bw_ekf_fuse(e, cn * (n[0] - zn) + ce * (n[1] - ze), var[cc] + var_att, &est->taut_status[2 + cc],
                         BW_R(0.0), 0);
         }

@@ -60,6 +60,14 @@ TURBULENCE_FROM_S = 60.0
 TURBULENCE_TO_S = 120.0
 ALIGN_INNOV_S = 5.0  # averaging time of the alignment's innovations that set its noise floor
 ALIGN_CROSS_VAR_MAX = 0.05**2  # rad^2: the most a rocking balloon's azimuth departs from its rope's
+# the share of the attitude's rotation about the magnetic field's axis that the alignment takes into its row (a column
+# about that axis), the rest left to its noise as a parameter's (tether.field_axis_row): the axis only the
+# accelerometer's tilt holds otherwise, and blown magnetically north the rope's direction turns with it. Without it a
+# south wind's estimate swung across at the balloon's pendulum period (paper-reference from 180 deg: band skill 0.57,
+# error/accuracy 2.4); taken whole (1.0) a taut state that is off turned the attitude with it (class B gusts from the
+# south); flown from four directions (paper-reference, gusty-6, field-rope-multisine) and on the full envelope, 0.5
+# made no flight worse by more than noise where 0.25 and 1.0 did (docs/estimator.md, "The wind from magnetic south")
+ALIGN_FIELD_AXIS_SHARE = 0.5
 ALIGN_RESET_S = 2.0  # rejected alignment this long re-places the taut state
 JOIN_IN_FLIGHT_US = 10_000_000  # a first sample this long after the sender's boot: we restarted in flight
 # After a join in flight the balloon hypothesis is unconfirmed: the wind read from the tilt through the

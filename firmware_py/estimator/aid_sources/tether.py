@@ -8,11 +8,13 @@ from typing import TYPE_CHECKING
 from balloon_core.atmosphere import G0
 from balloon_core.rotation import rotation
 from firmware_py.estimator.catenary import effective_rod, rope_chord
+from firmware_py.estimator.consistency import ACCEL, accel_misfit
 from firmware_py.estimator.ekf import RESET_TAUT, FusionStatus, WindEkf
 from firmware_py.estimator.generated import rope_direction, rope_direction_plain
 from firmware_py.estimator.model import N_COLUMNS, ROPE_JAC
 from firmware_py.estimator.params import (
     ALIGN_CROSS_VAR_MAX,
+    ALIGN_FIELD_AXIS_SHARE,
     TAUT_AZIMUTH_MIN_M,
     TAUT_LEAN_MIN_SIN,
     TAUT_POS_SIGMA_M,
@@ -104,7 +106,12 @@ def enter_taut(ekf: WindEkf, height_m: float, rho: float, from_tilt: bool = Fals
 def lean_variance(P, cn: float, ce: float, zn: float, ze: float, zd: float) -> float:
     """The attitude's variance along a horizontal component (cn, ce) of the body's down axis z (along the rope):
     c . d z / d att P_att (..)^T with d z / d att = -[z x], rad^2."""
-    g0, g1, g2 = -ce * zd, cn * zd, ce * zn - cn * ze  # c . d z / d att, over ATT_N, ATT_E, ATT_D
+    return attitude_variance(P, -ce * zd, cn * zd, ce * zn - cn * ze)  # c . d z / d att, over ATT_N, ATT_E, ATT_D
+
+
+def attitude_variance(P, g0: float, g1: float, g2: float) -> float:
+    """g^T P_att g: the variance of a quantity that moves by g . d with the attitude's error d (over ATT_N, ATT_E,
+    ATT_D)."""
     return float(
         g0 * (g0 * P[ATT_N, ATT_N] + 2.0 * (g1 * P[ATT_N, ATT_E] + g2 * P[ATT_N, ATT_D]))
         + g1 * (g1 * P[ATT_E, ATT_E] + 2.0 * g2 * P[ATT_E, ATT_D])
@@ -112,16 +119,42 @@ def lean_variance(P, cn: float, ce: float, zn: float, ze: float, zd: float) -> f
     )
 
 
+def field_axis_row(
+    g: tuple[float, float, float], field_ned: tuple[float, float, float], weight: float
+) -> tuple[float, float, float]:
+    """The alignment's attitude column about the magnetic field's axis: ``weight`` of the share of ``g`` (the
+    alignment component's c . d z / d att) along the field's unit axis b, (g . b) b; (0, 0, 0) while the field is
+    unknown (NaN).
+
+    About that axis the magnetometer sees nothing, and only the accelerometer's tilt (cos I of the rotation) holds
+    the attitude. Blown magnetically north, the rope from the balloon points 50-60 deg from the field, and a rotation
+    about the field turns the body's axis across the lean by 0.8 of it (blown south the rope lies along the field and
+    it turns the balloon about its own rope: 0.1 of it). With the attitude a parameter of the alignment only, the
+    state followed that weakly held rotation, and the estimate swung across the wind at the balloon's pendulum period
+    (paper-reference from 180 deg: the attitude 0.7 deg RMS about the field, the cross wind 0.5 m/s RMS where the
+    truth had none). The column lets the rope's direction hold it; ``weight`` is ALIGN_FIELD_AXIS_SHARE of it where
+    the force model explains the accelerometer and the alignment is fused at its nominal noise (a taut state that
+    is off, in gusts, must not turn the attitude with it: docs/estimator.md, "The wind from magnetic south")."""
+    bn, be, bd = field_ned
+    b2 = bn * bn + be * be + bd * bd
+    if not b2 > 0.0:
+        return 0.0, 0.0, 0.0
+    s = weight * (g[0] * bn + g[1] * be + g[2] * bd) / b2
+    return s * bn, s * be, s * bd
+
+
 def fuse_taut(
     ekf: WindEkf, radial_var: float, radial_rate_var: float, along_var: float, cross_var: float,
-    status: list[FusionStatus],
+    status: list[FusionStatus], field_ned: tuple[float, float, float] = (math.nan,) * 3, nominal_var: float = 0.0,
+    share: float = 0.0,
 ) -> None:  # fmt: skip
     """Restricted radial motion (paper Sec. 2.3): the attachment point at the bottom of the sphere
     (Eq. 7; ``ekf.forces.attach_ned`` from the attitude) at |p_a| = L_c (the rope's chord) from the anchor, no radial
     velocity but the winch's reel (``ekf.rope.rate_mps``), and the balloon's down axis along the rope
     force (tension towards the anchor + the rope's weight, Eq. 5, + the rope's cross-flow drag if
     modelled). The attitude enters as a parameter (no attitude column: r / L ~ 1 % in the first two; in
-    the alignment, see below).
+    the alignment, see below), but for the alignment's column about the magnetic field's axis, ``share`` of it
+    at the alignment's nominal noise ``nominal_var`` (``field_axis_row``).
 
     The alignment's horizontal residual is taken in two components about the balloon's azimuth from the
     anchor: ``along`` (how far it leans: what the rope's shape, its weight on the balloon and the rocking
@@ -166,19 +199,24 @@ def fuse_taut(
         an, ae = 1.0, 0.0
     ncol = len(MODEL_COLUMNS) - (0 if ekf.learn_drag else 1)
     jn, je = ROPE_JAC, ROPE_JAC + N_COLUMNS
-    # the attitude is a parameter here too: gyro, accelerometer and magnetometer measure it, and the rope's
+    # the attitude is mostly a parameter here too: gyro, accelerometer and magnetometer measure it, and the rope's
     # alignment is the weakest model of all (the balloon rocks on its attachment, the rope waves). Let it
-    # rotate the attitude and a wrong taut state confirms itself: a rotation about the magnetic field is
+    # rotate the attitude freely and a wrong taut state confirms itself: a rotation about the magnetic field is
     # invisible to the magnetometer, and the alignment turns the attitude about it until the tilt points
-    # where the wrong state says (docs/estimator.md)
-    # where the attitude is uncertain, so is the measured lean: its variance along the component (the
-    # attitude a "consider" parameter, d z / d att = -[z x]) is added to the noise. In calm air the lean
-    # is a degree or two and a tenth of a degree of tilt turns its azimuth by several degrees
+    # where the wrong state says (docs/estimator.md); so about that axis only a share, and only where the rope's
+    # model fits (field_axis_row). Where the attitude is uncertain, so is the measured lean: its variance along the
+    # component (the attitude a "consider" parameter, d z / d att = -[z x]) is added to the noise. In calm air the lean
+    # is a degree or two and a tenth of a degree of tilt turns its azimuth by several degrees. About the magnetic
+    # field's axis a share is a column (field_axis_row), weighed by the share the rope's model explains (its noise at
+    # the nominal): the noise keeps what the column does not take
     for cn, ce, var, st in ((an, ae, along_var, status[2]), (-ae, an, cross_var, status[3])):
-        var_att = lean_variance(ekf.P, cn, ce, zn, ze, zd)
+        g = (-ce * zd, cn * zd, ce * zn - cn * ze)  # c . d z / d att
+        hb = field_axis_row(g, field_ned, share * nominal_var / var if var > 0.0 else 0.0)
+        var_att = attitude_variance(ekf.P, g[0] - hb[0], g[1] - hb[1], g[2] - hb[2])
         h.fill(0.0)
         for j in range(ncol):
             h[MODEL_COLUMNS[j]] = -(cn * n[jn + j] + ce * n[je + j])  # residual c . (z - n(x))
+        h[ATT_N], h[ATT_E], h[ATT_D] = hb
         ekf.fuse(cn * (n[0] - zn) + ce * (n[1] - ze), var + var_att, st, recover=False)
 
 
@@ -227,7 +265,8 @@ def control_tether(est: Estimator) -> None:
         # stays within 0.05 rad)
         along_var = max(est.align_var, mean2[0] - est._align_mean**2)
         cross_var = max(est.align_var, min(mean2[1], ALIGN_CROSS_VAR_MAX))
-        fuse_taut(ekf, cfg.radial_m**2, cfg.radial_rate_mps**2, along_var, cross_var, est.taut_status)
+        fuse_taut(ekf, cfg.radial_m**2, cfg.radial_rate_mps**2, along_var, cross_var, est.taut_status, est.field_ned,
+                  est.align_var, ALIGN_FIELD_AXIS_SHARE * (1.0 - accel_misfit(est.consistency.nis[ACCEL])))  # fmt: skip
         along, cross = est.taut_status[2], est.taut_status[3]
         if along.time_test_us == ekf.time_us:
             mean2[0] += est._align_alpha * (along.innov**2 - mean2[0])
