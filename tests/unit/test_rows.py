@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from balloon_core.config import Design
+from balloon_core.rotation import rotation
 from firmware_py.estimator.aid_sources.accel import fuse_accel
 from firmware_py.estimator.aid_sources.baro import fuse_baro
 from firmware_py.estimator.aid_sources.magnetometer import fuse_mag_field
@@ -95,3 +96,26 @@ def test_rows_match_finite_differences(taut_ekf, name):
                 continue
             assert h0[j] == pytest.approx(num, rel=1e-4, abs=1e-6), (name, STATE_NAMES[j])
     assert STATE_NAMES[DRAG] == "drag_scale" and len(STATE_NAMES) == N_STATES
+
+
+@pytest.mark.parametrize("share", [1.0, 0.5])
+def test_the_alignment_column_about_the_field_is_the_rotation_about_it(taut_ekf, share):
+    """With the earth field known, the alignment's rows take ``share`` of the rotation about the field's axis as a
+    column (tether.field_axis_row, at its nominal noise): ``share`` of how far that rotation moves the body's down
+    axis along each component (finite differences of the attitude; the components' azimuth and the attachment point
+    stay parameters, as in every other row), and no part across the axis (the magnetometer's)."""
+    field = (0.2, 0.05, 0.45)
+    b = np.array(field) / np.linalg.norm(field)
+    base = _innovations(taut_ekf, lambda e: fuse_taut(e, 0.1, 0.1, 0.1, 0.1, ST, field, 0.1, share))
+    down = lambda q: np.array(rotation(*q)[2::3])  # noqa: E731 - the body's down axis, NED
+    z = down(taut_ekf.q.tolist())
+    lean = np.hypot(z[0], z[1])
+    an, ae = -z[0] / lean, -z[1] / lean
+    eps = 1e-6
+    dz = (down(rotate_ned(taut_ekf.q, eps * b)) - down(rotate_ned(taut_ekf.q, -eps * b))) / (2 * eps)
+    for k, (cn, ce) in ((2, (an, ae)), (3, (-ae, an))):  # along and across the lean
+        h_att = base[k][1][ATT_N : ATT_N + 3]
+        num = cn * dz[0] + ce * dz[1]
+        assert abs(num) > 1e-2
+        assert h_att @ b == pytest.approx(share * num, rel=1e-5)
+        assert np.linalg.norm(np.cross(h_att, b)) < 1e-12
