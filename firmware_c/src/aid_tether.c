@@ -52,19 +52,12 @@ void bw_enter_taut(bw_ekf_t *e, bw_real height_m, bw_real rho, int from_tilt)
 }
 
 
-/* tether.py attitude_variance: g^T P_att g */
-static bw_real attitude_variance(const bw_ekf_t *e, bw_real g0, bw_real g1, bw_real g2)
-{
-    return g0 * (g0 * e->P[BW_ATT_N][BW_ATT_N] +
-                 BW_R(2.0) * (g1 * e->P[BW_ATT_N][BW_ATT_E] + g2 * e->P[BW_ATT_N][BW_ATT_D])) +
-           g1 * (g1 * e->P[BW_ATT_E][BW_ATT_E] + BW_R(2.0) * g2 * e->P[BW_ATT_E][BW_ATT_D]) +
-           g2 * g2 * e->P[BW_ATT_D][BW_ATT_D];
-}
-
 /* tether.py lean_variance: the attitude's variance along a horizontal component (cn, ce) of the body's down axis */
 bw_real bw_lean_variance(const bw_ekf_t *e, bw_real cn, bw_real ce, bw_real zn, bw_real ze, bw_real zd)
 {
-    return attitude_variance(e, -ce * zd, cn * zd, ce * zn - cn * ze); /* c . d z / d att */
+    bw_real g[3];
+    bw_lean_jacobian(cn, ce, zn, ze, zd, g);
+    return bw_attitude_variance(e, g[0], g[1], g[2]);
 }
 
 /* tether.py field_axis_row: the alignment's attitude column about the magnetic field's axis */
@@ -128,14 +121,16 @@ static void fuse_taut(bw_estimator_t *est, bw_real along_var, bw_real cross_var)
         ncol = BW_NCOL - (e->learn_drag ? 0 : 1);
         share = (bw_real)BW_ALIGN_FIELD_AXIS_SHARE * (BW_R(1.0) - bw_accel_misfit(est->consistency.nis[BW_ACCEL]));
         for (cc = 0; cc < 2; cc++) {
-            /* the attitude (tether.py fuse_taut): a column about the magnetic field's axis, weighed by the share
-             * the rope's model explains; the rest of c . d z / d att a parameter whose uncertainty is noise */
+            /* the attitude (tether.py fuse_taut): a column about the magnetic field's axis, weighed by how well
+             * the models fit; the rest a parameter whose variance (c . d z / d att P_att (..)^T less the
+             * column's) is noise */
             const bw_real cn = c[cc][0], ce = c[cc][1];
             bw_real g[3], hb[3] = {BW_R(0.0), BW_R(0.0), BW_R(0.0)}, var_att;
-            g[0] = -ce * zd, g[1] = cn * zd, g[2] = ce * zn - cn * ze;
+            bw_lean_jacobian(cn, ce, zn, ze, zd, g);
             if (var[cc] > BW_R(0.0))
                 field_axis_row(g, est->field_ned, share * est->align_var / var[cc], hb);
-            var_att = attitude_variance(e, g[0] - hb[0], g[1] - hb[1], g[2] - hb[2]);
+            var_att = BW_MAX(BW_R(0.0), bw_attitude_variance(e, g[0], g[1], g[2]) -
+                                            bw_attitude_variance(e, hb[0], hb[1], hb[2]));
             memset(e->h, 0, sizeof e->h);
             for (j = 0; j < ncol; j++)
                 e->h[BW_MODEL_COLS[j]] = -(cn * n[2 + j] + ce * n[2 + BW_NCOL + j]); /* residual c . (z - n(x)) */

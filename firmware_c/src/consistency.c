@@ -50,9 +50,16 @@ bw_real bw_field_variance(const bw_ekf_t *e, const bw_real field_ned[3])
     if (!(b > BW_R(0.0)))
         return BW_R(0.0);
     bn = field_ned[0] / b, be = field_ned[1] / b, bd = field_ned[2] / b;
-    return bn * (bn * e->P[BW_ATT_N][BW_ATT_N] + BW_R(2.0) * (be * e->P[BW_ATT_N][BW_ATT_E] + bd * e->P[BW_ATT_N][BW_ATT_D])) +
-           be * (be * e->P[BW_ATT_E][BW_ATT_E] + BW_R(2.0) * bd * e->P[BW_ATT_E][BW_ATT_D]) +
-           bd * bd * e->P[BW_ATT_D][BW_ATT_D];
+    return bw_attitude_variance(e, bn, be, bd);
+}
+
+/* consistency.py attitude_variance: g^T P_att g */
+bw_real bw_attitude_variance(const bw_ekf_t *e, bw_real g0, bw_real g1, bw_real g2)
+{
+    return g0 * (g0 * e->P[BW_ATT_N][BW_ATT_N] +
+                 BW_R(2.0) * (g1 * e->P[BW_ATT_N][BW_ATT_E] + g2 * e->P[BW_ATT_N][BW_ATT_D])) +
+           g1 * (g1 * e->P[BW_ATT_E][BW_ATT_E] + BW_R(2.0) * g2 * e->P[BW_ATT_E][BW_ATT_D]) +
+           g2 * g2 * e->P[BW_ATT_D][BW_ATT_D];
 }
 
 /* consistency.py correlated_weight: the share of a fusion's information that counts, its misfit correlated */
@@ -85,13 +92,14 @@ bw_real bw_lean_tilt_variance(bw_real cross_var, bw_real extra, const bw_real fi
                               bw_real zd)
 {
     const bw_real lean = BW_SQRT(zn * zn + ze * ze);
-    bw_real cn, ce, b, across, along, c;
+    bw_real cn, ce, b, across, along, c, g[3];
     if (!(lean > BW_R(0.0)))
         return cross_var;
     cn = ze / lean, ce = -zn / lean;
     b = BW_SQRT(field_ned[0] * field_ned[0] + field_ned[1] * field_ned[1] + field_ned[2] * field_ned[2]);
     if (b > BW_R(0.0)) {
-        across = ((-ce * zd) * field_ned[0] + (cn * zd) * field_ned[1] + (ce * zn - cn * ze) * field_ned[2]) / b;
+        bw_lean_jacobian(cn, ce, zn, ze, zd, g);
+        across = (g[0] * field_ned[0] + g[1] * field_ned[1] + g[2] * field_ned[2]) / b;
         along = zd * (cn * field_ned[0] + ce * field_ned[1]) / b;
         cross_var += extra * (across * across + BW_R(0.25) * along * along);
     }

@@ -70,6 +70,12 @@ void bw_consistency_add(bw_consistency_t *m, int source, bw_real nis, bw_real al
 void bw_consistency_evaluate(bw_consistency_t *m);
 bw_real bw_heading_misfit_variance(const bw_consistency_t *m);
 bw_real bw_field_variance(const bw_ekf_t *e, const bw_real field_ned[3]);
+bw_real bw_attitude_variance(const bw_ekf_t *e, bw_real g0, bw_real g1, bw_real g2);
+/* consistency.py lean_jacobian: c . d z / d att = z x c, the body's down axis z along a horizontal component c */
+static inline void bw_lean_jacobian(bw_real cn, bw_real ce, bw_real zn, bw_real ze, bw_real zd, bw_real g[3])
+{
+    g[0] = -ce * zd, g[1] = cn * zd, g[2] = ce * zn - cn * ze;
+}
 bw_real bw_correlated_weight(bw_real nis, bw_real dt_s, bw_real corr_s);
 bw_real bw_field_attitude_extra(bw_real extra, bw_real v_pred, bw_real v_accel, bw_real v_aids, bw_real v_end,
                                 bw_real w_accel, bw_real w_align);

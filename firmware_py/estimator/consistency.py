@@ -157,12 +157,22 @@ def field_variance(P, fn: float, fe: float, fd: float) -> float:
     b = math.sqrt(fn * fn + fe * fe + fd * fd)
     if not b > 0.0:
         return 0.0
-    bn, be, bd = fn / b, fe / b, fd / b
+    return attitude_variance(P, fn / b, fe / b, fd / b)
+
+
+def attitude_variance(P, g0: float, g1: float, g2: float) -> float:
+    """g^T P_att g: the variance of what moves by g . d with the attitude's error d (over ATT_N, ATT_E, ATT_D)."""
     return float(
-        bn * (bn * P[ATT_N, ATT_N] + 2.0 * (be * P[ATT_N, ATT_E] + bd * P[ATT_N, ATT_D]))
-        + be * (be * P[ATT_E, ATT_E] + 2.0 * bd * P[ATT_E, ATT_D])
-        + bd * bd * P[ATT_D, ATT_D]
+        g0 * (g0 * P[ATT_N, ATT_N] + 2.0 * (g1 * P[ATT_N, ATT_E] + g2 * P[ATT_N, ATT_D]))
+        + g1 * (g1 * P[ATT_E, ATT_E] + 2.0 * g2 * P[ATT_E, ATT_D])
+        + g2 * g2 * P[ATT_D, ATT_D]
     )
+
+
+def lean_jacobian(cn: float, ce: float, zn: float, ze: float, zd: float) -> tuple[float, float, float]:
+    """c . d z / d att = (z x c) over ATT_N, ATT_E, ATT_D: how the body's down axis z (along the rope) moves along a
+    horizontal component c = (cn, ce) with the attitude's error d (d z / d att = -[z x])."""
+    return -ce * zd, cn * zd, ce * zn - cn * ze
 
 
 def correlated_weight(nis: float, dt_s: float, corr_s: float) -> float:
@@ -217,7 +227,8 @@ def lean_tilt_variance(
     bn, be, bd = field_ned
     b = math.sqrt(bn * bn + be * be + bd * bd)
     if b > 0.0:
-        across = ((-ce * zd) * bn + (cn * zd) * be + (ce * zn - cn * ze) * bd) / b
+        g0, g1, g2 = lean_jacobian(cn, ce, zn, ze, zd)
+        across = (g0 * bn + g1 * be + g2 * bd) / b
         along = zd * (cn * bn + ce * be) / b
         cross_var += extra * (across * across + 0.25 * along * along)
     c = max(zd, LEAN_COS_MIN)

@@ -62,7 +62,7 @@ FUSIONS = {
     "accel": lambda e: fuse_accel(e, 0.3, -0.2, -9.7, 0.01, ST[:3]),
     "mag": lambda e: fuse_mag_field(e, 0.12, 0.14, 0.43, (0.2, 0.01, 0.45), 1e-4, ST[:3]),
     "baro": lambda e: fuse_baro(e, 91.0, -1.0, 1.0, ST[0]),
-    "taut": lambda e: fuse_taut(e, 0.1, 0.1, 0.1, 0.1, ST),
+    "taut": lambda e: fuse_taut(e, 0.1, 0.1, 0.1, 0.1, ST, (float("nan"),) * 3, 0.1, 0.5),
 }
 
 
@@ -90,32 +90,55 @@ def test_rows_match_finite_differences(taut_ekf, name):
                                                             strict=True)):  # fmt: skip
             num = -(ip - im) / (2 * eps)  # innovation = z - h(x)
             if name == "taut" and k >= 2 and ATT_N <= j < ATT_N + 3:
-                # the alignment takes the attitude as a parameter (its variance in the noise, tether.py):
-                # the tilt moves the innovation, the row has no attitude column by design
+                # the field unknown (NaN here), the alignment takes the attitude as a parameter (its variance in
+                # the noise, tether.py): the tilt moves the innovation, the row has no attitude column
                 assert h0[j] == 0.0 and num != 0.0
                 continue
             assert h0[j] == pytest.approx(num, rel=1e-4, abs=1e-6), (name, STATE_NAMES[j])
     assert STATE_NAMES[DRAG] == "drag_scale" and len(STATE_NAMES) == N_STATES
 
 
-@pytest.mark.parametrize("share", [1.0, 0.5])
-def test_the_alignment_column_about_the_field_is_the_rotation_about_it(taut_ekf, share):
-    """With the earth field known, the alignment's rows take ``share`` of the rotation about the field's axis as a
-    column (tether.field_axis_row, at its nominal noise): ``share`` of how far that rotation moves the body's down
-    axis along each component (finite differences of the attitude; the components' azimuth and the attachment point
-    stay parameters, as in every other row), and no part across the axis (the magnetometer's)."""
+def _alignment_rows(ekf, fn):
+    """The two alignment rows a fusion makes: (innovation, row, noise) of each."""
+    e = copy.deepcopy(ekf)
+    _refresh(e)
+    out = []
+
+    def spy(innov, r, status, gate_sigma=None, recover=True):
+        out.append((innov, e.h.copy(), r))
+        return True
+
+    e.fuse = spy
+    e.begin_update()
+    fn(e)
+    return out[2:]
+
+
+@pytest.mark.parametrize(("share", "nominal"), [(1.0, 0.1), (0.5, 0.1), (0.5, 0.05), (0.5, 0.0)])
+def test_the_alignment_column_about_the_field_is_the_rotation_about_it(taut_ekf, share, nominal):
+    """With the earth field known, the alignment's rows take a share of the rotation about the field's axis as a
+    column (tether.field_axis_row): ``share`` times the nominal noise over the noise fused (0.1 here) of how far that
+    rotation moves the body's down axis along each component (finite differences of the attitude; the components'
+    azimuth and the attachment point stay parameters, as in every other row), and no part across the axis (the
+    magnetometer's). The row's variance from the attitude is the same as without the column: what the column takes
+    of it is out of the noise (which keeps at least the alignment's own). The field unknown: no column, all of it
+    noise."""
     field = (0.2, 0.05, 0.45)
     b = np.array(field) / np.linalg.norm(field)
-    base = _innovations(taut_ekf, lambda e: fuse_taut(e, 0.1, 0.1, 0.1, 0.1, ST, field, 0.1, share))
+    rows = _alignment_rows(taut_ekf, lambda e: fuse_taut(e, 0.1, 0.1, 0.1, 0.1, ST, field, nominal, share))
+    bare = _alignment_rows(taut_ekf, lambda e: fuse_taut(e, 0.1, 0.1, 0.1, 0.1, ST, (float("nan"),) * 3, 0.1, share))
     down = lambda q: np.array(rotation(*q)[2::3])  # noqa: E731 - the body's down axis, NED
     z = down(taut_ekf.q.tolist())
     lean = np.hypot(z[0], z[1])
     an, ae = -z[0] / lean, -z[1] / lean
     eps = 1e-6
     dz = (down(rotate_ned(taut_ekf.q, eps * b)) - down(rotate_ned(taut_ekf.q, -eps * b))) / (2 * eps)
-    for k, (cn, ce) in ((2, (an, ae)), (3, (-ae, an))):  # along and across the lean
-        h_att = base[k][1][ATT_N : ATT_N + 3]
+    p_att = taut_ekf.P[ATT_N : ATT_N + 3, ATT_N : ATT_N + 3]
+    for (innov, h, r), (innov0, h0, r0), (cn, ce) in zip(rows, bare, ((an, ae), (-ae, an)), strict=True):
+        h_att = h[ATT_N : ATT_N + 3]
         num = cn * dz[0] + ce * dz[1]
         assert abs(num) > 1e-2
-        assert h_att @ b == pytest.approx(share * num, rel=1e-5)
+        assert h_att @ b == pytest.approx(share * nominal / 0.1 * num, rel=1e-5, abs=1e-12)
         assert np.linalg.norm(np.cross(h_att, b)) < 1e-12
+        assert not h0[ATT_N : ATT_N + 3].any() and innov0 == innov
+        assert r == pytest.approx(max(0.1, r0 - h_att @ p_att @ h_att), rel=1e-9)

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 from balloon_core.atmosphere import G0
 from balloon_core.rotation import rotation
 from firmware_py.estimator.catenary import effective_rod, rope_chord
-from firmware_py.estimator.consistency import ACCEL, accel_misfit
+from firmware_py.estimator.consistency import ACCEL, accel_misfit, attitude_variance, lean_jacobian
 from firmware_py.estimator.ekf import RESET_TAUT, FusionStatus, WindEkf
 from firmware_py.estimator.generated import rope_direction, rope_direction_plain
 from firmware_py.estimator.model import N_COLUMNS, ROPE_JAC
@@ -106,17 +106,7 @@ def enter_taut(ekf: WindEkf, height_m: float, rho: float, from_tilt: bool = Fals
 def lean_variance(P, cn: float, ce: float, zn: float, ze: float, zd: float) -> float:
     """The attitude's variance along a horizontal component (cn, ce) of the body's down axis z (along the rope):
     c . d z / d att P_att (..)^T with d z / d att = -[z x], rad^2."""
-    return attitude_variance(P, -ce * zd, cn * zd, ce * zn - cn * ze)  # c . d z / d att, over ATT_N, ATT_E, ATT_D
-
-
-def attitude_variance(P, g0: float, g1: float, g2: float) -> float:
-    """g^T P_att g: the variance of a quantity that moves by g . d with the attitude's error d (over ATT_N, ATT_E,
-    ATT_D)."""
-    return float(
-        g0 * (g0 * P[ATT_N, ATT_N] + 2.0 * (g1 * P[ATT_N, ATT_E] + g2 * P[ATT_N, ATT_D]))
-        + g1 * (g1 * P[ATT_E, ATT_E] + 2.0 * g2 * P[ATT_E, ATT_D])
-        + g2 * g2 * P[ATT_D, ATT_D]
-    )
+    return attitude_variance(P, *lean_jacobian(cn, ce, zn, ze, zd))
 
 
 def field_axis_row(
@@ -145,8 +135,7 @@ def field_axis_row(
 
 def fuse_taut(
     ekf: WindEkf, radial_var: float, radial_rate_var: float, along_var: float, cross_var: float,
-    status: list[FusionStatus], field_ned: tuple[float, float, float] = (math.nan,) * 3, nominal_var: float = 0.0,
-    share: float = 0.0,
+    status: list[FusionStatus], field_ned: tuple[float, float, float], nominal_var: float, share: float,
 ) -> None:  # fmt: skip
     """Restricted radial motion (paper Sec. 2.3): the attachment point at the bottom of the sphere
     (Eq. 7; ``ekf.forces.attach_ned`` from the attitude) at |p_a| = L_c (the rope's chord) from the anchor, no radial
@@ -210,9 +199,9 @@ def fuse_taut(
     # field's axis a share is a column (field_axis_row), weighed by the share the rope's model explains (its noise at
     # the nominal): the noise keeps what the column does not take
     for cn, ce, var, st in ((an, ae, along_var, status[2]), (-ae, an, cross_var, status[3])):
-        g = (-ce * zd, cn * zd, ce * zn - cn * ze)  # c . d z / d att
+        g = lean_jacobian(cn, ce, zn, ze, zd)
         hb = field_axis_row(g, field_ned, share * nominal_var / var if var > 0.0 else 0.0)
-        var_att = attitude_variance(ekf.P, g[0] - hb[0], g[1] - hb[1], g[2] - hb[2])
+        var_att = max(0.0, attitude_variance(ekf.P, *g) - attitude_variance(ekf.P, *hb))
         h.fill(0.0)
         for j in range(ncol):
             h[MODEL_COLUMNS[j]] = -(cn * n[jn + j] + ce * n[je + j])  # residual c . (z - n(x))
