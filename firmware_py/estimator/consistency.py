@@ -190,7 +190,8 @@ def field_attitude_extra(
     """One step of the attitude's variance about the magnetic field's axis that P does not hold, rad^2 (>= 0).
 
     About that axis the magnetometer sees nothing and only the accelerometer (its tilt, cos I of it, and on the
-    taut tether the pull's azimuth) and the alignment (through the position) hold the attitude. Both fuse every
+    taut tether the pull's azimuth) and the alignment (through the position, and a share directly:
+    tether.field_axis_row) hold the attitude. Both fuse every
     sample as if their misfit were white, but what they misfit is the rope's waves and the drag's lag behind the
     wind, correlated over seconds: P about that axis shrinks as if it had a hundred times the data, and the wind across
     the lean follows the attitude's slow error (docs/estimator.md, "Honest accuracy"). So beside P the same
