@@ -123,8 +123,10 @@ def field_axis_row(
     state followed that weakly held rotation, and the estimate swung across the wind at the balloon's pendulum period
     (paper-reference from 180 deg: the attitude 0.7 deg RMS about the field, the cross wind 0.5 m/s RMS where the
     truth had none). The column lets the rope's direction hold it; ``weight`` is ALIGN_FIELD_AXIS_SHARE of it where
-    the force model explains the accelerometer and the alignment is fused at its nominal noise (a taut state that
-    is off, in gusts, must not turn the attitude with it: docs/estimator.md, "The wind from magnetic south")."""
+    the force model explains the accelerometer and the alignment is fused at its nominal noise, less as the
+    accelerometer's windowed NIS goes from the monitor's flag to twice it (none beyond) and as the alignment's noise
+    follows its innovations above the nominal (a taut state that is off, in gusts, must not turn the attitude with
+    it: docs/estimator.md, "The wind from magnetic south")."""
     bn, be, bd = field_ned
     b2 = bn * bn + be * be + bd * bd
     if not b2 > 0.0:
@@ -192,12 +194,12 @@ def fuse_taut(
     # alignment is the weakest model of all (the balloon rocks on its attachment, the rope waves). Let it
     # rotate the attitude freely and a wrong taut state confirms itself: a rotation about the magnetic field is
     # invisible to the magnetometer, and the alignment turns the attitude about it until the tilt points
-    # where the wrong state says (docs/estimator.md); so about that axis only a share, and only where the rope's
-    # model fits (field_axis_row). Where the attitude is uncertain, so is the measured lean: its variance along the
-    # component (the attitude a "consider" parameter, d z / d att = -[z x]) is added to the noise. In calm air the lean
-    # is a degree or two and a tenth of a degree of tilt turns its azimuth by several degrees. About the magnetic
-    # field's axis a share is a column (field_axis_row), weighed by the share the rope's model explains (its noise at
-    # the nominal): the noise keeps what the column does not take
+    # where the wrong state says (docs/estimator.md); so about that axis only a share is a column (field_axis_row),
+    # weighed by how well the models fit (the accelerometer's share that counts, the alignment's nominal noise over
+    # the noise it follows). Where the attitude is uncertain, so is the measured lean: its variance along the
+    # component (the attitude a "consider" parameter, d z / d att = -[z x]), less the column's, is added to the
+    # noise, so that the row's variance is what it would be with the attitude a parameter alone. In calm air the lean
+    # is a degree or two and a tenth of a degree of tilt turns its azimuth by several degrees
     for cn, ce, var, st in ((an, ae, along_var, status[2]), (-ae, an, cross_var, status[3])):
         g = lean_jacobian(cn, ce, zn, ze, zd)
         hb = field_axis_row(g, field_ned, share * nominal_var / var if var > 0.0 else 0.0)
