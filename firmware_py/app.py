@@ -43,11 +43,12 @@ SENSOR_BITS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SE
                | mavlink.MAV_SYS_STATUS_AHRS)  # fmt: skip
 # the SYS_STATUS health bit a flagged aid source clears, in consistency.SOURCES order: the accelerometer,
 # the barometer and the magnetometer their own sensor's; the tether model's two (align: the rope's
-# direction, radius: its length) the AHRS bit, the estimator's own model
+# direction, radius: its length) and the force balance (the model's forces against the balloon's motion) the AHRS
+# bit, the estimator's own model
 MISFIT_HEALTH_BITS = {
     "accel": mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL, "align": mavlink.MAV_SYS_STATUS_AHRS,
     "radius": mavlink.MAV_SYS_STATUS_AHRS, "baro": mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE,
-    "mag": mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG,
+    "mag": mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG, "force": mavlink.MAV_SYS_STATUS_AHRS,
 }  # fmt: skip
 assert tuple(MISFIT_HEALTH_BITS) == SOURCES
 TEXT_MAX = 50  # STATUSTEXT's text field, characters

@@ -42,7 +42,7 @@ CONFIG_FIELDS_2 = (
 
 def _structs(real):
     """The C structs of include/bw_core.h for one real type (checked against the library's sizeof)."""
-    i32, i64, f32, d = C.c_int32, C.c_int64, C.c_float, C.c_double
+    i32, i64, f32, d, u8 = C.c_int32, C.c_int64, C.c_float, C.c_double, C.c_uint8
 
     class Config(C.Structure):
         _fields_ = [(n, d) for n in CONFIG_FIELDS] + [("rope_catenary", d)] + [(n, d) for n in CONFIG_FIELDS_2]
@@ -96,12 +96,15 @@ def _structs(real):
 
     class Consistency(C.Structure):
         _fields_ = [
-            ("nis", real * 5),
+            ("nis", real * len(SOURCES)),
             ("flags", i32),
             ("inflation", real),
             ("flag_changes", i32),
             ("slow_tilt", real),
             ("slow_tilt_var", real),
+            ("balance_n", real),
+            ("balance_e", real),
+            ("balance_var", real),
         ]
 
     class Schedule(C.Structure):
@@ -145,11 +148,12 @@ def _structs(real):
         ("n_dwell", i32), ("n_learn_drag", i32), ("n_false_release", i32), ("n_taut_pull", i32), ("n_confirm", i32),
         ("a_accel", real), ("a_taut", real), ("a_baro", real), ("a_confirm", real),
         ("dt_us", i64), ("max_gap_steps", i32),
-        ("initialised", i32), ("t_filter_us", i64), ("t_last_us", i64), ("t_boot_us", i64), ("step", i64),
-        ("last_gyro", real * 3), ("release_count", i32), ("field_n", i32), ("field_sum", real * 6), ("joined", i32),
-        ("unconfirmed", i32), ("acc_mean", real * 3), ("acc_var", real), ("confirm_count", i32),
+        ("initialised", u8), ("joined", u8), ("unconfirmed", u8), ("was_slack", u8), ("t_filter_us", i64),
+        ("t_last_us", i64), ("t_boot_us", i64), ("step", i64),
+        ("last_gyro", real * 3), ("release_count", i32), ("field_n", i32), ("field_sum", real * 6),
+        ("acc_mean", real * 3), ("acc_var", real), ("confirm_count", i32),
         ("field_ned", real * 3), ("dwell", i32), ("accel_innov2", real), ("innov_alpha", real), ("mean_speed", real),
-        ("speed_alpha", real), ("speed_var", real), ("slack", i32), ("pulling", i32), ("was_slack", i32),
+        ("speed_alpha", real), ("speed_var", real), ("slack", i32), ("pulling", i32),
         ("height_above", i32),
         ("accel_var_excess", real), ("align_innov2", real * 2), ("align_mean", real),
         ("a_align_innov", real), ("drag_prior", real * 2), ("ascent_data", real), ("ascent_var", real),
@@ -167,7 +171,7 @@ def _structs(real):
 
     class Estimator(C.Structure):
         _fields_ = [
-            ("cfg", C.POINTER(Config)), ("ekf", Ekf), ("probe", Forces), ("sched", Schedule), ("counters", Counters),
+            ("ekf", Ekf), ("probe", Forces), ("sched", Schedule), ("cfg", C.POINTER(Config)), ("counters", Counters),
             ("consistency", Consistency), ("accel_status", Status * 3), ("baro_status", Status),
             ("heading_status", Status), ("mag_status", Status * 3), ("taut_status", Status * 4), ("out", Out),
             *rest,

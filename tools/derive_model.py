@@ -226,7 +226,7 @@ def generate_params() -> str:
     put(
         "BW_",
         consistency,
-        {"ACCEL", "ALIGN", "RADIUS", "BARO", "MAG", "CONSISTENCY_S", "NIS_CLIP", "FLAG_NIS", "SLOW_INNOV_S",
+        {"ACCEL", "ALIGN", "RADIUS", "BARO", "MAG", "FORCE", "CONSISTENCY_S", "NIS_CLIP", "FLAG_NIS", "SLOW_INNOV_S",
          "HEADING_MISFIT_RATIO"},
     )
     lines[-1:-1] = [f"#define BW_N_SOURCES {len(consistency.SOURCES)}"]

@@ -114,11 +114,12 @@ typedef struct {
 } bw_ekf_t;
 
 typedef struct {
-    bw_real nis[5];
+    bw_real nis[6];
     int32_t flags;
     bw_real inflation;
     int32_t flag_changes;
     bw_real slow_tilt, slow_tilt_var;  /* the accelerometer's slow innovation as a tilt about the field, its mean square */
+    bw_real balance_n, balance_e, balance_var; /* the velocity's updates, their mean; the variance they take, its mean */
 } bw_consistency_t;
 
 typedef struct {
@@ -143,10 +144,10 @@ typedef struct {
 } bw_windcov_out_t;
 
 typedef struct {
-    const bw_config_t *cfg;      /* the caller's (in flash on the target): it must outlive the estimator */
     bw_ekf_t ekf;
     bw_forces_t probe;
     bw_schedule_t sched;
+    const bw_config_t *cfg;      /* the caller's (in flash on the target): it must outlive the estimator */
     bw_counters_t counters;
     bw_consistency_t consistency;
     bw_status_t accel_status[3], baro_status, heading_status, mag_status[3], taut_status[4];
@@ -161,19 +162,17 @@ typedef struct {
     int64_t dt_us;
     int32_t max_gap_steps;
     /* clock and control (control.py _init_clock) */
-    int32_t initialised;
+    uint8_t initialised, joined, unconfirmed, was_slack; /* flags, one byte each (the RAM's budget) */
     int64_t t_filter_us, t_last_us, t_boot_us, step;
     bw_real last_gyro[3];
     int32_t release_count, field_n;
     bw_real field_sum[6];
-    int32_t joined, unconfirmed;
     bw_real acc_mean[3], acc_var;
     int32_t confirm_count;
     bw_real field_ned[3];
     int32_t dwell;
     bw_real accel_innov2, innov_alpha, mean_speed, speed_alpha, speed_var;
     int32_t slack, pulling;
-    int32_t was_slack;
     int32_t height_above;
     bw_real accel_var_excess;
     bw_real align_innov2[2], align_mean, a_align_innov; /* the alignment's noise, along and cross; the along

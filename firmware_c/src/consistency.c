@@ -9,6 +9,7 @@ void bw_consistency_reset(bw_consistency_t *m)
     m->flags = 0;
     m->inflation = BW_R(1.0);
     m->slow_tilt = m->slow_tilt_var = BW_R(0.0);
+    m->balance_n = m->balance_e = m->balance_var = BW_R(0.0);
 }
 
 /* consistency.py heading_misfit_variance: the attitude's variance about the field's axis that the accelerometer's
@@ -22,6 +23,16 @@ void bw_consistency_add(bw_consistency_t *m, int source, bw_real nis, bw_real al
 {
     if (nis == nis)
         m->nis[source] += alpha * (BW_MIN(nis, (bw_real)BW_NIS_CLIP) - m->nis[source]);
+}
+
+/* consistency.py balance_nis: the window's mean update of the velocity over what a consistent filter's would be
+ * (Consistency.add_balance's means, weight alpha a step) */
+bw_real bw_balance_nis(const bw_consistency_t *m, bw_real alpha)
+{
+    const bw_real expected = m->balance_var * alpha / (BW_R(2.0) - alpha);
+    if (!(expected > BW_R(0.0)))
+        return BW_R(0.0);
+    return BW_MIN((m->balance_n * m->balance_n + m->balance_e * m->balance_e) / expected, (bw_real)BW_NIS_CLIP);
 }
 
 void bw_consistency_evaluate(bw_consistency_t *m)

@@ -517,7 +517,8 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
     bw_ekf_t *e = &est->ekf;
     int mag_ok;
     int64_t d, steps, i;
-    bw_real r[9], rad, v_pred, v_accel, v_aids;
+    bw_real r[9], rad, v_pred, v_accel, v_aids, vn, ve, pv;
+    int32_t resets;
     if (!(finite3(ax, ay, az, (bw_real)BW_ACC_MAX) && finite3(gx, gy, gz, (bw_real)BW_GYRO_MAX))) {
         c->rejected += 1;
         return 0;
@@ -588,6 +589,8 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
     }
     est->last_gyro[0] = gx, est->last_gyro[1] = gy, est->last_gyro[2] = gz;
     e->time_us = est->t_filter_us;
+    vn = e->x[BW_VEL_N], ve = e->x[BW_VEL_E]; /* the velocity predicted and its variance (the balance) */
+    pv = e->P[BW_VEL_N][BW_VEL_N] + e->P[BW_VEL_E][BW_VEL_E], resets = e->reset_count;
     bw_ekf_begin_update(e);
     v_pred = bw_field_variance(e, est->field_ned);
     bw_control_accel(est, ax, ay, az);
@@ -604,6 +607,17 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
         c->numeric_resets += 1;
         reinitialise_in_flight(est, ax, ay, az, mx, my, mz, mag_ok);
         return 1;
+    }
+    if (e->mode == BW_MODE_TAUT && e->reset_count == resets) {
+        /* consistency.py Consistency.add_balance: the velocity's updates and what they took from P, their means;
+         * the force balance's NIS at the tether's rate */
+        bw_consistency_t *m = &est->consistency;
+        const bw_real a = est->a_accel, taken = pv - (e->P[BW_VEL_N][BW_VEL_N] + e->P[BW_VEL_E][BW_VEL_E]);
+        m->balance_n += a * (e->x[BW_VEL_N] - vn - m->balance_n);
+        m->balance_e += a * (e->x[BW_VEL_E] - ve - m->balance_e);
+        m->balance_var += a * (BW_MAX(taken, BW_R(0.0)) - m->balance_var);
+        if (e->taut_phase == 0)
+            m->nis[BW_FORCE] = bw_balance_nis(m, a);
     }
     if (e->mode != BW_MODE_GROUND) {
         /* control.py: each source's NIS against the noise it was fused with, over its own interval */

@@ -67,6 +67,7 @@ void bw_status_init(bw_status_t *st, int32_t recover_after);
 /* consistency.py */
 void bw_consistency_reset(bw_consistency_t *m);
 void bw_consistency_add(bw_consistency_t *m, int source, bw_real nis, bw_real alpha);
+bw_real bw_balance_nis(const bw_consistency_t *m, bw_real alpha);
 void bw_consistency_evaluate(bw_consistency_t *m);
 bw_real bw_heading_misfit_variance(const bw_consistency_t *m);
 bw_real bw_field_variance(const bw_ekf_t *e, const bw_real field_ned[3]);

@@ -114,12 +114,13 @@
 #define BW_RADIUS 2
 #define BW_BARO 3
 #define BW_MAG 4
+#define BW_FORCE 5
 #define BW_CONSISTENCY_S 20.0
 #define BW_NIS_CLIP 25.0
 #define BW_FLAG_NIS 2.0
 #define BW_SLOW_INNOV_S 10.0
 #define BW_HEADING_MISFIT_RATIO 2.0
-#define BW_N_SOURCES 5
+#define BW_N_SOURCES 6
 
 #define BW_RESET_INITIALISE 0
 #define BW_RESET_TAUT 1

@@ -8,6 +8,13 @@ NIS = innovation^2 / innovation variance, is averaged over a window of ``CONSIST
 consistent filter its mean is 1 or less; a mean of 3 says the source's innovations are sqrt(3) times
 what the filter expects, for tens of seconds, and the model does not explain that source.
 
+One more source has no sensor of its own: the force balance (``balance_nis``). A tethered balloon does not
+accelerate on average, so what the model's forces put into the velocity the measurements must take out only as
+the swing's noise; a wind across the lean held together with the attitude about the magnetic field's axis (which
+the accelerometer cannot tell apart and the magnetometer cannot see) leaves the model's forces unbalanced, and
+every step the measurements pull the balloon back by the same amount. The innovations of each row stay small;
+their mean pull on the velocity, over the window, does not.
+
 What the monitor does with it:
 - ``flags``: one bit per source whose windowed NIS is above ``FLAG_NIS``; the firmware reports them
   (SYS_STATUS, a STATUSTEXT when they change, the summary) and the products carry them;
@@ -39,8 +46,8 @@ from balloon_core.atmosphere import G0
 from firmware_py.estimator.params import LEAN_BIAS_RAD, LEAN_COS_MIN
 from firmware_py.estimator.state import ATT_D, ATT_E, ATT_N
 
-SOURCES = ("accel", "align", "radius", "baro", "mag")
-ACCEL, ALIGN, RADIUS, BARO, MAG = range(len(SOURCES))
+SOURCES = ("accel", "align", "radius", "baro", "mag", "force")
+ACCEL, ALIGN, RADIUS, BARO, MAG, FORCE = range(len(SOURCES))
 CONSISTENCY_S = 20.0  # averaging time of each source's NIS
 NIS_CLIP = 25.0  # one innovation counts at most as a 5-sigma one: a transient does not rule the window
 FLAG_NIS = 2.0  # a windowed NIS above this flags the source: its innovations are 1.4x their expectation
@@ -60,7 +67,8 @@ class Consistency:
     """Windowed NIS per aid source, the status bits and the accuracy factor; the accelerometer's slow innovation
     read as a rotation about the field, and its mean square (``heading_misfit_variance``)."""
 
-    __slots__ = ("nis", "flags", "inflation", "flag_changes", "slow_tilt", "slow_tilt_var")
+    __slots__ = ("nis", "flags", "inflation", "flag_changes", "slow_tilt", "slow_tilt_var", "balance_n", "balance_e",
+                 "balance_var")
 
     def __init__(self) -> None:
         self.nis = [0.0] * len(SOURCES)
@@ -69,6 +77,8 @@ class Consistency:
         self.flag_changes = 0
         self.slow_tilt = 0.0  # the accelerometer's innovation as a tilt about the field (field_tilt_reading), rad
         self.slow_tilt_var = 0.0  # its square's mean over CONSISTENCY_S, rad^2
+        self.balance_n = self.balance_e = 0.0  # the velocity's measurement updates, N and E, their mean (m/s per step)
+        self.balance_var = 0.0  # what they take from the velocity's variance, its mean ((m/s)^2 per step)
 
     def reset(self) -> None:
         for i in range(len(SOURCES)):
@@ -76,6 +86,7 @@ class Consistency:
         self.flags = 0
         self.inflation = 1.0
         self.slow_tilt = self.slow_tilt_var = 0.0
+        self.balance_n = self.balance_e = self.balance_var = 0.0
 
     def add(self, source: int, nis: float, alpha: float) -> None:
         """One normalised innovation squared of ``source``, weight ``alpha`` (its interval / window)."""
@@ -87,6 +98,17 @@ class Consistency:
         interval / CONSISTENCY_S): low-passed over SLOW_INNOV_S, its square averaged over the window."""
         self.slow_tilt += alpha * (CONSISTENCY_S / SLOW_INNOV_S) * (reading - self.slow_tilt)
         self.slow_tilt_var += alpha * (self.slow_tilt * self.slow_tilt - self.slow_tilt_var)
+
+    def add_balance(self, dv_n: float, dv_e: float, var_taken: float, alpha: float, judge: bool) -> None:
+        """One step's measurement update of the horizontal velocity (``dv_n``, ``dv_e``, m/s: after the step's fusions
+        less after its prediction) and what the fusions took from its variance (``var_taken``, P_NN + P_EE's fall,
+        (m/s)^2), weight ``alpha`` (the step over CONSISTENCY_S): the window's means; where ``judge`` (the tether's
+        rate: the window is long) the force balance's NIS from them (``balance_nis``)."""
+        self.balance_n += alpha * (dv_n - self.balance_n)
+        self.balance_e += alpha * (dv_e - self.balance_e)
+        self.balance_var += alpha * (max(var_taken, 0.0) - self.balance_var)
+        if judge:
+            self.nis[FORCE] = balance_nis(self.balance_n, self.balance_e, self.balance_var, alpha)
 
     def evaluate(self) -> None:
         """The flags and the accuracy factor from the windowed NIS."""
@@ -104,6 +126,21 @@ class Consistency:
 
     def names(self) -> list[str]:
         return [name for i, name in enumerate(SOURCES) if self.flags >> i & 1]
+
+
+def balance_nis(mean_n: float, mean_e: float, mean_var: float, alpha: float) -> float:
+    """The force balance's NIS: a tethered balloon does not accelerate on average, so over the window the
+    measurements take out of the velocity what the model's forces put in and the swing did not (paper Eq. 8: the
+    drag of the wind, the lift, the rope). In a consistent filter the velocity's updates are white with the
+    covariance they take from P (K S K^T = P- - P+), so their mean over the window (weight ``alpha`` a step) has
+    ``alpha / (2 - alpha)`` of it; a model whose forces do not balance where the state says (a wind across the lean
+    with the attitude about the magnetic field's axis, which the accelerometer alone cannot tell apart) has the
+    measurements pull the balloon back every step, and the mean is far from zero. Its square over that variance
+    (both horizontal axes), at most NIS_CLIP; 0 before any update."""
+    expected = mean_var * alpha / (2.0 - alpha)
+    if not expected > 0.0:
+        return 0.0
+    return min((mean_n * mean_n + mean_e * mean_e) / expected, NIS_CLIP)
 
 
 def accel_misfit(nis: float) -> float:

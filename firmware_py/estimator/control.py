@@ -216,6 +216,7 @@ class Estimator:
         self._turbulence = [0.0, 0.0, 0.0]
         self._align_alpha = self.schedule.taut_every / (ALIGN_INNOV_S * self.cfg.imu_rate_hz)
         self._taut_alpha = self.schedule.taut_every / (CONSISTENCY_S * self.cfg.imu_rate_hz)
+        self._balance_alpha = 1.0 / (CONSISTENCY_S * self.cfg.imu_rate_hz)  # one step of the window
         self.consistency.reset()
 
     def _init_baro(self) -> None:
@@ -315,6 +316,8 @@ class Estimator:
             self.step += 1
         self._last_gyro = (gx, gy, gz)
         ekf.time_us = self.t_filter_us
+        vn, ve = float(ekf.x[VEL_N]), float(ekf.x[VEL_E])  # the velocity predicted and its variance (the balance)
+        pv, resets = float(ekf.P[VEL_N, VEL_N] + ekf.P[VEL_E, VEL_E]), ekf.reset_count
         ekf.begin_update()
         v_pred = self._field_variance()
         control_accel(self, ax, ay, az)
@@ -331,6 +334,10 @@ class Estimator:
             c.numeric_resets += 1
             self._reinitialise_in_flight(ax, ay, az, mx, my, mz, mag_ok)
             return True
+        if ekf.mode == MODE_TAUT and ekf.reset_count == resets:  # the force balance's monitor (consistency.py)
+            self.consistency.add_balance(float(ekf.x[VEL_N]) - vn, float(ekf.x[VEL_E]) - ve,
+                                         pv - float(ekf.P[VEL_N, VEL_N] + ekf.P[VEL_E, VEL_E]), self._balance_alpha,
+                                         self.step % self.schedule.taut_every == 0)
         if ekf.mode != MODE_GROUND:
             # each source's windowed NIS against (about) the noise it was fused with (the accelerometer's is kept
             # against its nominal noise), each over its own interval (the alignment's every taut_every steps)
