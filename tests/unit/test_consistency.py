@@ -220,3 +220,26 @@ def test_the_held_tilt_takes_the_share_of_the_lean_across_the_field():
     want = lift_n * math.sqrt(d * d * (t * t + 0.25) + held * held) / (c * 3.0)
     assert across == pytest.approx(want, rel=1e-12)
     assert bias_tilt_rad(0.02**2) == pytest.approx(math.hypot(LEAN_BIAS_RAD, 0.02 / G0), rel=1e-12)
+
+
+def test_the_force_balance_is_the_mean_update_against_a_consistent_filters():
+    """White velocity updates with the covariance they take from P read a windowed NIS near 1 (its mean over a long
+    run); the same updates with a persistent pull of three sigma of the window's mean read 5.5; none before any
+    update. The NIS is the one the C core computes (both at the tether's rate)."""
+    from firmware_py.estimator.consistency import FORCE, NIS_CLIP, Consistency, balance_nis
+
+    rng = np.random.default_rng(3)
+    alpha, sigma = 1.0 / 2000.0, 0.01  # a step of a 20 s window at 100 Hz; each update's 1-sigma per axis, m/s
+    taken = 2.0 * sigma * sigma  # what each step takes from P_NN + P_EE
+    # the pull three sigma of the mean on one axis: (9 + 2) / 2 over both
+    for pull, lo, hi in ((0.0, 0.7, 1.3), (sigma * math.sqrt(alpha / (2.0 - alpha)) * 3.0, 4.5, 6.5)):
+        mon = Consistency()
+        assert balance_nis(0.0, 0.0, 0.0, alpha) == 0.0
+        nis = []
+        for k in range(200_000):
+            dv = rng.normal(0.0, sigma, 2)
+            mon.add_balance(dv[0] + pull, dv[1], taken, alpha, k % 5 == 0)
+            if k > 20_000 and k % 5 == 0:
+                nis.append(mon.nis[FORCE])
+        assert lo <= float(np.mean(nis)) <= hi, (pull, np.mean(nis))
+        assert max(nis) <= NIS_CLIP
