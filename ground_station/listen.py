@@ -40,9 +40,10 @@ from ground_station.wind import CSV_COLUMNS, WindRecord
 MODE_NAMES = {0: "ground", 1: "free", 2: "taut"}  # balloon-fw's HEARTBEAT custom_mode
 # what balloon-fw says of its optional sources (its NAMED_VALUE_INT counts, firmware_py.app.SOURCE_COUNTS)
 SOURCES_SAID = (("winch", "winch_used", "winch_rej"), ("ground reference", "gref_used", "gref_rej"))
-# balloon-fw's SYS_STATUS health bits that its consistency monitor clears (docs/protocol.md, "Model misfit")
+# balloon-fw's SYS_STATUS health bits that its consistency monitor clears (docs/protocol.md, "Model misfit"); the
+# AHRS bit is the estimator's own model: the tether's alignment and radius, and the force balance
 MISFIT_BITS = (
-    (mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL, "accel"), (mavlink.MAV_SYS_STATUS_AHRS, "tether"),
+    (mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL, "accel"), (mavlink.MAV_SYS_STATUS_AHRS, "model"),
     (mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE, "baro"), (mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG, "mag"),
 )  # fmt: skip
 SILENT_BIT = mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO  # balloon-fw clears it only when its sensors are silent

@@ -32,7 +32,7 @@ bw_real bw_balance_nis(const bw_consistency_t *m, bw_real alpha)
     const bw_real expected = m->balance_var * alpha / (BW_R(2.0) - alpha);
     if (!(expected > BW_R(0.0)))
         return BW_R(0.0);
-    return BW_MIN((m->balance_n * m->balance_n + m->balance_e * m->balance_e) / expected, (bw_real)BW_NIS_CLIP);
+    return (m->balance_n * m->balance_n + m->balance_e * m->balance_e) / expected;
 }
 
 void bw_consistency_evaluate(bw_consistency_t *m)

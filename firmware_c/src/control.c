@@ -615,9 +615,10 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
         const bw_real a = est->a_accel, taken = pv - (e->P[BW_VEL_N][BW_VEL_N] + e->P[BW_VEL_E][BW_VEL_E]);
         m->balance_n += a * (e->x[BW_VEL_N] - vn - m->balance_n);
         m->balance_e += a * (e->x[BW_VEL_E] - ve - m->balance_e);
-        m->balance_var += a * (BW_MAX(taken, BW_R(0.0)) - m->balance_var);
+        m->balance_var = m->balance_var == BW_R(0.0) ? BW_MAX(taken, BW_R(0.0))
+                                                     : m->balance_var + a * (BW_MAX(taken, BW_R(0.0)) - m->balance_var);
         if (e->taut_phase == 0)
-            m->nis[BW_FORCE] = bw_balance_nis(m, a);
+            bw_consistency_add(m, BW_FORCE, bw_balance_nis(m, a), est->a_taut);
     }
     if (e->mode != BW_MODE_GROUND) {
         /* control.py: each source's NIS against the noise it was fused with, over its own interval */

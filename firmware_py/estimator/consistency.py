@@ -67,8 +67,17 @@ class Consistency:
     """Windowed NIS per aid source, the status bits and the accuracy factor; the accelerometer's slow innovation
     read as a rotation about the field, and its mean square (``heading_misfit_variance``)."""
 
-    __slots__ = ("nis", "flags", "inflation", "flag_changes", "slow_tilt", "slow_tilt_var", "balance_n", "balance_e",
-                 "balance_var")
+    __slots__ = (
+        "nis",
+        "flags",
+        "inflation",
+        "flag_changes",
+        "slow_tilt",
+        "slow_tilt_var",
+        "balance_n",
+        "balance_e",
+        "balance_var",
+    )
 
     def __init__(self) -> None:
         self.nis = [0.0] * len(SOURCES)
@@ -99,16 +108,20 @@ class Consistency:
         self.slow_tilt += alpha * (CONSISTENCY_S / SLOW_INNOV_S) * (reading - self.slow_tilt)
         self.slow_tilt_var += alpha * (self.slow_tilt * self.slow_tilt - self.slow_tilt_var)
 
-    def add_balance(self, dv_n: float, dv_e: float, var_taken: float, alpha: float, judge: bool) -> None:
+    def add_balance(self, dv_n: float, dv_e: float, var_taken: float, alpha: float, judge_alpha: float) -> None:
         """One step's measurement update of the horizontal velocity (``dv_n``, ``dv_e``, m/s: after the step's fusions
         less after its prediction) and what the fusions took from its variance (``var_taken``, P_NN + P_EE's fall,
-        (m/s)^2), weight ``alpha`` (the step over CONSISTENCY_S): the window's means; where ``judge`` (the tether's
-        rate: the window is long) the force balance's NIS from them (``balance_nis``)."""
+        (m/s)^2), weight ``alpha`` (the step over CONSISTENCY_S): the window's means (the variance's from its first
+        value: from zero it would start at a fraction of itself, which the mean's square does not, and read twice the
+        NIS); where ``judge_alpha`` > 0 (the tether's rate, its weight) the force balance's NIS of the means
+        (``balance_nis``) joins the source's window as any innovation's does: one such NIS is a chi-square of two
+        degrees of freedom halved, above FLAG_NIS in one draw of seven in a consistent filter."""
         self.balance_n += alpha * (dv_n - self.balance_n)
         self.balance_e += alpha * (dv_e - self.balance_e)
-        self.balance_var += alpha * (max(var_taken, 0.0) - self.balance_var)
-        if judge:
-            self.nis[FORCE] = balance_nis(self.balance_n, self.balance_e, self.balance_var, alpha)
+        taken = max(var_taken, 0.0)
+        self.balance_var = taken if self.balance_var == 0.0 else self.balance_var + alpha * (taken - self.balance_var)
+        if judge_alpha > 0.0:
+            self.add(FORCE, balance_nis(self.balance_n, self.balance_e, self.balance_var, alpha), judge_alpha)
 
     def evaluate(self) -> None:
         """The flags and the accuracy factor from the windowed NIS."""
@@ -136,11 +149,11 @@ def balance_nis(mean_n: float, mean_e: float, mean_var: float, alpha: float) -> 
     ``alpha / (2 - alpha)`` of it; a model whose forces do not balance where the state says (a wind across the lean
     with the attitude about the magnetic field's axis, which the accelerometer alone cannot tell apart) has the
     measurements pull the balloon back every step, and the mean is far from zero. Its square over that variance
-    (both horizontal axes), at most NIS_CLIP; 0 before any update."""
+    (both horizontal axes, so 1 in a consistent filter); 0 before any update."""
     expected = mean_var * alpha / (2.0 - alpha)
     if not expected > 0.0:
         return 0.0
-    return min((mean_n * mean_n + mean_e * mean_e) / expected, NIS_CLIP)
+    return (mean_n * mean_n + mean_e * mean_e) / expected
 
 
 def accel_misfit(nis: float) -> float:

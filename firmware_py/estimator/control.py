@@ -335,9 +335,13 @@ class Estimator:
             self._reinitialise_in_flight(ax, ay, az, mx, my, mz, mag_ok)
             return True
         if ekf.mode == MODE_TAUT and ekf.reset_count == resets:  # the force balance's monitor (consistency.py)
-            self.consistency.add_balance(float(ekf.x[VEL_N]) - vn, float(ekf.x[VEL_E]) - ve,
-                                         pv - float(ekf.P[VEL_N, VEL_N] + ekf.P[VEL_E, VEL_E]), self._balance_alpha,
-                                         self.step % self.schedule.taut_every == 0)
+            self.consistency.add_balance(
+                float(ekf.x[VEL_N]) - vn,
+                float(ekf.x[VEL_E]) - ve,
+                pv - float(ekf.P[VEL_N, VEL_N] + ekf.P[VEL_E, VEL_E]),
+                self._balance_alpha,
+                0.0 if self.step % self.schedule.taut_every else self._taut_alpha,
+            )
         if ekf.mode != MODE_GROUND:
             # each source's windowed NIS against (about) the noise it was fused with (the accelerometer's is kept
             # against its nominal noise), each over its own interval (the alignment's every taut_every steps)

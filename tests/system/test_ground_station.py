@@ -135,12 +135,12 @@ def test_live_view_shows_the_balloons_misfit_and_its_message(width):
     flagged = healthy & ~(mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL | mavlink.MAV_SYS_STATUS_AHRS)
     _balloon_says(gs, dec, mav, 101.0, flagged, text)
     v = gs.vehicles[3]
-    assert v.misfit() == ["accel", "tether"] and v.warning_active()
+    assert v.misfit() == ["accel", "model"] and v.warning_active()
     row, said = view(101.5)
     assert "MISFIT" in row and "OK" not in row
     assert said == [f"sys 3: {text} (WARNING, 0 s ago)"]  # 72 characters: fits 80
     plain = gs.status_lines(101.5)[0]
-    assert "MISFIT accel,tether" in plain and f"said: {text} (WARNING, 0 s ago)" in plain
+    assert "MISFIT accel,model" in plain and f"said: {text} (WARNING, 0 s ago)" in plain
     # the wind stops: STALE says more than MISFIT; the message stays, with its age
     row, said = view(105.0)
     assert "STALE" in row and said == [f"sys 3: {text} (WARNING, 4 s ago)"]

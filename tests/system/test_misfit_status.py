@@ -61,7 +61,7 @@ def fw_messages(path):
 
 
 def health_flags(st) -> int:
-    """The consistency flags a SYS_STATUS tells, as far as its bits can (AHRS: align or radius, as align)."""
+    """The consistency flags a SYS_STATUS tells, as far as its bits can (AHRS: align, radius or force, as align)."""
     bad = st.onboard_control_sensors_present & ~st.onboard_control_sensors_health
     flags = 0
     for name, bit in (("accel", ACCEL), ("baro", BARO), ("mag", MAG), ("align", AHRS)):
@@ -80,8 +80,8 @@ def told_flags(text: str) -> int:
 
 
 def as_health(flags: int) -> int:
-    """Flags as SYS_STATUS tells them: align and radius share the AHRS bit (shown as align)."""
-    tether = flags & (BIT["align"] | BIT["radius"])
+    """Flags as SYS_STATUS tells them: align, radius and force share the AHRS bit (shown as align)."""
+    tether = flags & (BIT["align"] | BIT["radius"] | BIT["force"])
     return flags & (BIT["accel"] | BIT["baro"] | BIT["mag"]) | (BIT["align"] if tether else 0)
 
 
@@ -158,8 +158,8 @@ def test_the_product_carries_the_flags_the_firmware_told(gusty):
         cf = ds["consistency_flags_causal"]
         inf = ds["accuracy_inflation_causal"]
         assert cf.dtype == np.int8 and cf.attrs["standard_name"] == "status_flag"
-        assert list(cf.attrs["flag_masks"]) == [1, 2, 4, 8, 16]
-        assert cf.attrs["flag_meanings"] == "accel_misfit align_misfit radius_misfit baro_misfit mag_misfit"
+        assert list(cf.attrs["flag_masks"]) == [1 << i for i in range(len(SOURCES))]
+        assert cf.attrs["flag_meanings"].split() == [f"{n}_misfit" for n in SOURCES]
         assert inf.attrs["units"] == "1"
         flags, factor = cf.values.astype(int), inf.values.astype(float)
         assert "flags" in ds and "eastward_wind_causal_uncertainty" in ds  # the existing ones stay
@@ -275,7 +275,7 @@ def test_statustext_is_rate_limited_and_says_when_the_model_is_consistent_again(
             seen.add("healthy")
     assert seen == {"accel,mag", "align,radius,baro", "healthy"}
     # the steps in flight with each source flagged: exactly the schedule's
-    assert fw.misfit_steps == [30 + 1940, 2000, 2000, 2000, 1940]
+    assert fw.misfit_steps == [30 + 1940, 2000, 2000, 2000, 1940, 0]
     pct = [round(100 * s / fw.flight_steps) for s in fw.misfit_steps]
     assert f", model misfit: accel {pct[0]} % of flight time, align {pct[1]} %, radius {pct[2]} %, " \
            f"baro {pct[3]} %, mag {pct[4]} %" in fw.summary()  # fmt: skip

@@ -124,8 +124,9 @@ def test_netcdf_round_trip_and_cf_check(tmp_path, utc):
         assert cf.dtype == np.int8 and (cf.values == p.consistency_flags).all()
         assert cf.attrs["standard_name"] == "status_flag"
         assert list(cf.attrs["flag_masks"]) == [1, 2, 4, 8, 16, 32]
-        assert cf.attrs["flag_meanings"].split() == [f"{n}_misfit" for n in ("accel", "align", "radius", "baro", "mag",
-                                                                             "force")]
+        assert cf.attrs["flag_meanings"].split() == [
+            f"{n}_misfit" for n in ("accel", "align", "radius", "baro", "mag", "force")
+        ]
         assert int(np.count_nonzero(cf.values & 2)) == 100  # 40-50 s at 10 Hz
         np.testing.assert_allclose(ds["accuracy_inflation_causal"].values, p.accuracy_inflation, rtol=1e-6)
         assert ds["accuracy_inflation_causal"].attrs["units"] == "1"

@@ -223,23 +223,27 @@ def test_the_held_tilt_takes_the_share_of_the_lean_across_the_field():
 
 
 def test_the_force_balance_is_the_mean_update_against_a_consistent_filters():
-    """White velocity updates with the covariance they take from P read a windowed NIS near 1 (its mean over a long
-    run); the same updates with a persistent pull of three sigma of the window's mean read 5.5; none before any
-    update. The NIS is the one the C core computes (both at the tether's rate)."""
-    from firmware_py.estimator.consistency import FORCE, NIS_CLIP, Consistency, balance_nis
+    """White velocity updates with the covariance they take from P read the force balance's windowed NIS near 1, and
+    above the flag one time in twenty (one value alone is above it one time in seven: the window averages them); the
+    same updates with a persistent pull of three sigma of the mean on one axis read (9 + 2) / 2 = 5.5; none before any
+    update, and no bias at the start (the variance's mean starts from its first value)."""
+    from firmware_py.estimator.consistency import FLAG_NIS, FORCE, Consistency, balance_nis
 
     rng = np.random.default_rng(3)
-    alpha, sigma = 1.0 / 2000.0, 0.01  # a step of a 20 s window at 100 Hz; each update's 1-sigma per axis, m/s
+    alpha, every = 1.0 / 2000.0, 5  # a step of a 20 s window at 100 Hz; the tether's rate, a fifth of the steps
+    sigma = 0.01  # each update's 1-sigma per axis, m/s
     taken = 2.0 * sigma * sigma  # what each step takes from P_NN + P_EE
-    # the pull three sigma of the mean on one axis: (9 + 2) / 2 over both
-    for pull, lo, hi in ((0.0, 0.7, 1.3), (sigma * math.sqrt(alpha / (2.0 - alpha)) * 3.0, 4.5, 6.5)):
+    assert balance_nis(0.0, 0.0, 0.0, alpha) == 0.0
+    pull3 = sigma * math.sqrt(alpha / (2.0 - alpha)) * 3.0  # three sigma of the window's mean on one axis
+    for pull, lo, hi, flagged in ((0.0, 0.8, 1.2, 0.08), (pull3, 4.5, 6.5, 1.0)):
         mon = Consistency()
-        assert balance_nis(0.0, 0.0, 0.0, alpha) == 0.0
         nis = []
         for k in range(200_000):
             dv = rng.normal(0.0, sigma, 2)
-            mon.add_balance(dv[0] + pull, dv[1], taken, alpha, k % 5 == 0)
-            if k > 20_000 and k % 5 == 0:
+            mon.add_balance(dv[0] + pull, dv[1], taken, alpha, 0.0 if k % every else every * alpha)
+            if k % every == 0 and k >= 40_000:
                 nis.append(mon.nis[FORCE])
+        assert mon.balance_var == pytest.approx(taken)
         assert lo <= float(np.mean(nis)) <= hi, (pull, np.mean(nis))
-        assert max(nis) <= NIS_CLIP
+        share = float(np.mean(np.array(nis) > FLAG_NIS))
+        assert (share <= flagged) if pull == 0.0 else (share >= 0.95), (pull, share)
