@@ -35,7 +35,7 @@ the accelerometer's slow innovation shows of it (``heading_misfit_variance``). T
 twice: flights that were honest grew more cautious (the envelope: 30.0 % of flights with error/accuracy within
 0.75-1.33 where the larger gives 32.0 %), the tails beyond 3 sigma no better.
 
-Plain numbers, fixed memory: a C port is a struct of eight floats and two integers.
+Plain numbers, fixed memory: a C port is a struct of fourteen floats and two integers.
 """
 
 from __future__ import annotations
@@ -112,9 +112,10 @@ class Consistency:
         """One step's measurement update of the horizontal velocity (``dv_n``, ``dv_e``, m/s: after the step's fusions
         less after its prediction) and what the fusions took from its variance (``var_taken``, P_NN + P_EE's fall,
         (m/s)^2), weight ``alpha`` (the step over CONSISTENCY_S): the window's means (the variance's from its first
-        value: from zero it would start at a fraction of itself, which the mean's square does not, and read twice the
-        NIS); where ``judge_alpha`` > 0 (the tether's rate, its weight) the force balance's NIS of the means
-        (``balance_nis``) joins the source's window as any innovation's does: one such NIS is a chi-square of two
+        value: the updates' means start from zero and their square reaches its share of the variance over the window,
+        so the NIS starts low, 0.86 of itself after one window, never high: from zero the variance's mean read it
+        twice at the start); where ``judge_alpha`` > 0 (the tether's rate, its weight) the force balance's NIS of the
+        means (``balance_nis``) joins the source's window as any innovation's does: one such NIS is a chi-square of two
         degrees of freedom halved, above FLAG_NIS in one draw of seven in a consistent filter."""
         self.balance_n += alpha * (dv_n - self.balance_n)
         self.balance_e += alpha * (dv_e - self.balance_e)

@@ -390,7 +390,7 @@ def test_a_wind_held_across_the_lean_by_the_unseen_rotation_says_so(name):
     measurements pull the balloon back every step; the force balance (consistency.balance_nis) states it: error /
     accuracy 0.6-1.4, at most 3 % beyond 3 sigma. The estimate has no skill in the band (-1.4 to 0.15) and says
     so: its stated accuracy covers the wind's whole spread about its mean, so the constant true mean's error is
-    within it, and no reference can be dishonest against it; a skilful estimate must leave them dishonest. The hard
+    within it, and no reference can be dishonest against it (were it ever skilful, they must be dishonest). The hard
     iron from the south-east still reads 5.7 % beyond 3 sigma (error/accuracy 0.72): the window's mean lags the
     error's onset by tens of seconds."""
     scenario, from_deg, seed = UNSEEN_ROTATION[name]

@@ -11,7 +11,7 @@ const SVGNS = "http://www.w3.org/2000/svg";
 const BANNERS = {
   "STALE": (b, stale) => `STALE: no WIND_COV for ${Math.round(b.age_s)} s (link quiet > ${stale} s)`,
   "SENSORS LOST": () => "SENSORS LOST: the balloon hears none of its sensors; its wind is coasting",
-  "MISFIT": (b) => `MODEL MISFIT: the model does not explain ${b.misfit.join(", ")}; accuracy grown`,
+  "MISFIT": (b) => `MODEL MISFIT (${b.misfit.join(", ")}): the model does not explain the data; accuracy grown`,
 };
 
 const balloons = new Map();       // sysid -> view
