@@ -102,8 +102,7 @@ def terms(point: dict, duration_s: float, settings: tuple[str, ...] = ()) -> dic
     rms = lambda x: float(np.sqrt(np.mean(x)))  # noqa: E731 - of a squared series
     out = {"error": rms(err**2), "mean_vector_error": math.hypot(r[late, 1].mean() - tn.mean(),
                                                                   r[late, 2].mean() - te.mean()),
-           "accuracy": rms(r[late, 3] ** 2), "uninflated": rms((r[late, 3] / r[late, 7]) ** 2),
-           "P": rms(r[late, 4]), "drag": rms(r[late, 5]),
+           "accuracy": rms(r[late, 3] ** 2), "P": rms(r[late, 4]), "drag": rms(r[late, 5]),
            "tilt": rms(r[late, 6]), "inflation": float(r[late, 7].mean())}  # fmt: skip
     n = int(round(WALK_WINDOW_S * 10.0))
     off, sd = r[late, 8], np.sqrt(r[late, 9])

@@ -612,11 +612,11 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
         /* consistency.py Consistency.add_balance: the velocity's updates and what they took from P, their means;
          * the force balance's NIS at the tether's rate */
         bw_consistency_t *m = &est->consistency;
-        const bw_real a = est->a_accel, taken = pv - (e->P[BW_VEL_N][BW_VEL_N] + e->P[BW_VEL_E][BW_VEL_E]);
+        const bw_real a = est->a_accel,
+                      taken = BW_MAX(pv - (e->P[BW_VEL_N][BW_VEL_N] + e->P[BW_VEL_E][BW_VEL_E]), BW_R(0.0));
         m->balance_n += a * (e->x[BW_VEL_N] - vn - m->balance_n);
         m->balance_e += a * (e->x[BW_VEL_E] - ve - m->balance_e);
-        m->balance_var = m->balance_var == BW_R(0.0) ? BW_MAX(taken, BW_R(0.0))
-                                                     : m->balance_var + a * (BW_MAX(taken, BW_R(0.0)) - m->balance_var);
+        m->balance_var = m->balance_var == BW_R(0.0) ? taken : m->balance_var + a * (taken - m->balance_var);
         if (e->taut_phase == 0)
             bw_consistency_add(m, BW_FORCE, bw_balance_nis(m, a), est->a_taut);
     }

@@ -216,7 +216,7 @@ class Estimator:
         self._turbulence = [0.0, 0.0, 0.0]
         self._align_alpha = self.schedule.taut_every / (ALIGN_INNOV_S * self.cfg.imu_rate_hz)
         self._taut_alpha = self.schedule.taut_every / (CONSISTENCY_S * self.cfg.imu_rate_hz)
-        self._balance_alpha = 1.0 / (CONSISTENCY_S * self.cfg.imu_rate_hz)  # one step of the window
+        self._step_alpha = 1.0 / (CONSISTENCY_S * self.cfg.imu_rate_hz)  # one filter step of the monitor's window
         self.consistency.reset()
 
     def _init_baro(self) -> None:
@@ -339,7 +339,7 @@ class Estimator:
                 float(ekf.x[VEL_N]) - vn,
                 float(ekf.x[VEL_E]) - ve,
                 pv - float(ekf.P[VEL_N, VEL_N] + ekf.P[VEL_E, VEL_E]),
-                self._balance_alpha,
+                self._step_alpha,
                 0.0 if self.step % self.schedule.taut_every else self._taut_alpha,
             )
         if ekf.mode != MODE_GROUND:
@@ -441,13 +441,12 @@ class Estimator:
         weighted by its own interval over the window."""
         mon = self.consistency
         t = self.ekf.time_us
-        rate = self.cfg.imu_rate_hz
         # the accelerometer's noise follows its innovations (control_accel): judged against the nominal one
         st = self.accel_status
         if st[0].time_test_us == t:
             ex = self._accel_var_excess
             nis = sum(s.innov**2 / max(s.innov_var - ex, 1e-12) for s in st) / 3.0
-            mon.add(ACCEL, nis, 1.0 / (CONSISTENCY_S * rate))
+            mon.add(ACCEL, nis, self._step_alpha)
         taut_alpha = self._taut_alpha
         radius, _, an, ae = self.taut_status
         if an.time_test_us == t and an.innov_var > 0.0 and ae.innov_var > 0.0:
@@ -463,7 +462,7 @@ class Estimator:
         mg = self.mag_status
         if mg[0].time_test_us == t and mg[0].innov_var > 0.0:
             nis = sum(s.innov**2 / s.innov_var for s in mg if s.innov_var > 0.0) / 3.0
-            mon.add(MAG, nis, 1.0 / (CONSISTENCY_S * rate))
+            mon.add(MAG, nis, self._step_alpha)
         mon.evaluate()
 
     def coast(self, seconds: float) -> None:
