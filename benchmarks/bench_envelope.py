@@ -37,8 +37,10 @@ import numpy as np
 
 from balloon_core.config import Design, lift_balance
 from balloon_core.score import on_grid
+from firmware_py.estimator.consistency import SOURCES
 from sim_hil.scenarios import SCENARIOS
 from study import engine
+from study.metrics import FACTOR_SHOWN
 from study.spec import Case, case_key, scenario_sections
 
 BASE = "field-rope"  # the real world: lumped rope with its drag, vertical turbulence
@@ -78,7 +80,7 @@ RATIO_SHARE = 0.90  # ... in this share of the flights
 MARGINAL_SPARE_LIFT = 0.30
 MARGINAL_SKILL_TARGET = 0.4
 CAL_EDGES = np.geomspace(0.02, 5.0, 15)  # stated accuracy bins, m/s
-ENVELOPE_VERSION = 3
+ENVELOPE_VERSION = 4
 #: the study's metric names as the envelope's table names them (one row per flight, envelope.csv)
 # a flight's length (the wind's realisation depends on it: the same flight is the same only at the same length)
 FULL_DURATION_S = 600.0
@@ -327,7 +329,7 @@ def summary(df) -> tuple[str, list[tuple[str, bool]]]:
     ]  # fmt: skip
     lines += ["", "| target | result |", "|---|---|"]
     lines += [f"| {t} | {'PASS' if p else 'FAIL'} |" for t, p in targets]
-    for note in (speed_causes(ok), ratio_spread(ok)):
+    for note in (speed_causes(ok), ratio_spread(ok), caution_causes(ok)):
         if note:
             lines += ["", note]
     if "from_deg" in ok:
@@ -424,6 +426,33 @@ def ratio_spread(ok) -> str:
         f"{np.log(hi) / NormalDist().inv_cdf(0.5 + RATIO_SHARE / 2.0):.2f}; one factor on every "
         f"stated accuracy would put at most {100 * share[best]:.1f} % within it (x {factors[best]:.2f})"
     )
+
+
+def caution_causes(ok) -> str:
+    """Not a target: what the over-cautious flights' caution is made of. Of the flights below the err/acc band, those
+    whose consistency monitor's factor (``accuracy_factor``, RMS) is at least ``FACTOR_SHOWN``, by the source that set
+    it most (``factor_source``), and what err/acc would be with the factor taken out (times its RMS: about, the
+    factor varies through the flight)."""
+    if not {"accuracy_factor", "factor_source"} <= set(ok.columns):
+        return ""
+    r = ok["err_acc"].to_numpy(float)
+    f = ok["accuracy_factor"].to_numpy(float)
+    src = ok["factor_source"].to_numpy(float)
+    low = np.isfinite(r) & (r < RATIO_BAND[0])
+    if not low.any():
+        return ""
+    factored = low & np.isfinite(f) & (f >= FACTOR_SHOWN)
+    names = [SOURCES[int(i)] if np.isfinite(i) and 0 <= i < len(SOURCES) else "?" for i in src[factored]]
+    by = ", ".join(f"{n} {names.count(n)}" for n in sorted(set(names), key=lambda n: -names.count(n)))
+    without = np.where(factored, r * f, r)
+    lo, hi = RATIO_BAND
+    return (
+        f"what the over-caution is made of (not a target): {int(low.sum())} of {len(ok)} flights below err/acc "
+        f"{lo:g}; in {int(factored.sum())} of them the consistency monitor's factor is at least {FACTOR_SHOWN:g} (RMS)"
+        + (f", set most by: {by}; their err/acc p50 {_pct(r[factored], 50):.2f}, without the factor (times its RMS, "
+           f"about) {_pct(without[factored], 50):.2f}; all flights so within {lo:g}-{hi:g}: "
+           f"{100 * np.mean((without >= lo) & (without <= hi)):.1f} %" if factored.any() else "")
+    )  # fmt: skip
 
 
 def _far(s) -> float:

@@ -18,23 +18,30 @@ from firmware_py.estimator.state import ATT_E, ATT_N, DRAG, FilterConfig
 from sim_hil.dynamics import TruthConfig
 from sim_hil.simulator import TRUTH_COLUMNS, Simulation
 from sim_hil.wind import WindConfig
-from study.metrics import H_BAND_HZ, h_column
+from study.metrics import FACTOR_SHOWN, H_BAND_HZ, h_column
 
 
 def fly(design: Design, wind: WindConfig, truth: TruthConfig, filt: FilterConfig, duration_s: float, seed: int):
-    """Rows (time s, wind N, wind E, horiz accuracy, roll, pitch, yaw rad, the stated tilt's 1-sigma rad) per IMU
-    sample, the truth table by column, and the estimator (its counters)."""
+    """Rows (time s, wind N, wind E, horiz accuracy, roll, pitch, yaw rad, the stated tilt's 1-sigma rad, the
+    consistency monitor's factor on the accuracy, the index in ``SOURCES`` of the source whose windowed NIS set it or
+    -1 where it is 1) per IMU sample, the truth table by column, and the estimator (its counters)."""
     sim = Simulation(design, wind, truth, duration_s, seed)
     est, _ = new_core(design, filt)
-    rows = np.zeros((sim.n_imu, 8))
+    rows = np.zeros((sim.n_imu, 10))
     ekf = est.ekf  # its P is updated in place
+    mon = est.consistency
     for i, s in enumerate(sim.samples()):
         if s.baro:
             est.on_baro(s.time_usec, *s.baro)
         est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
         wn, we = est.wind()
+        factor = mon.inflation
+        source = -1.0
+        if factor > 1.0:
+            nis = mon.nis
+            source = float(nis.index(max(nis)))
         rows[i] = (s.time_usec * 1e-6, wn, we, est.wind_accuracy(), *euler_from_quat(*ekf.q.tolist()),
-                   math.sqrt(ekf.P[ATT_N, ATT_N] + ekf.P[ATT_E, ATT_E]))  # fmt: skip
+                   math.sqrt(ekf.P[ATT_N, ATT_N] + ekf.P[ATT_E, ATT_E]), factor, source)  # fmt: skip
     truth_cols = {c: sim.truth[:, k] for k, c in enumerate(TRUTH_COLUMNS)}
     return rows, truth_cols, est
 
@@ -101,6 +108,13 @@ def metrics(design: Design, wind: WindConfig, rows, truth, est, start_s: float) 
     out["tilt_sigma_deg"] = (
         float(np.degrees(np.sqrt(np.mean(rows[t >= start_s, 7] ** 2)))) if rows.shape[1] > 7 else math.nan
     )
+    # the consistency monitor's factor on the stated accuracy (RMS) and the source that set it most of the time it was
+    # above FACTOR_SHOWN (its index in SOURCES; NaN: it never was): what an over-cautious flight's caution is made of
+    scored = rows[t >= start_s] if rows.shape[1] > 9 else np.zeros((0, 10))
+    out["accuracy_factor"] = float(np.sqrt(np.mean(scored[:, 8] ** 2))) if len(scored) else math.nan
+    shown = scored[scored[:, 8] >= FACTOR_SHOWN, 9].astype(int)
+    shown = shown[shown >= 0]
+    out["factor_source"] = float(np.bincount(shown).argmax()) if len(shown) else math.nan
     # the drag scale the flight ended with and its 1-sigma: against the truth's C_d, the speed error it alone makes
     out["drag_scale"] = float(est.ekf.x[DRAG])
     out["drag_scale_sigma"] = math.sqrt(max(0.0, float(est.ekf.P[DRAG, DRAG])))

@@ -31,11 +31,22 @@ METRICS: dict[str, tuple[str, str]] = {
     "tilt_sigma_deg": ("max", "RMS of the filter's own 1-sigma tilt (tilt_err_deg over it: honest?), deg"),
     "drag_scale": ("ratio", "the filter's drag scale at the end (its C_d over the design's; 1: the design's)"),
     "drag_scale_sigma": ("max", "the drag scale's 1-sigma at the end (relative)"),
+    "accuracy_factor": (
+        "max",
+        "RMS of the consistency monitor's factor on the stated accuracy (1: the model explains every source)",
+    ),
+    "factor_source": (
+        "max",
+        "the source (index in firmware_py.estimator.consistency.SOURCES) whose windowed NIS set "
+        "that factor most of the time it was at least FACTOR_SHOWN; NaN: never",
+    ),
     "wall_time_s": ("max", "wall time of the case on its worker, s"),
 }
 #: the default set summarised and plotted
 MAIN = ("band_skill", "band_rmse_mps", "speed_error_pct", "direction_error_deg", "error_ratio", "h_err_max",
         "lift_margin_n", "blowdown_deg", "slack_frac", "resets")  # fmt: skip
+#: the consistency monitor's factor counted as setting a flight's caution from here (its NIS 1.56: a quarter more)
+FACTOR_SHOWN = 1.25
 #: |H - 1| is summarised over lines up to here (the paper's usable band)
 H_BAND_HZ = 0.05
 

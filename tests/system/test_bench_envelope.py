@@ -191,6 +191,7 @@ def test_one_short_flight_through_the_envelope_case():
     assert 0.5 < row["drag_scale"] < 1.5 and 0.0 < row["drag_scale_sigma"] < 2.0 * be.CD_SIGMA
     for k in ("dir_err_deg", "err_acc", "worst_60s_dir_err_deg", "beyond_3sigma", "replacements_per_h", "resets"):
         assert math.isfinite(row[k]), k
+    assert row["accuracy_factor"] >= 1.0  # the monitor's factor never shrinks the stated accuracy
 
 
 def test_what_the_err_acc_band_asks():
@@ -203,3 +204,22 @@ def test_what_the_err_acc_band_asks():
     line = be.ratio_spread(pd.DataFrame({"err_acc": [0.25, 1.0, 4.0] * 4 + [float("nan")]}))
     assert "at most 33.3 % within it" in line and "needs about 0.17" in line
     assert be.ratio_spread(pd.DataFrame({"err_acc": [1.0]})) == ""
+
+
+def test_what_the_over_caution_is_made_of():
+    """The flights below the err/acc band whose monitor's factor is at least FACTOR_SHOWN are named by the source that
+    set it, with what err/acc would be without it; a flight cautious for another reason (its factor 1) is counted
+    below the band only, and a set without the columns (an older part) says nothing."""
+    df = pd.DataFrame({
+        "err_acc": [0.2, 0.25, 0.3, 0.5, 1.0, 1.1],
+        "accuracy_factor": [4.0, 3.0, 1.6, 1.0, 1.0, 2.0],
+        "factor_source": [0.0, 0.0, 5.0, np.nan, np.nan, 5.0],
+    })  # fmt: skip
+    line = be.caution_causes(df)
+    assert "4 of 6 flights below err/acc 0.75" in line
+    assert "in 3 of them the consistency monitor's factor is at least 1.25" in line
+    assert "set most by: accel 2, force 1" in line
+    # without the factor: 0.8, 0.75, 0.48 (p50 0.75); so within the band: 0.8, 0.75, 1.0, 1.1 of six
+    assert "without the factor (times its RMS, about) 0.75" in line and "66.7 %" in line
+    assert be.caution_causes(df.drop(columns=["factor_source"])) == ""
+    assert be.caution_causes(pd.DataFrame({"err_acc": [1.0], "accuracy_factor": [1.0], "factor_source": [np.nan]})) == ""
