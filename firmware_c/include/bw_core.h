@@ -190,6 +190,8 @@ typedef struct {
     int32_t baro_pending, baro_outside; /* a sample to fuse; samples in a row outside the gate (aid_baro.c) */
     /* the winch (aid_sources/winch.py) and the ground reference (aid_sources/ground_ref.py) */
     bw_real winch_tension_n;
+    bw_real accel_radial_innov2; /* the accelerometer's innovations along the tether's radius, their mean square
+                                  * (aid_accel.c; in the hole before the int64s) */
     int64_t winch_samples, winch_t_us;
     bw_real accel_hbias[2];      /* the accelerometer's body x, y biases walked since the field was learnt
                                   * (aid_accel.c) */

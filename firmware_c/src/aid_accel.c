@@ -56,14 +56,31 @@ static int follow_horizontal_bias(bw_real hbias[2], bw_real innov_n, bw_real inn
     return free;
 }
 
+/* accel.py radial_axis: the tether's radial direction in the body frame (R^T p / |p|), zero at the anchor */
+static void radial_axis(const bw_ekf_t *e, const bw_real r[9], bw_real radial[3])
+{
+    bw_real pn = e->x[BW_POS_N], pe = e->x[BW_POS_E], pd = e->x[BW_POS_D];
+    const bw_real d = BW_SQRT(pn * pn + pe * pe + pd * pd);
+    int i;
+    if (!(d > BW_R(1.0))) {
+        radial[0] = radial[1] = radial[2] = BW_R(0.0);
+        return;
+    }
+    pn /= d, pe /= d, pd /= d;
+    for (i = 0; i < 3; i++)
+        radial[i] = r[i] * pn + r[3 + i] * pe + r[6 + i] * pd;
+}
+
 static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, bw_real var, bw_real var_z_extra,
-                       bw_real misfit, bw_real nominal)
+                       bw_real misfit, bw_real nominal, bw_real radial[3], bw_real radial_var)
 {
     bw_ekf_t *e = &est->ekf;
     const bw_forces_t *f = &e->forces;
     int ground = e->mode == BW_MODE_GROUND, i, j;
     bw_real r[9], yn, ye, yd, pred[3], tilt;
     bw_rotation(e->q, r);
+    if (e->mode == BW_MODE_TAUT)
+        radial_axis(e, r, radial);
     if (ground)
         yn = BW_R(0.0), ye = BW_R(0.0), yd = -(bw_real)BW_G0;
     else
@@ -89,7 +106,7 @@ static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, 
      * heading and the gyro bias too in proportion to the misfit */
     tilt = ground ? BW_R(1.0) : BW_MIN(BW_R(1.0), BW_SQRT(e->dt / (bw_real)BW_ACCEL_MODEL_CORR_S));
     bw_ekf_fuse3(e, fx - pred[0], fy - pred[1], fz - pred[2], var, est->accel_status, var_z_extra, tilt,
-                 BW_R(1.0) - misfit * (BW_R(1.0) - tilt));
+                 BW_R(1.0) - misfit * (BW_R(1.0) - tilt), radial, radial_var);
     if (e->taut_phase == 0) {
         const bw_real step_s = (bw_real)est->sched.taut_every * e->dt;
         const bw_real walk = (bw_real)est->cfg->accel_bias_walk_mps2_rt_s;
@@ -127,15 +144,33 @@ bw_real bw_accel_nominal_var(const bw_estimator_t *est)
 void bw_control_accel(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
 {
     const bw_ekf_t *e = &est->ekf;
-    bw_real var = bw_accel_nominal_var(est);
-    bw_real nominal = var, i2, misfit;
+    const bw_real nominal = bw_accel_nominal_var(est), a = est->innov_alpha;
+    const int taut = e->mode == BW_MODE_TAUT;
+    const bw_real var = BW_MAX(nominal, est->accel_innov2);
+    /* accel.py radial_noise: the rope's breathing along the radius is more noise there */
+    const bw_real radial_var = taut ? BW_MAX(BW_R(0.0), est->accel_radial_innov2 - var) : BW_R(0.0);
+    bw_real radial[3] = {BW_R(0.0), BW_R(0.0), BW_R(0.0)}, i2, misfit, nis, ex;
     const bw_status_t *st = est->accel_status;
-    var = BW_MAX(var, est->accel_innov2);
+    int i;
     est->accel_var_excess = var - nominal;
     /* accel.py: the windowed NIS from BW_FLAG_NIS to twice that, the model stops explaining the accelerometer */
     misfit = bw_accel_misfit(est->consistency.nis[BW_ACCEL]);
     fuse_accel(est, ax - est->accel_hbias[0], ay - est->accel_hbias[1], az, var,
-               e->mode != BW_MODE_GROUND ? est->vertical_gust_var : BW_R(0.0), misfit, nominal);
-    i2 = (st[0].innov * st[0].innov + st[1].innov * st[1].innov + st[2].innov * st[2].innov) / BW_R(3.0);
-    est->accel_innov2 += est->innov_alpha * (i2 - est->accel_innov2);
+               e->mode != BW_MODE_GROUND ? est->vertical_gust_var : BW_R(0.0), misfit, nominal, radial, radial_var);
+    i2 = st[0].innov * st[0].innov + st[1].innov * st[1].innov + st[2].innov * st[2].innov;
+    est->accel_innov2 += a * (i2 / BW_R(3.0) - est->accel_innov2);
+    if (taut) {
+        const bw_real ir = radial[0] * st[0].innov + radial[1] * st[1].innov + radial[2] * st[2].innov;
+        est->accel_radial_innov2 += a * (ir * ir - est->accel_radial_innov2);
+    } else {
+        est->accel_radial_innov2 = est->accel_innov2;
+    }
+    if (e->mode != BW_MODE_GROUND) {
+        /* the consistency monitor (accel.py control_accel): each axis against the nominal noise */
+        ex = var - nominal, nis = BW_R(0.0);
+        for (i = 0; i < 3; i++)
+            nis += st[i].innov * st[i].innov /
+                   BW_MAX(st[i].innov_var - (ex + radial_var * radial[i] * radial[i]), BW_R(1e-12));
+        bw_consistency_add(&est->consistency, BW_ACCEL, nis / BW_R(3.0), est->a_accel);
+    }
 }

@@ -48,7 +48,7 @@ static void fuse_mag_field(bw_estimator_t *est, bw_real mx, bw_real my, bw_real 
         pred[i] = cn * bn + ce * be + cd * bd;
     }
     bw_ekf_fuse3(e, mx - pred[0], my - pred[1], mz - pred[2], est->mag_var, est->mag_status, BW_R(0.0),
-                 BW_R(1.0), BW_R(1.0));
+                 BW_R(1.0), BW_R(1.0), NULL, BW_R(0.0));
 }
 
 static void learn_field(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az, bw_real mx, bw_real my, bw_real mz)

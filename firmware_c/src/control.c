@@ -99,6 +99,7 @@ static void init_clock(bw_estimator_t *est)
     est->was_slack = 0;
     est->height_above = 0;
     est->accel_var_excess = BW_R(0.0);
+    est->accel_radial_innov2 = BW_R(0.0);
     est->accel_hbias[0] = est->accel_hbias[1] = BW_R(0.0);
     est->accel_hbias_var = BW_R(0.0);
     est->align_innov2[0] = est->align_innov2[1] = est->align_mean = BW_R(0.0);
@@ -474,17 +475,11 @@ static void monitor(bw_estimator_t *est)
 {
     bw_consistency_t *mon = &est->consistency;
     const int64_t t = est->ekf.time_us;
-    const bw_status_t *st = est->accel_status, *radius = &est->taut_status[0], *an = &est->taut_status[2],
+    const bw_status_t *radius = &est->taut_status[0], *an = &est->taut_status[2],
                       *ae = &est->taut_status[3], *b = &est->baro_status, *mg = est->mag_status;
     const bw_real taut_alpha = est->a_taut;
     int i;
-    if (st[0].time_test_us == t) {
-        /* the accelerometer's noise follows its innovations: judged against the nominal one */
-        bw_real ex = est->accel_var_excess, nis = BW_R(0.0);
-        for (i = 0; i < 3; i++)
-            nis += st[i].innov * st[i].innov / BW_MAX(st[i].innov_var - ex, BW_R(1e-12));
-        bw_consistency_add(mon, BW_ACCEL, nis / BW_R(3.0), est->a_accel);
-    }
+    /* the accelerometer's NIS is added where it is fused (bw_control_accel) */
     if (an->time_test_us == t && an->innov_var > BW_R(0.0) && ae->innov_var > BW_R(0.0))
         /* against the noise it was fused with (control.py _monitor) */
         bw_consistency_add(mon, BW_ALIGN,

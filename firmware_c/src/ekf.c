@@ -438,7 +438,7 @@ int bw_ekf_fuse(bw_ekf_t *e, bw_real innov, bw_real r, bw_status_t *st, bw_real 
 }
 
 int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_status_t st[3],
-                 bw_real r2_extra, bw_real tilt_gain, bw_real heading_gain)
+                 bw_real r2_extra, bw_real tilt_gain, bw_real heading_gain, const bw_real axis[3], bw_real axis_var)
 {
     int nz[N], nn = 0, i, j, k, a, ok = 1, moved;
     bw_real s[3][3], si[3][3], k3[N][3], hc[3][N], inn[3], var[3], gate2, worst = BW_R(0.0), scale = BW_R(1.0);
@@ -482,6 +482,12 @@ int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_
     s[0][1] = s[1][0] = BW_R(0.5) * (s[0][1] + s[1][0]);
     s[0][2] = s[2][0] = BW_R(0.5) * (s[0][2] + s[2][0]);
     s[1][2] = s[2][1] = BW_R(0.5) * (s[1][2] + s[2][1]);
+    if (axis_var > BW_R(0.0)) /* ekf.py fuse3: axis_var more along the unit vector axis */
+        for (a = 0; a < 3; a++)
+            for (j = a; j < 3; j++) {
+                s[a][j] += axis_var * axis[a] * axis[j];
+                s[j][a] = s[a][j];
+            }
     gate2 = e->m.gate2;
     inn[0] = i0, inn[1] = i1, inn[2] = i2;
     var[0] = s[0][0], var[1] = s[1][1], var[2] = s[2][2];

@@ -54,7 +54,7 @@ void bw_ekf_begin_update(bw_ekf_t *e);
 bw_real bw_lean_variance(const bw_ekf_t *e, bw_real cn, bw_real ce, bw_real zn, bw_real ze, bw_real zd);
 int bw_ekf_fuse(bw_ekf_t *e, bw_real innov, bw_real r, bw_status_t *st, bw_real gate, int recover);
 int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_status_t st[3],
-                 bw_real r2_extra, bw_real tilt_gain, bw_real heading_gain);
+                 bw_real r2_extra, bw_real tilt_gain, bw_real heading_gain, const bw_real axis[3], bw_real axis_var);
 int bw_ekf_end_update(bw_ekf_t *e);
 void bw_ekf_fix_covariance(bw_ekf_t *e);
 bw_real bw_ekf_wind_accuracy(const bw_ekf_t *e);

@@ -194,6 +194,8 @@ class Estimator:
         self.field_ned = (math.nan, math.nan, math.nan)
         self._dwell = 0
         self._accel_innov2 = 0.0
+        self._accel_radial_innov2 = 0.0  # on the tether, along its radius (accel.radial_noise)
+        self._accel_radial, self._accel_radial_var = (0.0, 0.0, 0.0), 0.0  # the last step's (accel.control_accel)
         self._innov_alpha = 1.0 / (ACCEL_INNOV_S * self.cfg.imu_rate_hz)
         self._mean_speed = self.cfg.expected_wind_mps  # the filter's own mean wind (60 s), for its noise
         self._speed_alpha = 1.0 / (MEAN_WIND_S * self.cfg.imu_rate_hz)
@@ -441,12 +443,7 @@ class Estimator:
         weighted by its own interval over the window."""
         mon = self.consistency
         t = self.ekf.time_us
-        # the accelerometer's noise follows its innovations (control_accel): judged against the nominal one
-        st = self.accel_status
-        if st[0].time_test_us == t:
-            ex = self._accel_var_excess
-            nis = sum(s.innov**2 / max(s.innov_var - ex, 1e-12) for s in st) / 3.0
-            mon.add(ACCEL, nis, self._step_alpha)
+        # the accelerometer's NIS is added where it is fused (control_accel), whose noise follows its innovations
         taut_alpha = self._taut_alpha
         radius, _, an, ae = self.taut_status
         if an.time_test_us == t and an.innov_var > 0.0 and ae.innov_var > 0.0:

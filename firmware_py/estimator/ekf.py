@@ -416,9 +416,12 @@ class WindEkf:
 
     def fuse3(
         self, i0: float, i1: float, i2: float, r: float, status: list[FusionStatus], r2_extra: float = 0.0,
-        tilt_gain: float = 1.0, heading_gain: float = 1.0,
+        tilt_gain: float = 1.0, heading_gain: float = 1.0, axis: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        axis_var: float = 0.0,
     ) -> bool:
-        """One sensor's three axes at once with the rows in ``self.H3`` and noise ``r`` per axis (a
+        """One sensor's three axes at once with the rows in ``self.H3`` and noise ``r`` per axis, ``r2_extra`` more on
+        the third and ``axis_var`` more along the unit vector ``axis`` (the noise ``axis_var axis axis^T``: a motion
+        the model leaves out along one direction of the sensor's frame) (a
         3x3 innovation covariance instead of three scalar updates: a third of the array operations).
         Each axis keeps its status (innovation, its variance, test ratio); the vector is rejected if
         any axis fails the gate, and after ``recover_after`` rejections in a row fused with its
@@ -438,6 +441,14 @@ class WindEkf:
         s01 = s10 = 0.5 * (s01 + s10)
         s02 = s20 = 0.5 * (s02 + s20)
         s12 = s21 = 0.5 * (s12 + s21)
+        if axis_var > 0.0:
+            e0, e1, e2 = axis
+            s00 += axis_var * e0 * e0
+            s11 += axis_var * e1 * e1
+            s22 += axis_var * e2 * e2
+            s01 = s10 = s01 + axis_var * e0 * e1
+            s02 = s20 = s02 + axis_var * e0 * e2
+            s12 = s21 = s12 + axis_var * e1 * e2
         gate2 = self.cfg.gate_sigma**2
         worst = 0.0
         ok = True

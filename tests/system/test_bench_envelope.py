@@ -222,4 +222,5 @@ def test_what_the_over_caution_is_made_of():
     # without the factor: 0.8, 0.75, 0.48 (p50 0.75); so within the band: 0.8, 0.75, 1.0, 1.1 of six
     assert "without the factor (times its RMS, about) 0.75" in line and "66.7 %" in line
     assert be.caution_causes(df.drop(columns=["factor_source"])) == ""
-    assert be.caution_causes(pd.DataFrame({"err_acc": [1.0], "accuracy_factor": [1.0], "factor_source": [np.nan]})) == ""
+    calm = pd.DataFrame({"err_acc": [1.0], "accuracy_factor": [1.0], "factor_source": [np.nan]})
+    assert be.caution_causes(calm) == ""

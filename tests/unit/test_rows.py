@@ -46,7 +46,7 @@ def _innovations(ekf, fn):
         out.append((innov, e.h.copy()))
         return True
 
-    def spy3(i0, i1, i2, r, status, r2_extra=0.0, tilt_gain=1.0, heading_gain=1.0):
+    def spy3(i0, i1, i2, r, status, r2_extra=0.0, tilt_gain=1.0, heading_gain=1.0, axis=None, axis_var=0.0):
         out.extend((i, e.H3[k].copy()) for k, i in enumerate((i0, i1, i2)))
         return True
 
