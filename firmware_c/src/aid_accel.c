@@ -56,21 +56,6 @@ static int follow_horizontal_bias(bw_real hbias[2], bw_real innov_n, bw_real inn
     return free;
 }
 
-/* accel.py radial_axis: the tether's radial direction in the body frame (R^T p / |p|), zero at the anchor */
-static void radial_axis(const bw_ekf_t *e, const bw_real r[9], bw_real radial[3])
-{
-    bw_real pn = e->x[BW_POS_N], pe = e->x[BW_POS_E], pd = e->x[BW_POS_D];
-    const bw_real d = BW_SQRT(pn * pn + pe * pe + pd * pd);
-    int i;
-    if (!(d > BW_R(1.0))) {
-        radial[0] = radial[1] = radial[2] = BW_R(0.0);
-        return;
-    }
-    pn /= d, pe /= d, pd /= d;
-    for (i = 0; i < 3; i++)
-        radial[i] = r[i] * pn + r[3 + i] * pe + r[6 + i] * pd;
-}
-
 static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, bw_real var, bw_real var_z_extra,
                        bw_real misfit, bw_real nominal, bw_real radial[3], bw_real radial_var)
 {
@@ -79,23 +64,25 @@ static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, 
     int ground = e->mode == BW_MODE_GROUND, i, j;
     bw_real r[9], yn, ye, yd, pred[3], tilt;
     bw_rotation(e->q, r);
-    if (e->mode == BW_MODE_TAUT)
-        radial_axis(e, r, radial);
     if (ground)
         yn = BW_R(0.0), ye = BW_R(0.0), yd = -(bw_real)BW_G0;
     else
         yn = f->an, ye = f->ae, yd = f->ad - (bw_real)BW_G0;
-    memset(e->H3, 0, sizeof e->H3);
+    /* H3's other columns are zero (the estimator's start and the magnetometer's rows, aid_mag.c, which zero them and
+     * write the attitude's alone): these rows set every column they write in one mode and not in the other */
     for (i = 0; i < 3; i++) {
         bw_real cn = r[i], ce = r[3 + i], cd = r[6 + i]; /* row i of R^T */
         pred[i] = cn * yn + ce * ye + cd * yd;
+        if (e->mode == BW_MODE_TAUT) /* accel.py radial_axis: R^T p */
+            radial[i] = cn * e->x[BW_POS_N] + ce * e->x[BW_POS_E] + cd * e->x[BW_POS_D];
         /* d/d att: R^T [y x] */
         e->H3[i][BW_ATT_N] = ce * yd - cd * ye;
         e->H3[i][BW_ATT_E] = cd * yn - cn * yd;
         e->H3[i][BW_ATT_D] = cn * ye - ce * yn;
-        if (!ground) /* d/d (model states): R^T (d a / d x) */
-            for (j = 0; j < BW_NCOL; j++)
-                e->H3[i][BW_MODEL_COLS[j]] = cn * f->ja[j] + ce * f->ja[BW_NCOL + j] + cd * f->ja[2 * BW_NCOL + j];
+        for (j = 0; j < BW_NCOL; j++) /* d/d (model states): R^T (d a / d x); none on the ground */
+            e->H3[i][BW_MODEL_COLS[j]] =
+                ground ? BW_R(0.0) : cn * f->ja[j] + ce * f->ja[BW_NCOL + j] + cd * f->ja[2 * BW_NCOL + j];
+        e->H3[i][BW_ABIAS_Z] = BW_R(0.0);
     }
     if (!ground && !e->learn_drag)
         e->H3[0][BW_DRAG] = e->H3[1][BW_DRAG] = e->H3[2][BW_DRAG] = BW_R(0.0);
@@ -147,8 +134,11 @@ void bw_control_accel(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
     const bw_real nominal = bw_accel_nominal_var(est), a = est->innov_alpha;
     const int taut = e->mode == BW_MODE_TAUT;
     const bw_real var = BW_MAX(nominal, est->accel_innov2);
-    /* accel.py radial_noise: the rope's breathing along the radius is more noise there */
-    const bw_real radial_var = taut ? BW_MAX(BW_R(0.0), est->accel_radial_innov2 - var) : BW_R(0.0);
+    const bw_real d2 = taut ? e->x[BW_POS_N] * e->x[BW_POS_N] + e->x[BW_POS_E] * e->x[BW_POS_E] +
+                                  e->x[BW_POS_D] * e->x[BW_POS_D]
+                            : BW_R(0.0);
+    /* accel.py radial_noise: the rope's breathing along the radius is more noise there (per unit of |R^T p|^2) */
+    const bw_real radial_var = d2 > BW_R(1.0) ? BW_MAX(BW_R(0.0), est->accel_radial_innov2 - var) / d2 : BW_R(0.0);
     bw_real radial[3] = {BW_R(0.0), BW_R(0.0), BW_R(0.0)}, i2, misfit, nis, ex;
     const bw_status_t *st = est->accel_status;
     int i;
@@ -159,10 +149,10 @@ void bw_control_accel(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
                e->mode != BW_MODE_GROUND ? est->vertical_gust_var : BW_R(0.0), misfit, nominal, radial, radial_var);
     i2 = st[0].innov * st[0].innov + st[1].innov * st[1].innov + st[2].innov * st[2].innov;
     est->accel_innov2 += a * (i2 / BW_R(3.0) - est->accel_innov2);
-    if (taut) {
+    if (d2 > BW_R(1.0)) {
         const bw_real ir = radial[0] * st[0].innov + radial[1] * st[1].innov + radial[2] * st[2].innov;
-        est->accel_radial_innov2 += a * (ir * ir - est->accel_radial_innov2);
-    } else {
+        est->accel_radial_innov2 += a * (ir * ir / d2 - est->accel_radial_innov2);
+    } else if (!taut) {
         est->accel_radial_innov2 = est->accel_innov2;
     }
     if (e->mode != BW_MODE_GROUND) {

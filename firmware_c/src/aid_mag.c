@@ -39,9 +39,13 @@ static void fuse_mag_field(bw_estimator_t *est, bw_real mx, bw_real my, bw_real 
     const bw_real bn = est->field_ned[0], be = est->field_ned[1], bd = est->field_ned[2];
     int i;
     bw_rotation(e->q, r);
-    memset(e->H3, 0, sizeof e->H3);
     for (i = 0; i < 3; i++) {
         bw_real cn = r[i], ce = r[3 + i], cd = r[6 + i];
+        int j;
+        /* H3's other columns are zero but those the accelerometer's rows write (aid_accel.c) */
+        for (j = 0; j < BW_NCOL; j++)
+            e->H3[i][BW_MODEL_COLS[j]] = BW_R(0.0);
+        e->H3[i][BW_ABIAS_Z] = BW_R(0.0);
         e->H3[i][BW_ATT_N] = ce * bd - cd * be;
         e->H3[i][BW_ATT_E] = cd * bn - cn * bd;
         e->H3[i][BW_ATT_D] = cn * be - ce * bn;

@@ -482,12 +482,15 @@ int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_
     s[0][1] = s[1][0] = BW_R(0.5) * (s[0][1] + s[1][0]);
     s[0][2] = s[2][0] = BW_R(0.5) * (s[0][2] + s[2][0]);
     s[1][2] = s[2][1] = BW_R(0.5) * (s[1][2] + s[2][1]);
-    if (axis_var > BW_R(0.0)) /* ekf.py fuse3: axis_var more along the unit vector axis */
-        for (a = 0; a < 3; a++)
-            for (j = a; j < 3; j++) {
-                s[a][j] += axis_var * axis[a] * axis[j];
-                s[j][a] = s[a][j];
-            }
+    if (axis_var > BW_R(0.0)) { /* ekf.py fuse3: axis_var more along the unit vector axis */
+        const bw_real v0 = axis_var * axis[0], v1 = axis_var * axis[1];
+        s[0][0] += v0 * axis[0];
+        s[1][1] += v1 * axis[1];
+        s[2][2] += axis_var * axis[2] * axis[2];
+        s[0][1] = s[1][0] = s[0][1] + v0 * axis[1];
+        s[0][2] = s[2][0] = s[0][2] + v0 * axis[2];
+        s[1][2] = s[2][1] = s[1][2] + v1 * axis[2];
+    }
     gate2 = e->m.gate2;
     inn[0] = i0, inn[1] = i1, inn[2] = i2;
     var[0] = s[0][0], var[1] = s[1][1], var[2] = s[2][2];

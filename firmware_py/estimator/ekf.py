@@ -420,8 +420,8 @@ class WindEkf:
         axis_var: float = 0.0,
     ) -> bool:
         """One sensor's three axes at once with the rows in ``self.H3`` and noise ``r`` per axis, ``r2_extra`` more on
-        the third and ``axis_var`` more along the unit vector ``axis`` (the noise ``axis_var axis axis^T``: a motion
-        the model leaves out along one direction of the sensor's frame) (a
+        the third and ``axis_var axis axis^T`` more (a motion the model leaves out along one direction of the sensor's
+        frame, ``axis``'s: aid_sources/accel.py radial_noise) (a
         3x3 innovation covariance instead of three scalar updates: a third of the array operations).
         Each axis keeps its status (innovation, its variance, test ratio); the vector is rejected if
         any axis fails the gate, and after ``recover_after`` rejections in a row fused with its

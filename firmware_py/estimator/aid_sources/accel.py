@@ -42,7 +42,7 @@ def fuse_accel(
     body-z bias b_z (a persistent vertical misfit would otherwise be read as a lean of the wind). On
     the ground the balloon is held (a = 0): a gravity reference, where b_z is learnt; in flight these rows leave it
     out (there it would trade with the lean) and ``fuse_bias_magnitude`` follows it. The three axes are fused as
-    one vector, with ``radial_var`` more noise along the tether's radial direction ``radial`` (body frame,
+    one vector, with ``radial_var radial radial^T`` more noise along the tether's radius (``radial``: R^T p,
     ``radial_axis``)."""
     r = rotation(*ekf.q.tolist())
     f = ekf.forces
@@ -82,16 +82,16 @@ def fuse_accel(
               radial_var)  # fmt: skip
 
 
-def radial_axis(ekf: WindEkf) -> tuple[float, float, float]:
-    """The tether's radial direction, from the anchor through the balloon's centre, in the body frame (R^T p / |p|);
-    zero where the balloon is at the anchor."""
+def radial_axis(ekf: WindEkf) -> tuple[tuple[float, float, float], float]:
+    """The balloon's position from the anchor in the body frame, R^T p (its direction is the tether's radius), and
+    |p|^2: a unit vector's outer product is theirs over |p|^2, one division where the unit vector takes three and a
+    root (the Cortex-M4F's budget)."""
     pn, pe, pd = float(ekf.x[0]), float(ekf.x[1]), float(ekf.x[2])
-    d = math.sqrt(pn * pn + pe * pe + pd * pd)
-    if not d > 1.0:
-        return (0.0, 0.0, 0.0)
-    pn, pe, pd = pn / d, pe / d, pd / d
     r = rotation(*ekf.q.tolist())
-    return (r[0] * pn + r[3] * pe + r[6] * pd, r[1] * pn + r[4] * pe + r[7] * pd, r[2] * pn + r[5] * pe + r[8] * pd)
+    return (
+        (r[0] * pn + r[3] * pe + r[6] * pd, r[1] * pn + r[4] * pe + r[7] * pd, r[2] * pn + r[5] * pe + r[8] * pd),
+        pn * pn + pe * pe + pd * pd,
+    )
 
 
 def radial_noise(innov2_radial: float, var: float) -> float:
@@ -197,10 +197,11 @@ def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
     var = nominal = accel_nominal_var(est)
     var = max(var, est._accel_innov2)
     taut = ekf.mode == MODE_TAUT
-    radial, radial_var = (0.0, 0.0, 0.0), 0.0
+    radial, d2, radial_var = (0.0, 0.0, 0.0), 0.0, 0.0  # radial_var per unit of |R^T p|^2 (radial_axis)
     if taut:  # the rope's breathing along the radius is its own noise (radial_noise)
-        radial = radial_axis(ekf)
-        radial_var = radial_noise(est._accel_radial_innov2, var)
+        radial, d2 = radial_axis(ekf)
+        if d2 > 1.0:
+            radial_var = radial_noise(est._accel_radial_innov2, var) / d2
     est._accel_var_excess = var - nominal
     est._accel_radial, est._accel_radial_var = radial, radial_var  # for tools/accuracy_terms.py
     # the accelerometer's windowed NIS (the consistency monitor) from FLAG_NIS to twice that: the model stops
@@ -213,10 +214,10 @@ def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
     a = est._innov_alpha
     i2 = n0 * n0 + n1 * n1 + n2 * n2
     est._accel_innov2 += a * (i2 / 3.0 - est._accel_innov2)
-    if taut:
+    if taut and d2 > 1.0:
         ir = radial[0] * n0 + radial[1] * n1 + radial[2] * n2
-        est._accel_radial_innov2 += a * (ir * ir - est._accel_radial_innov2)
-    else:  # off the tether, the three axes' mean: the taut entry starts from it
+        est._accel_radial_innov2 += a * (ir * ir / d2 - est._accel_radial_innov2)
+    elif not taut:  # off the tether, the three axes' mean: the taut entry starts from it
         est._accel_radial_innov2 = est._accel_innov2
     if ekf.mode != MODE_GROUND:
         # the consistency monitor: each axis against the nominal noise (its innovations' variance less what the
