@@ -443,7 +443,7 @@ def caution_causes(ok) -> str:
         return ""
     factored = low & np.isfinite(f) & (f >= FACTOR_SHOWN)
     names = [SOURCES[int(i)] if np.isfinite(i) and 0 <= i < len(SOURCES) else "?" for i in src[factored]]
-    by = ", ".join(f"{n} {names.count(n)}" for n in sorted(set(names), key=lambda n: -names.count(n)))
+    by = ", ".join(f"{n} {names.count(n)}" for n in sorted(set(names), key=lambda n: (-names.count(n), n)))
     without = np.where(factored, r * f, r)
     lo, hi = RATIO_BAND
     return (

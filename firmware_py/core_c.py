@@ -405,6 +405,11 @@ class CEstimator:
         return float(self._s.accel_hbias_var)
 
     @property
+    def _accel_radial_innov2(self) -> float:
+        """The accelerometer's innovations along the tether's radius, their mean square (accel.radial_noise)."""
+        return float(self._s.accel_radial_innov2)
+
+    @property
     def p_ref_pa(self) -> float:
         return self._s.p_ref_pa
 

@@ -1,7 +1,7 @@
 """What one case records, and how the summary over seeds picks the worst seed of each metric.
 
 ``worst``: "min" (lower is worse), "max" (higher is worse), "abs" (largest magnitude, sign kept),
-"ratio" (farthest from 1 in log: over- and under-confidence alike)."""
+"ratio" (farthest from 1 in log: over- and under-confidence alike), "mode" (a category: the most common)."""
 
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ METRICS: dict[str, tuple[str, str]] = {
         "RMS of the consistency monitor's factor on the stated accuracy (1: the model explains every source)",
     ),
     "factor_source": (
-        "max",
+        "mode",
         "the source (index in firmware_py.estimator.consistency.SOURCES) whose windowed NIS set "
         "that factor most of the time it was at least FACTOR_SHOWN; NaN: never",
     ),
@@ -67,6 +67,9 @@ def worst(rule: str, values) -> float:
         return float(v[np.argmax(np.abs(v))])
     if rule == "ratio":
         return float(v[np.argmax(np.abs(np.log(np.clip(v, 1e-9, 1e9))))])
+    if rule == "mode":  # a category: the most common value (the smallest of a tie)
+        values, counts = np.unique(v, return_counts=True)
+        return float(values[np.argmax(counts)])
     raise ValueError(rule)
 
 

@@ -482,7 +482,7 @@ int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_
     s[0][1] = s[1][0] = BW_R(0.5) * (s[0][1] + s[1][0]);
     s[0][2] = s[2][0] = BW_R(0.5) * (s[0][2] + s[2][0]);
     s[1][2] = s[2][1] = BW_R(0.5) * (s[1][2] + s[2][1]);
-    if (axis_var > BW_R(0.0)) { /* ekf.py fuse3: axis_var more along the unit vector axis */
+    if (axis_var > BW_R(0.0)) { /* ekf.py fuse3: axis_var axis axis^T more */
         const bw_real v0 = axis_var * axis[0], v1 = axis_var * axis[1];
         s[0][0] += v0 * axis[0];
         s[1][1] += v1 * axis[1];

@@ -195,7 +195,8 @@ class Estimator:
         self._dwell = 0
         self._accel_innov2 = 0.0
         self._accel_radial_innov2 = 0.0  # on the tether, along its radius (accel.radial_noise)
-        self._accel_radial, self._accel_radial_var = (0.0, 0.0, 0.0), 0.0  # the last step's (accel.control_accel)
+        # the last step's radial axis and noise (accel.control_accel), for tools/accuracy_terms.py alone
+        self._accel_radial, self._accel_radial_var = (0.0, 0.0, 0.0), 0.0
         self._innov_alpha = 1.0 / (ACCEL_INNOV_S * self.cfg.imu_rate_hz)
         self._mean_speed = self.cfg.expected_wind_mps  # the filter's own mean wind (60 s), for its noise
         self._speed_alpha = 1.0 / (MEAN_WIND_S * self.cfg.imu_rate_hz)
@@ -346,7 +347,9 @@ class Estimator:
             )
         if ekf.mode != MODE_GROUND:
             # each source's windowed NIS against (about) the noise it was fused with (the accelerometer's is kept
-            # against its nominal noise), each over its own interval (the alignment's every taut_every steps)
+            # against its nominal noise; here the shared excess alone is put back, not the radius's, accel.radial_noise:
+            # the NIS reads high on the tether in gusts, and the weight lower, the cautious side), each over its own
+            # interval (the alignment's every taut_every steps)
             nominal = accel_nominal_var(self)
             nis_accel = self.consistency.nis[ACCEL] * nominal / (nominal + self._accel_var_excess)
             dt, corr = ekf.dt, ACCEL_MODEL_CORR_S

@@ -419,10 +419,10 @@ class WindEkf:
         tilt_gain: float = 1.0, heading_gain: float = 1.0, axis: tuple[float, float, float] = (0.0, 0.0, 0.0),
         axis_var: float = 0.0,
     ) -> bool:
-        """One sensor's three axes at once with the rows in ``self.H3`` and noise ``r`` per axis, ``r2_extra`` more on
-        the third and ``axis_var axis axis^T`` more (a motion the model leaves out along one direction of the sensor's
-        frame, ``axis``'s: aid_sources/accel.py radial_noise) (a
-        3x3 innovation covariance instead of three scalar updates: a third of the array operations).
+        """One sensor's three axes at once with the rows in ``self.H3``, as a 3x3 innovation covariance instead of three
+        scalar updates (a third of the array operations). The noise: ``r`` per axis, ``r2_extra`` more on the third,
+        and ``axis_var axis axis^T`` more (a motion the model leaves out along one direction of the sensor's frame,
+        ``axis``'s, of any length: aid_sources/accel.py radial_noise).
         Each axis keeps its status (innovation, its variance, test ratio); the vector is rejected if
         any axis fails the gate, and after ``recover_after`` rejections in a row fused with its
         covariance inflated to put the worst axis on the gate (as ``fuse``). The tilt's rows of the gain take

@@ -221,3 +221,29 @@ def test_the_horizontal_bias_followed_is_the_same_in_both_cores():
             worst = max(worst, abs(a - b) / (1e-9 + 1e-9 * abs(a)))
     assert worst < 1.0, worst
     assert abs(py.accel_hbias[0]) + abs(py.accel_hbias[1]) > 0.02, py.accel_hbias
+
+
+def test_the_ropes_breathing_is_the_same_in_both_cores():
+    """The accelerometer's innovations along the tether's radius, their mean square (accel.radial_noise), C against
+    Python (double), on class B gusts on the real rope, where the balloon moves along its radius: it must stand above
+    the three axes' mean (what the radius adds), or this proves nothing."""
+    from firmware_py.core_c import CEstimator
+    from firmware_py.estimator.control import Estimator
+
+    sc = SCENARIOS["field-gusty-6"]
+    samples = samples_of(Simulation(sc.design, sc.wind, sc.truth, 200.0, 3).samples())
+    cfg = dataclasses.replace(sc.filter, float32=False, core="py")
+    py, c = Estimator(sc.design, cfg), CEstimator(sc.design, cfg)
+    worst, above = 0.0, 0
+    for s in samples:
+        if type(s) is BaroSample:
+            py.on_baro(s.t_us, s.pressure_hpa, s.temperature_c)
+            c.on_baro(s.t_us, s.pressure_hpa, s.temperature_c)
+            continue
+        py.on_imu(*s)
+        c.on_imu(*s)
+        a, b = py._accel_radial_innov2, c._accel_radial_innov2
+        worst = max(worst, abs(a - b) / (1e-9 + 1e-6 * abs(a)))
+        above += a > py._accel_innov2
+    assert worst < 1.0, worst
+    assert above > 0.3 * len(samples), above

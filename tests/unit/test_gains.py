@@ -9,7 +9,7 @@ import pytest
 
 from balloon_core.config import Design
 from benchmarks.bench_envelope import sample
-from firmware_py.estimator.aid_sources.accel import control_accel
+from firmware_py.estimator.aid_sources.accel import control_accel, radial_noise
 from firmware_py.estimator.consistency import ACCEL, FLAG_NIS
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.ekf import SLOW_STATES, FusionStatus
@@ -99,3 +99,32 @@ def test_the_real_ropes_ascent_learns_the_balloons_drag_without_the_pickups_bias
     e = np.array([ascent_error(p)[0] for p in flights])
     assert abs(e.mean()) < 0.02
     assert np.sqrt(np.mean(e**2)) < 0.03
+
+
+@pytest.mark.parametrize("scale", [1.0, 90.0])
+def test_the_noise_along_one_axis_is_its_outer_product(scale):
+    """fuse3's ``axis_var axis axis^T`` (the rope's breathing along the tether's radius, accel.radial_noise, ``axis``
+    of any length: R^T p, ``axis_var`` per its square): the update is the closed form with R = diag(r, r, r + r2) +
+    v a a^T, each axis's innovation variance that covariance's diagonal; without the term the update differs (the
+    test can fail)."""
+    ekf = _ekf(11)
+    p0, h = ekf.P.copy(), ekf.H3.copy()
+    r, r2, v = 0.04, 0.01, 0.3 / scale**2
+    a = scale * np.array([0.3, -0.5, 0.8]) / math.sqrt(0.98)
+    innov = np.array([0.02, -0.01, 0.3])
+    ekf.begin_update()
+    st = [FusionStatus(str(i)) for i in range(3)]
+    assert ekf.fuse3(*innov, r, st, r2, 1.0, 1.0, tuple(a), v)
+    rr = np.diag([r, r, r + r2]) + v * np.outer(a, a)
+    s = h @ p0 @ h.T + rr
+    k = p0 @ h.T @ np.linalg.inv(s)
+    assert np.allclose(ekf.dx, k @ innov, rtol=1e-9, atol=1e-12)
+    assert np.allclose(ekf.P, p0 - k @ h @ p0, rtol=1e-9, atol=1e-12)
+    assert [x.innov_var for x in st] == pytest.approx(np.diag(s).tolist(), rel=1e-12)
+    k0 = p0 @ h.T @ np.linalg.inv(h @ p0 @ h.T + np.diag([r, r, r + r2]))
+    assert not np.allclose(k0 @ innov, k @ innov, rtol=1e-3)
+
+
+def test_the_ropes_breathing_adds_to_the_radius_what_its_innovations_have_beyond_the_shared_noise():
+    assert radial_noise(0.5, 0.2) == pytest.approx(0.3)
+    assert radial_noise(0.1, 0.2) == 0.0  # never less along the radius than on every axis

@@ -32,7 +32,6 @@ if TYPE_CHECKING:
     from firmware_py.estimator.control import Estimator
 
 
-
 def fuse_accel(
     ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status: list[FusionStatus], var_z_extra: float = 0.0,
     misfit: float = 0.0, radial: tuple[float, float, float] = (0.0, 0.0, 0.0), radial_var: float = 0.0,
@@ -189,7 +188,11 @@ def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
     """Fuse the specific force every step; its noise follows its recent innovations (the force model's
     own error grows when the state is far from the truth, after a placement, or the physics departs from
     the model: a drag crisis, a gust the rate state cannot follow), so that a model that is off does not
-    drag the attitude with it (the magnetometer and the gyro keep it)."""
+    drag the attitude with it (the magnetometer and the gyro keep it); on the taut tether more along its radius, as
+    its innovations there say (``radial_noise``: the rope's breathing). In flight its NIS against the nominal noise
+    joins the consistency monitor here, where the noise it was fused with is known: the same step's readers of the
+    monitor (the alignment's share about the field's axis, the attitude's extra variance) see it, and it is counted
+    in the mode the step fused it in."""
     ekf = est.ekf
     hbias = est.accel_hbias
     ax -= hbias[0]
