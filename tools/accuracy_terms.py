@@ -87,9 +87,7 @@ def terms(point: dict, duration_s: float, settings: tuple[str, ...] = ()) -> dic
         rows.append((s.time_usec * 1e-6, wn, we, est.wind_accuracy(), ekf.wind_accuracy() ** 2,
                      systematic_variance(speed, k, kv, 0.0), lean**2, est.consistency.inflation, float(ekf.x[BARO_OFF]),
                      float(ekf.P[BARO_OFF, BARO_OFF]), k, *est.consistency.nis,
-                     *(min(a.innov**2 / max(a.innov_var - est._accel_var_excess
-                                           - est._accel_radial_var * est._accel_radial[j] ** 2, 1e-12), 3.0 * NIS_CLIP)
-                       for j, a in enumerate(est.accel_status))))  # fmt: skip
+                     *(min(v, 3.0 * NIS_CLIP) for v in est._accel_axis_nis)))  # fmt: skip
         att.append((*ekf.q.tolist(), *est.field_ned, *ekf.P[ATT_N : ATT_D + 1, ATT_N : ATT_D + 1].ravel(),
                     est.field_extra_variance(), est.consistency.slow_tilt))
         rb = rotation(*ekf.q.tolist())

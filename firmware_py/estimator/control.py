@@ -195,8 +195,7 @@ class Estimator:
         self._dwell = 0
         self._accel_innov2 = 0.0
         self._accel_radial_innov2 = 0.0  # on the tether, along its radius (accel.radial_noise)
-        # the last step's radial axis and noise (accel.control_accel), for tools/accuracy_terms.py alone
-        self._accel_radial, self._accel_radial_var = (0.0, 0.0, 0.0), 0.0
+        self._accel_axis_nis = [0.0, 0.0, 0.0]  # the last flying step's NIS per axis (accel.control_accel)
         self._innov_alpha = 1.0 / (ACCEL_INNOV_S * self.cfg.imu_rate_hz)
         self._mean_speed = self.cfg.expected_wind_mps  # the filter's own mean wind (60 s), for its noise
         self._speed_alpha = 1.0 / (MEAN_WIND_S * self.cfg.imu_rate_hz)

@@ -206,7 +206,6 @@ def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
         if d2 > 1.0:
             radial_var = radial_noise(est._accel_radial_innov2, var) / d2
     est._accel_var_excess = var - nominal
-    est._accel_radial, est._accel_radial_var = radial, radial_var  # for tools/accuracy_terms.py
     # the accelerometer's windowed NIS (the consistency monitor) from FLAG_NIS to twice that: the model stops
     # explaining it; the vertical air the model leaves out moves the balloon along its body z (_vertical_gust_var)
     misfit = accel_misfit(est.consistency.nis[ACCEL])
@@ -226,11 +225,10 @@ def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
         # the consistency monitor: each axis against the nominal noise (its innovations' variance less what the
         # noise followed beyond it: the rope's breathing is the model's misfit too, which the monitor must see)
         ex = var - nominal
-        nis = 0.0
+        axis_nis = est._accel_axis_nis
         for i in range(3):
-            extra = ex + radial_var * radial[i] * radial[i]
-            nis += st[i].innov ** 2 / max(st[i].innov_var - extra, 1e-12)
-        est.consistency.add(ACCEL, nis / 3.0, est._step_alpha)
+            axis_nis[i] = st[i].innov ** 2 / max(st[i].innov_var - (ex + radial_var * radial[i] * radial[i]), 1e-12)
+        est.consistency.add(ACCEL, sum(axis_nis) / 3.0, est._step_alpha)
     if est.step % est.schedule.taut_every:
         return
     step_s = est.schedule.taut_every * ekf.dt
