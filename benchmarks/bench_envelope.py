@@ -2,17 +2,18 @@
 user may meet, each run through the study engine, scored, summarised against the issue's targets.
 
     .venv/bin/python -m benchmarks.bench_envelope [--quick] [--flights N] [--out DIR] [--cd-sigma S]
-        [--serial | --workers N | --scheduler tcp://HOST:PORT]
+        [--max-wind U] [--serial | --workers N | --scheduler tcp://HOST:PORT]
 
-Sampled per flight (a scrambled Halton sequence, fixed seed): wind direction 0-360 deg, mean speed
-1-8 m/s, wind kind (steady | multisine both axes | VdH + Kaimal with vertical | IEC class B gusts with
-vertical), rope model of the truth (lumped | paper), tether 50-150 m, balloon radius from the smallest
-that lifts its tether with 20 % spare lift (``balloon_core.config.lift_balance``) up to 1.6 m,
-weather pressure drift +-3 hPa/h, wandering gyro/accelerometer biases (0-1 x the field-biases
-scenario's), sensor grade (Table 2 | MEMS | tactical), the simulator seed, and the balloon's and the rope's
-drag coefficients about the design's (a sphere's C_d known to 10 %, ``--cd-sigma``; a rope's C_n to 30 %). The
-firmware is told only the design (balloon, tether, sensors); everything else is truth only, its [filter] stays
-the default (with ``--cd-sigma`` other than 0.1 it is told that 1-sigma: ``[filter] init_drag``).
+Sampled per flight (a scrambled Halton sequence, fixed seed): wind direction 0-360 deg, mean speed 1-8 m/s
+(``--max-wind``: up to another, a stress beyond the envelope the targets are set for), wind kind (steady |
+multisine both axes | VdH + Kaimal with vertical | IEC class B gusts with vertical), rope model of the truth
+(lumped | paper), tether 50-150 m, balloon radius from the smallest that lifts its tether with 20 % spare lift
+(``balloon_core.config.lift_balance``) up to 1.6 m, weather pressure drift +-3 hPa/h, wandering
+gyro/accelerometer biases (0-1 x the field-biases scenario's), sensor grade (Table 2 | MEMS | tactical), the
+simulator seed, and the balloon's and the rope's drag coefficients about the design's (a sphere's C_d known to
+10 %, ``--cd-sigma``; a rope's C_n to 30 %). The firmware is told only the design (balloon, tether, sensors);
+everything else is truth only, its [filter] stays the default (with ``--cd-sigma`` other than 0.1 it is told that
+1-sigma: ``[filter] init_drag``).
 
 Per flight (after ``start_s``): the study metrics (``study.case.metrics``) plus the worst 60 s mean
 direction error, the share of samples whose horizontal error exceeds 3 x the reported accuracy,
@@ -66,6 +67,8 @@ PARAMS = ("from_deg", "mean_mps", "wind_kind", "rope_model", "radius_m", "tether
 # default prior, [filter] init_drag, assumes as much), a rope's cross-flow C_n to 30 %. ``--cd-sigma``: a balloon
 # whose C_d was measured (a tow or a wind-tunnel test), the truth's drawn and the filter told with that 1-sigma
 CD_SIGMA = 0.10
+MAX_WIND_MPS = 8.0  # the mean wind's upper end, the envelope's (--max-wind takes another: a stress beyond it)
+MAX_WIND_RANGE = (2.0, 25.0)
 CD_SIGMA_RANGE = (0.005, 0.3)  # at 0.3 the 2.5-sigma draw keeps the C_d at 0.25 of the design's (the floor: 0.1)
 ROPE_CD_SIGMA = 0.30
 WINDOW_S = 60.0
@@ -143,9 +146,12 @@ def pick(u: float, choices: tuple[str, ...]) -> str:
     return choices[min(int(u * len(choices)), len(choices) - 1)]
 
 
-def sample(n: int, seed: int = SEED, cd_sigma: float = CD_SIGMA) -> list[dict[str, Any]]:
+def sample(
+    n: int, seed: int = SEED, cd_sigma: float = CD_SIGMA, max_wind_mps: float = MAX_WIND_MPS
+) -> list[dict[str, Any]]:
     """The n flights' parameters (a dict per flight, in the order of ``PARAMS``); the balloon's C_d drawn with
-    1-sigma ``cd_sigma`` (any other than CD_SIGMA is also what the filter is told: ``cd_sigma`` in each dict)."""
+    1-sigma ``cd_sigma`` (any other than CD_SIGMA is also what the filter is told: ``cd_sigma`` in each dict); the
+    mean wind from 1 m/s to ``max_wind_mps`` (the same points: only that dimension's scale moves)."""
     u = halton(n, len(DIMS), seed)
     out = []
     for row in u:
@@ -154,7 +160,7 @@ def sample(n: int, seed: int = SEED, cd_sigma: float = CD_SIGMA) -> list[dict[st
         r0 = min_radius(tether)
         out.append({
             "from_deg": float(round(360.0 * v["from_deg"], 3)),
-            "mean_mps": float(round(1.0 + 7.0 * v["mean_mps"], 3)),
+            "mean_mps": float(round(1.0 + (max_wind_mps - 1.0) * v["mean_mps"], 3)),
             "wind_kind": pick(v["wind_kind"], WIND_KINDS),
             "rope_model": pick(v["rope_model"], ROPES),
             "radius_m": float(round(r0 + (MAX_RADIUS_M - r0) * v["radius_u"], 4)),
@@ -578,7 +584,15 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"1-sigma of what the user knows of the balloon's C_d, relative (default {CD_SIGMA:g}: "
                          "a sphere's from the literature; 0.02: measured); the truth's drawn with it, the filter "
                          "told it")  # fmt: skip
+    ap.add_argument("--max-wind", type=float, default=MAX_WIND_MPS,
+                    help=f"the mean wind's upper end, m/s (default {MAX_WIND_MPS:g}, the envelope's; more: a stress "
+                         "beyond it, its targets shown as they are)")  # fmt: skip
     args = ap.parse_args(argv)
+    wlo, whi = MAX_WIND_RANGE
+    if not wlo <= args.max_wind <= whi:
+        print(f"bench_envelope: --max-wind must be between {wlo:g} and {whi:g} m/s, got {args.max_wind:g}",
+              file=sys.stderr)  # fmt: skip
+        return 2
     lo, hi = CD_SIGMA_RANGE
     if not lo <= args.cd_sigma <= hi:
         print(f"bench_envelope: --cd-sigma must be between {lo:g} and {hi:g}, got {args.cd_sigma:g}", file=sys.stderr)
@@ -589,7 +603,7 @@ def main(argv: list[str] | None = None) -> int:
     duration = args.duration or (QUICK_DURATION_S if args.quick else FULL_DURATION_S)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    params = sample(n, cd_sigma=args.cd_sigma)
+    params = sample(n, cd_sigma=args.cd_sigma, max_wind_mps=args.max_wind)
     cs = cases(params, duration, args.start)
     store = engine.Store(out / "parts")
     t0 = time.perf_counter()
@@ -607,7 +621,8 @@ def main(argv: list[str] | None = None) -> int:
     text, targets = summary(df)
     head = (
         f"envelope: {n} flights of {duration:g} s (scored from {args.start:g} s), base {BASE}"
-        f"{'' if args.cd_sigma == CD_SIGMA else f', the C_d known to {100 * args.cd_sigma:g} %'}, "
+        f"{'' if args.cd_sigma == CD_SIGMA else f', the C_d known to {100 * args.cd_sigma:g} %'}"
+        f"{'' if args.max_wind == MAX_WIND_MPS else f', mean wind 1-{args.max_wind:g} m/s'}, "
         f"{'serial' if args.serial else f'{st.workers} Dask workers'}; {st.computed} computed, {st.reused} "
         f"reused, {st.failed} failed; wall {wall:.0f} s (mean flight {st.case_s / max(st.computed, 1):.1f} s)"
     )

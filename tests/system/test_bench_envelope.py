@@ -66,6 +66,21 @@ def test_a_measured_drag_coefficient_is_drawn_and_told_with_its_own_sigma(capsys
     assert err.count("\n") == 1 and "--cd-sigma must be between" in err
 
 
+def test_a_stress_beyond_the_envelope_moves_only_the_mean_wind(capsys):
+    """--max-wind: the same points, the mean wind from 1 m/s to the new upper end (in proportion: the point at
+    u = 0.5 of the dimension sits half way), everything else as the envelope's; out of its range one line and exit 2."""
+    base, strong = be.sample(64), be.sample(64, max_wind_mps=15.0)
+    assert max(p["mean_mps"] for p in strong) > 14.0 and min(p["mean_mps"] for p in strong) >= 1.0
+    for p, q in zip(base, strong):
+        assert math.isclose(q["mean_mps"] - 1.0, (p["mean_mps"] - 1.0) * 14.0 / 7.0, abs_tol=0.005)
+        assert {k: v for k, v in p.items() if k != "mean_mps"} == {k: v for k, v in q.items() if k != "mean_mps"}
+    assert be.sample(64, max_wind_mps=be.MAX_WIND_MPS) == base
+    for bad in ("1", "40", "nan"):
+        assert be.main(["--max-wind", bad, "--out", "/nonexistent/never-written"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "--max-wind must be between" in err
+
+
 def test_extra_metrics_on_a_known_error():
     t = np.arange(0.0, 300.0, 0.01)
     rows = np.column_stack([t, np.full_like(t, 3.0), np.full_like(t, 0.4), np.full_like(t, 0.1)])
