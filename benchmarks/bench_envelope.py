@@ -5,7 +5,7 @@ user may meet, each run through the study engine, scored, summarised against the
         [--max-wind U] [--serial | --workers N | --scheduler tcp://HOST:PORT]
 
 Sampled per flight (a scrambled Halton sequence, fixed seed): wind direction 0-360 deg, mean speed 1-8 m/s
-(``--max-wind``: up to another, a stress beyond the envelope the targets are set for), wind kind (steady |
+(``--max-wind``: up to another, e.g. a stress beyond the envelope the targets are set for), wind kind (steady |
 multisine both axes | VdH + Kaimal with vertical | IEC class B gusts with vertical), rope model of the truth
 (lumped | paper), tether 50-150 m, balloon radius from the smallest that lifts its tether with 20 % spare lift
 (``balloon_core.config.lift_balance``) up to 1.6 m, weather pressure drift +-3 hPa/h, wandering
@@ -585,8 +585,9 @@ def main(argv: list[str] | None = None) -> int:
                          "a sphere's from the literature; 0.02: measured); the truth's drawn with it, the filter "
                          "told it")  # fmt: skip
     ap.add_argument("--max-wind", type=float, default=MAX_WIND_MPS,
-                    help=f"the mean wind's upper end, m/s (default {MAX_WIND_MPS:g}, the envelope's; more: a stress "
-                         "beyond it, its targets shown as they are)")  # fmt: skip
+                    help=f"the mean wind's upper end, m/s, {MAX_WIND_RANGE[0]:g}-{MAX_WIND_RANGE[1]:g} (default "
+                         f"{MAX_WIND_MPS:g}, the envelope's; above it a stress, its targets shown as they "
+                         "are)")  # fmt: skip
     args = ap.parse_args(argv)
     wlo, whi = MAX_WIND_RANGE
     if not wlo <= args.max_wind <= whi:
