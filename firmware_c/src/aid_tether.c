@@ -101,7 +101,7 @@ static void fuse_taut(bw_estimator_t *est, bw_real along_var, bw_real cross_var)
         return;
     {
         const bw_real s[BW_NCOL] = {pn, pe, pd, vn, ve, vd, x[12], x[13], x[14], x[15], x[16]};
-        bw_real n[BW_ROPE_DIRECTION_SIZE], r[9], zn, ze, zd, horiz, lean, an, ae, c[2][2], var[2], share;
+        bw_real n[BW_ROPE_DIRECTION_SIZE], r[9], zn, ze, zd, horiz, lean, an, ae, c[2][3], var[2], share, n_d;
         if (e->m.rope_drag)
             bw_rope_direction(s, f->params, n);
         else
@@ -116,27 +116,36 @@ static void fuse_taut(bw_estimator_t *est, bw_real along_var, bw_real cross_var)
             an = pn / horiz, ae = pe / horiz;
         else
             an = BW_R(1.0), ae = BW_R(0.0);
-        c[0][0] = an, c[0][1] = ae, c[1][0] = -ae, c[1][1] = an; /* along, cross */
-        var[0] = along_var, var[1] = cross_var;
+        /* along: in the lean's vertical plane, tangent to the body's axis (the lean's angle itself), its nominal
+         * allowance over cos^2(lean); cross: horizontal across it (tether.py fuse_taut) */
+        c[0][0] = an * zd, c[0][1] = ae * zd, c[0][2] = lean, c[1][0] = -ae, c[1][1] = an, c[1][2] = BW_R(0.0);
+        n_d = BW_SQRT(BW_MAX(BW_R(1.0) - n[0] * n[0] - n[1] * n[1],
+                             (bw_real)BW_ALIGN_PULL_DOWN_MIN * (bw_real)BW_ALIGN_PULL_DOWN_MIN));
+        {
+            const bw_real cz = BW_MAX(zd, (bw_real)BW_LEAN_COS_MIN);
+            var[0] = BW_MAX(along_var, est->align_var / (cz * cz)), var[1] = cross_var;
+        }
         ncol = BW_NCOL - (e->learn_drag ? 0 : 1);
         share = (bw_real)BW_ALIGN_FIELD_AXIS_SHARE * (BW_R(1.0) - bw_accel_misfit(est->consistency.nis[BW_ACCEL]));
         for (cc = 0; cc < 2; cc++) {
             /* the attitude (tether.py fuse_taut): a column about the magnetic field's axis, weighed by how well
              * the models fit; the rest a parameter whose variance (c . d z / d att P_att (..)^T less the
              * column's) is noise */
-            const bw_real cn = c[cc][0], ce = c[cc][1];
+            const bw_real cn = c[cc][0], ce = c[cc][1], cd = c[cc][2];
+            /* c . d n / d x: d n_d / d x = -(n_n dn_n + n_e dn_e) / n_d */
+            const bw_real kn = cn - cd * n[0] / n_d, ke = ce - cd * n[1] / n_d;
             bw_real g[3], hb[3] = {BW_R(0.0), BW_R(0.0), BW_R(0.0)}, var_att;
-            bw_lean_jacobian(cn, ce, zn, ze, zd, g);
+            bw_lean_jacobian3(cn, ce, cd, zn, ze, zd, g);
             if (var[cc] > BW_R(0.0))
                 field_axis_row(g, est->field_ned, share * est->align_var / var[cc], hb);
             var_att = BW_MAX(BW_R(0.0), bw_attitude_variance(e, g[0], g[1], g[2]) -
                                             bw_attitude_variance(e, hb[0], hb[1], hb[2]));
             memset(e->h, 0, sizeof e->h);
             for (j = 0; j < ncol; j++)
-                e->h[BW_MODEL_COLS[j]] = -(cn * n[2 + j] + ce * n[2 + BW_NCOL + j]); /* residual c . (z - n(x)) */
+                e->h[BW_MODEL_COLS[j]] = -(kn * n[2 + j] + ke * n[2 + BW_NCOL + j]); /* residual c . (z - n(x)) */
             e->h[BW_ATT_N] = hb[0], e->h[BW_ATT_E] = hb[1], e->h[BW_ATT_D] = hb[2];
-            bw_ekf_fuse(e, cn * (n[0] - zn) + ce * (n[1] - ze), var[cc] + var_att, &est->taut_status[2 + cc],
-                        BW_R(0.0), 0);
+            bw_ekf_fuse(e, cn * (n[0] - zn) + ce * (n[1] - ze) + cd * (n_d - zd), var[cc] + var_att,
+                        &est->taut_status[2 + cc], BW_R(0.0), 0);
         }
     }
 }

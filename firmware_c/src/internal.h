@@ -77,6 +77,12 @@ static inline void bw_lean_jacobian(bw_real cn, bw_real ce, bw_real zn, bw_real 
 {
     g[0] = -ce * zd, g[1] = cn * zd, g[2] = ce * zn - cn * ze;
 }
+/* the same along a component c = (cn, ce, cd) that is not horizontal (consistency.py lean_jacobian with cd) */
+static inline void bw_lean_jacobian3(bw_real cn, bw_real ce, bw_real cd, bw_real zn, bw_real ze, bw_real zd,
+                                     bw_real g[3])
+{
+    g[0] = ze * cd - ce * zd, g[1] = cn * zd - zn * cd, g[2] = ce * zn - cn * ze;
+}
 bw_real bw_correlated_weight(bw_real nis, bw_real dt_s, bw_real corr_s);
 bw_real bw_field_attitude_extra(bw_real extra, bw_real v_pred, bw_real v_accel, bw_real v_aids, bw_real v_end,
                                 bw_real w_accel, bw_real w_align);

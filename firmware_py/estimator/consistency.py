@@ -220,10 +220,12 @@ def attitude_variance(P, g0: float, g1: float, g2: float) -> float:
     )
 
 
-def lean_jacobian(cn: float, ce: float, zn: float, ze: float, zd: float) -> tuple[float, float, float]:
+def lean_jacobian(
+    cn: float, ce: float, zn: float, ze: float, zd: float, cd: float = 0.0
+) -> tuple[float, float, float]:  # fmt: skip
     """c . d z / d att = (z x c) over ATT_N, ATT_E, ATT_D: how the body's down axis z (along the rope) moves along a
-    horizontal component c = (cn, ce) with the attitude's error d (d z / d att = -[z x])."""
-    return -ce * zd, cn * zd, ce * zn - cn * ze
+    component c = (cn, ce, cd) (horizontal where cd = 0) with the attitude's error d (d z / d att = -[z x])."""
+    return ze * cd - ce * zd, cn * zd - zn * cd, ce * zn - cn * ze
 
 
 def correlated_weight(nis: float, dt_s: float, corr_s: float) -> float:

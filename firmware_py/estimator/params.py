@@ -138,6 +138,7 @@ RELEASE_HEIGHT_S = 0.5  # barometric height above the release height this long
 UNGATED = 1e6  # a gate in sigmas that never rejects (the radius and radial-rate rows)
 TAUT_AZIMUTH_MIN_M = 3.0  # horizontal offset of the ascent that fixes the azimuth at the taut switch
 TAUT_LEAN_MIN_SIN = math.sin(math.radians(3.0))  # a lean this large gives the azimuth to a few degrees
+ALIGN_PULL_DOWN_MIN = 0.05  # the rope's pull on the balloon taken at least this far down (87 deg from vertical)
 TAUT_POS_SIGMA_M = 5.0  # after a placement: wide enough for the alignment row to move it where the tilt says
 TAUT_VEL_SIGMA_MPS = 1.0  # the balloon still swings after the snap
 TAUT_WIND_SIGMA_MPS = 1.5  # the static balance's wind at the snap (the balloon is not yet in balance)

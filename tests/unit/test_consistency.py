@@ -23,6 +23,7 @@ from firmware_py.estimator.consistency import (
     field_variance,
     heading_misfit_variance,
     lean_bias_rad,
+    lean_jacobian,
     lean_tilt_variance,
     slow_innovation_share,
 )
@@ -258,3 +259,26 @@ def test_the_force_balance_is_the_mean_update_against_a_consistent_filters():
         mon.add_balance(pull3, 0.0, taken, alpha, 0.0)
         start.append(balance_nis(mon.balance_n, mon.balance_e, mon.balance_var, alpha))
     assert all(a <= b <= settled for a, b in zip(start, start[1:])) and 0.35 * settled < start[-1] < 0.45 * settled
+
+
+@pytest.mark.parametrize("lean_deg", [5.0, 45.0, 80.0, 89.0])
+def test_lean_jacobian_is_the_turn_of_the_body_axis_along_any_component(lean_deg):
+    """c . d z / d att for the body's down axis z turned by a small rotation vector d in NED (z -> z + d x z), against
+    the finite difference, for a horizontal component and for the lean's tangent (aid_sources/tether.py's along
+    component): the tangent reads the lean's own change, 1 per radian, at any lean (the horizontal projection only
+    cos(lean) of it)."""
+    th, az = math.radians(lean_deg), math.radians(30.0)
+    a = np.array([math.cos(az), math.sin(az)])  # the lean's azimuth, downwind
+    z = np.array([-math.sin(th) * a[0], -math.sin(th) * a[1], math.cos(th)])  # to the anchor: upwind and down
+    tangent = np.array([a[0] * z[2], a[1] * z[2], math.sin(th)])
+    for c in (np.array([a[0], a[1], 0.0]), np.array([-a[1], a[0], 0.0]), tangent):
+        g = np.array(lean_jacobian(c[0], c[1], z[0], z[1], z[2], c[2]))
+        for d in np.eye(3) * 1e-6:
+            assert float(g @ d) == pytest.approx(float(c @ np.cross(d, z)), rel=1e-9, abs=1e-15)
+    # the lean grown by e: z turns about the horizontal axis across the lean; along the tangent it reads -e
+    e = 1e-6
+    d = e * np.array([a[1], -a[0], 0.0])  # z x a's direction: the turn that leans z further
+    moved = np.array(lean_jacobian(*tangent[:2], *z, tangent[2])) @ d
+    assert abs(moved) == pytest.approx(e, rel=1e-6)
+    horizontal = np.array(lean_jacobian(a[0], a[1], *z)) @ d
+    assert abs(horizontal) == pytest.approx(e * math.cos(th), rel=1e-6, abs=1e-15)

@@ -16,6 +16,7 @@ from firmware_py.estimator.aid_sources.tether import fuse_taut
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.ekf import FusionStatus
 from firmware_py.estimator.model import accelerations
+from firmware_py.estimator.params import LEAN_COS_MIN
 from firmware_py.estimator.state import ABIAS_Z, ATT_N, DRAG, MODE_TAUT, N_STATES, STATE_NAMES
 from tests.unit.test_model import rotate_ned
 
@@ -122,7 +123,8 @@ def test_the_alignment_column_about_the_field_is_the_rotation_about_it(taut_ekf,
     azimuth and the attachment point stay parameters, as in every other row), and no part across the axis (the
     magnetometer's). The row's variance from the attitude is the same as without the column: what the column takes
     of it is out of the noise (which keeps at least the alignment's own). The field unknown: no column, all of it
-    noise."""
+    noise. The along component lies in the lean's vertical plane (its angle), the across one is horizontal; the
+    along one's noise is at least the nominal over cos^2(lean) (tether.fuse_taut)."""
     field = (0.2, 0.05, 0.45)
     b = np.array(field) / np.linalg.norm(field)
     rows = _alignment_rows(taut_ekf, lambda e: fuse_taut(e, 0.1, 0.1, 0.1, 0.1, ST, field, nominal, share))
@@ -134,11 +136,14 @@ def test_the_alignment_column_about_the_field_is_the_rotation_about_it(taut_ekf,
     eps = 1e-6
     dz = (down(rotate_ned(taut_ekf.q, eps * b)) - down(rotate_ned(taut_ekf.q, -eps * b))) / (2 * eps)
     p_att = taut_ekf.P[ATT_N : ATT_N + 3, ATT_N : ATT_N + 3]
-    for (innov, h, r), (innov0, h0, r0), (cn, ce) in zip(rows, bare, ((an, ae), (-ae, an)), strict=True):
+    cz2 = max(z[2], LEAN_COS_MIN) ** 2
+    components = ((np.array([an * z[2], ae * z[2], lean]), max(0.1, nominal / cz2), max(0.1, 0.1 / cz2)),
+                  (np.array([-ae, an, 0.0]), 0.1, 0.1))  # fmt: skip
+    for (innov, h, r), (innov0, h0, r0), (c, var, var0) in zip(rows, bare, components, strict=True):
         h_att = h[ATT_N : ATT_N + 3]
-        num = cn * dz[0] + ce * dz[1]
+        num = c @ dz
         assert abs(num) > 1e-2
-        assert h_att @ b == pytest.approx(share * nominal / 0.1 * num, rel=1e-5, abs=1e-12)
+        assert h_att @ b == pytest.approx(share * nominal / var * num, rel=1e-5, abs=1e-12)
         assert np.linalg.norm(np.cross(h_att, b)) < 1e-12
         assert not h0[ATT_N : ATT_N + 3].any() and innov0 == innov
-        assert r == pytest.approx(max(0.1, r0 - h_att @ p_att @ h_att), rel=1e-9)
+        assert r == pytest.approx(var + max(0.0, r0 - var0 - h_att @ p_att @ h_att), rel=1e-9)

@@ -15,6 +15,8 @@ from firmware_py.estimator.model import N_COLUMNS, ROPE_JAC
 from firmware_py.estimator.params import (
     ALIGN_CROSS_VAR_MAX,
     ALIGN_FIELD_AXIS_SHARE,
+    ALIGN_PULL_DOWN_MIN,
+    LEAN_COS_MIN,
     TAUT_AZIMUTH_MIN_M,
     TAUT_LEAN_MIN_SIN,
     TAUT_POS_SIGMA_M,
@@ -147,10 +149,11 @@ def fuse_taut(
     the alignment, see below), but for the alignment's column about the magnetic field's axis, ``share`` of it
     at the alignment's nominal noise ``nominal_var`` (``field_axis_row``).
 
-    The alignment's horizontal residual is taken in two components about the balloon's azimuth from the
-    anchor: ``along`` (how far it leans: what the rope's shape, its weight on the balloon and the rocking
-    in the gusts all move) and ``cross`` (where it leans: the azimuth, which no rope model changes). Each
-    has its own noise (``control_tether``): a rope unlike the model must not cost the azimuth."""
+    The alignment's residual is taken in two components about the balloon's azimuth from the anchor: ``along``
+    (how far it leans: the angle in the lean's vertical plane, which the rope's shape, its weight on the balloon
+    and the rocking in the gusts all move) and ``cross`` (where it leans: the horizontal azimuth, which no rope
+    model changes). Each has its own noise (``control_tether``): a rope unlike the model must not cost the
+    azimuth."""
     x = ekf.x
     pn, pe, pd, vn, ve, vd = x[:6].tolist()
     on, oe, od = ekf.forces.attach_ned
@@ -200,15 +203,28 @@ def fuse_taut(
     # component (the attitude a "consider" parameter, d z / d att = -[z x]), less the column's, is added to the
     # noise, so that the row's variance is what it would be with the attitude a parameter alone. In calm air the lean
     # is a degree or two and a tenth of a degree of tilt turns its azimuth by several degrees
-    for cn, ce, var, st in ((an, ae, along_var, status[2]), (-ae, an, cross_var, status[3])):
-        g = lean_jacobian(cn, ce, zn, ze, zd)
+    # The along component is taken in the lean's vertical plane, tangent to the body's axis (c = (a cos, a cos, sin)
+    # of the lean, a its azimuth): the lean's angle itself. The horizontal projection it was (sin(lean)) moves by only
+    # cos(lean) of the lean's change and saturates: blown down 80 deg by 15 m/s, a state 15 deg off the balloon's
+    # lean read as 2 deg, slid to the horizontal while the barometer's offset took the height, and the wind read
+    # 600 m/s (docs/estimator.md, "Blown down"). Its nominal allowance is over cos^2(lean) (at most 1 / LEAN_COS_MIN^2),
+    # the information the projection had where the error is small: at a steep lean the rope's static shape holds the
+    # angle of its top less well (the tension's vertical share is small against the rope's weight and drag), and the
+    # envelope's flights, blown down up to 74 deg, fly as before. The pull's down component follows from its unit
+    # length (n_d = sqrt(1 - n_n^2 - n_e^2), at least ALIGN_PULL_DOWN_MIN)
+    n_d = math.sqrt(max(1.0 - n[0] * n[0] - n[1] * n[1], ALIGN_PULL_DOWN_MIN * ALIGN_PULL_DOWN_MIN))
+    cz = max(zd, LEAN_COS_MIN)
+    along_var = max(along_var, nominal_var / (cz * cz))
+    for cn, ce, cd, var, st in ((an * zd, ae * zd, lean, along_var, status[2]), (-ae, an, 0.0, cross_var, status[3])):
+        g = lean_jacobian(cn, ce, zn, ze, zd, cd)
         hb = field_axis_row(g, field_ned, share * nominal_var / var if var > 0.0 else 0.0)
         var_att = max(0.0, attitude_variance(ekf.P, *g) - attitude_variance(ekf.P, *hb))
         h.fill(0.0)
+        kn, ke = cn - cd * n[0] / n_d, ce - cd * n[1] / n_d  # c . d n / d x, d n_d / d x = -(n_n dn_n + n_e dn_e) / n_d
         for j in range(ncol):
-            h[MODEL_COLUMNS[j]] = -(cn * n[jn + j] + ce * n[je + j])  # residual c . (z - n(x))
+            h[MODEL_COLUMNS[j]] = -(kn * n[jn + j] + ke * n[je + j])  # residual c . (z - n(x))
         h[ATT_N], h[ATT_E], h[ATT_D] = hb
-        ekf.fuse(cn * (n[0] - zn) + ce * (n[1] - ze), var + var_att, st, recover=False)
+        ekf.fuse(cn * (n[0] - zn) + ce * (n[1] - ze) + cd * (n_d - zd), var + var_att, st, recover=False)
 
 
 def update_rope_shape(ekf: WindEkf, rho: float, alpha: float) -> None:
