@@ -38,12 +38,6 @@ DURATION_S = 300.0
 START_S = 60.0  # after the release, the climb and the taut entry
 
 
-def lean_angle(h: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """The angle from the vertical of a direction whose component along the mean wind (downwind positive) is ``h``
-    and whose component up is ``d`` >= 0, rad."""
-    return np.arctan2(h, d)
-
-
 def fly(scenario: str, seed: int) -> tuple[np.ndarray, float]:
     """Rows (time s; the body axis, the model's pull and the chord as angles from the vertical in the plane of the
     mean wind, downwind positive, rad) of the taut steps from START_S, and the truth's median rope tension, N."""
@@ -79,11 +73,12 @@ def fly(scenario: str, seed: int) -> tuple[np.ndarray, float]:
     def along(n: np.ndarray, e: np.ndarray) -> np.ndarray:
         return n * d[0] + e * d[1]
 
-    # the body's down axis and the rope's pull on the balloon point to the anchor: down, and upwind as they lean
+    # each angle from the vertical, atan2(its part downwind, its part up from the anchor): the body's down axis and
+    # the rope's pull on the balloon point to the anchor (down, and upwind as they lean), the chord from it
     pull_down = np.sqrt(np.maximum(1.0 - a[:, 4] ** 2 - a[:, 5] ** 2, 0.0))
-    rows = np.column_stack([a[:, 0], lean_angle(-along(a[:, 1], a[:, 2]), a[:, 3]),
-                            lean_angle(-along(a[:, 4], a[:, 5]), pull_down),
-                            lean_angle(along(a[:, 6], a[:, 7]), -a[:, 8])])  # fmt: skip
+    rows = np.column_stack([a[:, 0], np.arctan2(-along(a[:, 1], a[:, 2]), a[:, 3]),
+                            np.arctan2(-along(a[:, 4], a[:, 5]), pull_down),
+                            np.arctan2(along(a[:, 6], a[:, 7]), -a[:, 8])])  # fmt: skip
     return rows, 0.5 * float(np.median(a[:, 11]) + np.median(a[:, 12]))
 
 

@@ -73,7 +73,7 @@ static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, 
     for (i = 0; i < 3; i++) {
         bw_real cn = r[i], ce = r[3 + i], cd = r[6 + i]; /* row i of R^T */
         pred[i] = cn * yn + ce * ye + cd * yd;
-        if (e->mode == BW_MODE_TAUT) /* accel.py radial_axis: R^T p */
+        if (e->mode == BW_MODE_TAUT) /* accel.py fuse_accel: R^T p */
             radial[i] = cn * e->x[BW_POS_N] + ce * e->x[BW_POS_E] + cd * e->x[BW_POS_D];
         /* d/d att: R^T [y x] */
         e->H3[i][BW_ATT_N] = ce * yd - cd * ye;

@@ -56,7 +56,7 @@ void bw_enter_taut(bw_ekf_t *e, bw_real height_m, bw_real rho, int from_tilt)
 bw_real bw_lean_variance(const bw_ekf_t *e, bw_real cn, bw_real ce, bw_real zn, bw_real ze, bw_real zd)
 {
     bw_real g[3];
-    bw_lean_jacobian(cn, ce, zn, ze, zd, g);
+    bw_lean_jacobian(cn, ce, BW_R(0.0), zn, ze, zd, g);
     return bw_attitude_variance(e, g[0], g[1], g[2]);
 }
 
@@ -135,7 +135,7 @@ static void fuse_taut(bw_estimator_t *est, bw_real along_var, bw_real cross_var)
             /* c . d n / d x: d n_d / d x = -(n_n dn_n + n_e dn_e) / n_d */
             const bw_real kn = cn - cd * n[0] / n_d, ke = ce - cd * n[1] / n_d;
             bw_real g[3], hb[3] = {BW_R(0.0), BW_R(0.0), BW_R(0.0)}, var_att;
-            bw_lean_jacobian3(cn, ce, cd, zn, ze, zd, g);
+            bw_lean_jacobian(cn, ce, cd, zn, ze, zd, g);
             if (var[cc] > BW_R(0.0))
                 field_axis_row(g, est->field_ned, share * est->align_var / var[cc], hb);
             var_att = BW_MAX(BW_R(0.0), bw_attitude_variance(e, g[0], g[1], g[2]) -

@@ -109,7 +109,7 @@ bw_real bw_lean_tilt_variance(bw_real cross_var, bw_real extra, const bw_real fi
     cn = ze / lean, ce = -zn / lean;
     b = BW_SQRT(field_ned[0] * field_ned[0] + field_ned[1] * field_ned[1] + field_ned[2] * field_ned[2]);
     if (b > BW_R(0.0)) {
-        bw_lean_jacobian(cn, ce, zn, ze, zd, g);
+        bw_lean_jacobian(cn, ce, BW_R(0.0), zn, ze, zd, g);
         across = (g[0] * field_ned[0] + g[1] * field_ned[1] + g[2] * field_ned[2]) / b;
         along = zd * (cn * field_ned[0] + ce * field_ned[1]) / b;
         cross_var += extra * (across * across + BW_R(0.25) * along * along);

@@ -72,14 +72,10 @@ void bw_consistency_evaluate(bw_consistency_t *m);
 bw_real bw_heading_misfit_variance(const bw_consistency_t *m);
 bw_real bw_field_variance(const bw_ekf_t *e, const bw_real field_ned[3]);
 bw_real bw_attitude_variance(const bw_ekf_t *e, bw_real g0, bw_real g1, bw_real g2);
-/* consistency.py lean_jacobian: c . d z / d att = z x c, the body's down axis z along a horizontal component c */
-static inline void bw_lean_jacobian(bw_real cn, bw_real ce, bw_real zn, bw_real ze, bw_real zd, bw_real g[3])
-{
-    g[0] = -ce * zd, g[1] = cn * zd, g[2] = ce * zn - cn * ze;
-}
-/* the same along a component c = (cn, ce, cd) that is not horizontal (consistency.py lean_jacobian with cd) */
-static inline void bw_lean_jacobian3(bw_real cn, bw_real ce, bw_real cd, bw_real zn, bw_real ze, bw_real zd,
-                                     bw_real g[3])
+/* consistency.py lean_jacobian: c . d z / d att = z x c, the body's down axis z along a component c = (cn, ce, cd)
+ * (horizontal where cd = 0) */
+static inline void bw_lean_jacobian(bw_real cn, bw_real ce, bw_real cd, bw_real zn, bw_real ze, bw_real zd,
+                                    bw_real g[3])
 {
     g[0] = ze * cd - ce * zd, g[1] = cn * zd - zn * cd, g[2] = ce * zn - cn * ze;
 }

@@ -34,15 +34,17 @@ if TYPE_CHECKING:
 
 def fuse_accel(
     ekf: WindEkf, fx: float, fy: float, fz: float, var: float, status: list[FusionStatus], var_z_extra: float = 0.0,
-    misfit: float = 0.0, radial: tuple[float, float, float] = (0.0, 0.0, 0.0), radial_var: float = 0.0,
-) -> None:  # fmt: skip
+    misfit: float = 0.0, radial_var: float = 0.0,
+) -> tuple[float, float, float]:  # fmt: skip
     """Specific force in FRD against the force model, f = R^T (a(x) - g) + (0, 0, b_z): tilt (through
     g) and the balloon's dynamics (drag of the wind, the air's push, the rope) through a(x), with the
     body-z bias b_z (a persistent vertical misfit would otherwise be read as a lean of the wind). On
     the ground the balloon is held (a = 0): a gravity reference, where b_z is learnt; in flight these rows leave it
     out (there it would trade with the lean) and ``fuse_bias_magnitude`` follows it. The three axes are fused as
-    one vector, with ``radial_var radial radial^T`` more noise along the tether's radius (``radial``: R^T p,
-    ``radial_axis``)."""
+    one vector, with ``radial_var radial radial^T`` more noise along the tether's radius: ``radial`` = R^T p, the
+    balloon's position from the anchor in the body frame (its outer product over |p|^2 is the unit vector's, one
+    division where the unit vector takes three and a root: the Cortex-M4F's budget). Returns ``radial`` (zeros off
+    the taut tether)."""
     r = rotation(*ekf.q.tolist())
     f = ekf.forces
     ground = ekf.mode == MODE_GROUND
@@ -53,10 +55,15 @@ def fuse_accel(
     H = ekf.H3
     H.fill(0.0)
     pred = [0.0, 0.0, 0.0]
+    radial = [0.0, 0.0, 0.0]
+    pn, pe, pd = float(ekf.x[0]), float(ekf.x[1]), float(ekf.x[2])
+    taut = ekf.mode == MODE_TAUT
     rt = ekf.rt
     for i in range(3):
         cn, ce, cd = r[i], r[3 + i], r[6 + i]  # row i of R^T
         pred[i] = cn * yn + ce * ye + cd * yd
+        if taut:
+            radial[i] = cn * pn + ce * pe + cd * pd
         h = ekf.H3_rows[i]
         # d/d att: R^T [y x]
         h[ATT_N] = ce * yd - cd * ye
@@ -77,20 +84,9 @@ def fuse_accel(
     # the gyro bias too, in proportion to ``misfit`` (0: the model explains the accelerometer, 1: it does not)
     tilt_gain = 1.0 if ground else min(1.0, math.sqrt(ekf.dt / ACCEL_MODEL_CORR_S))
     heading_gain = 1.0 - misfit * (1.0 - tilt_gain)
-    ekf.fuse3(fx - pred[0], fy - pred[1], fz - pred[2], var, status, var_z_extra, tilt_gain, heading_gain, radial,
-              radial_var)  # fmt: skip
-
-
-def radial_axis(ekf: WindEkf) -> tuple[tuple[float, float, float], float]:
-    """The balloon's position from the anchor in the body frame, R^T p (its direction is the tether's radius), and
-    |p|^2: a unit vector's outer product is theirs over |p|^2, one division where the unit vector takes three and a
-    root (the Cortex-M4F's budget)."""
-    pn, pe, pd = float(ekf.x[0]), float(ekf.x[1]), float(ekf.x[2])
-    r = rotation(*ekf.q.tolist())
-    return (
-        (r[0] * pn + r[3] * pe + r[6] * pd, r[1] * pn + r[4] * pe + r[7] * pd, r[2] * pn + r[5] * pe + r[8] * pd),
-        pn * pn + pe * pe + pd * pd,
-    )
+    ekf.fuse3(fx - pred[0], fy - pred[1], fz - pred[2], var, status, var_z_extra, tilt_gain, heading_gain,
+              (radial[0], radial[1], radial[2]), radial_var)  # fmt: skip
+    return radial[0], radial[1], radial[2]
 
 
 def radial_noise(innov2_radial: float, var: float) -> float:
@@ -200,17 +196,18 @@ def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
     var = nominal = accel_nominal_var(est)
     var = max(var, est._accel_innov2)
     taut = ekf.mode == MODE_TAUT
-    radial, d2, radial_var = (0.0, 0.0, 0.0), 0.0, 0.0  # radial_var per unit of |R^T p|^2 (radial_axis)
+    d2, radial_var = 0.0, 0.0  # |p|^2, and radial_var per unit of |R^T p|^2 (fuse_accel)
     if taut:  # the rope's breathing along the radius is its own noise (radial_noise)
-        radial, d2 = radial_axis(ekf)
+        pn, pe, pd = float(ekf.x[0]), float(ekf.x[1]), float(ekf.x[2])
+        d2 = pn * pn + pe * pe + pd * pd
         if d2 > 1.0:
             radial_var = radial_noise(est._accel_radial_innov2, var) / d2
     est._accel_var_excess = var - nominal
     # the accelerometer's windowed NIS (the consistency monitor) from FLAG_NIS to twice that: the model stops
     # explaining it; the vertical air the model leaves out moves the balloon along its body z (_vertical_gust_var)
     misfit = accel_misfit(est.consistency.nis[ACCEL])
-    fuse_accel(ekf, ax, ay, az, var, est.accel_status, est.vertical_gust_var if ekf.mode != MODE_GROUND else 0.0,
-               misfit, radial, radial_var)  # fmt: skip
+    radial = fuse_accel(ekf, ax, ay, az, var, est.accel_status,
+                        est.vertical_gust_var if ekf.mode != MODE_GROUND else 0.0, misfit, radial_var)  # fmt: skip
     st = est.accel_status
     n0, n1, n2 = st[0].innov, st[1].innov, st[2].innov
     a = est._innov_alpha
