@@ -87,9 +87,9 @@ def _structs(real):
             ("var_max", real * N), ("q_flight", real * N), ("q_ground", real * N), ("qd_ground", real * N),
             ("dt", real), ("rate_decay", real), ("q_rate0", real), ("u0", real), ("q_walk_step", real),
             ("wp_tau_s", real), ("wp_q_rate", real), ("wp_q_walk", real), ("sigma_rate", real), ("forces", Forces),
-            ("rope_chord_m", real), ("rope_weight_n", real), ("rope_rate_mps", real), ("mode", i32),
-            ("learn_drag", i32),
-            ("drag_correlated", i32), ("recover_after", i32), ("time_us", i64), ("taut_phase", i32),
+            ("rope_chord_m", real), ("rope_weight_n", real), ("rope_rate_mps", real), ("mode", u8),
+            ("learn_drag", u8),
+            ("drag_correlated", u8), ("recover_after", i32), ("time_us", i64), ("taut_phase", i32),
             ("noise_phase", i32), ("reset_counts", i32 * len(RESET_NAMES)),
             ("reset_count", i32), ("field_att_extra", real),
         ]  # fmt: skip
@@ -105,6 +105,8 @@ def _structs(real):
             ("balance_n", real),
             ("balance_e", real),
             ("balance_var", real),
+            ("lean_tilt", real),
+            ("lean_misfit", real),
         ]
 
     class Schedule(C.Structure):
@@ -282,6 +284,14 @@ class _Consistency:
     @property
     def slow_tilt_var(self) -> float:
         return self._m.slow_tilt_var
+
+    @property
+    def lean_tilt(self) -> float:
+        return self._m.lean_tilt
+
+    @property
+    def lean_misfit(self) -> float:
+        return self._m.lean_misfit
 
     def names(self) -> list[str]:
         return [name for i, name in enumerate(SOURCES) if self._m.flags >> i & 1]

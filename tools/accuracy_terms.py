@@ -33,9 +33,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from balloon_core.rotation import quat_from_euler, rotation, rotation_error  # noqa: E402
 from balloon_core.score import score  # noqa: E402
 from benchmarks.bench_envelope import sample, sections_of  # noqa: E402
-from firmware_py.estimator.consistency import NIS_CLIP, SOURCES, systematic_variance  # noqa: E402
+from firmware_py.estimator.consistency import NIS_CLIP, SOURCES, lean_misfit_wind, systematic_variance  # noqa: E402
 from firmware_py.estimator.control import Estimator  # noqa: E402
-from firmware_py.estimator.state import ATT_D, ATT_N, BARO_OFF, DRAG  # noqa: E402
+from firmware_py.estimator.state import ATT_D, ATT_N, BARO_OFF, DRAG, MODE_TAUT  # noqa: E402
 from sim_hil.simulator import TRUTH_COLUMNS, Simulation  # noqa: E402
 from study.spec import build  # noqa: E402
 
@@ -83,13 +83,22 @@ def terms(point: dict, duration_s: float, settings: tuple[str, ...] = ()) -> dic
         ekf = est.ekf
         wn, we = est.wind()
         speed, k, kv = math.hypot(wn, we), float(ekf.x[DRAG]), float(ekf.P[DRAG, DRAG])
-        lean = est.lean_wind_mps()
+        lean, c = est.lean_wind_mps(), est.consistency
+        misfit = lean_misfit_wind(speed, c.lean_tilt, c.lean_misfit) if ekf.mode == MODE_TAUT else 0.0
         rows.append((s.time_usec * 1e-6, wn, we, est.wind_accuracy(), ekf.wind_accuracy() ** 2,
                      systematic_variance(speed, k, kv, 0.0), lean**2, est.consistency.inflation, float(ekf.x[BARO_OFF]),
                      float(ekf.P[BARO_OFF, BARO_OFF]), k, *est.consistency.nis,
-                     *(min(v, 3.0 * NIS_CLIP) for v in est._accel_axis_nis)))  # fmt: skip
-        att.append((*ekf.q.tolist(), *est.field_ned, *ekf.P[ATT_N : ATT_D + 1, ATT_N : ATT_D + 1].ravel(),
-                    est.field_extra_variance(), est.consistency.slow_tilt))
+                     *(min(v, 3.0 * NIS_CLIP) for v in est._accel_axis_nis),
+                     misfit))  # fmt: skip
+        att.append(
+            (
+                *ekf.q.tolist(),
+                *est.field_ned,
+                *ekf.P[ATT_N : ATT_D + 1, ATT_N : ATT_D + 1].ravel(),
+                est.field_extra_variance(),
+                est.consistency.slow_tilt,
+            )
+        )
         rb = rotation(*ekf.q.tolist())
         along.append((est.accel_status[2].innov, rb[2], rb[5], rb[8]))  # the body's z misfit; its axis, NED
     r = np.array(rows)
@@ -102,7 +111,7 @@ def terms(point: dict, duration_s: float, settings: tuple[str, ...] = ()) -> dic
     out = {"error": rms(err**2), "mean_vector_error": math.hypot(r[late, 1].mean() - tn.mean(),
                                                                   r[late, 2].mean() - te.mean()),
            "accuracy": rms(r[late, 3] ** 2), "P": rms(r[late, 4]), "drag": rms(r[late, 5]),
-           "tilt": rms(r[late, 6]), "inflation": float(r[late, 7].mean())}  # fmt: skip
+           "tilt": rms(r[late, 6]), "inflation": float(r[late, 7].mean()), "misfit": rms(r[late, -1] ** 2)}  # fmt: skip
     n = int(round(WALK_WINDOW_S * 10.0))
     off, sd = r[late, 8], np.sqrt(r[late, 9])
     out["offset_walk_m"] = float(np.max(np.abs(off[n:] - off[:-n]))) if len(off) > n else math.nan
@@ -165,8 +174,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("flights", type=int, nargs="+", help="flight numbers of the envelope's sample")
     ap.add_argument("--quick", action="store_true", help="the --quick sample (64 flights) and 300 s")
     ap.add_argument("--duration", type=float, default=None, help="simulated seconds (default 300 quick, else 600)")
-    ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                    help="change one thing of every flight's world or design (repeatable), e.g. sensors.gyro_dps=0.1")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="change one thing of every flight's world or design (repeatable), e.g. sensors.gyro_dps=0.1",
+    )
     a = ap.parse_args(argv)
     points = sample(64 if a.quick else 200)
     duration = a.duration or (300.0 if a.quick else 600.0)
@@ -187,7 +201,7 @@ def main(argv: list[str] | None = None) -> int:
         print("changed: " + ", ".join(a.set))
     print("| flight | wind | rope | error | speed error | direction error | drag scale (truth's C_d / design's) "
           "| accuracy "
-          "| = sqrt(P^2 + drag^2 + tilt^2) x inflation | error/accuracy "
+          "| = sqrt((sqrt(P^2 + drag^2 + tilt^2) x inflation)^2 + lean misfit^2) | error/accuracy "
           "| worst 20 s offset walk / its sigma | NIS " + " ".join(SOURCES) + " | accel NIS body x y z "
           "| attitude about the field: RMS error (the truth's turn from the estimate) / P's / stated, deg "
           "| the accelerometer's slow innovation as that rotation: RMS, deg (its correlation with the error: positive "
@@ -206,8 +220,8 @@ def main(argv: list[str] | None = None) -> int:
               f"{t['error']:.3f} | "
               f"{t['speed_error_pct']:+.1f} % | {t['direction_error_deg']:+.1f} deg | "
               f"{t['drag_scale']:.3f} ({w['truth']['drag_coefficient_scale']:.3f}) | {t['accuracy']:.3f} | "
-              f"sqrt({t['P']:.3f}^2 + {t['drag']:.3f}^2 + "
-              f"{t['tilt']:.3f}^2) x {t['inflation']:.2f} | {t['error'] / t['accuracy']:.2f} | "
+              f"sqrt((sqrt({t['P']:.3f}^2 + {t['drag']:.3f}^2 + {t['tilt']:.3f}^2) x {t['inflation']:.2f})^2 + "
+              f"{t['misfit']:.3f}^2) | {t['error'] / t['accuracy']:.2f} | "
               f"{t['offset_walk_m']:.1f} m / {t['offset_sigma_m']:.2f} m | {nis} | "
               f"{t['nis_accel_x']:.2f} {t['nis_accel_y']:.2f} {t['nis_accel_z']:.2f} | "
               f"{t['about_field_deg']:.2f} / {t['about_field_sigma_deg']:.2f} / {t['about_field_stated_deg']:.2f} | "

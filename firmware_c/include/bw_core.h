@@ -105,7 +105,8 @@ typedef struct {
     bw_forces_t forces;
     bw_real rope_chord_m, rope_weight_n;      /* catenary.py RopeShape */
     bw_real rope_rate_mps;       /* the chord's rate while a winch reels (0: none) */
-    int32_t mode, learn_drag, drag_correlated, recover_after;
+    uint8_t mode, learn_drag, drag_correlated; /* one byte each: the RAM (docs/porting.md) */
+    int32_t recover_after;
     int64_t time_us;
     int32_t taut_phase, noise_phase;   /* step % taut_every, step % wind_noise_every */
     int32_t reset_counts[4];
@@ -120,6 +121,7 @@ typedef struct {
     int32_t flag_changes;
     bw_real slow_tilt, slow_tilt_var;  /* the accelerometer's slow innovation as a tilt about the field, its mean square */
     bw_real balance_n, balance_e, balance_var; /* the velocity's updates, their mean; the variance they take, its mean */
+    bw_real lean_tilt, lean_misfit; /* the body's taut tilt and the alignment's along innovation, their means */
 } bw_consistency_t;
 
 typedef struct {

@@ -10,6 +10,7 @@ void bw_consistency_reset(bw_consistency_t *m)
     m->inflation = BW_R(1.0);
     m->slow_tilt = m->slow_tilt_var = BW_R(0.0);
     m->balance_n = m->balance_e = m->balance_var = BW_R(0.0);
+    m->lean_tilt = m->lean_misfit = BW_R(0.0);
 }
 
 /* consistency.py heading_misfit_variance: the attitude's variance about the field's axis that the accelerometer's
@@ -33,6 +34,29 @@ bw_real bw_balance_nis(const bw_consistency_t *m, bw_real alpha)
     if (!(expected > BW_R(0.0)))
         return BW_R(0.0);
     return (m->balance_n * m->balance_n + m->balance_e * m->balance_e) / expected;
+}
+
+/* consistency.py Consistency.add_lean: the body's taut tilt and the alignment's along innovation, their means over
+ * the window (the tilt's from its first sample, the misfit's from zero) */
+void bw_consistency_add_lean(bw_consistency_t *m, bw_real tilt, bw_real misfit, bw_real alpha)
+{
+    m->lean_tilt = m->lean_tilt == BW_R(0.0) ? tilt : m->lean_tilt + alpha * (tilt - m->lean_tilt);
+    m->lean_misfit += alpha * (misfit - m->lean_misfit);
+}
+
+/* consistency.py lean_misfit_wind: the wind error of a lean the body and the taut model disagree on, persistently
+ * (the two leans' tangents tell two winds, |w|^2 ~ tan), each lean at most the pull's steepest, bounded by the
+ * wind's own speed or 0.5 m/s */
+bw_real bw_lean_misfit_wind(bw_real speed, bw_real tilt, bw_real misfit)
+{
+    const bw_real bound = BW_MAX(speed, BW_R(0.5)), c = (bw_real)BW_ALIGN_PULL_DOWN_MIN;
+    const bw_real top = BW_ATAN2(BW_SQRT(BW_R(1.0) - c * c), c), lean = tilt - misfit;
+    bw_real a, b, ratio;
+    if (!(tilt > BW_R(0.0) && lean > BW_R(0.0)))
+        return bound;
+    a = BW_MIN(tilt, top), b = BW_MIN(lean, top);
+    ratio = BW_SIN(a) * BW_COS(b) / (BW_COS(a) * BW_SIN(b));
+    return BW_MIN(speed * BW_FABS(BW_R(1.0) - BW_SQRT(ratio)), bound);
 }
 
 void bw_consistency_evaluate(bw_consistency_t *m)

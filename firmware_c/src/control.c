@@ -680,6 +680,8 @@ bw_real bw_wind_accuracy(const bw_estimator_t *est)
         sys_var = bw_systematic_variance(speed, e->x[BW_DRAG], e->P[BW_DRAG][BW_DRAG], lean);
     }
     acc = BW_SQRT(w * w + sys_var) * est->consistency.inflation;
+    if (e->mode == BW_MODE_TAUT) /* not scaled by the monitor's factor, which measures the same misfit (control.py) */
+        acc = BW_HYPOT(acc, bw_lean_misfit_wind(speed, est->consistency.lean_tilt, est->consistency.lean_misfit));
     if (est->unconfirmed)
         acc = BW_MAX(acc, BW_SQRT(wn * wn + we * we + BW_R(1.0)));
     return acc;

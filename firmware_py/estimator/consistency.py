@@ -43,7 +43,7 @@ from __future__ import annotations
 import math
 
 from balloon_core.atmosphere import G0
-from firmware_py.estimator.params import LEAN_BIAS_RAD, LEAN_COS_MIN
+from firmware_py.estimator.params import ALIGN_PULL_DOWN_MIN, LEAN_BIAS_RAD, LEAN_COS_MIN
 from firmware_py.estimator.state import ATT_D, ATT_E, ATT_N
 
 SOURCES = ("accel", "align", "radius", "baro", "mag", "force")
@@ -77,6 +77,8 @@ class Consistency:
         "balance_n",
         "balance_e",
         "balance_var",
+        "lean_tilt",
+        "lean_misfit",
     )
 
     def __init__(self) -> None:
@@ -88,6 +90,8 @@ class Consistency:
         self.slow_tilt_var = 0.0  # its square's mean over CONSISTENCY_S, rad^2
         self.balance_n = self.balance_e = 0.0  # the velocity's measurement updates, N and E, their mean (m/s per step)
         self.balance_var = 0.0  # what they take from the velocity's variance, its mean ((m/s)^2 per step)
+        self.lean_tilt = 0.0  # the body's tilt on the taut tether, its mean over the window (rad; 0: none yet)
+        self.lean_misfit = 0.0  # the alignment's along innovation (the tilt less the model pull's lean), its mean (rad)
 
     def reset(self) -> None:
         for i in range(len(SOURCES)):
@@ -96,6 +100,7 @@ class Consistency:
         self.inflation = 1.0
         self.slow_tilt = self.slow_tilt_var = 0.0
         self.balance_n = self.balance_e = self.balance_var = 0.0
+        self.lean_tilt = self.lean_misfit = 0.0
 
     def add(self, source: int, nis: float, alpha: float) -> None:
         """One normalised innovation squared of ``source``, weight ``alpha`` (its interval / window)."""
@@ -123,6 +128,15 @@ class Consistency:
         self.balance_var = taken if self.balance_var == 0.0 else self.balance_var + alpha * (taken - self.balance_var)
         if judge_alpha > 0.0:
             self.add(FORCE, balance_nis(self.balance_n, self.balance_e, self.balance_var, alpha), judge_alpha)
+
+    def add_lean(self, tilt_rad: float, misfit_rad: float, alpha: float) -> None:
+        """One taut alignment: the body's tilt from the vertical and the along innovation (the tilt less the lean of
+        the pull the model puts on the balloon at the state), weight ``alpha`` (its interval / CONSISTENCY_S): their
+        means over the window (``lean_misfit_wind``): the tilt's from its first sample, the misfit's from zero (a
+        consistent filter's, so that the taut entry's settling does not count in full; a persistent misfit has its
+        mean within a window)."""
+        self.lean_tilt = tilt_rad if self.lean_tilt == 0.0 else self.lean_tilt + alpha * (tilt_rad - self.lean_tilt)
+        self.lean_misfit += alpha * (misfit_rad - self.lean_misfit)
 
     def evaluate(self) -> None:
         """The flags and the accuracy factor from the windowed NIS."""
@@ -155,6 +169,28 @@ def balance_nis(mean_n: float, mean_e: float, mean_var: float, alpha: float) -> 
     if not expected > 0.0:
         return 0.0
     return (mean_n * mean_n + mean_e * mean_e) / expected
+
+
+def lean_misfit_wind(speed_mps: float, tilt_rad: float, misfit_rad: float) -> float:
+    """The wind error (m/s) of a lean that the balloon's body and the taut model disagree on, persistently: the body
+    is tilted by ``tilt_rad`` from the vertical (the window's mean), the pull the model puts on the balloon at the state
+    leans by that less ``misfit_rad`` (the alignment's along innovation, its mean: ``Consistency.add_lean``). The lean
+    is the pull, tan(lean) = D / N_b with D ~ |w|^2 (paper Eq. 5), so the wind that would lean the pull as the body
+    leans is sqrt(tan(tilt) / tan(pull's lean)) of the state's: the two measures of the lean tell two winds, and the
+    state may be either. A consistent filter's misfit is the rocking's mean, near zero, and the term with it; blown
+    down, where tan grows without bound, a few degrees between the two are the wind's whole scale (a 14 m/s class B
+    gust flight on the paper's rope: the misfit 0.2 rad, the body at 77 deg and the state at 89, the wind read 110 m/s
+    where 15 blew, with 20 m/s stated). Each lean at most the pull's steepest (ALIGN_PULL_DOWN_MIN); bounded by a wind
+    whose scale is unknown (its own speed, or 0.5 m/s), which is also the answer where either lean is not above the
+    vertical."""
+    bound = max(speed_mps, 0.5)
+    lean = tilt_rad - misfit_rad
+    if not (tilt_rad > 0.0 and lean > 0.0):
+        return bound
+    top = math.acos(ALIGN_PULL_DOWN_MIN)
+    a, b = min(tilt_rad, top), min(lean, top)
+    ratio = math.sin(a) * math.cos(b) / (math.cos(a) * math.sin(b))
+    return min(speed_mps * abs(1.0 - math.sqrt(ratio)), bound)
 
 
 def accel_misfit(nis: float) -> float:

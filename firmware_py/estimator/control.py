@@ -31,6 +31,7 @@ from firmware_py.estimator.consistency import (
     heading_misfit_variance,
     lean_bias_rad,
     lean_bias_wind,
+    lean_misfit_wind,
     lean_tilt_variance,
     systematic_variance,
 )
@@ -658,6 +659,10 @@ class Estimator:
             speed = math.sqrt(wn * wn + we * we)
             sys_var = systematic_variance(speed, float(ekf.x[DRAG]), float(ekf.P[DRAG, DRAG]), self.lean_wind_mps())
         acc = math.sqrt(ekf.wind_accuracy() ** 2 + sys_var) * self.consistency.inflation
+        if ekf.mode == MODE_TAUT:  # the lean the body and the model disagree on: not scaled by the monitor's factor,
+            # which measures the same misfit (consistency.lean_misfit_wind)
+            c = self.consistency
+            acc = math.hypot(acc, lean_misfit_wind(math.sqrt(wn * wn + we * we), c.lean_tilt, c.lean_misfit))
         if self.unconfirmed:
             acc = max(acc, math.sqrt(wn * wn + we * we + 1.0))
         return acc

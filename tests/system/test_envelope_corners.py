@@ -290,8 +290,10 @@ def test_the_paper_rope_in_class_b_gusts_keeps_its_lean(seed):
     stated to 1 m/s (error/accuracy 4.7, band skill -1.6). The noise now follows their spread about their mean:
     a persistent along misfit says the state is off and pulls the lean back. The mean wind within 8 %, honest,
     skilful (the barometer's offset still ends 14 m off with seed 1: the rope model's height in the gusts). Honest
-    from 0.4: the gusts' drag outruns the wind's state, the measurements pull the balloon back for seconds at a time,
-    and the force balance's factor (consistency.balance_nis) states that too (0.43-0.52, where it was 0.6-0.7)."""
+    from 0.35: the gusts' drag outruns the wind's state, the measurements pull the balloon back for seconds at a time,
+    and the force balance's factor (consistency.balance_nis) states that too (0.42-0.51, where it was 0.6-0.7); and
+    the rocking body leans 1-3 deg further than the model's pull for minutes, which the lean's misfit states
+    (consistency.lean_misfit_wind: 0.39-0.49), the price of a blown-down balloon that says its wind is unknown."""
     from sim_hil.scenarios import SCENARIOS
 
     sc = SCENARIOS["gusty-6"]
@@ -299,7 +301,7 @@ def test_the_paper_rope_in_class_b_gusts_keeps_its_lean(seed):
     s = score(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], truth["time_s"], truth["wind_n"], truth["wind_e"],
               120.0)  # fmt: skip
     assert abs(s.speed_error_pct) <= 8.0, s
-    assert 0.4 <= s.error_ratio <= 1.5, s
+    assert 0.35 <= s.error_ratio <= 1.5, s
     assert s.band_skill >= 0.5, s
 
 
@@ -428,4 +430,24 @@ def test_a_balloon_blown_down_by_a_strong_wind_says_how_little_it_knows():
 
     assert honest(est), est
     assert est["skill"] < 0.3 and m["constant"]["err_acc"] <= 1.0, (est, m["constant"])
+    assert not honest(m["constant"]) and not honest(m["delayed"]), (m["constant"], m["delayed"])
+
+
+def test_a_balloon_blown_down_on_the_paper_rope_in_class_b_gusts_says_its_wind_is_unknown():
+    """Beyond the envelope: the stress sample's flight 8 (``bench_envelope --quick --max-wind 15``), class B gusts of
+    14.4 m/s with vertical air on the paper's rope, r = 1.06 m on 52 m, five minutes from 120 s. The balloon leans
+    75-85 deg and its state slides to the horizontal, the barometer's offset taking the height: the wind reads seven
+    times the truth, and that is not removed. But the body's tilt (77 deg) and the lean of the pull the model puts on
+    the balloon (87) disagree by 0.2 rad for minutes, and the winds the two leans tell differ by the wind's whole
+    scale (consistency.lean_misfit_wind). Stated, error/accuracy is within the envelope's 0.5-2 (1.5; 5.1 before)
+    and none of the estimates is beyond 3 sigma (99 % before). The constant true mean and the truth delayed by 4 s,
+    against the same stated accuracy, fall below the band."""
+    p = dict(be.sample(64, max_wind_mps=15.0)[8])
+    m = judged(be.sections_of(p), p["seed"], 300.0, 120.0)
+    est = m["estimate"]
+
+    def honest(x: dict[str, float]) -> bool:
+        return 0.5 <= x["err_acc"] <= 2.0 and x["beyond_3sigma"] <= 0.03
+
+    assert honest(est), est
     assert not honest(m["constant"]) and not honest(m["delayed"]), (m["constant"], m["delayed"])

@@ -25,7 +25,8 @@ def test_the_terms_add_up_to_the_reported_accuracy():
     steady = next(i for i, p in enumerate(sample(64)) if p["wind_kind"] == "steady" and p["mean_mps"] > 3.0)
     t = terms(sample(64)[steady], 150.0)
     assert t["inflation"] == 1.0
-    parts = t["P"] ** 2 + t["drag"] ** 2 + t["tilt"] ** 2
+    parts = t["P"] ** 2 + t["drag"] ** 2 + t["tilt"] ** 2 + t["misfit"] ** 2
+    assert 0.0 < t["misfit"] < t["accuracy"]  # the lean the body and the model disagree on: a little, in steady air
     assert t["accuracy"] ** 2 == pytest.approx(parts, rel=1e-6)
     assert 0.0 < t["error"] < t["accuracy"] * 3.0 and t["error"] != pytest.approx(t["accuracy"])
     assert t["offset_sigma_m"] > 0.0 and t["offset_walk_m"] >= 0.0

@@ -24,10 +24,11 @@ from firmware_py.estimator.consistency import (
     heading_misfit_variance,
     lean_bias_rad,
     lean_jacobian,
+    lean_misfit_wind,
     lean_tilt_variance,
     slow_innovation_share,
 )
-from firmware_py.estimator.params import LEAN_BIAS_RAD
+from firmware_py.estimator.params import ALIGN_PULL_DOWN_MIN, LEAN_BIAS_RAD
 from firmware_py.estimator.state import ATT_D, ATT_N
 
 DT = 0.01
@@ -282,3 +283,28 @@ def test_lean_jacobian_is_the_turn_of_the_body_axis_along_any_component(lean_deg
     assert abs(moved) == pytest.approx(e, rel=1e-6)
     horizontal = np.array(lean_jacobian(a[0], a[1], *z)) @ d
     assert abs(horizontal) == pytest.approx(e * math.cos(th), rel=1e-6, abs=1e-15)
+
+
+@pytest.mark.parametrize("true_mps, state_mps", [(3.0, 3.3), (6.0, 4.0), (15.0, 110.0), (1.0, 1.2)])
+def test_the_lean_misfit_states_the_wind_the_bodys_lean_would_tell(true_mps, state_mps):
+    """The lean is the pull, tan(lean) = c |w|^2 (paper Eq. 5): a state whose wind leans the model's pull by phi while
+    the body leans by theta is off by the wind that leans it by theta; the stated term is that difference (bounded by
+    the state's speed), and nil where the two agree."""
+    c = 0.02  # 1/(m/s)^2: a 1 m balloon, 45 deg in 7 m/s
+    theta, phi = math.atan(c * true_mps**2), math.atan(c * state_mps**2)
+    top = math.acos(ALIGN_PULL_DOWN_MIN)
+    want = state_mps * abs(1.0 - math.sqrt(math.tan(min(theta, top)) / math.tan(min(phi, top))))
+    got = lean_misfit_wind(state_mps, theta, theta - phi)
+    assert got == pytest.approx(min(want, state_mps), rel=1e-9)
+    if max(theta, phi) < top:  # below the steepest pull each lean is its own wind's: the term is |w_body - w_state|
+        assert got == pytest.approx(min(abs(true_mps - state_mps), state_mps), rel=1e-9)
+    assert lean_misfit_wind(state_mps, theta, 0.0) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_the_lean_misfit_is_the_lean_sensitivity_when_small_and_bounded_when_the_sense_is_lost():
+    w, theta, m = 4.0, math.radians(30.0), 1e-4
+    assert lean_misfit_wind(w, theta, m) == pytest.approx(w * m / math.sin(2.0 * theta), rel=1e-3)  # d tan / tan
+    assert lean_misfit_wind(w, theta, -m) == pytest.approx(w * m / math.sin(2.0 * theta), rel=1e-3)
+    # the pull would lean the other way, or the body is upright: nothing says the wind's scale
+    assert lean_misfit_wind(w, math.radians(1.0), math.radians(2.0)) == w
+    assert lean_misfit_wind(0.2, 0.0, 0.0) == 0.5
