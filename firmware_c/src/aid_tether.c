@@ -190,8 +190,7 @@ void bw_control_tether(bw_estimator_t *est)
             mean2[1] += est->a_align_innov * (ae->innov * ae->innov - mean2[1]);
             est->align_mean += est->a_align_innov * (an->innov - est->align_mean);
             bw_rotation(e->q, r); /* the body's tilt and the lean the model disagrees with (consistency.c) */
-            bw_consistency_add_lean(&est->consistency, BW_ATAN2(BW_HYPOT(r[2], r[5]), r[8]), an->innov,
-                                    (bw_real)est->sched.taut_every * est->speed_alpha); /* over the mean wind's */
+            bw_consistency_add_lean(&est->consistency, BW_ATAN2(BW_HYPOT(r[2], r[5]), r[8]), an->innov, est->a_taut);
         }
         if (BW_MAX(an->consecutive_rejects, ae->consecutive_rejects) >= est->sched.align_reset) {
             est->counters.taut_resets += 1;

@@ -293,7 +293,7 @@ def test_the_paper_rope_in_class_b_gusts_keeps_its_lean(seed):
     from 0.35: the gusts' drag outruns the wind's state, the measurements pull the balloon back for seconds at a time,
     and the force balance's factor (consistency.balance_nis) states that too (0.42-0.51, where it was 0.6-0.7); and
     the rocking body leans 1-3 deg further than the model's pull for minutes, which the lean's misfit states
-    (consistency.lean_misfit_wind: 0.39-0.49), the price of a blown-down balloon that says its wind is unknown."""
+    (consistency.lean_misfit_wind: 0.39-0.48), the price of a blown-down balloon that says its wind is unknown."""
     from sim_hil.scenarios import SCENARIOS
 
     sc = SCENARIOS["gusty-6"]

@@ -280,8 +280,7 @@ def control_tether(est: Estimator) -> None:
             mean2[1] += est._align_alpha * (cross.innov**2 - mean2[1])
             est._align_mean += est._align_alpha * (along.innov - est._align_mean)
             r = rotation(*ekf.q.tolist())  # the body's tilt and the lean the model disagrees with (consistency.py)
-            tilt = math.atan2(math.hypot(r[2], r[5]), r[8])  # over the mean wind's 60 s: the rocking's mean is small
-            est.consistency.add_lean(tilt, along.innov, est.schedule.taut_every * est._speed_alpha)
+            est.consistency.add_lean(math.atan2(math.hypot(r[2], r[5]), r[8]), along.innov, est._taut_alpha)
         if max(along.consecutive_rejects, cross.consecutive_rejects) >= est.schedule.align_reset:
             est.counters.taut_resets += 1
             along.consecutive_rejects = cross.consecutive_rejects = 0
