@@ -37,9 +37,11 @@ bw_real bw_balance_nis(const bw_consistency_t *m, bw_real alpha)
 }
 
 /* consistency.py Consistency.add_lean: the body's taut tilt and the alignment's along innovation, their means over
- * the window (the tilt's from its first sample, the misfit's from zero) */
+ * the window (the tilt's from its first sample, the misfit's from zero; a NaN not taken) */
 void bw_consistency_add_lean(bw_consistency_t *m, bw_real tilt, bw_real misfit, bw_real alpha)
 {
+    if (!(tilt == tilt && misfit == misfit)) /* an innovation not evaluated (NaN) is not taken */
+        return;
     m->lean_tilt = m->lean_tilt == BW_R(0.0) ? tilt : m->lean_tilt + alpha * (tilt - m->lean_tilt);
     m->lean_misfit += alpha * (misfit - m->lean_misfit);
 }

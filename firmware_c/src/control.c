@@ -461,6 +461,7 @@ static void update_mode(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
         if (dwell_ok && est->pulling >= need) {
             switch_mode(est, BW_MODE_TAUT);
             bw_enter_taut(e, bw_height_for_taut(est), est->rho, 0);
+            est->consistency.lean_tilt = est->consistency.lean_misfit = BW_R(0.0); /* a new taut stretch's own lean */
         }
     } else {
         est->slack = e->forces.taut ? 0 : count_up(est->slack);

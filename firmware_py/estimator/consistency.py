@@ -134,7 +134,9 @@ class Consistency:
         the pull the model puts on the balloon at the state), weight ``alpha`` (its interval / CONSISTENCY_S): their
         means over the window (``lean_misfit_wind``): the tilt's from its first sample, the misfit's from zero (a
         consistent filter's, so that the taut entry's settling does not count in full; a persistent misfit has its
-        mean within a window)."""
+        mean within a window). A NaN (an innovation not evaluated) is not taken."""
+        if not (tilt_rad == tilt_rad and misfit_rad == misfit_rad):
+            return
         self.lean_tilt = tilt_rad if self.lean_tilt == 0.0 else self.lean_tilt + alpha * (tilt_rad - self.lean_tilt)
         self.lean_misfit += alpha * (misfit_rad - self.lean_misfit)
 
@@ -179,15 +181,15 @@ def lean_misfit_wind(speed_mps: float, tilt_rad: float, misfit_rad: float) -> fl
     leans is sqrt(tan(tilt) / tan(pull's lean)) of the state's: the two measures of the lean tell two winds, and the
     state may be either. A consistent filter's misfit is the rocking's mean, near zero, and the term with it; blown
     down, where tan grows without bound, a few degrees between the two are the wind's whole scale (a 14 m/s class B
-    gust flight on the paper's rope: the misfit 0.2 rad, the body at 77 deg and the state at 89, the wind read 110 m/s
-    where 15 blew, with 20 m/s stated). Each lean at most the pull's steepest (ALIGN_PULL_DOWN_MIN); bounded by a wind
-    whose scale is unknown (its own speed, or 0.5 m/s), which is also the answer where either lean is not above the
-    vertical."""
+    gust flight on the paper's rope: the body at 77 deg, the model's pull at 87 (the state's position at 89), the
+    misfit -0.2 rad, the wind read 110 m/s where 15 blew, with 20 m/s stated). Each lean at most the pull's steepest
+    (ALIGN_PULL_DOWN_MIN); bounded by a wind whose scale is unknown (its own speed, or 0.5 m/s), which is also the
+    answer where either lean is not above the vertical."""
     bound = max(speed_mps, 0.5)
     lean = tilt_rad - misfit_rad
     if not (tilt_rad > 0.0 and lean > 0.0):
         return bound
-    top = math.acos(ALIGN_PULL_DOWN_MIN)
+    top = math.atan2(math.sqrt(1.0 - ALIGN_PULL_DOWN_MIN * ALIGN_PULL_DOWN_MIN), ALIGN_PULL_DOWN_MIN)  # 87 deg
     a, b = min(tilt_rad, top), min(lean, top)
     ratio = math.sin(a) * math.cos(b) / (math.cos(a) * math.sin(b))
     return min(speed_mps * abs(1.0 - math.sqrt(ratio)), bound)

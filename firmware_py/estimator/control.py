@@ -635,6 +635,7 @@ class Estimator:
             if dwell_ok and self._pulling >= need:
                 self._switch(MODE_TAUT)
                 enter_taut(ekf, self._height_for_taut(), self.rho)
+                self.consistency.lean_tilt = self.consistency.lean_misfit = 0.0  # a new taut stretch's own lean
         else:
             self._slack = 0 if ekf.forces.taut else count_up(self._slack)
             if dwell_ok and self._slack >= cfg.mode_dwell_s * cfg.imu_rate_hz:
@@ -650,7 +651,8 @@ class Estimator:
     def wind_accuracy(self) -> float:
         """The horizontal wind's 1-sigma accuracy to report (WIND_COV horiz_accuracy): the filter's
         P_NN + P_EE with what P does not hold (consistency.systematic_variance), times the consistency
-        monitor's factor (>= 1: the model does not explain the data); while a join in flight is
+        monitor's factor (>= 1: the model does not explain the data); taut, with the wind of the lean the body and
+        the model disagree on (consistency.lean_misfit_wind) in quadrature; while a join in flight is
         unconfirmed at least sqrt(|w|^2 + 1)."""
         ekf = self.ekf
         wn, we = self.wind()

@@ -285,7 +285,7 @@ def test_lean_jacobian_is_the_turn_of_the_body_axis_along_any_component(lean_deg
     assert abs(horizontal) == pytest.approx(e * math.cos(th), rel=1e-6, abs=1e-15)
 
 
-@pytest.mark.parametrize("true_mps, state_mps", [(3.0, 3.3), (6.0, 4.0), (15.0, 110.0), (1.0, 1.2)])
+@pytest.mark.parametrize("true_mps, state_mps", [(3.0, 3.3), (6.0, 4.0), (15.0, 110.0), (1.0, 1.2), (6.0, 2.0)])
 def test_the_lean_misfit_states_the_wind_the_bodys_lean_would_tell(true_mps, state_mps):
     """The lean is the pull, tan(lean) = c |w|^2 (paper Eq. 5): a state whose wind leans the model's pull by phi while
     the body leans by theta is off by the wind that leans it by theta; the stated term is that difference (bounded by
@@ -308,3 +308,20 @@ def test_the_lean_misfit_is_the_lean_sensitivity_when_small_and_bounded_when_the
     # the pull would lean the other way, or the body is upright: nothing says the wind's scale
     assert lean_misfit_wind(w, math.radians(1.0), math.radians(2.0)) == w
     assert lean_misfit_wind(0.2, 0.0, 0.0) == 0.5
+
+
+def test_the_lean_means_start_from_the_first_tilt_and_a_consistent_misfit():
+    """The tilt's mean starts at its first sample, the misfit's at zero (a consistent filter's): a persistent misfit
+    reaches 1 - 1/e of itself after one window; a NaN is not taken; the reset forgets both."""
+    c, alpha, n = Consistency(), 0.01, 100  # 100 samples: one window
+    c.add_lean(0.5, 0.1, alpha)
+    assert c.lean_tilt == 0.5 and c.lean_misfit == pytest.approx(0.1 * alpha)
+    for _ in range(n - 1):
+        c.add_lean(0.5, 0.1, alpha)
+    assert c.lean_tilt == pytest.approx(0.5) and c.lean_misfit == pytest.approx(0.1 * (1.0 - (1.0 - alpha) ** n))
+    before = (c.lean_tilt, c.lean_misfit)
+    c.add_lean(math.nan, 0.1, alpha)
+    c.add_lean(0.5, math.nan, alpha)
+    assert (c.lean_tilt, c.lean_misfit) == before
+    c.reset()
+    assert c.lean_tilt == 0.0 and c.lean_misfit == 0.0
