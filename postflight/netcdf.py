@@ -190,8 +190,8 @@ def _consistency_vars(p: WindProduct) -> dict:
             "long_name": "factor on the real-time (causal) filter's horizontal accuracy from its consistency "
                          "monitor", "units": "1",
             "comment": "sqrt of the largest windowed normalised innovation squared, at least 1. WIND_COV's "
-                       "horiz_accuracy included it; the *_causal_uncertainty variables do "
-                       "not."})  # fmt: skip
+                       "horiz_accuracy included it, and so do the *_causal_uncertainty variables (that accuracy) "
+                       "and the smoothed *_uncertainty ones (the smoother's model is the filter's)."})  # fmt: skip
     return out
 
 

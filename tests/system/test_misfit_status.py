@@ -163,6 +163,13 @@ def test_the_product_carries_the_flags_the_firmware_told(gusty):
         assert inf.attrs["units"] == "1"
         flags, factor = cf.values.astype(int), inf.values.astype(float)
         assert "flags" in ds and "eastward_wind_causal_uncertainty" in ds  # the existing ones stay
+        causal = np.hypot(ds["northward_wind_causal_uncertainty"].values, ds["eastward_wind_causal_uncertainty"].values)
+    # the causal uncertainty is the accuracy WIND_COV said in flight, the monitor's factor (and the lean's misfit) in it
+    said = [(t_, m.horiz_accuracy) for t_, m in fw_messages(out) if m.get_type() == "WIND_COV"]
+    k = np.clip(np.searchsorted(t, [t_ for t_, _ in said]), 0, len(t) - 1)
+    same = np.abs(t[k] - np.array([t_ for t_, _ in said])) < 1e-3
+    assert same.sum() > 0.9 * len(said) and np.any(factor[k[same]] > 1.5)
+    np.testing.assert_allclose(causal[k[same]], np.array([a for _, a in said])[same], rtol=1e-3)
     # a flagged time has a factor above sqrt(2) (a windowed NIS above 2), an unflagged one at most that
     assert np.all(factor >= 1.0 - 1e-6)
     assert np.all((flags != 0) == (factor > math.sqrt(2.0) * (1 + 1e-6)))
