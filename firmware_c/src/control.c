@@ -391,7 +391,8 @@ static void weigh_ascent(bw_estimator_t *est, bw_real speed)
     capped = BW_MAX(est->ascent_var, (bw_real)(BW_DRAG_ASCENT_SIGMA * BW_DRAG_ASCENT_SIGMA));
     walked = BW_MAX(BW_R(0.0), e->P[BW_DRAG][BW_DRAG] - BW_R(1.0) / (BW_R(1.0) / prior_var + BW_R(1.0) / capped));
     k = e->x[BW_DRAG];
-    bw_ekf_weigh_information(e, BW_DRAG, prior, prior_var, est->ascent_data, var, walked, BW_RESET_DRAG);
+    bw_ekf_weigh_information(e, BW_DRAG, prior, prior_var, est->ascent_data, var, walked, BW_RESET_DRAG,
+                             (bw_real)BW_DRAG_CONFLICT_SIGMA);
     e->x[BW_DRAG] = BW_MAX(e->x[BW_DRAG], (bw_real)BW_DRAG_SCALE_MIN);
     est->ascent_var = BW_R(0.0);
     /* the drag the state explains stays: the relative wind moves with k */

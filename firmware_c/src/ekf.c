@@ -602,19 +602,28 @@ static void inhibit(bw_ekf_t *e, int i)
 }
 
 /* ekf.py weigh_information: state i as the prior combined with one measurement data of variance data_var, plus
- * walked_var (its random walk since); correlations cut; a reset of kind */
-void bw_ekf_weigh_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_var, bw_real data, bw_real data_var,
-                              bw_real walked_var, int kind)
+ * walked_var (its random walk since); correlations cut; a reset of kind. Where conflict_sigma > 0 and the two differ
+ * by more than that many sigma of their difference, their equal mixture; 1 where they conflicted */
+int bw_ekf_weigh_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_var, bw_real data, bw_real data_var,
+                             bw_real walked_var, int kind, bw_real conflict_sigma)
 {
-    bw_real w, v;
+    bw_real w, v, d = data - prior;
+    int conflict;
     if (!(prior_var > BW_R(0.0) && data_var > BW_R(0.0)))
-        return;
-    w = BW_R(1.0) / data_var;
-    v = BW_R(1.0) / (BW_R(1.0) / prior_var + w);
+        return 0;
+    conflict = conflict_sigma > BW_R(0.0) && d * d > conflict_sigma * conflict_sigma * (prior_var + data_var);
     inhibit(e, i);
-    e->x[i] = v * (prior / prior_var + w * data);
+    if (conflict) {
+        e->x[i] = prior + BW_R(0.5) * d;
+        v = BW_R(0.5) * (prior_var + data_var) + BW_R(0.25) * d * d;
+    } else {
+        w = BW_R(1.0) / data_var;
+        v = BW_R(1.0) / (BW_R(1.0) / prior_var + w);
+        e->x[i] = v * (prior / prior_var + w * data);
+    }
     e->P[i][i] = v + walked_var;
     bw_ekf_reset(e, kind);
+    return conflict;
 }
 
 /* ekf.py cap_information: what the data told state i since the prior is worth at most a measurement of
@@ -630,7 +639,7 @@ bw_real bw_ekf_cap_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_
         return BW_R(0.0);
     *data = (e->x[i] / var - prior / prior_var) / info;
     if (info > BW_R(1.0) / data_var_min)
-        bw_ekf_weigh_information(e, i, prior, prior_var, *data, data_var_min, BW_R(0.0), kind);
+        bw_ekf_weigh_information(e, i, prior, prior_var, *data, data_var_min, BW_R(0.0), kind, BW_R(0.0));
     return BW_R(1.0) / info;
 }
 

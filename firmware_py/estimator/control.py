@@ -50,6 +50,7 @@ from firmware_py.estimator.params import (
     CONFIRM_WINDOW_S,
     DRAG_ASCENT_FLOOR,
     DRAG_ASCENT_SIGMA,
+    DRAG_CONFLICT_SIGMA,
     DRAG_SCALE_MIN,
     FALSE_RELEASE_S,
     GYRO_MAX,
@@ -394,8 +395,10 @@ class Estimator:
         TURBULENCE_FROM_S after the taut entry (its settling over) to TURBULENCE_TO_S the wind speed's variance
         measures sigma_u, and the ascent is weighed as a measurement of sqrt(DRAG_ASCENT_FLOOR^2 + (2 sigma_w /
         v)^2), sigma_w = VERTICAL_TURBULENCE_RATIO sigma_u, never more than its data claimed. Still air trusts
-        the ascent more, gusts less; once per ascent. The wind moves with the drag scale, so that the pull the
-        state explains stays (no step in the estimate)."""
+        the ascent more, gusts less; once per ascent. Where the ascent and the design's prior disagree beyond
+        DRAG_CONFLICT_SIGMA they do not both hold (a sphere's C_d through its drag crisis: the ascent's airspeed is
+        not the tether's) and the scale is their mixture (WindEkf.weigh_information). The wind moves with the drag
+        scale, so that the pull the state explains stays (no step in the estimate)."""
         start, end = self.schedule.turbulence_from, self.schedule.turbulence_to
         tb = self._turbulence
         if self._dwell <= start:
@@ -419,7 +422,7 @@ class Estimator:
         capped = max(self._ascent_var, DRAG_ASCENT_SIGMA * DRAG_ASCENT_SIGMA)
         walked = max(0.0, float(ekf.P[DRAG, DRAG]) - 1.0 / (1.0 / prior_var + 1.0 / capped))
         k = float(ekf.x[DRAG])
-        ekf.weigh_information(DRAG, prior, prior_var, self._ascent_data, var, walked, RESET_DRAG)
+        ekf.weigh_information(DRAG, prior, prior_var, self._ascent_data, var, walked, RESET_DRAG, DRAG_CONFLICT_SIGMA)
         ekf.x[DRAG] = max(float(ekf.x[DRAG]), DRAG_SCALE_MIN)
         self._ascent_var = 0.0
         # the drag the state explains (k |w - v| (w - v), the lean's pull) stays: the relative wind moves with k

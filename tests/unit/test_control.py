@@ -11,14 +11,20 @@ from balloon_core.config import Design
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.ekf import RESET_HEIGHT, RESET_INITIALISE, RESET_NAMES, RESET_TAUT
 from firmware_py.estimator.params import ALIGN_RESET_S, FIELD_LEARN_S, TAUT_PERIOD_S, Schedule
-from firmware_py.estimator.state import MODE_TAUT, FilterConfig
+from firmware_py.estimator.state import MODE_TAUT, WIND_E, WIND_N, FilterConfig
 from tests.helpers.flights import stream
 
 
 def test_schedule_at_the_reference_rate_is_the_flown_one():
     s = Schedule.at(100.0, 1.0)
     assert (s.taut_every, s.align_reset, s.baro_reset, s.mag_recover, s.field_learn, s.field_flight) == (
-        5, 40, 40, 10, 100, 6000)
+        5,
+        40,
+        40,
+        10,
+        100,
+        6000,
+    )
     assert (s.wind_noise_every, s.release_confirm, s.release_height, s.baro_recover) == (100, 3, 50, 20)
 
 
@@ -146,6 +152,39 @@ def test_the_ascent_is_weighed_from_what_it_told_however_long_ago():
     assert ekf.P[DRAG, DRAG] == pytest.approx(v + walked)
 
 
+def test_an_ascent_that_contradicts_the_design_is_weighed_as_either():
+    """An ascent that told a drag scale of 0.5 (claiming 2 %) against the design's 1 +- 0.1: five sigma of their
+    difference apart, beyond DRAG_CONFLICT_SIGMA, so they do not both hold (a sphere through its drag crisis climbs
+    where its C_d is half of what it is on the tether). Weighed again in still air, the scale is their mixture: half
+    way, its variance the two's mean and the square of half their difference (+ the walk since), not the 0.52 +- 0.02
+    a combination would claim; the wind moves with it. Within the gate the combination stands (the test above)."""
+    from firmware_py.estimator.ekf import RESET_DRAG
+    from firmware_py.estimator.params import DRAG_ASCENT_FLOOR, DRAG_CONFLICT_SIGMA
+    from firmware_py.estimator.state import DRAG
+
+    est = Estimator(Design(), FilterConfig())
+    ekf = est.ekf
+    ekf.initialise((1.0, 0.0, 0.0, 0.0), 0.0)
+    prior, prior_var, data, data_var = 1.0, 0.01, 0.5, DRAG_ASCENT_FLOOR**2
+    assert (data - prior) ** 2 > DRAG_CONFLICT_SIGMA**2 * (prior_var + data_var)
+    v = 1.0 / (1.0 / prior_var + 1.0 / data_var)
+    ekf.x[DRAG], ekf.P[DRAG, DRAG] = v * (prior / prior_var + data / data_var), v
+    est._drag_prior = (prior, prior_var)
+    est._ascent_data, est._ascent_var = ekf.cap_information(DRAG, prior, prior_var, 0.1**2, RESET_DRAG)
+    walked = 0.001
+    ekf.P[DRAG, DRAG] += walked
+    ekf.x[WIND_N], ekf.x[WIND_E] = 3.0, 4.0
+    k_before = float(ekf.x[DRAG])
+    for n in range(est.schedule.turbulence_from, est.schedule.turbulence_to + 1):
+        est._dwell = n
+        est._weigh_ascent(5.0)  # still air
+    assert ekf.reset_counts[RESET_DRAG] == 2
+    assert ekf.x[DRAG] == pytest.approx(0.75)
+    assert ekf.P[DRAG, DRAG] == pytest.approx(0.5 * (prior_var + data_var) + 0.25 * 0.5**2 + walked)
+    s = math.sqrt(k_before / 0.75)  # the drag the state explains stays
+    assert math.hypot(float(ekf.x[WIND_N]), float(ekf.x[WIND_E])) == pytest.approx(5.0 * s)
+
+
 def test_what_p_does_not_hold_about_the_field_is_kept_beside_it_and_stated():
     """The attitude's variance about the field's axis that P does not hold (consistency.field_attitude_extra): none
     on the ground, grown in flight (the accelerometer and the alignment misfit in a correlated way), kept through a
@@ -162,7 +201,8 @@ def test_what_p_does_not_hold_about_the_field_is_kept_beside_it_and_stated():
         if est.ekf.reset_counts[RESET_TAUT] > placed:  # a taut entry or re-placement in this step
             entries.append((before, est.ekf.field_att_extra))
         (taut if est.ekf.mode == MODE_TAUT else ground if est.mode_name == "ground" else []).append(
-            est.ekf.field_att_extra)
+            est.ekf.field_att_extra
+        )
     ekf = est.ekf
     assert ground and max(ground) == 0.0
     assert entries and all(after >= 0.5 * before > 0.0 for before, after in entries), entries
