@@ -76,6 +76,7 @@ class Report:
     max_windcov: np.ndarray = field(default_factory=lambda: np.zeros(len(WINDCOV_FIELDS)))
     worst_ratio: float = 0.0  # the largest difference over its tolerance (<= 1: equal)
     mismatch: str = ""  # the first discrete difference (mode, resets, counters, flags, return value)
+    reset_counts: tuple[int, ...] = ()  # the Python core's at the end, per kind (what the run went through)
 
     @property
     def equal(self) -> bool:
@@ -155,6 +156,7 @@ def run(design: Design, cfg: FilterConfig, samples: Iterable[Sample], coast_ever
         if not math.isfinite(ratio):
             ratio = math.inf
         rep.worst_ratio = max(rep.worst_ratio, ratio)
+    rep.reset_counts = tuple(int(n) for n in py.ekf.reset_counts)
     return rep
 
 

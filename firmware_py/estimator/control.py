@@ -395,7 +395,7 @@ class Estimator:
         TURBULENCE_FROM_S after the taut entry (its settling over) to TURBULENCE_TO_S the wind speed's variance
         measures sigma_u, and the ascent is weighed as a measurement of sqrt(DRAG_ASCENT_FLOOR^2 + (2 sigma_w /
         v)^2), sigma_w = VERTICAL_TURBULENCE_RATIO sigma_u, never more than its data claimed. Still air trusts
-        the ascent more, gusts less; once per ascent. Where the ascent and the design's prior disagree beyond
+        the ascent more, gusts less; once per ascent. Where the ascent and the prior it started from disagree beyond
         DRAG_CONFLICT_SIGMA they do not both hold (a sphere's C_d through its drag crisis: the ascent's airspeed is
         not the tether's) and the scale is their mixture (WindEkf.weigh_information). The wind moves with the drag
         scale, so that the pull the state explains stays (no step in the estimate)."""

@@ -56,9 +56,10 @@ DRAG_ASCENT_SIGMA = 0.1
 # are models) and
 # 2 sigma_w / v_climb with vertical air sigma_w = VERTICAL_TURBULENCE_RATIO sigma_u (F ~ k v^2: dk / k = 2 w / v)
 DRAG_ASCENT_FLOOR = 0.02
-# ... unless the ascent and the design's prior disagree beyond this many sigma of their difference (a chance of 0.3 %
-# where both hold): a sphere's C_d depends on its Reynolds number, and through the drag crisis the ascent's airspeed
-# (4-5 m/s) and the tether's differ by half; either may hold, so their mixture is taken (WindEkf.weigh_information)
+# ... unless the ascent and its prior (the design's) disagree beyond this many sigma of their difference (a chance
+# of 0.3 % where both hold): a sphere's C_d depends on its Reynolds number, and through the drag crisis the ascent's
+# airspeed (4-5 m/s) and the tether's differ by half; either may hold, so their mixture is taken
+# (WindEkf.weigh_information)
 DRAG_CONFLICT_SIGMA = 3.0
 TURBULENCE_FROM_S = 60.0
 TURBULENCE_TO_S = 120.0

@@ -20,6 +20,7 @@ from balloon_core.atmosphere import G0
 from balloon_core.config import Design
 from balloon_core.samples import BaroSample, GroundBaroSample, ImuSample, WinchSample
 from firmware_py import lockstep
+from firmware_py.estimator.ekf import RESET_DRAG
 from firmware_py.estimator.state import FilterConfig
 from sim_hil.scenarios import SCENARIOS
 from sim_hil.simulator import Simulation
@@ -62,6 +63,17 @@ def test_every_scenario_double(name):
     rep = lockstep.run(sc.design, dataclasses.replace(sc.filter, float32=False), samples_of(sim.samples()))
     check(rep)
     assert rep.steps >= 1900
+
+
+def test_the_ascent_weighed_again_double():
+    """``drag-crisis`` past the taut flight's turbulence window (TURBULENCE_TO_S after the entry), where the ascent's
+    drag scale is weighed again and, contradicting the design's, taken as their mixture (WindEkf.weigh_information):
+    the lean's misfit and the ascent's weighing in both cores."""
+    sc = SCENARIOS["drag-crisis"]
+    sim = Simulation(sc.design, sc.wind, sc.truth, 170.0, 1)
+    rep = lockstep.run(sc.design, dataclasses.replace(sc.filter, float32=False), samples_of(sim.samples()))
+    check(rep)
+    assert rep.reset_counts[RESET_DRAG] == 2  # the ascent's cap and its weighing again, both compared
 
 
 @pytest.mark.parametrize("name", ["paper-reference", "field-all", "field-reduced", "realistic-mems"])
@@ -153,8 +165,12 @@ def hostile_streams(draw):
 # stream can take a threshold decision (the taut switch, a gate) one sample apart, since the Python reference's
 # float32 matmuls go through numpy's BLAS kernels, which differ in the last bit with the CPU and the process's
 # state; after that they are two different filters. The float32 pair is held equal on real flights (above).
-@settings(max_examples=8, deadline=None, derandomize=True,
-          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@settings(
+    max_examples=8,
+    deadline=None,
+    derandomize=True,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
 @given(hostile_streams())
 def test_hypothesis_sequences(case):
     samples, coast_every = case
