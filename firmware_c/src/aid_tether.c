@@ -179,7 +179,7 @@ void bw_control_tether(bw_estimator_t *est)
         /* each alignment component's noise follows its recent innovations: the lean's their spread about
          * their mean (a persistent misfit is a lean that is off), the azimuth's no more than a rocking
          * balloon's (tether.py control_tether) */
-        bw_real *mean2 = est->align_innov2, along_var, cross_var, r[9];
+        bw_real *mean2 = est->align_innov2, along_var, cross_var;
         if (est->catenary)
             update_rope_shape(est);
         along_var = BW_MAX(est->align_var, mean2[0] - est->align_mean * est->align_mean);
@@ -189,8 +189,12 @@ void bw_control_tether(bw_estimator_t *est)
             mean2[0] += est->a_align_innov * (an->innov * an->innov - mean2[0]);
             mean2[1] += est->a_align_innov * (ae->innov * ae->innov - mean2[1]);
             est->align_mean += est->a_align_innov * (an->innov - est->align_mean);
-            bw_rotation(e->q, r); /* the body's tilt and the lean the model disagrees with (consistency.c) */
-            bw_consistency_add_lean(&est->consistency, BW_ATAN2(BW_HYPOT(r[2], r[5]), r[8]), an->innov, est->a_taut);
+            /* the body's tilt (its down axis, bw_rotation's third column alone) and the lean the model disagrees
+             * with (consistency.c) */
+            const bw_real *q = e->q;
+            const bw_real zn = BW_R(2.0) * (q[1] * q[3] + q[0] * q[2]), ze = BW_R(2.0) * (q[2] * q[3] - q[0] * q[1]);
+            const bw_real zd = q[0] * q[0] - q[1] * q[1] - q[2] * q[2] + q[3] * q[3];
+            bw_consistency_add_lean(&est->consistency, BW_ATAN2(BW_HYPOT(zn, ze), zd), an->innov, est->a_taut);
         }
         if (BW_MAX(an->consecutive_rejects, ae->consecutive_rejects) >= est->sched.align_reset) {
             est->counters.taut_resets += 1;

@@ -603,14 +603,14 @@ static void inhibit(bw_ekf_t *e, int i)
 
 /* ekf.py weigh_information: state i as the prior combined with one measurement data of variance data_var, plus
  * walked_var (its random walk since); correlations cut; a reset of kind. Where conflict_sigma > 0 and the two differ
- * by more than that many sigma of their difference, their equal mixture; 1 where they conflicted */
-int bw_ekf_weigh_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_var, bw_real data, bw_real data_var,
-                             bw_real walked_var, int kind, bw_real conflict_sigma)
+ * by more than that many sigma of their difference, their equal mixture */
+void bw_ekf_weigh_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_var, bw_real data, bw_real data_var,
+                              bw_real walked_var, int kind, bw_real conflict_sigma)
 {
     bw_real w, v, d = data - prior;
     int conflict;
     if (!(prior_var > BW_R(0.0) && data_var > BW_R(0.0)))
-        return 0;
+        return;
     conflict = conflict_sigma > BW_R(0.0) && d * d > conflict_sigma * conflict_sigma * (prior_var + data_var);
     inhibit(e, i);
     if (conflict) {
@@ -623,7 +623,6 @@ int bw_ekf_weigh_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_va
     }
     e->P[i][i] = v + walked_var;
     bw_ekf_reset(e, kind);
-    return conflict;
 }
 
 /* ekf.py cap_information: what the data told state i since the prior is worth at most a measurement of

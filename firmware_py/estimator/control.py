@@ -659,15 +659,15 @@ class Estimator:
         unconfirmed at least sqrt(|w|^2 + 1)."""
         ekf = self.ekf
         wn, we = self.wind()
+        speed = math.sqrt(wn * wn + we * we)
         sys_var = 0.0
         if ekf.mode != MODE_GROUND:
-            speed = math.sqrt(wn * wn + we * we)
             sys_var = systematic_variance(speed, float(ekf.x[DRAG]), float(ekf.P[DRAG, DRAG]), self.lean_wind_mps())
         acc = math.sqrt(ekf.wind_accuracy() ** 2 + sys_var) * self.consistency.inflation
         if ekf.mode == MODE_TAUT:  # the lean the body and the model disagree on: not scaled by the monitor's factor,
             # which measures the same misfit (consistency.lean_misfit_wind)
             c = self.consistency
-            acc = math.hypot(acc, lean_misfit_wind(math.sqrt(wn * wn + we * we), c.lean_tilt, c.lean_misfit))
+            acc = math.hypot(acc, lean_misfit_wind(speed, c.lean_tilt, c.lean_misfit))
         if self.unconfirmed:
             acc = max(acc, math.sqrt(wn * wn + we * we + 1.0))
         return acc

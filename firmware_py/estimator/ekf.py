@@ -563,15 +563,14 @@ class WindEkf:
     def weigh_information(
         self, i: int, prior: float, prior_var: float, data: float, data_var: float, walked_var: float, kind: int,
         conflict_sigma: float = 0.0,
-    ) -> bool:  # fmt: skip
+    ) -> None:  # fmt: skip
         """State i as ``prior`` +- sqrt(``prior_var``) combined with one measurement ``data`` of variance
         ``data_var``, plus ``walked_var``, what its random walk has added since; its correlations are cut
         (``inhibit``). A re-placement, not a fusion: a reset of ``kind``. Where ``conflict_sigma`` > 0 and the two
         differ by more than that many sigma of their difference, they do not both hold and either may: the state is
-        their equal mixture (its mean halfway, its variance the two's mean and the square of half their difference).
-        True where they conflicted."""
+        their equal mixture (its mean halfway, its variance the two's mean and the square of half their difference)."""
         if not (prior_var > 0.0 and data_var > 0.0):
-            return False
+            return
         d = data - prior
         conflict = conflict_sigma > 0.0 and d * d > conflict_sigma * conflict_sigma * (prior_var + data_var)
         self.inhibit(i)
@@ -584,7 +583,6 @@ class WindEkf:
             self.x[i] = v * (prior / prior_var + w * data)
         self.P[i, i] = v + walked_var
         self.reset(kind)
-        return conflict
 
     def inhibit(self, i: int) -> None:
         """Hold state i where it is (PX4's state inhibition): no correction, no correlations; its

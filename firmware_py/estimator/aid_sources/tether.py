@@ -279,8 +279,10 @@ def control_tether(est: Estimator) -> None:
             mean2[0] += est._align_alpha * (along.innov**2 - mean2[0])
             mean2[1] += est._align_alpha * (cross.innov**2 - mean2[1])
             est._align_mean += est._align_alpha * (along.innov - est._align_mean)
-            r = rotation(*ekf.q.tolist())  # the body's tilt and the lean the model disagrees with (consistency.py)
-            est.consistency.add_lean(math.atan2(math.hypot(r[2], r[5]), r[8]), along.innov, est._taut_alpha)
+            # the body's tilt (its down axis, rotation()'s third column alone) and the lean the model disagrees with
+            q0, q1, q2, q3 = ekf.q.tolist()
+            zn, ze, zd = 2.0 * (q1 * q3 + q0 * q2), 2.0 * (q2 * q3 - q0 * q1), q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3
+            est.consistency.add_lean(math.atan2(math.hypot(zn, ze), zd), along.innov, est._taut_alpha)
         if max(along.consecutive_rejects, cross.consecutive_rejects) >= est.schedule.align_reset:
             est.counters.taut_resets += 1
             along.consecutive_rejects = cross.consecutive_rejects = 0
