@@ -11,6 +11,7 @@ import argparse
 import math
 import os
 import re
+import stat
 import sys
 from collections.abc import Callable
 from typing import NoReturn
@@ -166,6 +167,17 @@ def seed(text: str) -> int:
     return n
 
 
+def sysid(text: str) -> int:
+    """A MAVLink system id of a vehicle or ground station: an integer 1 .. 255 (0 is the broadcast address)."""
+    try:
+        n = int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if not 1 <= n <= 255:
+        raise argparse.ArgumentTypeError(f"must be 1 .. 255, got {text!r}")
+    return n
+
+
 # ---------------------------------------------------------------- endpoints and files
 
 
@@ -177,9 +189,24 @@ def _port(spec: str, text: str) -> None:
 COM_PORT = re.compile(r"COM\d+(:\d+)?$", re.IGNORECASE)  # a Windows serial port, optionally with its baud rate
 
 
+def serial_path(spec: str) -> bool:
+    """A serial port under /dev (``/dev/ttyUSB0``, ``/dev/ttyUSB0:57600``, ``/dev/pts/3``): a character device, or a
+    name directly in /dev that does not exist yet (a port not plugged in: opening it is then the error). A file under
+    /dev (``/dev/shm/flight.tlog``, a memory file system) is a file, and the rules for files hold for it."""
+    if not spec.startswith("/dev/"):
+        return False
+    path, sep, baud = spec.rpartition(":")
+    if not (sep and baud.isdigit()):
+        path = spec
+    try:
+        return stat.S_ISCHR(os.stat(path).st_mode)
+    except OSError:
+        return os.path.dirname(path) == "/dev"
+
+
 def is_link(spec: str) -> bool:
     """A network endpoint or a serial port (not a file)."""
-    return spec.startswith(UDP_KINDS) or spec.startswith("/dev/") or "://" in spec or bool(COM_PORT.match(spec))
+    return spec.startswith(UDP_KINDS) or serial_path(spec) or "://" in spec or bool(COM_PORT.match(spec))
 
 
 def link(spec: str) -> str:
@@ -192,7 +219,7 @@ def link(spec: str) -> str:
         if not spec.startswith(("udpin:", "udpout:")):
             raise argparse.ArgumentTypeError(f"{spec}: only udpin: and udpout: endpoints are supported")
         return spec
-    if spec.startswith("/dev/") or COM_PORT.match(spec):
+    if serial_path(spec) or COM_PORT.match(spec):
         path, sep, baud = spec.rpartition(":")
         if sep and baud.isdigit():
             if int(baud) <= 0:
@@ -203,6 +230,26 @@ def link(spec: str) -> str:
     if "://" in spec:
         return spec
     raise argparse.ArgumentTypeError(f"{spec}: not a UDP endpoint (udpin:HOST:PORT, udpout:HOST:PORT) or serial port")
+
+
+def scheduler_address(text: str) -> str:
+    """A Dask scheduler's address: ``[PROTOCOL://]HOST:PORT`` with a port 1..65535 (``tcp://10.0.0.5:8786``)."""
+    rest = text.split("://", 1)[1] if "://" in text else text
+    host, sep, port = rest.rpartition(":")
+    if not (sep and host and port.isdigit() and 1 <= int(port) <= 65535):
+        raise argparse.ArgumentTypeError(f"expected [PROTOCOL://]HOST:PORT (e.g. tcp://10.0.0.5:8786), got {text!r}")
+    return text
+
+
+def count(text: str) -> int:
+    """An integer >= 1."""
+    try:
+        n = int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {text!r}")
+    return n
 
 
 def bind(text: str) -> tuple[str, int]:
@@ -218,6 +265,8 @@ def output_path(path: str) -> str:
     """A file to be written: its directory exists and is writable, and it is not a directory."""
     if not path:
         raise argparse.ArgumentTypeError("empty output path")
+    if path.endswith(tuple(c for c in (os.sep, os.altsep) if c)):
+        raise argparse.ArgumentTypeError(f"{path}: names a directory (a file is expected)")
     if os.path.isdir(path):
         raise argparse.ArgumentTypeError(f"{path}: is a directory")
     parent = os.path.dirname(os.path.abspath(path))
@@ -225,6 +274,20 @@ def output_path(path: str) -> str:
         raise argparse.ArgumentTypeError(f"{path}: directory {parent} does not exist")
     if not os.access(parent, os.W_OK | os.X_OK) or (os.path.exists(path) and not os.access(path, os.W_OK)):
         raise argparse.ArgumentTypeError(f"{path}: not writable")
+    return path
+
+
+def plot_path(path: str) -> str:
+    """A figure to be written (``output_path``), its format named by its extension: one matplotlib writes (.png,
+    .pdf, .svg, ...); without matplotlib (the extra not installed) the program says so when it draws."""
+    output_path(path)
+    try:
+        from matplotlib.backend_bases import FigureCanvasBase
+    except ImportError:
+        return path
+    kinds = FigureCanvasBase.get_supported_filetypes()
+    if os.path.splitext(path)[1].lower().lstrip(".") not in kinds:
+        raise argparse.ArgumentTypeError(f"{path}: a figure's name ends in one of .{', .'.join(sorted(kinds))}")
     return path
 
 
@@ -236,7 +299,7 @@ def output_dir(path: str) -> str:
         return path
     if os.path.exists(path):
         raise argparse.ArgumentTypeError(f"{path}: exists and is not a directory")
-    output_path(path)  # the parent must exist and be writable
+    output_path(path.rstrip(os.sep) or path)  # the parent must exist and be writable
     return path
 
 

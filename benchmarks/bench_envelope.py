@@ -19,7 +19,9 @@ Per flight (after ``start_s``): the study metrics (``study.case.metrics``) plus 
 direction error, the share of samples whose horizontal error exceeds 3 x the reported accuracy,
 taut re-placements (``counters.taut_resets``) per hour, and binned stated-vs-actual error for the
 calibration plot. Writes envelope.parquet, envelope.csv, envelope_summary.md and PNG plots into ``--out``.
-Finished flights are stored as parts (``DIR/parts``): a repeated run only computes what is missing.
+Finished flights are stored as parts (``DIR/parts``): a repeated run only computes what is missing. The products
+appear under their final names only when all are written. Exit 0 when the run is done (its targets pass or fail in
+the summary), 2 a user error (one line, before any flight is flown), as every program of the project.
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ import argparse
 import dataclasses
 import hashlib
 import math
+import os
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -36,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from balloon_core import userargs
 from balloon_core.config import Design, lift_balance
 from balloon_core.score import on_grid
 from firmware_py.estimator.consistency import SOURCES
@@ -485,6 +490,9 @@ def worst_flights(df, k: int = 5) -> str:
 # ---------------------------------------------------------------- plots
 
 
+PLOTS = ("direction_error_vs_params.png", "calibration.png", "speed_error_vs_drag_scale.png")
+
+
 def plots(df, out: Path) -> list[Path]:
     import matplotlib
 
@@ -569,17 +577,18 @@ def plots(df, out: Path) -> list[Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = userargs.Parser(prog="bench_envelope", description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true",
                     help=f"64 flights of {QUICK_DURATION_S:g} s (else 200 of {FULL_DURATION_S:g} s)")  # fmt: skip
-    ap.add_argument("--flights", type=int, help="number of flights (quick: 64, else 200)")
-    ap.add_argument("--duration", type=float,
+    ap.add_argument("--flights", type=userargs.count, help="number of flights (quick: 64, else 200)")
+    ap.add_argument("--duration", type=userargs.duration,
                     help=f"seconds per flight (quick: {QUICK_DURATION_S:g}, else {FULL_DURATION_S:g})")  # fmt: skip
-    ap.add_argument("--start", type=float, default=120.0, help="scoring starts here, s")
+    ap.add_argument("--start", type=userargs.start_time, default=120.0, help="scoring starts here, s")
     ap.add_argument("--out", default="out/envelope", help="output directory (default out/envelope)")
     ap.add_argument("--serial", action="store_true", help="in this process, no Dask")
-    ap.add_argument("--workers", type=int, help="Dask workers (default: one per core)")
-    ap.add_argument("--scheduler", help="a running Dask scheduler, tcp://HOST:PORT (instead of local workers)")
+    ap.add_argument("--workers", type=userargs.count, help="Dask workers (default: one per core)")
+    ap.add_argument("--scheduler", type=userargs.scheduler_address,
+                    help="a running Dask scheduler, tcp://HOST:PORT (instead of local workers)")  # fmt: skip
     ap.add_argument("--cd-sigma", type=float, default=CD_SIGMA,
                     help=f"1-sigma of what the user knows of the balloon's C_d, relative (default {CD_SIGMA:g}: "
                          "a sphere's from the literature; 0.02: measured); the truth's drawn with it, the filter "
@@ -598,11 +607,18 @@ def main(argv: list[str] | None = None) -> int:
     if not lo <= args.cd_sigma <= hi:
         print(f"bench_envelope: --cd-sigma must be between {lo:g} and {hi:g}, got {args.cd_sigma:g}", file=sys.stderr)
         return 2
-    import pandas as pd
-
     n = args.flights or (64 if args.quick else 200)
     duration = args.duration or (QUICK_DURATION_S if args.quick else FULL_DURATION_S)
-    out = Path(args.out)
+    if args.start >= duration:
+        print(f"bench_envelope: error: --start {args.start:g} must be before the flight's end ({duration:g} s)",
+              file=sys.stderr)  # fmt: skip
+        return 2
+    try:
+        out = output_directory(args.out)
+    except userargs.UserError as exc:
+        return userargs.fail("bench_envelope", exc)
+    import pandas as pd
+
     out.mkdir(parents=True, exist_ok=True)
     params = sample(n, cd_sigma=args.cd_sigma, max_wind_mps=args.max_wind)
     cs = cases(params, duration, args.start)
@@ -617,9 +633,40 @@ def main(argv: list[str] | None = None) -> int:
     table = [{"flight": c.point["flight"], **{p: c.point[p] for p in PARAMS}, **rows[c.key]} for c in cs]
     df = pd.DataFrame(table)
     df.attrs["duration_s"] = duration
-    df.to_parquet(out / "envelope.parquet", index=False)
-    df.to_csv(out / "envelope.csv", index=False)
-    text, targets = summary(df)
+    part = out / f".part-{os.getpid()}"  # every product here first, then each under its final name
+    part.mkdir()
+    try:
+        written = write_products(df, part, out, n, duration, args, st, wall)
+    finally:
+        shutil.rmtree(part, ignore_errors=True)
+    print("wrote " + ", ".join(str(p) for p in written))
+    return 0  # the run is done; its targets pass or fail in the summary
+
+
+PRODUCTS = ("envelope.parquet", "envelope.csv", "envelope_summary.md", *PLOTS)
+
+
+def output_directory(path: str) -> Path:
+    """``--out``: a directory that exists and can be written, or can be made; none of the products in it a
+    directory, and its ``parts`` (the finished flights, reused) not a file. A UserError naming the problem."""
+    try:
+        userargs.output_dir(path)
+    except argparse.ArgumentTypeError as exc:
+        raise userargs.UserError(f"--out {exc}") from None
+    out = Path(path)
+    for name in PRODUCTS:
+        if (out / name).is_dir():
+            raise userargs.UserError(f"--out {path}: {out / name} is a directory")
+    if (out / "parts").exists() and not (out / "parts").is_dir():
+        raise userargs.UserError(f"--out {path}: {out / 'parts'} is not a directory (the finished flights go there)")
+    return out
+
+
+def write_products(df, part: Path, out: Path, n: int, duration: float, args, st, wall: float) -> list[Path]:
+    """Every product written into ``part``, then moved to its final name in ``out``; the final names."""
+    df.to_parquet(part / "envelope.parquet", index=False)
+    df.to_csv(part / "envelope.csv", index=False)
+    text, _ = summary(df)
     head = (
         f"envelope: {n} flights of {duration:g} s (scored from {args.start:g} s), base {BASE}"
         f"{'' if args.cd_sigma == CD_SIGMA else f', the C_d known to {100 * args.cd_sigma:g} %'}"
@@ -628,13 +675,15 @@ def main(argv: list[str] | None = None) -> int:
         f"reused, {st.failed} failed; wall {wall:.0f} s (mean flight {st.case_s / max(st.computed, 1):.1f} s)"
     )
     worst = worst_flights(df)
-    pngs = plots(df, out)
+    pngs = plots(df, part)
     doc = f"{head}\n\n{text}\n\nworst flights by |direction error|:\n\n{worst}\n"
-    (out / "envelope_summary.md").write_text(doc)
+    (part / "envelope_summary.md").write_text(doc)
     print(doc)
-    written = (out / "envelope.parquet", out / "envelope.csv", out / "envelope_summary.md", *pngs)
-    print("wrote " + ", ".join(str(p) for p in written))
-    return 0 if all(p for _, p in targets) else 1
+    written = []
+    for p in (part / "envelope.parquet", part / "envelope.csv", part / "envelope_summary.md", *pngs):
+        os.replace(p, out / p.name)
+        written.append(out / p.name)
+    return written
 
 
 if __name__ == "__main__":

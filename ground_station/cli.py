@@ -23,7 +23,7 @@ def main(argv: list[str] | None = None) -> int:
     li.add_argument("--ground-pressure", type=userargs.input_file, metavar="CSV",
                     help="send the newest reading of this ground-barometer CSV (a logger appends to it) up the "
                          "link each second as the ground reference")  # fmt: skip
-    li.add_argument("--ground-sysid", type=int, default=255, help="this ground station's MAVLink system id "
+    li.add_argument("--ground-sysid", type=userargs.sysid, default=255, help="this ground station's MAVLink system id "
                     "([site] ground_sysid of the firmware's design file)")  # fmt: skip
     we = sub.add_parser("web", help="the ground station in a browser: live WIND_COV of every balloon, or a product")
     we.add_argument("endpoint", nargs="*", type=userargs.link, help="as for listen; one or more (or none with "
@@ -39,7 +39,7 @@ def main(argv: list[str] | None = None) -> int:
         help="ground-station CSV, .tlog or raw capture holding WIND_COV, or a reprocess .nc",
     )
     rp.add_argument("--truth", required=True, type=userargs.input_file, help="balloon-sim --truth CSV")
-    rp.add_argument("--plot", type=userargs.output_path, help="write the Fig. 6-style figure here (PNG)")
+    rp.add_argument("--plot", type=userargs.plot_path, help="write the Fig. 6-style figure here (PNG)")
     rp.add_argument("--start", type=userargs.start_time, default=120.0, help="score from this time since boot [s]")
     rr = sub.add_parser("reprocess", help="post-flight: filter + smoother over a whole flight log -> NetCDF (CF-1.8)")
     rr.add_argument("flight", type=userargs.input_file, help="a .tlog, raw capture, PX4 .ulg or ArduPilot .bin")
@@ -113,12 +113,9 @@ def _web(args) -> int:
         userargs.require_extra("web")
     except userargs.UserError as exc:
         return userargs.fail(prog, exc)
-    from ground_station.web.server import LOOPBACK, run
+    from ground_station.web.server import run
 
     host, port = args.bind
-    if host != LOOPBACK:
-        print(f"{prog}: warning: serving on {host}:{port}, not {LOOPBACK}: anyone who can reach it sees the "
-              "balloons (read-only)", file=sys.stderr)  # fmt: skip
     stop = userargs.stop_flag()
     try:
         gs = run(args.endpoint, host, port, args.product, stop)

@@ -98,14 +98,10 @@ def main(argv: list[str] | None = None) -> int:
         if os.path.isdir(args.outdir):  # (a directory still to be made holds no input)
             userargs.check_outputs({"--config": args.config}, {f"--outdir ({os.path.basename(p)})": p
                                                                for p in (truth, gs_csv, gs_tlog, plot, design)})
-        os.makedirs(args.outdir, exist_ok=True)
     except userargs.UserError as exc:
         return userargs.fail(PROG, exc)
-    except OSError as exc:
-        return userargs.fail(PROG, f"--outdir {args.outdir}: {exc.strerror or exc}")
-    p_fw, p_gs = free_port(), free_port()
     # one design file for both: the scenario with the user's file applied (the firmware must be told
-    # what the scenario's balloon, tether and sensors are, and how to filter)
+    # what the scenario's balloon, tether and sensors are, and how to filter); judged before --outdir is made
     from balloon_core.config import ConfigError
     from sim_hil.scenarios import resolve
 
@@ -120,6 +116,11 @@ def main(argv: list[str] | None = None) -> int:
             library("float" if sc.filter.float32 else "double")
         except BuildError as exc:
             return userargs.fail(PROG, f'{exc}; or run the Python core: [filter] core = "py" in the --config file')
+    try:
+        os.makedirs(args.outdir, exist_ok=True)
+    except OSError as exc:
+        return userargs.fail(PROG, f"--outdir {args.outdir}: {exc.strerror or exc}")
+    p_fw, p_gs = free_port(), free_port()
     with atomic_open(design) as fh:
         fh.write(sc.to_toml())
     cfg = ["--config", design]

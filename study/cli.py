@@ -17,6 +17,7 @@ from dataclasses import replace
 from importlib import resources
 from pathlib import Path
 
+from balloon_core import userargs
 from balloon_core.config import ConfigError
 from balloon_core.userargs import UserError, require_extra
 
@@ -37,10 +38,11 @@ def parse_args(argv):
     where = ap.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, help="LocalCluster worker processes (default: one per core); "
                        "0 = no Dask, run the cases in this process")  # fmt: skip
-    where.add_argument("--scheduler", help="address of a running Dask scheduler, e.g. tcp://10.0.0.5:8786")
+    where.add_argument("--scheduler", type=userargs.scheduler_address,
+                       help="address of a running Dask scheduler, e.g. tcp://10.0.0.5:8786")  # fmt: skip
     ap.add_argument("--paper", action="store_true", help="the paper's study (Figs. 6-12 + tether and wind axes)")
     ap.add_argument("--seeds", type=int, help="override the spec's seeds with 1..N")
-    ap.add_argument("--duration", type=float, help="override the spec's duration_s")
+    ap.add_argument("--duration", type=userargs.duration, help="override the spec's duration_s")
     ap.add_argument("--sweep", action="append", metavar="NAME", help="run only this sweep of the spec (repeatable)")
     ap.add_argument("--no-plots", action="store_true")
     ap.add_argument("--quiet", action="store_true", help="no progress on stderr")
@@ -100,6 +102,8 @@ def _main(argv: list[str] | None) -> int:
         require_extra("study")
         if args.workers is not None and args.workers < 0:
             raise UsageError(f"--workers must be >= 0, got {args.workers}")
+        if not args.out:
+            raise UsageError("--out: empty output path")
         out = Path(args.out)
         _check_out(args, out)  # the one rule for output options, before any work
         spec = load(args)
@@ -124,14 +128,15 @@ def _main(argv: list[str] | None) -> int:
 def _check_out(args, out: Path) -> None:
     """--out is a directory that can be written (or made), and what the study writes in it is not the
     study file (``userargs.check_outputs``)."""
-    from balloon_core import userargs
-
     if os.path.realpath(out) == "/proc" or os.path.realpath(out).startswith("/proc/"):
         raise UsageError(f"--out {out}: cannot be written (under /proc)")
     try:
         userargs.output_dir(str(out))
     except argparse.ArgumentTypeError as exc:
         raise UsageError(f"--out {exc}") from None
+    for name in ("parts", "plots"):  # the directories the study keeps in it
+        if (out / name).exists() and not (out / name).is_dir():
+            raise UsageError(f"--out {out}: {out / name} is not a directory (the study keeps its {name} there)")
     if out.is_dir():  # (a directory still to be made holds no input)
         userargs.check_outputs({"SPEC": args.spec},
                                {f"--out ({name})": str(out / name) for name in ("cases.parquet", "cases.csv",
@@ -161,7 +166,7 @@ def run(spec, out: Path, args) -> int:
                 workers = len(client.scheduler_info().get("workers", {}))
                 say(f"balloon-study: {workers} worker(s), dashboard {engine.dashboard_of(client)}")
                 rows, stats = engine.run(cases, store, client, progress=not args.quiet)
-        except (OSError, TimeoutError) as e:
+        except (OSError, TimeoutError, ValueError) as e:  # ValueError: an address Dask cannot parse (foo://...)
             if connected:
                 raise
             raise SchedulerUnreachable(str(e).splitlines()[0] if str(e) else type(e).__name__) from None

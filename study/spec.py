@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from balloon_core.config import ConfigError, Design, LiftError, design_from_dict, read_toml
+from balloon_core.userargs import MAX_DURATION_S
 from firmware_py.estimator.state import FilterConfig
 from sim_hil.dynamics import TruthConfig
 from sim_hil.scenarios import SCENARIOS, Scenario
@@ -143,6 +144,8 @@ def parse_spec(data: dict[str, Any]) -> Spec:
     if start < 0 or duration - start < MIN_SCORED_S:
         raise ConfigError(f"[study] needs 0 <= start_s and duration_s - start_s >= {MIN_SCORED_S:g} s to score, "
                           f"got start_s {start:g}, duration_s {duration:g}")  # fmt: skip
+    if duration > MAX_DURATION_S:
+        raise ConfigError(f"[study] duration_s must be at most {MAX_DURATION_S:.0f} s (7 days), got {duration:g}")
     metrics = parse_metrics(st.get("metrics"))
     default_combine = st.get("combine", "grid")
     if "axes" in data and "sweep" in data:

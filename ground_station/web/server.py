@@ -255,6 +255,9 @@ def run(endpoints: list[str], host: str, port: int, product_path: str | None, st
 
     def announce(url: str) -> None:
         print(f"balloon-gs web: {url} (read-only; Ctrl-C stops)", flush=True)
+        if host != LOOPBACK:  # once it serves: a bind that fails is the one line of its error
+            print(f"balloon-gs web: warning: serving on {host}:{port}, not {LOOPBACK}: anyone who can reach it sees "
+                  "the balloons (read-only)", file=sys.stderr, flush=True)  # fmt: skip
 
     try:
         asyncio.run(station.serve(host, port, stop, announce))

@@ -14,6 +14,7 @@ from benchmarks import bench_envelope as be
 from firmware_py.estimator.state import FilterConfig
 from study.case import lift_margin
 from study.spec import build
+from tests.helpers.cli import run_main
 
 
 def test_sample_is_fixed_and_covers_the_ranges():
@@ -79,6 +80,31 @@ def test_a_stress_beyond_the_envelope_moves_only_the_mean_wind(capsys):
         assert be.main(["--max-wind", bad, "--out", "/nonexistent/never-written"]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "--max-wind must be between" in err
+
+
+def test_its_out_is_judged_before_any_flight_and_its_products_appear_whole(tmp_path, capsys):
+    """--out that is a file, under one, or holding a directory where a product goes: one line, exit 2, before any
+    flight is flown; a bad count one line too. A run writes every product under its final name only at the end (no
+    temporary left), and exits 0 whatever its targets say (they are in the summary)."""
+    (tmp_path / "afile").write_text("mine")
+    (tmp_path / "held" / "envelope_summary.md").mkdir(parents=True)
+    (tmp_path / "held2").mkdir()
+    (tmp_path / "held2" / "parts").write_text("mine")
+    for argv, word in (
+        (["--out", str(tmp_path / "afile")], "not a directory"),
+        (["--out", str(tmp_path / "afile" / "sub")], "does not exist"),
+        (["--out", str(tmp_path / "held")], "is a directory"),
+        (["--out", str(tmp_path / "held2")], "finished flights"),
+        (["--flights", "abc"], "--flights"),
+        (["--flights", "1", "--duration", "100", "--start", "120"], "--start"),
+    ):
+        code, err = run_main(be.main, [*argv, "--serial"], capsys)
+        assert code == 2 and err.count("\n") == 1 and word in err and "Traceback" not in err, (argv, err)
+    assert (tmp_path / "afile").read_text() == "mine" and not (tmp_path / "held" / "parts").exists()
+    out = tmp_path / "run"
+    assert be.main(["--out", str(out), "--serial", "--flights", "1", "--duration", "150", "--start", "60"]) == 0
+    capsys.readouterr()
+    assert {p.name for p in out.iterdir()} == {*be.PRODUCTS, "parts"}
 
 
 def test_extra_metrics_on_a_known_error():

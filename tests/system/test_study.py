@@ -165,6 +165,33 @@ def test_a_bad_spec_is_exit_2_with_one_line(tmp_path, capsys, text, words):
     assert len(err.strip().splitlines()) == 1 and words in err and "Traceback" not in err
 
 
+def test_a_bad_command_line_is_exit_2_with_one_line_before_any_case(tmp_path, capsys):
+    """A scheduler address that is none, a flight length no flight can have, an empty --out, and a --out whose
+    plots or parts are files: one line, exit 2, and nothing computed or written."""
+    spec = tmp_path / "tiny.toml"
+    spec.write_text('[study]\nduration_s = 150.0\nstart_s = 60.0\n[axes]\n"balloon.radius_m" = [1.0]\n')
+    out = tmp_path / "o"
+    (tmp_path / "held").mkdir()
+    (tmp_path / "held" / "plots").write_text("mine")
+    (tmp_path / "held2").mkdir()
+    (tmp_path / "held2" / "parts").write_text("mine")
+    for argv, word in (
+        (["--out", str(out), "--scheduler", "bogus"], "HOST:PORT"),
+        (["--out", str(out), "--workers", "0", "--duration", "nan"], "--duration"),
+        (["--out", str(out), "--workers", "0", "--duration", "1e12"], "7 days"),
+        (["--out", "", "--workers", "0"], "empty"),
+        (["--out", str(tmp_path / "held"), "--workers", "0"], "plots"),
+        (["--out", str(tmp_path / "held2"), "--workers", "0"], "parts"),
+    ):
+        assert main([str(spec), *argv]) == 2, argv
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and word in err and "Traceback" not in err, (argv, err)
+    assert not out.exists() and sorted(p.name for p in (tmp_path / "held").iterdir()) == ["plots"]
+    spec.write_text('[study]\nduration_s = 1e12\n[axes]\n"balloon.radius_m" = [1.0]\n')
+    assert main([str(spec), "--out", str(out), "--workers", "0"]) == 2
+    assert "7 days" in capsys.readouterr().err
+
+
 def test_a_bad_spec_from_the_command_line_is_exit_2_without_traceback(tmp_path):
     spec = tmp_path / "bad.toml"
     spec.write_text('[axes]\n"sensors.gyro_dps" = [1.0, "0.1"]\n')

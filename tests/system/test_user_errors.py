@@ -6,8 +6,10 @@ Run in-process (``main(argv)``) for speed; a few cases through ``python -m`` pro
 from __future__ import annotations
 
 import dataclasses
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -130,6 +132,15 @@ def cases(d) -> list[tuple[str, str, list[str], str]]:
                 ("sil", f"config {key}", ["--duration", "1", "--config", cfg, "--outdir", sil_out], word)]  # fmt: skip
     out += [("sim", "config missing", ["--config", str(d / "nope.toml")], "nope.toml"),
             ("sim", "scenario", ["--scenario", "paper-referense"], "unknown scenario")]  # fmt: skip
+    # a name that ends in a separator is a directory: refused before the run, not when it is renamed at the end
+    out += [("sim", "output path", ["--duration", "1", "--truth", str(d / "t.csv") + "/"], "names a directory"),
+            ("gs", "output path", ["listen", "udpin:127.0.0.1:14599", "--csv", str(d / "w.csv") + "/"],
+             "names a directory"),
+            ("gs", "output path", ["report", wind, "--truth", truth, "--plot", str(d / "p.png") + "/"],
+             "names a directory"),
+            ("gs", "output path", ["report", wind, "--truth", truth, "--plot", str(d / "noext")], ".png")]  # fmt: skip
+    for bad in ("0", "256", "-1", "x"):  # a ground station's MAVLink system id: 1..255
+        out += [("gs", "number", ["listen", "udpin:127.0.0.1:14599", "--ground-sysid", bad], "--ground-sysid")]
     return out
 
 
@@ -299,3 +310,30 @@ def test_values_anywhere_in_their_ranges_run_or_are_refused_clearly(files, capsy
         assert code in (0, 2) and "Traceback" not in err, (text, err)
         if code == 2:
             assert len(err.strip().splitlines()) == 1, err
+
+
+def test_a_file_under_dev_is_a_file(tmp_path, capsys):
+    """Only a character device (or a name directly in /dev) is a serial port: a file in a memory file system under
+    /dev (/dev/shm) keeps every rule of files. Its input is never its output, and it is left byte for byte."""
+    shm = Path("/dev/shm")
+    if not (shm.is_dir() and os.access(shm, os.W_OK)):
+        pytest.skip("no writable /dev/shm here")
+    src = shm / f"balloon-wind-test-{os.getpid()}.tlog"
+    assert sim_cli.main(["--duration", "2", "--out", str(src), "--truth", str(tmp_path / "t.csv")]) == 0
+    try:
+        before = src.read_bytes()
+        link = tmp_path / "link.tlog"
+        link.symlink_to(src)
+        for argv in (["--in", str(src), "--out", str(src)], ["--in", str(link), "--out", str(src)],
+                     ["--in", str(src), "--out", str(link)]):  # fmt: skip
+            code, err = run("fw", argv, capsys)
+            assert code == 2 and err.count("\n") == 1 and "is the input" in err, (argv, err)
+        assert src.read_bytes() == before and link.is_symlink()
+    finally:
+        src.unlink()
+
+
+def test_sil_judges_its_scenario_before_it_makes_its_directory(tmp_path, capsys):
+    code, err = run("sil", ["--scenario", "nope", "--outdir", str(tmp_path / "new")], capsys)
+    assert code == 2 and err.count("\n") == 1 and "unknown scenario" in err
+    assert not (tmp_path / "new").exists()

@@ -61,6 +61,14 @@ def test_a_tcp_port_in_use_is_a_user_error():
     assert "cannot serve" in r.stderr
 
 
+def test_an_address_it_cannot_serve_on_is_one_line_and_no_warning():
+    """The warning for an address other than loopback comes once the page is served: a bind that fails (192.0.2.1
+    is TEST-NET-1, no machine's own) is its error's one line alone."""
+    r = web(f"udpin:127.0.0.1:{free_udp_port()}", "--bind", "192.0.2.1:0")
+    one_line_error(r)
+    assert "cannot serve" in r.stderr and "warning" not in r.stderr
+
+
 def test_a_udp_port_already_bound_is_a_user_error():
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
