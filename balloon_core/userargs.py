@@ -156,26 +156,26 @@ def duration(text: str) -> float:
     return x
 
 
-def seed(text: str) -> int:
-    """An integer 0 .. 2^32 - 1."""
+def _integer(text: str, lo: int, hi: int | None = None) -> int:
+    """An integer from ``lo`` to ``hi`` (None: no upper end), written as Python writes one (0x.. too)."""
     try:
         n = int(text, 0)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if not 0 <= n <= MAX_SEED:
-        raise argparse.ArgumentTypeError(f"must be 0 .. {MAX_SEED}, got {text!r}")
+    if n < lo or (hi is not None and n > hi):
+        raise argparse.ArgumentTypeError(f"must be {lo} .. {hi}, got {text!r}" if hi is not None
+                                         else f"must be >= {lo}, got {text!r}")  # fmt: skip
     return n
+
+
+def seed(text: str) -> int:
+    """An integer 0 .. 2^32 - 1."""
+    return _integer(text, 0, MAX_SEED)
 
 
 def sysid(text: str) -> int:
     """A MAVLink system id of a vehicle or ground station: an integer 1 .. 255 (0 is the broadcast address)."""
-    try:
-        n = int(text, 0)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if not 1 <= n <= 255:
-        raise argparse.ArgumentTypeError(f"must be 1 .. 255, got {text!r}")
-    return n
+    return _integer(text, 1, 255)
 
 
 # ---------------------------------------------------------------- endpoints and files
@@ -243,13 +243,7 @@ def scheduler_address(text: str) -> str:
 
 def count(text: str) -> int:
     """An integer >= 1."""
-    try:
-        n = int(text, 0)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {text!r}")
-    return n
+    return _integer(text, 1)
 
 
 def bind(text: str) -> tuple[str, int]:
