@@ -83,6 +83,10 @@ PRESSURE_BIT = 0x200
 TEMPERATURE_BIT = 0x1000
 NO_TEMPERATURE_C = 15.0  # a barometer sample before any thermometer reading: ISA sea level
 MILLI_G = G0 / 1000.0  # SCALED_IMU acceleration unit, m/s^2
+# a sensor time beyond this (2^53 us: 285 years since the boot, the largest whole number a double holds) is no clock's:
+# the sample is counted (``Sampler.bad_time``) and not used; every time below it fits the cores' int64 and a tlog's
+# stamp (its epoch + the time < 2^64)
+MAX_TIME_US = 2**53
 SWITCH_AFTER = 200  # IMU messages from other instances in a row (selected one silent): take the newest
 
 
@@ -133,6 +137,7 @@ class MavlinkSampler:
         self.embedded_baro = False  # the chosen IMU message carries the barometer
         self.ignored = 0
         self.baro_beside = 0  # pressure messages beside IMU messages that carry the barometer themselves
+        self.bad_time = 0  # IMU messages whose time is beyond MAX_TIME_US: not used
         self.switched = 0
         self._others = 0
         self._last_temp_c = math.nan
@@ -164,7 +169,12 @@ class MavlinkSampler:
         order); () for a sensor message that is not used; None for a message that is not a sensor's."""
         mid = msg.get_msgId()
         if mid in HIGHRES_IMUS:
-            return self._highres(msg) if self._chosen_imu(self._key(msg, mid)) else ()
+            if not self._chosen_imu(self._key(msg, mid)):
+                return ()
+            if not 0 <= msg.time_usec <= MAX_TIME_US:
+                self.bad_time += 1
+                return ()
+            return self._highres(msg)
         if mid in SCALED_IMUS:
             if not self._chosen_imu(self._key(msg, mid)):
                 return ()

@@ -15,6 +15,7 @@ from typing import BinaryIO
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from balloon_core import fastmav
+from balloon_core.samples import MAX_TIME_US
 
 TLOG_HEADER = 8
 MAGIC_V2, MAGIC_V1 = 0xFD, 0xFE
@@ -210,12 +211,13 @@ class LinkStats:
 
 
 def message_time_us(msg) -> int | None:
-    """The sender's own clock in a message (``time_usec``, else ``time_boot_ms``), us; None if it has none."""
+    """The sender's own clock in a message (``time_usec``, else ``time_boot_ms``), us; None if it has none, or one no
+    clock can have (beyond ``samples.MAX_TIME_US``: the sample is dropped and counted there)."""
     t = getattr(msg, "time_usec", None)
     if t is None:
         ms = getattr(msg, "time_boot_ms", None)
         return None if ms is None else int(ms) * 1000
-    return int(t)
+    return int(t) if 0 <= t <= MAX_TIME_US else None
 
 
 class Decoder:

@@ -517,6 +517,7 @@ class Firmware:
             f"{' (the file ends inside a frame)' if self.stats.truncated else ''}, "
             f"{self.stats.garbage_bytes} garbage bytes, {self.other_messages} other messages, "
             f"{self.sampler.ignored} from other sensor instances, "
+            f"{self.sampler.bad_time} with an impossible time, "
             f"{self.sampler.baro_beside} pressure messages not needed (the IMU messages carry the barometer), "
             f"{c.duplicates + self.pipe.duplicates} duplicates, "
             f"{c.reordered + self.pipe.reordered} reordered, {c.gaps} gaps, {c.long_gaps} long gaps, "

@@ -145,7 +145,7 @@ static int lane(int64_t *S, double *D, int64_t id, const uint8_t *p, int seq, in
     uint16_t bits = 0;
     if (id == 105) {
         uint64_t tu = u64(p);
-        if (tu > (uint64_t)INT64_MAX / 2) return 0;
+        if (tu > (UINT64_C(1) << 53)) return 0; /* beyond samples.MAX_TIME_US: Python counts it and drops it */
         t = (int64_t)tu;
         if (!S[S_HAVE_IMU] || S[S_IMU_MID] != 105 || S[S_IMU_SYS] != sys || S[S_IMU_COMP] != comp ||
             S[S_IMU_ID] != p[62])

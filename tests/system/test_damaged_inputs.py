@@ -350,3 +350,50 @@ def test_tlog_reader_memory_does_not_hold_the_file(capture, monkeypatch):
     chunked = [bytes(m.get_msgbuf()) for m in tlog_messages(str(tlog), LinkStats(), chunk=4096)]
     assert chunked == whole and len(whole) > 1000
     assert struct.calcsize(">Q") == TLOG_HEADER
+
+
+def retimed(src: Path, dst: Path, new_time) -> int:
+    """``src`` with each HIGHRES_IMU's ``time_usec`` replaced by ``new_time(index, time_usec)`` where it returns one
+    (the frame packed again with its sender's sequence number); how many were changed."""
+    data, changed = src.read_bytes(), 0
+    with open(dst, "wb") as fh:
+        w = TlogWriter(fh)
+        for k, (a, b, imu) in enumerate(records(data, True)):
+            stamp, frame = struct.unpack(">Q", data[a : a + TLOG_HEADER])[0], data[a + TLOG_HEADER : b]
+            if imu:
+                m = mavlink.MAVLink(None).decode(bytearray(frame))
+                t = new_time(k, m.time_usec)
+                if t is not None:
+                    enc = mavlink.MAVLink(None, srcSystem=m.get_srcSystem(), srcComponent=m.get_srcComponent())
+                    enc.seq = m.get_seq()
+                    m.time_usec = t
+                    frame, changed = m.pack(enc), changed + 1
+            fh.write(struct.pack(">Q", stamp) + frame)
+        del w
+    return changed
+
+
+@pytest.mark.parametrize("shape", ["one", "from-then-on"])
+def test_an_imu_time_no_clock_can_have_is_counted_not_a_crash(capture, shape, capsys, tmp_path):
+    """HIGHRES_IMU's time_usec is a uint64: a sender (or a bit error the CRC let through) may put 2^63 or 2^64 - 1 in
+    it. Beyond MAX_TIME_US (285 years) the sample is dropped and counted ("with an impossible time"), on both cores
+    alike; the estimate goes on from the other samples (it crashed the C core's replay and the tlog writer)."""
+    _, tlog, _ = capture
+    bad = tmp_path / "bad.tlog"
+    first = records(tlog.read_bytes(), True)
+    mid = next(k for k, r in enumerate(first) if r[2] and k > len(first) // 2)
+    if shape == "one":
+        n = retimed(tlog, bad, lambda k, t: (1 << 64) - 1 if k == mid else None)
+    else:
+        n = retimed(tlog, bad, lambda k, t: (1 << 63) + t if k >= mid else None)
+    outs = {}
+    for core in ("c", "py"):
+        out = tmp_path / f"o_{core}.tlog"
+        capsys.readouterr()
+        rc = bounded(fw_cli.main, ["--in", str(bad), "--out", str(out), "--quiet", "--core", core])
+        err = capsys.readouterr().err
+        assert rc == 0 and "Traceback" not in err, err
+        assert summary_count(err, "with an impossible time") == n
+        outs[core] = [m for m in tlog_messages(out, LinkStats()) if m.get_type() == "WIND_COV"]
+    assert outs["c"] and len(outs["c"]) == len(outs["py"])
+    assert all(np.isfinite([m.wind_x, m.wind_y, m.horiz_accuracy]).all() for m in outs["c"])
