@@ -26,13 +26,22 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from balloon_core.config import Design, build_section
-from balloon_core.samples import BaroSample, GroundBaroSample, GroundSample, MavlinkSampler, Sample, WinchSample
+from balloon_core.samples import (
+    BaroSample,
+    GroundBaroSample,
+    GroundSample,
+    ImuSample,
+    MavlinkSampler,
+    Sample,
+    WinchSample,
+)
 from balloon_core.score import direction_from_deg, wind_unknown
 from balloon_core.wire import FastPacker, LinkStats, pack
 from firmware_py.core_c import SampleBlock, new_core
 from firmware_py.estimator.aid_sources.ground_ref import ground_counts
 from firmware_py.estimator.aid_sources.winch import winch_counts
 from firmware_py.estimator.consistency import ACCEL, ALIGN, BARO, FLAG_NIS, MAG, RADIUS, SOURCES
+from firmware_py.estimator.params import REORDER_WINDOW_US
 from firmware_py.estimator.state import MODE_GROUND, MODE_TAUT, POS_D, POS_E, POS_N, FilterConfig
 from firmware_py.streams import InputPipeline, feed, feed_ground, print_warning
 
@@ -67,6 +76,55 @@ _BARO_PAD = (0.0,) * 7  # a barometer sample's unused values in a SampleBlock ro
 CONSISTENT_TEXT = "wind model consistent again"
 PACK_WIND_COV = FastPacker(mavlink.MAVLink_wind_cov_message)  # the 10 Hz output, packed without a message object
 RESTARTED_TEXT = "wind model check restarted (filter reset)"
+# an IMU time more than this ahead of the last one, or behind it by more than the reorder window, starts a new clock
+# (a reboot, a long silence) or is a glitch: it is used once CLOCK_CONFIRM samples in a row run on from it, each within
+# this of the one before (``ClockGuard``)
+CLOCK_STEP_MAX_US = 1_000_000
+CLOCK_CONFIRM = 5
+
+
+class ClockGuard:
+    """The sender's IMU clock, told from a glitch. A reboot starts its clock again and a long silence jumps it ahead,
+    and the samples after either run on from there; one sample stamped 0, a minute back or an hour ahead (a bit error
+    the CRC let through, a sender's bug) does not, and the estimator must not take it for a reboot (it starts the filter
+    again, the barometer's zero with it, in flight) or a gap. A message whose IMU time is off the last one used by more
+    than a step (CLOCK_STEP_MAX_US ahead, REORDER_WINDOW_US back) is held; CLOCK_CONFIRM in a row, each within a step of
+    the one before, make it the clock (``new_clocks``), and all of them are used; a message on the old clock first
+    makes those held a glitch (``glitches``: their samples are dropped)."""
+
+    def __init__(self) -> None:
+        self._held: list[tuple] = []  # the samples of each message held on a clock not yet confirmed
+        self._new = -1  # ... the newest of their times
+        self.glitches = 0
+        self.new_clocks = 0
+
+    @property
+    def pending(self) -> bool:
+        return bool(self._held)
+
+    def admit(self, samples: tuple, last_us: int) -> list[tuple]:
+        """The messages' samples to use now, in order, given one whose last sample is an IMU's (``samples``) and the
+        newest IMU time used (``last_us``, -1: none yet): it alone, those held and it, or none (held or dropped)."""
+        t_us = samples[-1].t_us
+        if self._held:
+            if 0 < t_us - self._new <= CLOCK_STEP_MAX_US:  # on from the time held
+                self._held.append(samples)
+                self._new = t_us
+                if len(self._held) < CLOCK_CONFIRM:
+                    return []
+                out, self._held = self._held, []
+                self.new_clocks += 1
+                return out
+            self.end()  # a message off that clock: those held were no clock's
+        if last_us < 0 or -REORDER_WINDOW_US < t_us - last_us <= CLOCK_STEP_MAX_US:
+            return [samples]
+        self._held, self._new = [samples], t_us
+        return []
+
+    def end(self) -> None:
+        """What is held is dropped (a glitch, or the input ended before its clock was confirmed)."""
+        self.glitches += len(self._held)
+        self._held = []
 
 
 def misfit_health(flags: int) -> int:
@@ -159,6 +217,7 @@ class Firmware:
         self._next_hb_us = 0
         self.imu_missing = 0  # IMU samples missing by their time stamps (what 8-bit sequences cannot count)
         self._prev_imu_us = -1
+        self.clock = ClockGuard()
         self._recent_imu_us: deque[int] = deque(maxlen=RECENT_IMU)  # sample times seen lately (a late one's twin)
         # the consistency monitor's verdicts: filter steps in flight (where it judges), with each source flagged
         self.flight_steps = 0
@@ -187,6 +246,11 @@ class Firmware:
         if samples is None:
             self.other_messages += 1
             return
+        if samples and type(samples[-1]) is ImuSample:  # its time judged (ClockGuard), the barometer it carries with it
+            for held in self.clock.admit(samples, self._prev_imu_us):
+                for s in held:
+                    self.push(s)
+            return
         for s in samples:
             self.push(s)
 
@@ -213,6 +277,7 @@ class Firmware:
 
     def flush(self) -> None:
         """End of a file: decide the rate with what there is and run what is held."""
+        self.clock.end()
         decided = self.pipe.decided
         out = self.pipe.flush()
         if not decided:
@@ -518,6 +583,7 @@ class Firmware:
             f"{self.stats.garbage_bytes} garbage bytes, {self.other_messages} other messages, "
             f"{self.sampler.ignored} from other sensor instances, "
             f"{self.sampler.bad_time} with an impossible time, "
+            f"{self.clock.glitches} off the IMU's clock, {self.clock.new_clocks} new IMU clocks, "
             f"{self.sampler.baro_beside} pressure messages not needed (the IMU messages carry the barometer), "
             f"{c.duplicates + self.pipe.duplicates} duplicates, "
             f"{c.reordered + self.pipe.reordered} reordered, {c.gaps} gaps, {c.long_gaps} long gaps, "

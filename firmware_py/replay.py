@@ -107,7 +107,8 @@ class _Lane:
         self.dirty = False
         s = fw.sampler
         lane = (fw._block is not None and fw.pipe.decided and fw.pipe.resampler is None and fw.streams is None
-                and s.imu_key is not None and s.imu_key[0] == fastmav.mavlink.MAVLINK_MSG_ID_HIGHRES_IMU)  # fmt: skip
+                and s.imu_key is not None and s.imu_key[0] == fastmav.mavlink.MAVLINK_MSG_ID_HIGHRES_IMU
+                and not fw.clock.pending)  # fmt: skip
         self.senders = []
         self.take_rows()  # (none: what Python changed came after the last rows were handed over)
         if not lane:

@@ -397,3 +397,50 @@ def test_an_imu_time_no_clock_can_have_is_counted_not_a_crash(capture, shape, ca
         outs[core] = [m for m in tlog_messages(out, LinkStats()) if m.get_type() == "WIND_COV"]
     assert outs["c"] and len(outs["c"]) == len(outs["py"])
     assert all(np.isfinite([m.wind_x, m.wind_y, m.horiz_accuracy]).all() for m in outs["c"])
+
+
+def wind_covs(path: Path) -> np.ndarray:
+    return np.array([(m.time_usec, m.wind_x, m.wind_y, m.horiz_accuracy) for m in tlog_messages(path, LinkStats())
+                     if m.get_type() == "WIND_COV"])  # fmt: skip
+
+
+@pytest.mark.parametrize("new_time", [lambda t: 0, lambda t: t - 5_000_000, lambda t: t + 3_600_000_000],
+                         ids=["zero", "five seconds back", "an hour ahead"])  # fmt: skip
+def test_one_sample_off_the_clock_is_dropped_not_a_reboot(capture, new_time, capsys, tmp_path):
+    """One IMU sample stamped 0, five seconds back or an hour ahead in the middle of a flight (a bit error the CRC let
+    through): the estimator must not take it for a reboot (the filter and the barometer's zero started again in
+    flight: the rest of the flight 2-3 m/s off) or a gap. It is dropped and counted ("off the IMU's clock"), and the
+    estimate is the clean flight's; both cores alike."""
+    _, tlog, _ = capture
+    recs = records(tlog.read_bytes(), True)
+    mid = next(k for k, r in enumerate(recs) if r[2] and k > len(recs) // 2)
+    bad = tmp_path / "bad.tlog"
+    assert retimed(tlog, bad, lambda k, t: new_time(t) if k == mid else None) == 1
+    runs = {}
+    for name, path, core in (("clean", tlog, "c"), ("c", bad, "c"), ("py", bad, "py")):
+        out = tmp_path / f"o_{name}.tlog"
+        capsys.readouterr()
+        assert bounded(fw_cli.main, ["--in", str(path), "--out", str(out), "--quiet", "--core", core]) == 0
+        err = capsys.readouterr().err
+        runs[name] = wind_covs(out)
+        if name != "clean":
+            assert summary_count(err, "off the IMU's clock") == 1 and summary_count(err, "reboot") == 0, err
+    common, a, b = np.intersect1d(runs["c"][:, 0], runs["clean"][:, 0], return_indices=True)
+    assert len(common) >= len(runs["clean"]) - 1  # (a WIND_COV due at the sample dropped comes at the next)
+    assert np.abs(runs["c"][a, 1:3] - runs["clean"][b, 1:3]).max() < 0.02
+    assert np.allclose(runs["c"], runs["py"], rtol=0, atol=1e-4)
+
+
+def test_a_reboot_is_still_a_reboot(capture, capsys, tmp_path):
+    """The sender's clock starting again (every IMU time from the middle on five seconds back, the samples running on
+    from there) is a new clock: held for CLOCK_CONFIRM samples, then the estimator's reboot, nothing dropped."""
+    _, tlog, _ = capture
+    recs = records(tlog.read_bytes(), True)
+    mid = next(k for k, r in enumerate(recs) if r[2] and k > len(recs) // 2)
+    bad = tmp_path / "reboot.tlog"
+    retimed(tlog, bad, lambda k, t: t - 5_000_000 if k >= mid else None)
+    capsys.readouterr()
+    assert bounded(fw_cli.main, ["--in", str(bad), "--out", str(tmp_path / "o.tlog"), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert summary_count(err, "new IMU clocks") == 1 and summary_count(err, "reboot") == 1, err
+    assert summary_count(err, "off the IMU's clock") == 0
