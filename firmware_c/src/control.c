@@ -262,15 +262,16 @@ static void join_in_flight(bw_estimator_t *est, const bw_real q[4])
         est->join_height = height - m->radius_m;
 }
 
+/* Estimator._initialise: in_flight, the sender rebooted while the filter flew (its clock says nothing then) */
 static void initialise(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real az, bw_real mx, bw_real my,
-                       bw_real mz)
+                       bw_real mz, int in_flight)
 {
     bw_real q[4];
     quat_from_accel_mag(ax, ay, az, mx, my, mz, est->declination, q);
     bw_ekf_initialise(&est->ekf, est->cfg, q, (bw_real)-est->cfg->radius_m);
     est->initialised = 1;
     est->t_boot_us = est->t_last_us = est->t_filter_us = t_us;
-    if (t_us > BW_JOIN_IN_FLIGHT_US)
+    if (in_flight || t_us > BW_JOIN_IN_FLIGHT_US)
         join_in_flight(est, q);
 }
 
@@ -288,7 +289,7 @@ static void confirm(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
     est->acc_var += est->innov_alpha * ((dx * dx + dy * dy + dz * dz) / BW_R(3.0) - est->acc_var);
     moving = est->acc_var > (bw_real)(BW_CONFIRM_MOTION_MPS2 * BW_CONFIRM_MOTION_MPS2);
     explained = est->accel_innov2 < (bw_real)BW_CONFIRM_EXPLAINED * est->acc_var &&
-                est->accel_innov2 <= est->accel_confirm_var;
+                est->accel_innov2 <= est->accel_taut_var;
     est->confirm_count = moving && explained ? count_up(est->confirm_count) : 0;
     if (est->confirm_count >= est->n_confirm)
         est->unconfirmed = 0;
@@ -526,7 +527,7 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
             c->rejected += 1;
             return 0;
         }
-        initialise(est, t_us, ax, ay, az, mx, my, mz);
+        initialise(est, t_us, ax, ay, az, mx, my, mz, 0);
         c->imu_samples += 1;
         return 1;
     }
@@ -540,10 +541,11 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
             c->reordered += 1;
             return 0;
         }
+        int airborne = est->ekf.mode != BW_MODE_GROUND; /* the balloon stays where it was */
         c->time_resets += 1;
         bw_reset(est);
         if (mag_ok) { /* the new boot's first sample starts the filter again: it is counted */
-            initialise(est, t_us, ax, ay, az, mx, my, mz);
+            initialise(est, t_us, ax, ay, az, mx, my, mz, airborne);
             c->imu_samples += 1;
         }
         return 0;

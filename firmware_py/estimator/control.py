@@ -287,10 +287,11 @@ class Estimator:
             if d > -REORDER_WINDOW_US:
                 c.reordered += 1
                 return False
+            airborne = self.ekf.mode != MODE_GROUND  # the balloon stays where it was
             c.time_resets += 1
             self.reset()
             if mag_ok:  # the new boot's first sample starts the filter again: it is counted
-                self._initialise(t_us, ax, ay, az, mx, my, mz)
+                self._initialise(t_us, ax, ay, az, mx, my, mz, in_flight=airborne)
                 c.imu_samples += 1
             return False
         c.imu_samples += 1
@@ -476,14 +477,19 @@ class Estimator:
 
     # ------------------------------------------------------------------ helpers
 
-    def _initialise(self, t_us: int, ax: float, ay: float, az: float, mx: float, my: float, mz: float) -> None:
+    def _initialise(
+        self, t_us: int, ax: float, ay: float, az: float, mx: float, my: float, mz: float, in_flight: bool = False
+    ) -> None:
+        """Start the filter at this sample: on the ground, or joined in flight (``_join_in_flight``) when the sender's
+        clock says it booted long before us or ``in_flight`` (it rebooted while the filter flew: a real reboot starts
+        its clock at zero, and the balloon is still up on its tether)."""
         q = quat_from_accel_mag(ax, ay, az, mx, my, mz, self.declination)
         self.ekf.initialise(q, -self.model.radius_m)
         self.initialised = True
         self.t_boot_us = t_us
         self.t_last_us = t_us
         self.t_filter_us = t_us
-        if t_us > JOIN_IN_FLIGHT_US:
+        if in_flight or t_us > JOIN_IN_FLIGHT_US:
             self._join_in_flight(q)
 
     def _join_in_flight(self, q) -> None:
@@ -525,7 +531,7 @@ class Estimator:
         self._acc_var += self._innov_alpha * ((dx * dx + dy * dy + dz * dz) / 3.0 - self._acc_var)
         moving = self._acc_var > CONFIRM_MOTION_MPS2**2
         explained = (self._accel_innov2 < CONFIRM_EXPLAINED * self._acc_var
-                     and self._accel_innov2 <= self.accel_confirm_var)  # fmt: skip
+                     and self._accel_innov2 <= self.accel_taut_var)  # fmt: skip
         self._confirm_count = count_up(self._confirm_count) if moving and explained else 0
         if self._confirm_count >= CONFIRM_S * self.cfg.imu_rate_hz:
             self.unconfirmed = False
