@@ -138,6 +138,8 @@ class MavlinkSampler:
         self.ignored = 0
         self.baro_beside = 0  # pressure messages beside IMU messages that carry the barometer themselves
         self.bad_time = 0  # IMU messages whose time is beyond MAX_TIME_US: not used
+        self.bad_mag = 0  # magnetometer readings that are not numbers (NaN, inf): the sample used without them
+        self.bad_temperature = 0  # thermometer readings that are not numbers: the last good one (or ISA's) used
         self.switched = 0
         self._others = 0
         self._last_temp_c = math.nan
@@ -217,7 +219,10 @@ class MavlinkSampler:
         if bits & PRESSURE_BIT:
             self.embedded_baro = True
             if bits & TEMPERATURE_BIT:
-                self._last_temp_c = m.temperature
+                if math.isfinite(m.temperature):
+                    self._last_temp_c = m.temperature
+                else:
+                    self.bad_temperature += 1
             temp = self._last_temp_c
             out.append(BaroSample(t, m.abs_pressure, temp if math.isfinite(temp) else NO_TEMPERATURE_C))
         if bits & ACC_GYRO_BITS != ACC_GYRO_BITS:  # no new accelerometer + gyro: a sample the estimator rejects
@@ -225,6 +230,9 @@ class MavlinkSampler:
             return tuple(out)
         if bits & MAG_BITS == MAG_BITS:
             mx, my, mz = m.xmag, m.ymag, m.zmag
+            if not (math.isfinite(mx) and math.isfinite(my) and math.isfinite(mz)):
+                self.bad_mag += 1
+                mx = my = mz = math.nan
         else:
             mx = my = mz = math.nan
         out.append(ImuSample(t, m.xacc, m.yacc, m.zacc, m.xgyro, m.ygyro, m.zgyro, mx, my, mz))

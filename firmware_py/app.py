@@ -76,6 +76,7 @@ _BARO_PAD = (0.0,) * 7  # a barometer sample's unused values in a SampleBlock ro
 CONSISTENT_TEXT = "wind model consistent again"
 PACK_WIND_COV = FastPacker(mavlink.MAVLink_wind_cov_message)  # the 10 Hz output, packed without a message object
 RESTARTED_TEXT = "wind model check restarted (filter reset)"
+NEVER_STARTED = " (never started: no IMU sample with a magnetometer reading)"
 # an IMU time more than this ahead of the last one, or behind it by more than the reorder window, starts a new clock
 # (a reboot, a long silence) or is a glitch: it is used once CLOCK_CONFIRM samples in a row run on from it, each within
 # this of the one before (``ClockGuard``)
@@ -583,13 +584,15 @@ class Firmware:
             f"{self.stats.garbage_bytes} garbage bytes, {self.other_messages} other messages, "
             f"{self.sampler.ignored} from other sensor instances, "
             f"{self.sampler.bad_time} with an impossible time, "
+            f"{self.sampler.bad_mag} magnetometer and {self.sampler.bad_temperature} thermometer readings not numbers, "
             f"{self.clock.glitches} off the IMU's clock, {self.clock.new_clocks} new IMU clocks, "
             f"{self.sampler.baro_beside} pressure messages not needed (the IMU messages carry the barometer), "
             f"{c.duplicates + self.pipe.duplicates} duplicates, "
             f"{c.reordered + self.pipe.reordered} reordered, {c.gaps} gaps, {c.long_gaps} long gaps, "
             f"resets: {c.time_resets} reboot, {c.numeric_resets} numeric, {c.taut_resets} taut, "
             f"{c.baro_resets} baro, {c.false_releases} false release, {c.mode_switches} mode switches, "
-            f"{self.wind_cov_sent} WIND_COV sent, {self.wind_sent} WIND sent, final mode {self.est.mode_name}, "
+            f"{self.wind_cov_sent} WIND_COV sent, {self.wind_sent} WIND sent, final mode {self.est.mode_name}"
+            f"{'' if self.est.initialised or not c.rejected else NEVER_STARTED}, "
             f"filter at {self.est.cfg.imu_rate_hz:g} Hz{self._rate_note()} on the {self._core_name()}, "
             f"input packets {self.stats.loss_summary()}, {self.imu_missing} IMU samples missing by time, "
             f"{winch_counts(self.est)}, {ground_counts(self.est)}"

@@ -155,6 +155,11 @@ static int lane(int64_t *S, double *D, int64_t id, const uint8_t *p, int seq, in
         pressure = (bits & 0x200) != 0;
         if (pressure && S[S_LEN] + 1 >= S[S_BATCH]) return 0;
         if (t <= S[S_PREV]) return 0; /* a late, repeated or restarted IMU time: Python's bookkeeping */
+        if ((bits & 0x1C0) == 0x1C0 &&
+            !(isfinite(f32(p + 32)) && isfinite(f32(p + 36)) && isfinite(f32(p + 40))))
+            return 0; /* a magnetometer reading that is not a number: MavlinkSampler counts it */
+        if ((bits & 0x1200) == 0x1200 && !isfinite(f32(p + 56)))
+            return 0; /* ... and a thermometer's */
         if (S[S_PREV] >= 0 && t - S[S_PREV] > 1000000) return 0; /* a new clock or a glitch: app.ClockGuard's */
     } else if (id == 29) {
         t = (int64_t)u32(p) * 1000;

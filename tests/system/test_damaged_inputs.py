@@ -353,25 +353,34 @@ def test_tlog_reader_memory_does_not_hold_the_file(capture, monkeypatch):
     assert struct.calcsize(">Q") == TLOG_HEADER
 
 
-def retimed(src: Path, dst: Path, new_time) -> int:
-    """``src`` with each HIGHRES_IMU's ``time_usec`` replaced by ``new_time(index, time_usec)`` where it returns one
-    (the frame packed again with its sender's sequence number); how many were changed."""
+def rewritten(src: Path, dst: Path, change) -> int:
+    """``src`` with each HIGHRES_IMU message ``m`` given to ``change(index, m)``, packed again (with its sender's
+    sequence number) where it returns True; how many were changed."""
     data, changed = src.read_bytes(), 0
     with open(dst, "wb") as fh:
-        w = TlogWriter(fh)
         for k, (a, b, imu) in enumerate(records(data, True)):
-            stamp, frame = struct.unpack(">Q", data[a : a + TLOG_HEADER])[0], data[a + TLOG_HEADER : b]
+            stamp, frame = data[a : a + TLOG_HEADER], data[a + TLOG_HEADER : b]
             if imu:
                 m = mavlink.MAVLink(None).decode(bytearray(frame))
-                t = new_time(k, m.time_usec)
-                if t is not None:
+                if change(k, m):
                     enc = mavlink.MAVLink(None, srcSystem=m.get_srcSystem(), srcComponent=m.get_srcComponent())
                     enc.seq = m.get_seq()
-                    m.time_usec = t
                     frame, changed = m.pack(enc), changed + 1
-            fh.write(struct.pack(">Q", stamp) + frame)
-        del w
+            fh.write(stamp + frame)
     return changed
+
+
+def retimed(src: Path, dst: Path, new_time) -> int:
+    """``rewritten`` with each HIGHRES_IMU's ``time_usec`` replaced by ``new_time(index, time_usec)`` where it returns
+    one."""
+
+    def change(k, m) -> bool:
+        t = new_time(k, m.time_usec)
+        if t is not None:
+            m.time_usec = t
+        return t is not None
+
+    return rewritten(src, dst, change)
 
 
 @pytest.mark.parametrize("shape", ["one", "from-then-on"])
@@ -479,3 +488,31 @@ def test_a_reboot_in_flight_on_a_real_rope_is_confirmed_and_its_accuracy_comes_b
     acc_rms = np.sqrt(np.mean(late[:, 3] ** 2))
     speed = np.hypot(tn, te).mean()
     assert acc_rms < 0.3 * speed and 0.3 < err_rms / acc_rms < 2.0, (err_rms, acc_rms, speed)
+
+
+def test_readings_that_are_not_numbers_are_counted_not_dropped_silently(capture, capsys, tmp_path):
+    """A magnetometer or a thermometer reading that is not a number (NaN, inf) cannot be used: the sample goes on
+    without it, and the summary counts it (both cores alike; the C replay's fast lane hands such a message to
+    Python)."""
+    _, tlog, _ = capture
+    bad = tmp_path / "bad.tlog"
+
+    def change(k, m) -> bool:
+        if k % 7 == 0:
+            m.xmag = float("nan")
+        elif k % 11 == 0 and m.fields_updated & 0x1200 == 0x1200:
+            m.temperature = float("inf")
+        else:
+            return False
+        return True
+
+    n = rewritten(tlog, bad, change)
+    counts = {}
+    for core in ("c", "py"):
+        capsys.readouterr()
+        assert bounded(fw_cli.main, ["--in", str(bad), "--out", str(tmp_path / f"o_{core}.tlog"), "--quiet",
+                                     "--core", core]) == 0  # fmt: skip
+        err = capsys.readouterr().err
+        counts[core] = re.search(r"(\d+) magnetometer and (\d+) thermometer readings not numbers", err).groups()
+    mag, temp = map(int, counts["c"])
+    assert counts["c"] == counts["py"] and mag > 0 and temp > 0 and mag + temp == n
