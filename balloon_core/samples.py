@@ -87,6 +87,10 @@ MILLI_G = G0 / 1000.0  # SCALED_IMU acceleration unit, m/s^2
 # the sample is counted (``Sampler.bad_time``) and not used; every time below it fits the cores' int64 and a tlog's
 # stamp (its epoch + the time < 2^64)
 MAX_TIME_US = 2**53
+# a sensor (accelerometer, gyro, magnetometer) whose reading repeats bit for bit this long is stuck (a hung bus, a
+# frozen driver: a live sensor's noise never repeats a reading of three axes): its readings are not used until they
+# change, and counted (``MavlinkSampler.stuck``)
+STUCK_US = 1_000_000
 SWITCH_AFTER = 200  # IMU messages from other instances in a row (selected one silent): take the newest
 
 
@@ -140,6 +144,9 @@ class MavlinkSampler:
         self.bad_time = 0  # IMU messages whose time is beyond MAX_TIME_US: not used
         self.bad_mag = 0  # magnetometer readings that are not numbers (NaN, inf): the sample used without them
         self.bad_temperature = 0  # thermometer readings that are not numbers: the last good one (or ISA's) used
+        self.stuck = 0  # IMU samples with a stuck sensor (STUCK_US): its readings not used
+        self.last_readings = [math.nan] * 9  # the last accelerometer, gyro and magnetometer readings, as sent
+        self.repeat_since = [-1, -1, -1]  # when each of the three began to repeat its reading (-1: never)
         self.switched = 0
         self._others = 0
         self._last_temp_c = math.nan
@@ -235,5 +242,29 @@ class MavlinkSampler:
                 mx = my = mz = math.nan
         else:
             mx = my = mz = math.nan
-        out.append(ImuSample(t, m.xacc, m.yacc, m.zacc, m.xgyro, m.ygyro, m.zgyro, mx, my, mz))
+        r = (m.xacc, m.yacc, m.zacc, m.xgyro, m.ygyro, m.zgyro, mx, my, mz)
+        stuck = self._stuck(t, r)
+        if stuck:
+            self.stuck += 1
+            if stuck & 3:  # the accelerometer or the gyro: the sample is not used (the estimator counts it rejected)
+                r = (math.nan,) * 9
+            else:  # the magnetometer: the sample without it
+                r = (*r[:6], math.nan, math.nan, math.nan)
+        out.append(ImuSample(t, *r))
         return tuple(out)
+
+    def _stuck(self, t_us: int, readings: tuple) -> int:
+        """Which of the accelerometer (1), the gyro (2) and the magnetometer (4) have sent the same reading, bit for
+        bit, for STUCK_US up to this sample at ``t_us`` (a reading that is not a number never repeats)."""
+        last, since, out = self.last_readings, self.repeat_since, 0
+        for i in range(3):
+            new = readings[3 * i : 3 * i + 3]
+            if all(a == b for a, b in zip(new, last[3 * i : 3 * i + 3])):  # (not the tuples': NaN is NaN there)
+                if since[i] < 0:
+                    since[i] = t_us
+                elif t_us - since[i] >= STUCK_US:
+                    out |= 1 << i
+            else:
+                since[i] = -1
+                last[3 * i : 3 * i + 3] = new
+        return out

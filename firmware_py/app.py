@@ -583,7 +583,7 @@ class Firmware:
             f"{' (the file ends inside a frame)' if self.stats.truncated else ''}, "
             f"{self.stats.garbage_bytes} garbage bytes, {self.other_messages} other messages, "
             f"{self.sampler.ignored} from other sensor instances, "
-            f"{self.sampler.bad_time} with an impossible time, "
+            f"{self.sampler.bad_time} with an impossible time, {self.sampler.stuck} with a stuck sensor, "
             f"{self.sampler.bad_mag} magnetometer and {self.sampler.bad_temperature} thermometer readings not numbers, "
             f"{self.clock.glitches} off the IMU's clock, {self.clock.new_clocks} new IMU clocks, "
             f"{self.sampler.baro_beside} pressure messages not needed (the IMU messages carry the barometer), "

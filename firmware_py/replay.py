@@ -38,7 +38,7 @@ WIND_COV = fastmav.mavlink.MAVLink_wind_cov_message
  S_BARO_SYS, S_BARO_COMP, S_GROUND, S_SAMPLES, S_MISSING, S_PREV, S_BLOCK_T, S_DT, S_NEXT_WIND, S_NEXT_HB,
  S_LEN, S_BATCH, S_ROWS, S_RECENT, S_NSEND, S_EMIT, S_TOLD, S_NEXT_TEXT, S_SENT, S_SEQ, S_SYSID, S_COMPID,
  S_PERIOD, S_MSG_ID, S_MSG_EXTRA, S_GROUND_MODE, S_NSRC, S_LAST_STEP, S_FLIGHT, S_MISFIT) = range(52)  # fmt: skip
-S_NOUT, S_DONE = S_MISFIT + 8, S_MISFIT + 9
+S_NOUT, S_DONE, S_SINCE = S_MISFIT + 8, S_MISFIT + 9, S_MISFIT + 10  # S_SINCE: 3 (MavlinkSampler.repeat_since)
 S_SENDERS, Q_SIZE, MAX_SENDERS = 80, 16, 16
 R_MORE, R_END, R_FRAME, R_DRAIN, R_BATCHED, R_OUT = range(6)
 OUT_CAP, OUT_SLOT = 64, 64
@@ -81,7 +81,7 @@ class _Lane:
     def __init__(self, fw: Firmware) -> None:
         self.fw = fw
         self.S = np.zeros(S_SENDERS + Q_SIZE * MAX_SENDERS, np.int64)
-        self.D = np.zeros(1)
+        self.D = np.zeros(10)  # the last thermometer reading, then MavlinkSampler.last_readings
         # the samples the scanner takes, written in C straight into a block of their own (``rows``)
         self.blk = blk = SampleBlock(BATCH_SAMPLES + 2)
         self.recent = np.zeros(BATCH_SAMPLES + 2, np.int64)
@@ -141,7 +141,9 @@ class _Lane:
         v[S_MSG_ID], v[S_MSG_EXTRA] = WIND_COV.id, WIND_COV.crc_extra
         v[S_GROUND_MODE], v[S_NSRC], v[S_LAST_STEP] = MODE_GROUND, len(SOURCES), fw._last_step
         S[: len(v)] = v
+        S[S_SINCE : S_SINCE + 3] = s.repeat_since
         self.D[0] = s._last_temp_c
+        self.D[1:10] = s.last_readings
         self.ptrs[6] = C.addressof(fw.est._s)  # the estimator the scanner runs the block through
 
     def take_rows(self) -> None:
@@ -185,6 +187,8 @@ class _Lane:
         s.embedded_baro, s._others = bool(v[S_EMBEDDED]), v[S_OTHERS]
         s.baro_beside += v[S_BESIDE]
         s._last_temp_c = float(self.D[0])
+        s.last_readings[:] = self.D[1:10].tolist()
+        s.repeat_since[:] = self.S[S_SINCE : S_SINCE + 3].tolist()
         if v[S_SAMPLES]:
             fw.silent = False
             fw.samples_in += v[S_SAMPLES]

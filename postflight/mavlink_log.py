@@ -128,7 +128,7 @@ class _Reader:
 
         self.sampler, self.stats = sampler, stats
         self.S = np.zeros(S_SENDERS + Q_SIZE * MAX_SENDERS, np.int64)
-        self.D = np.zeros(1)
+        self.D = np.zeros(10)  # the last thermometer reading, then MavlinkSampler.last_readings
         self.t = np.zeros(ROWS + 2, np.int64)
         self.kind = np.zeros(ROWS + 2, np.int32)
         self.v = np.zeros((ROWS + 2, 9))
@@ -174,7 +174,9 @@ class _Reader:
                   q._i_last, not q._holes, 0, 0, 0, 0)  # fmt: skip
         v[R.S_NSEND] = len(self.senders)
         S[: len(v)] = v
+        S[R.S_SINCE : R.S_SINCE + 3] = s.repeat_since
         self.D[0] = s._last_temp_c
+        self.D[1:10] = s.last_readings
 
     def store(self) -> None:
         from firmware_py import replay as R
@@ -193,6 +195,8 @@ class _Reader:
         s.embedded_baro, s._others = bool(v[R.S_EMBEDDED]), v[R.S_OTHERS]
         s.baro_beside += v[R.S_BESIDE]
         s._last_temp_c = float(self.D[0])
+        s.last_readings[:] = self.D[1:10].tolist()
+        s.repeat_since[:] = S[R.S_SINCE : R.S_SINCE + 3].tolist()
         self.prev = v[R.S_PREV]
         k = R.S_SENDERS
         for q in self.senders:

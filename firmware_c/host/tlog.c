@@ -28,7 +28,7 @@ enum {
     S_DT, S_NEXT_WIND, S_NEXT_HB, S_LEN, S_BATCH, S_ROWS, S_RECENT, S_NSEND,
     /* the outputs (Firmware.run_block, _count, _judge, emit_due, wind_cov) */
     S_EMIT, S_TOLD, S_NEXT_TEXT, S_SENT, S_SEQ, S_SYSID, S_COMPID, S_PERIOD, S_MSG_ID, S_MSG_EXTRA, S_GROUND_MODE,
-    S_NSRC, S_LAST_STEP, S_FLIGHT, S_MISFIT, S_NOUT = S_MISFIT + 8, S_DONE, S_SENDERS = 80
+    S_NSRC, S_LAST_STEP, S_FLIGHT, S_MISFIT, S_NOUT = S_MISFIT + 8, S_DONE, S_SINCE, S_SENDERS = 80
 };
 /* a sender's fields (SenderSeq), 16 a sender from S_SENDERS */
 enum { Q_SYS, Q_COMP, Q_RECEIVED, Q_NEWEST, Q_BEHIND, Q_T0, Q_I0, Q_TMID, Q_IMID, Q_TLAST, Q_ILAST, Q_USABLE };
@@ -134,6 +134,33 @@ static void row(int64_t *S, int64_t *rt, int32_t *rk, double *rv, int64_t t, int
     S[S_SAMPLES]++;
 }
 
+/* MavlinkSampler._stuck: the accelerometer's, the gyro's and the magnetometer's readings (D[1..9]) and since when
+ * each has repeated (S[S_SINCE + i], -1: it changed), updated with this HIGHRES_IMU's; whether any has repeated for
+ * STUCK_US (samples.py) */
+static int stuck(int64_t *S, double *D, int64_t t, const uint8_t *p, uint16_t bits)
+{
+    int i, j, out = 0;
+    for (i = 0; i < 3; i++) {
+        double v[3];
+        int same = 1;
+        for (j = 0; j < 3; j++) {
+            v[j] = i == 2 && (bits & 0x1C0) != 0x1C0 ? (double)NAN : f32(p + 8 + 12 * i + 4 * j);
+            if (i == 2 && !isfinite(v[j])) v[j] = (double)NAN;
+            same = same && v[j] == D[1 + 3 * i + j];
+        }
+        if (same) {
+            if (S[S_SINCE + i] < 0)
+                S[S_SINCE + i] = t;
+            else if (t - S[S_SINCE + i] >= 1000000)
+                out = 1;
+        } else {
+            S[S_SINCE + i] = -1;
+            for (j = 0; j < 3; j++) D[1 + 3 * i + j] = v[j];
+        }
+    }
+    return out;
+}
+
 /* One sensor frame through what firmware_py does with it (LinkStats.sequence, MavlinkSampler.convert,
  * Firmware.push and _step with a decided rate and no averaging), when it is the common case; else 0 and
  * nothing changed (Python takes the frame). 1: taken; 3: taken, drain the block. */
@@ -191,6 +218,8 @@ static int lane(int64_t *S, double *D, int64_t id, const uint8_t *p, int seq, in
             if (expected - (double)q[Q_NEWEST] > 64.0) return 0;
         }
     }
+    if (id == 105 && (bits & 0x3F) == 0x3F && stuck(S, D, t, p, bits))
+        return 0; /* a sensor stuck (MavlinkSampler._stuck, which left the state as it was): Python's */
     /* taken: from here on, what Python would do */
     q[Q_RECEIVED]++;
     q[Q_NEWEST]++;

@@ -516,3 +516,38 @@ def test_readings_that_are_not_numbers_are_counted_not_dropped_silently(capture,
         counts[core] = re.search(r"(\d+) magnetometer and (\d+) thermometer readings not numbers", err).groups()
     mag, temp = map(int, counts["c"])
     assert counts["c"] == counts["py"] and mag > 0 and temp > 0 and mag + temp == n
+
+
+@pytest.mark.parametrize("sensor", ["accelerometer", "magnetometer"])
+def test_a_stuck_sensor_is_not_used_and_counted(capture, sensor, capsys, tmp_path):
+    """A sensor whose reading repeats bit for bit (a hung bus, a frozen driver; a live sensor's noise never repeats
+    three axes) for more than STUCK_US (1 s): its readings are not used until they change, and counted. Stuck at one
+    reading for 3 s, an accelerometer held the estimate 2-4 m/s off at error/accuracy above 3 for 95 s; now the
+    samples from its second second on are not used (the estimator counts them rejected), a stuck magnetometer's
+    samples go on without it. Both cores alike (the C replay's fast lane keeps the same watch)."""
+    _, tlog, _ = capture
+    recs = records(tlog.read_bytes(), True)
+    start = next(k for k, r in enumerate(recs) if r[2] and k > len(recs) // 3)
+    held: dict[str, tuple] = {}
+    fields = ("xacc", "yacc", "zacc") if sensor == "accelerometer" else ("xmag", "ymag", "zmag")
+
+    def change(k, m) -> bool:
+        if not start <= k or m.time_usec > held.get("t0", (m.time_usec,))[0] + 3_000_000:
+            return False
+        held.setdefault("t0", (m.time_usec,))
+        values = held.setdefault("v", tuple(getattr(m, f) for f in fields))
+        for f, v in zip(fields, values):
+            setattr(m, f, v)
+        return True
+
+    n = rewritten(tlog, tmp_path / "stuck.tlog", change)
+    got = {}
+    for core in ("c", "py"):
+        capsys.readouterr()
+        assert bounded(fw_cli.main, ["--in", str(tmp_path / "stuck.tlog"), "--out", str(tmp_path / f"o_{core}.tlog"),
+                                     "--quiet", "--core", core]) == 0  # fmt: skip
+        err = capsys.readouterr().err
+        got[core] = (summary_count(err, "with a stuck sensor"), summary_count(err, "rejected"))
+    stuck, rejected = got["c"]
+    assert got["c"] == got["py"] and abs(stuck - (n - 100)) <= 2, (got, n)  # all but the first second's (100 Hz)
+    assert rejected == (stuck if sensor == "accelerometer" else 0)

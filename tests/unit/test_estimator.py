@@ -134,9 +134,10 @@ def test_duplicates_reordering_gaps_and_time_going_back(flying):
     # a 5 s dropout: bounded work (0.5 s predicted), flagged
     feed(est, samples[700:800])
     assert c.long_gaps == 1
-    # time going back by more than a second: the vehicle rebooted -> reset
+    # time going back by more than a second: the vehicle rebooted -> reset; it was flying, so the balloon is still up
+    # on its tether: the new boot joins in flight, unconfirmed
     feed(est, [replace(samples[0], time_usec=1000)])
-    assert c.time_resets == 1 and est.ekf.mode != MODE_TAUT
+    assert c.time_resets == 1 and est.ekf.mode == MODE_TAUT and est.unconfirmed
 
 
 def perturb_wind(est, dn, de):
