@@ -262,16 +262,15 @@ static void join_in_flight(bw_estimator_t *est, const bw_real q[4])
         est->join_height = height - m->radius_m;
 }
 
-/* Estimator._initialise: in_flight, the sender rebooted while the filter flew (its clock says nothing then) */
 static void initialise(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real az, bw_real mx, bw_real my,
-                       bw_real mz, int in_flight)
+                       bw_real mz)
 {
     bw_real q[4];
     quat_from_accel_mag(ax, ay, az, mx, my, mz, est->declination, q);
     bw_ekf_initialise(&est->ekf, est->cfg, q, (bw_real)-est->cfg->radius_m);
     est->initialised = 1;
     est->t_boot_us = est->t_last_us = est->t_filter_us = t_us;
-    if (in_flight || t_us > BW_JOIN_IN_FLIGHT_US)
+    if (t_us > BW_JOIN_IN_FLIGHT_US)
         join_in_flight(est, q);
 }
 
@@ -527,7 +526,7 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
             c->rejected += 1;
             return 0;
         }
-        initialise(est, t_us, ax, ay, az, mx, my, mz, 0);
+        initialise(est, t_us, ax, ay, az, mx, my, mz);
         c->imu_samples += 1;
         return 1;
     }
@@ -541,11 +540,13 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
             c->reordered += 1;
             return 0;
         }
-        int airborne = est->ekf.mode != BW_MODE_GROUND; /* the balloon stays where it was */
+        steps = e->mode != BW_MODE_GROUND; /* (no local of its own: the stack's budget) */
         c->time_resets += 1;
         bw_reset(est);
         if (mag_ok) { /* the new boot's first sample starts the filter again: it is counted */
-            initialise(est, t_us, ax, ay, az, mx, my, mz, airborne);
+            initialise(est, t_us, ax, ay, az, mx, my, mz);
+            if (steps && !(t_us > BW_JOIN_IN_FLIGHT_US)) /* it rebooted while flying: the balloon is still up */
+                join_in_flight(est, e->q);                /* (Estimator._initialise's in_flight) */
             c->imu_samples += 1;
         }
         return 0;
