@@ -46,6 +46,13 @@ void bw_consistency_add_lean(bw_consistency_t *m, bw_real tilt, bw_real misfit, 
     m->lean_misfit += alpha * (misfit - m->lean_misfit);
 }
 
+/* consistency.py gyro_heading_wind: the wind error of a heading the gyro alone has held for seconds */
+bw_real bw_gyro_heading_wind(bw_real speed, bw_real gyro_bias_rad_s, bw_real seconds)
+{
+    bw_real theta = BW_MIN(BW_MAX(gyro_bias_rad_s * seconds, BW_R(0.0)), (bw_real)BW_PI);
+    return BW_R(2.0) * speed * BW_SIN(BW_R(0.5) * theta);
+}
+
 /* consistency.py lean_misfit_wind: the wind error of a lean the body and the taut model disagree on, persistently
  * (the two leans' tangents tell two winds, |w|^2 ~ tan), each lean at most the pull's steepest, bounded by the
  * wind's own speed or 0.5 m/s */

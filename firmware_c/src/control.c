@@ -689,5 +689,14 @@ bw_real bw_wind_accuracy(const bw_estimator_t *est)
         acc = BW_HYPOT(acc, bw_lean_misfit_wind(speed, est->consistency.lean_tilt, est->consistency.lean_misfit));
     if (est->unconfirmed)
         acc = BW_MAX(acc, BW_SQRT(wn * wn + we * we + BW_R(1.0)));
+    if (e->mode != BW_MODE_GROUND) { /* no magnetometer for HEADING_LOST_S: the heading is the gyro's alone */
+        int64_t last = est->mag_status[0].time_last_fuse_us;
+        bw_real seconds;
+        last = BW_MAX(BW_MAX(last, est->heading_status.time_last_fuse_us), est->t_boot_us);
+        seconds = (bw_real)(e->time_us - last) * BW_R(1e-6);
+        if (seconds > (bw_real)BW_HEADING_LOST_S)
+            acc = BW_HYPOT(acc, bw_gyro_heading_wind(speed, (bw_real)est->cfg->init_gyro_bias_dps *
+                                                                (BW_PI / BW_R(180.0)), seconds));
+    }
     return acc;
 }

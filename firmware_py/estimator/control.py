@@ -28,6 +28,7 @@ from firmware_py.estimator.consistency import (
     correlated_weight,
     field_attitude_extra,
     field_variance,
+    gyro_heading_wind,
     heading_misfit_variance,
     lean_bias_rad,
     lean_bias_wind,
@@ -54,6 +55,7 @@ from firmware_py.estimator.params import (
     DRAG_SCALE_MIN,
     FALSE_RELEASE_S,
     GYRO_MAX,
+    HEADING_LOST_S,
     JOIN_IN_FLIGHT_US,
     LEARN_DRAG_AFTER_S,
     LIGHT_AIR_SIGMA_U_MPS,
@@ -676,6 +678,11 @@ class Estimator:
             acc = math.hypot(acc, lean_misfit_wind(speed, c.lean_tilt, c.lean_misfit))
         if self.unconfirmed:
             acc = max(acc, math.sqrt(wn * wn + we * we + 1.0))
+        if ekf.mode != MODE_GROUND:  # no magnetometer for HEADING_LOST_S: the heading is the gyro's alone since then
+            last = max(self.mag_status[0].time_last_fuse_us, self.heading_status.time_last_fuse_us, self.t_boot_us)
+            seconds = (ekf.time_us - last) * 1e-6
+            if seconds > HEADING_LOST_S:
+                acc = math.hypot(acc, gyro_heading_wind(speed, math.radians(self.cfg.init_gyro_bias_dps), seconds))
         return acc
 
     def _field_variance(self) -> float:

@@ -27,6 +27,9 @@ ROPE_SHAPE_S = 60.0
 # the tilt's systematic error (accelerometer bias 1-3 mg, the learnt field's direction): what no averaging
 # removes from the lean, so from the wind in calm air, where the lean is a degree (consistency.py)
 LEAN_BIAS_RAD = 0.0035
+# no magnetometer fused for this long (or since the start): the heading is the gyro's alone, and the wind's direction
+# with it (consistency.gyro_heading_wind; a magnetometer fuses at 10-100 Hz)
+HEADING_LOST_S = 5.0
 # the accelerometer's horizontal bias walked since the field was learnt is followed from its slow innovation over this
 # long (aid_sources/accel.py follow_horizontal_bias). About a quarter of a new bias stays in the innovation, so the
 # bias is followed over about 1200 s: a walk of 0.001 m/s^2 per sqrt(s) to 0.025 m/s^2 (0.12 unfollowed over four

@@ -325,3 +325,13 @@ def test_the_lean_means_start_from_the_first_tilt_and_a_consistent_misfit():
     assert (c.lean_tilt, c.lean_misfit) == before
     c.reset()
     assert c.lean_tilt == 0.0 and c.lean_misfit == 0.0
+
+
+def test_the_wind_of_a_heading_the_gyro_alone_has_held():
+    """2 |w| sin(theta / 2), theta = b t: the chord of the wind's turn; small, |w| b t; at most 2 |w| (turned round)."""
+    from firmware_py.estimator.consistency import gyro_heading_wind
+
+    b = math.radians(0.5)
+    assert math.isclose(gyro_heading_wind(3.0, b, 10.0), 3.0 * b * 10.0, rel_tol=1e-3)
+    assert math.isclose(gyro_heading_wind(3.0, b, 120.0), 2 * 3.0 * math.sin(math.radians(30.0)), rel_tol=1e-12)
+    assert gyro_heading_wind(3.0, b, 1e6) == 6.0 and gyro_heading_wind(3.0, b, 0.0) == 0.0
