@@ -78,6 +78,13 @@ void bw_control_baro(bw_estimator_t *est)
 {
     if (est->baro_pending && est->height_baro == est->height_baro) {
         bw_status_t *st = &est->baro_status;
+        bw_real height = est->height_baro - est->ekf.x[BW_BARO_OFF]; /* its offset taken out (control_baro) */
+        if (!(height >= -(bw_real)BW_BARO_PLAUSIBLE_M &&
+              height <= est->ekf.m.tether_length_m + est->ekf.m.radius_m + (bw_real)BW_BARO_PLAUSIBLE_M)) {
+            est->baro_pending = 0; /* no balloon's on this tether: not fused, never reset to */
+            est->counters.rejected += 1;
+            return;
+        }
         fuse_baro(est, est->height_baro);
         est->baro_pending = 0;
         /* every sample outside the gate counts, the recovery's forced fusions too (control.py) */

@@ -30,6 +30,10 @@ LEAN_BIAS_RAD = 0.0035
 # no magnetometer fused for this long (or since the start): the heading is the gyro's alone, and the wind's direction
 # with it (consistency.gyro_heading_wind; a magnetometer fuses at 10-100 Hz)
 HEADING_LOST_S = 5.0
+# a barometric height (less the offset state) further than this below the anchor or beyond the tether's reach is no
+# balloon's on this tether: not fused, no reset to it, counted rejected (a step of 50 hPa read as 400 m of height was
+# forced in and re-placed the taut balloon every 2 s, a 24 m/s wind where 3 blew)
+BARO_PLAUSIBLE_M = 50.0
 # the accelerometer's horizontal bias walked since the field was learnt is followed from its slow innovation over this
 # long (aid_sources/accel.py follow_horizontal_bias). About a quarter of a new bias stays in the innovation, so the
 # bias is followed over about 1200 s: a walk of 0.001 m/s^2 per sqrt(s) to 0.025 m/s^2 (0.12 unfollowed over four

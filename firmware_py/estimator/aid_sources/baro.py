@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 from balloon_core.atmosphere import G0, LAPSE_K_M, R_AIR, air_density, hypsometric_height_m
 from firmware_py.estimator.aid_sources.tether import enter_taut
 from firmware_py.estimator.ekf import RESET_HEIGHT, FusionStatus, WindEkf
-from firmware_py.estimator.params import BARO_ZERO_S, P_MAX_HPA, P_MIN_HPA, T_MAX_C, T_MIN_C
+from firmware_py.estimator.params import BARO_PLAUSIBLE_M, BARO_ZERO_S, P_MAX_HPA, P_MIN_HPA, T_MAX_C, T_MIN_C
 from firmware_py.estimator.state import (
     BARO_OFF,
     MODE_TAUT,
@@ -92,6 +92,12 @@ def control_baro(est: Estimator) -> None:
     if est._baro_pending and not math.isnan(est.height_baro):
         ekf = est.ekf
         st = est.baro_status
+        height = est.height_baro - float(ekf.x[BARO_OFF])  # the height the barometer tells, its offset taken out
+        reach = est.model.tether_length_m + est.model.radius_m + BARO_PLAUSIBLE_M
+        if not -BARO_PLAUSIBLE_M <= height <= reach:  # no balloon's on this tether: not fused, never reset to
+            est._baro_pending = False
+            est.counters.rejected += 1
+            return
         fuse_baro(ekf, est.height_baro, est.ref_pos_d, est.baro_var, st)
         est._baro_pending = False
         outside = st.consecutive_rejects > 0 or st.test_ratio > 1.0
