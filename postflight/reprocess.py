@@ -19,6 +19,7 @@ import numpy as np
 from balloon_core.config import Design, to_toml
 from balloon_core.samples import BaroSample, GroundBaroSample, GroundSample, ImuSample, Sample, WinchSample
 from balloon_core.score import direction_from_deg, wind_unknown
+from firmware_py.app import CLOCK_CONFIRM, CLOCK_STEP_MAX_US
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.state import MODE_GROUND, N_STATES, POS_D, POS_E, POS_N, WIND_E, WIND_N, FilterConfig
 from firmware_py.streams import InputPipeline, feed, feed_ground
@@ -91,6 +92,33 @@ def reprocess(
     seg = _Segment(design, cfg, rate_explicit, grid_hz, store_dir, use_c)
     newest = None  # the newest sample time in this segment
     i = 0
+    # a sample off the clock (more than CLOCK_STEP_MAX_US ahead of the newest, CLOCK_BACK_US behind) is held until
+    # CLOCK_CONFIRM IMU samples run on from it, as the firmware's ClockGuard holds it: a reboot or a silence then, a
+    # glitch (one sample stamped 0, an hour ahead) dropped if the old clock comes first (it split the flight in three)
+    held: list = []
+    held_imu = held_newest = dropped = 0
+
+    def guard(s) -> None:
+        nonlocal held_imu, held_newest, dropped
+        t = s.t_us
+        if held:
+            if 0 <= t - held_newest <= CLOCK_STEP_MAX_US:  # on from what is held
+                held.append(s)
+                held_newest = max(held_newest, t)
+                held_imu += type(s) is ImuSample
+                if held_imu >= CLOCK_CONFIRM:
+                    run = held[:]
+                    held.clear()
+                    for h in run:
+                        one(h)
+                return
+            dropped += len(held)  # the old clock first: what was held was no clock's
+            held.clear()
+        if newest is not None and not -CLOCK_BACK_US <= t - newest <= CLOCK_STEP_MAX_US:
+            held.append(s)
+            held_imu, held_newest = int(type(s) is ImuSample), t
+            return
+        one(s)
 
     def one(s) -> None:
         nonlocal seg, newest, i
@@ -109,20 +137,20 @@ def reprocess(
 
     for s in samples:
         if type(s) is not SampleRows:
-            one(s)
+            guard(s)
             continue
         # a run of sensor samples as arrays (postflight/mavlink_log.py): as one by one, but the stretch up
         # to a clock break goes to the C core as it is once the input pipeline passes samples unchanged
         a, n = 0, len(s.t)
         while a < n:
-            if newest is None or not seg.rows_ok():
-                one(ImuSample(int(s.t[a]), *s.v[a].tolist()) if s.kind[a] == 0 else
-                    BaroSample(int(s.t[a]), float(s.v[a, 0]), float(s.v[a, 1])))  # fmt: skip
+            if newest is None or not seg.rows_ok() or held:
+                guard(ImuSample(int(s.t[a]), *s.v[a].tolist()) if s.kind[a] == 0 else
+                      BaroSample(int(s.t[a]), float(s.v[a, 0]), float(s.v[a, 1])))  # fmt: skip
                 a += 1
                 continue
             t = s.t[a:]
             before = np.maximum.accumulate(np.concatenate(([newest], t[:-1])))  # the newest before each
-            cut = np.flatnonzero((t < before - CLOCK_BACK_US) | (t > before + CLOCK_JUMP_US))
+            cut = np.flatnonzero((t < before - CLOCK_BACK_US) | (t > before + CLOCK_STEP_MAX_US))
             b = a + (int(cut[0]) if len(cut) else n - a)
             if b > a:
                 seg.run.feed_rows(s.t[a:b], s.kind[a:b], s.v[a:b])
@@ -131,15 +159,17 @@ def reprocess(
                     progress((i + b - a) // 10_000 * 10_000)
                 i += b - a
                 a = b
-            else:  # a clock break: the new segment starts with this sample, one by one
-                one(ImuSample(int(s.t[a]), *s.v[a].tolist()) if s.kind[a] == 0 else
-                    BaroSample(int(s.t[a]), float(s.v[a, 0]), float(s.v[a, 1])))  # fmt: skip
+            else:  # off the clock: held (``guard``), one by one
+                guard(ImuSample(int(s.t[a]), *s.v[a].tolist()) if s.kind[a] == 0 else
+                      BaroSample(int(s.t[a]), float(s.v[a, 0]), float(s.v[a, 1])))  # fmt: skip
                 a += 1
+    dropped += len(held)  # the log ended before their clock was confirmed
     parts.append(seg.finish(warn))
     tally.add(seg.run.est)
     product = join_segments([p for p in parts if len(p.time_s)], grid_hz)
     product.attrs["design_toml"] = design_toml(design, seg.pipe.cfg)
     product.attrs.update(tally.attrs())
+    product.attrs["samples_off_clock"] = dropped
     return product
 
 

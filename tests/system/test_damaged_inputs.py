@@ -606,3 +606,20 @@ def test_a_barometer_that_jumps_beyond_the_tether_is_not_believed(tmp_path, caps
     e = np.hypot(late[:, 1] - np.interp(late[:, 0] * 1e-6, truth[:, 0], truth[:, 1]),
                  late[:, 2] - np.interp(late[:, 0] * 1e-6, truth[:, 0], truth[:, 2]))  # fmt: skip
     assert np.sqrt(np.mean(e**2)) < 0.5 and np.mean(e > 3.0 * late[:, 3]) <= 0.03
+
+
+def test_one_sample_off_the_clock_does_not_split_the_reprocessed_flight(capture, capsys, tmp_path):
+    """Post-flight as in flight: one IMU sample stamped 0 in the middle of the log is dropped and counted
+    (``samples_off_clock``), not two clock breaks that cut the flight in three segments, each a new filter."""
+    import xarray as xr
+
+    _, tlog, _ = capture
+    recs = records(tlog.read_bytes(), True)
+    mid = next(k for k, r in enumerate(recs) if r[2] and k > len(recs) // 2)
+    bad = tmp_path / "glitch.tlog"
+    assert retimed(tlog, bad, lambda k, t: 0 if k == mid else None) == 1
+    rc, out, err = reprocess(bad, tmp_path / "x.nc", capsys, "--quiet")
+    assert rc == 0, err
+    with xr.open_dataset(tmp_path / "x.nc", decode_times=False) as ds:
+        assert "segment" not in ds.variables  # one segment (a product of several numbers them)
+        assert 1 <= int(ds.attrs["samples_off_clock"]) <= 2  # the IMU sample, and the barometer it carried
