@@ -456,6 +456,29 @@ def test_a_reboot_is_still_a_reboot(capture, capsys, tmp_path):
     assert summary_count(err, "off the IMU's clock") == 0
 
 
+def field_flight(path: Path, seconds: float, seed: int, change=lambda s: s) -> Simulation:
+    """A ``field-rope`` flight of ``seconds`` written to the tlog ``path``, each sensor sample through ``change`` (its
+    time, its readings); the simulation (its truth)."""
+    sc = SCENARIOS["field-rope"]
+    sim = Simulation(sc.design, sc.wind, sc.truth, seconds, seed)
+    enc = SensorPacketEncoder()
+    with open(path, "wb") as fh:
+        w = TlogWriter(fh)
+        for s in sim.samples():
+            s = change(s)
+            for frame in enc.encode(s):
+                w.write(s.time_usec, frame)
+    return sim
+
+
+def wind_errors(sim: Simulation, out: np.ndarray, shift_s: float = 0.0) -> np.ndarray:
+    """|estimate - truth| of WIND_COV rows (``wind_covs``) whose sensor time is the truth's less ``shift_s``."""
+    t = out[:, 0] * 1e-6 + shift_s
+    truth = sim.truth
+    return np.hypot(out[:, 1] - np.interp(t, truth[:, 0], truth[:, 1]),
+                    out[:, 2] - np.interp(t, truth[:, 0], truth[:, 2]))  # fmt: skip
+
+
 def test_a_reboot_in_flight_on_a_real_rope_is_confirmed_and_its_accuracy_comes_back(tmp_path, capsys):
     """The sender reboots in flight, its clock from zero again. The filter was flying: the balloon is still up on its
     tether, and the new boot joins in flight (it took it for a boot on the ground station: the barometer's zero at
@@ -464,16 +487,9 @@ def test_a_reboot_in_flight_on_a_real_rope_is_confirmed_and_its_accuracy_comes_b
     accelerometer's innovations above the rod's own allowance (0.10-0.15 m/s^2 against 0.1), the join was never
     confirmed and the accuracy stayed at 3 m/s with the wind right to 0.1 m/s. Against the rope's allowance too it is
     confirmed, and the accuracy is the filter's again."""
-    sc = SCENARIOS["field-rope"]
-    sim = Simulation(sc.design, sc.wind, sc.truth, 180.0, 4)
-    enc = SensorPacketEncoder()
     tlog = tmp_path / "reboot.tlog"
-    with open(tlog, "wb") as fh:
-        w = TlogWriter(fh)
-        for s in sim.samples():
-            t = s.time_usec if s.time_usec < 60_000_000 else s.time_usec - 59_900_000  # the clock from 0.1 s again
-            for frame in enc.encode(dataclasses.replace(s, time_usec=t)):
-                w.write(t, frame)
+    sim = field_flight(tlog, 180.0, 4, lambda s: s if s.time_usec < 60_000_000 else  # the clock from 0.1 s again
+                       dataclasses.replace(s, time_usec=s.time_usec - 59_900_000))  # fmt: skip
     capsys.readouterr()
     assert bounded(fw_cli.main, ["--in", str(tlog), "--out", str(tmp_path / "o.tlog"), "--quiet"]) == 0
     err = capsys.readouterr().err
@@ -481,12 +497,9 @@ def test_a_reboot_in_flight_on_a_real_rope_is_confirmed_and_its_accuracy_comes_b
     w = wind_covs(tmp_path / "o.tlog")
     after = w[np.flatnonzero(np.diff(w[:, 0]) < 0)[0] + 1 :]  # the outputs of the new boot
     late = after[after[:, 0] >= after[0, 0] + 90e6]  # 90 s after the reboot
-    truth = sim.truth
-    tn = np.interp(late[:, 0] * 1e-6 + 59.9, truth[:, 0], truth[:, 1])
-    te = np.interp(late[:, 0] * 1e-6 + 59.9, truth[:, 0], truth[:, 2])
-    err_rms = np.sqrt(np.mean((late[:, 1] - tn) ** 2 + (late[:, 2] - te) ** 2))
+    err_rms = np.sqrt(np.mean(wind_errors(sim, late, 59.9) ** 2))
     acc_rms = np.sqrt(np.mean(late[:, 3] ** 2))
-    speed = np.hypot(tn, te).mean()
+    speed = np.hypot(*sim.truth[-1, 1:3])
     assert acc_rms < 0.3 * speed and 0.3 < err_rms / acc_rms < 2.0, (err_rms, acc_rms, speed)
 
 
@@ -559,24 +572,14 @@ def test_a_magnetometer_lost_before_the_field_is_learnt_says_the_direction_is_un
     misfit). The stated accuracy grows with the heading the gyro may have lost (consistency.gyro_heading_wind, the
     design's gyro bias before any heading: 2 |w| sin(b t / 2)); it stayed at 0.35 m/s while the wind read 2-6 m/s
     off."""
-    sc = SCENARIOS["field-rope"]
-    sim = Simulation(sc.design, sc.wind, sc.truth, 240.0, 1)
-    enc = SensorPacketEncoder()
     tlog = tmp_path / "nomag.tlog"
-    with open(tlog, "wb") as fh:
-        w = TlogWriter(fh)
-        for s in sim.samples():
-            if s.time_usec >= 5_000_000:
-                s = dataclasses.replace(s, mag=(float("nan"),) * 3)
-            for frame in enc.encode(s):
-                w.write(s.time_usec, frame)
+    sim = field_flight(tlog, 240.0, 1, lambda s: s if s.time_usec < 5_000_000 else
+                       dataclasses.replace(s, mag=(float("nan"),) * 3))  # fmt: skip
     capsys.readouterr()
     assert bounded(fw_cli.main, ["--in", str(tlog), "--out", str(tmp_path / "o.tlog"), "--quiet"]) == 0
     out = wind_covs(tmp_path / "o.tlog")
     late = out[out[:, 0] >= 60e6]
-    truth = sim.truth
-    err = np.hypot(late[:, 1] - np.interp(late[:, 0] * 1e-6, truth[:, 0], truth[:, 1]),
-                   late[:, 2] - np.interp(late[:, 0] * 1e-6, truth[:, 0], truth[:, 2]))  # fmt: skip
+    err = wind_errors(sim, late)
     ratio = np.sqrt(np.mean(err**2)) / np.sqrt(np.mean(late[:, 3] ** 2))
     assert np.mean(err > 3.0 * late[:, 3]) <= 0.03 and ratio < 2.0, (ratio, np.mean(err > 3.0 * late[:, 3]))
 
@@ -585,26 +588,16 @@ def test_a_barometer_that_jumps_beyond_the_tether_is_not_believed(tmp_path, caps
     """The barometer steps 50 hPa in flight (400 m of height: a balloon on a 100 m tether cannot be there). Its
     samples are rejected and counted, never forced in nor reset to; the wind stays right. Before, the forced fusions
     and the re-placements every 2 s read a 24 m/s wind where 3 blew (honestly stated, and useless)."""
-    sc = SCENARIOS["field-rope"]
-    sim = Simulation(sc.design, sc.wind, sc.truth, 200.0, 1)
-    enc = SensorPacketEncoder()
     tlog = tmp_path / "step.tlog"
-    with open(tlog, "wb") as fh:
-        w = TlogWriter(fh)
-        for s in sim.samples():
-            if s.baro is not None and s.time_usec >= 100_000_000:
-                s = dataclasses.replace(s, baro=(s.baro[0] + 50.0, s.baro[1]))
-            for frame in enc.encode(s):
-                w.write(s.time_usec, frame)
+    sim = field_flight(tlog, 200.0, 1, lambda s: s if s.baro is None or s.time_usec < 100_000_000 else
+                       dataclasses.replace(s, baro=(s.baro[0] + 50.0, s.baro[1])))  # fmt: skip
     capsys.readouterr()
     assert bounded(fw_cli.main, ["--in", str(tlog), "--out", str(tmp_path / "o.tlog"), "--quiet"]) == 0
     err = capsys.readouterr().err
     assert summary_count(err, "rejected") >= 1000 and summary_count(err, "taut") == 0, err
     out = wind_covs(tmp_path / "o.tlog")
     late = out[out[:, 0] >= 110e6]
-    truth = sim.truth
-    e = np.hypot(late[:, 1] - np.interp(late[:, 0] * 1e-6, truth[:, 0], truth[:, 1]),
-                 late[:, 2] - np.interp(late[:, 0] * 1e-6, truth[:, 0], truth[:, 2]))  # fmt: skip
+    e = wind_errors(sim, late)
     assert np.sqrt(np.mean(e**2)) < 0.5 and np.mean(e > 3.0 * late[:, 3]) <= 0.03
 
 
