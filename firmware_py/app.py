@@ -37,6 +37,7 @@ from balloon_core.samples import (
 )
 from balloon_core.score import direction_from_deg, wind_unknown
 from balloon_core.wire import FastPacker, LinkStats, pack
+from firmware_py import gcs
 from firmware_py.core_c import SampleBlock, new_core
 from firmware_py.estimator.aid_sources.ground_ref import ground_counts
 from firmware_py.estimator.aid_sources.winch import winch_counts
@@ -246,6 +247,9 @@ class Firmware:
         samples = self.sampler.convert(msg)
         if samples is None:
             self.other_messages += 1
+            if self._live:  # a ground station's request, answered on every link (firmware_py/gcs.py)
+                for frame in gcs.answer(self.mav, msg):
+                    self._send(frame, max(self.est.t_last_us, 0))
             return
         if samples and type(samples[-1]) is ImuSample:  # its time judged (ClockGuard), the barometer it carries with it
             for held in self.clock.admit(samples, self._prev_imu_us):
