@@ -469,7 +469,8 @@ class Firmware:
 
     def heartbeat(self, t_us: int) -> None:
         frame = pack(self.mav, self.mav.heartbeat_encode(
-            mavlink.MAV_TYPE_FREE_BALLOON, mavlink.MAV_AUTOPILOT_GENERIC, 0, self.est.ekf.mode,
+            mavlink.MAV_TYPE_FREE_BALLOON, mavlink.MAV_AUTOPILOT_GENERIC,
+            mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, self.est.ekf.mode,  # custom_mode: the filter's mode
             mavlink.MAV_STATE_ACTIVE if self.est.initialised else mavlink.MAV_STATE_STANDBY,
         ))  # fmt: skip
         self._send(frame, t_us)
