@@ -89,14 +89,17 @@ class ClockGuard:
     """The sender's IMU clock, told from a glitch. A reboot starts its clock again and a long silence jumps it ahead,
     and the samples after either run on from there; one sample stamped 0, a minute back or an hour ahead (a bit error
     the CRC let through, a sender's bug) does not, and the estimator must not take it for a reboot (it starts the filter
-    again, the barometer's zero with it, in flight) or a gap. A message whose IMU time is off the last one used by more
-    than a step (CLOCK_STEP_MAX_US ahead, REORDER_WINDOW_US back) is held; CLOCK_CONFIRM in a row, each within a step of
-    the one before, make it the clock (``new_clocks``), and all of them are used; a message on the old clock first
-    makes those held a glitch (``glitches``: their samples are dropped)."""
+    again, the barometer's zero with it, in flight) or a gap. A message whose time is off the last one used by more
+    than a step (CLOCK_STEP_MAX_US ahead, REORDER_WINDOW_US back) is held; once CLOCK_CONFIRM IMU samples have run on
+    from it, each within a step of the one before, it is the clock (``new_clocks``), and all that was held is used;
+    a message on the old clock first makes what was held a glitch (``glitches``: its messages dropped). The firmware
+    judges its IMU messages (with the barometer one carries); post-flight reprocessing each sample, IMU and
+    barometer alike (postflight/reprocess.py)."""
 
     def __init__(self) -> None:
         self._held: list[tuple] = []  # the samples of each message held on a clock not yet confirmed
         self._new = -1  # ... the newest of their times
+        self._imu = 0  # ... how many of them end in an IMU sample
         self.glitches = 0
         self.new_clocks = 0
 
@@ -105,14 +108,16 @@ class ClockGuard:
         return bool(self._held)
 
     def admit(self, samples: tuple, last_us: int) -> list[tuple]:
-        """The messages' samples to use now, in order, given one whose last sample is an IMU's (``samples``) and the
-        newest IMU time used (``last_us``, -1: none yet): it alone, those held and it, or none (held or dropped)."""
+        """The messages' samples to use now, in order, given one message's (``samples``) and the newest time used
+        (``last_us``, -1: none yet): it alone, those held and it, or none (held or dropped)."""
         t_us = samples[-1].t_us
+        imu = type(samples[-1]) is ImuSample
         if self._held:
-            if 0 < t_us - self._new <= CLOCK_STEP_MAX_US:  # on from the time held
+            if 0 <= t_us - self._new <= CLOCK_STEP_MAX_US:  # on from the time held
                 self._held.append(samples)
-                self._new = t_us
-                if len(self._held) < CLOCK_CONFIRM:
+                self._new = max(self._new, t_us)
+                self._imu += imu
+                if self._imu < CLOCK_CONFIRM:
                     return []
                 out, self._held = self._held, []
                 self.new_clocks += 1
@@ -120,7 +125,7 @@ class ClockGuard:
             self.end()  # a message off that clock: those held were no clock's
         if last_us < 0 or -REORDER_WINDOW_US < t_us - last_us <= CLOCK_STEP_MAX_US:
             return [samples]
-        self._held, self._new = [samples], t_us
+        self._held, self._new, self._imu = [samples], t_us, int(imu)
         return []
 
     def end(self) -> None:

@@ -19,7 +19,7 @@ import numpy as np
 from balloon_core.config import Design, to_toml
 from balloon_core.samples import BaroSample, GroundBaroSample, GroundSample, ImuSample, Sample, WinchSample
 from balloon_core.score import direction_from_deg, wind_unknown
-from firmware_py.app import CLOCK_CONFIRM, CLOCK_STEP_MAX_US
+from firmware_py.app import CLOCK_STEP_MAX_US, ClockGuard
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.state import MODE_GROUND, N_STATES, POS_D, POS_E, POS_N, WIND_E, WIND_N, FilterConfig
 from firmware_py.streams import InputPipeline, feed, feed_ground
@@ -92,33 +92,14 @@ def reprocess(
     seg = _Segment(design, cfg, rate_explicit, grid_hz, store_dir, use_c)
     newest = None  # the newest sample time in this segment
     i = 0
-    # a sample off the clock (more than CLOCK_STEP_MAX_US ahead of the newest, CLOCK_BACK_US behind) is held until
-    # CLOCK_CONFIRM IMU samples run on from it, as the firmware's ClockGuard holds it: a reboot or a silence then, a
-    # glitch (one sample stamped 0, an hour ahead) dropped if the old clock comes first (it split the flight in three)
-    held: list = []
-    held_imu = held_newest = dropped = 0
+    # a sample off the clock is held until IMU samples run on from it, as the firmware holds it (ClockGuard): a reboot
+    # or a silence then, a glitch (one sample stamped 0, an hour ahead) dropped if the old clock comes first (it split
+    # the flight in three)
+    clock = ClockGuard()
 
     def guard(s) -> None:
-        nonlocal held_imu, held_newest, dropped
-        t = s.t_us
-        if held:
-            if 0 <= t - held_newest <= CLOCK_STEP_MAX_US:  # on from what is held
-                held.append(s)
-                held_newest = max(held_newest, t)
-                held_imu += type(s) is ImuSample
-                if held_imu >= CLOCK_CONFIRM:
-                    run = held[:]
-                    held.clear()
-                    for h in run:
-                        one(h)
-                return
-            dropped += len(held)  # the old clock first: what was held was no clock's
-            held.clear()
-        if newest is not None and not -CLOCK_BACK_US <= t - newest <= CLOCK_STEP_MAX_US:
-            held.append(s)
-            held_imu, held_newest = int(type(s) is ImuSample), t
-            return
-        one(s)
+        for (h,) in clock.admit((s,), -1 if newest is None else newest):
+            one(h)
 
     def one(s) -> None:
         nonlocal seg, newest, i
@@ -143,7 +124,7 @@ def reprocess(
         # to a clock break goes to the C core as it is once the input pipeline passes samples unchanged
         a, n = 0, len(s.t)
         while a < n:
-            if newest is None or not seg.rows_ok() or held:
+            if newest is None or not seg.rows_ok() or clock.pending:
                 guard(ImuSample(int(s.t[a]), *s.v[a].tolist()) if s.kind[a] == 0 else
                       BaroSample(int(s.t[a]), float(s.v[a, 0]), float(s.v[a, 1])))  # fmt: skip
                 a += 1
@@ -163,13 +144,13 @@ def reprocess(
                 guard(ImuSample(int(s.t[a]), *s.v[a].tolist()) if s.kind[a] == 0 else
                       BaroSample(int(s.t[a]), float(s.v[a, 0]), float(s.v[a, 1])))  # fmt: skip
                 a += 1
-    dropped += len(held)  # the log ended before their clock was confirmed
+    clock.end()  # the log ended before their clock was confirmed
     parts.append(seg.finish(warn))
     tally.add(seg.run.est)
     product = join_segments([p for p in parts if len(p.time_s)], grid_hz)
     product.attrs["design_toml"] = design_toml(design, seg.pipe.cfg)
     product.attrs.update(tally.attrs())
-    product.attrs["samples_off_clock"] = dropped
+    product.attrs["samples_off_clock"] = clock.glitches
     return product
 
 
