@@ -4,6 +4,8 @@
     python tools/accuracy_terms.py 0 4 8 --duration 600    # flights of the full sample
     python tools/accuracy_terms.py 103 --set truth.accel_bias_mps2=0 --set truth.accel_bias_walk_mps2_rt_s=0
                                                            # the same flight, its world changed (TOML values)
+    python tools/accuracy_terms.py --scenario field-gusty-6 --seed 2 --set filter.init_drag=0.001
+                                                           # a named scenario (balloon-sim --list-scenarios)
 
 Flies each flight of ``benchmarks.bench_envelope``'s sample on the Python core (the C core is held equal to it) and
 prints, over the scored part (from 120 s), the RMS wind error against the truth, the mean vector's speed and
@@ -36,8 +38,9 @@ from benchmarks.bench_envelope import sample, sections_of  # noqa: E402
 from firmware_py.estimator.consistency import NIS_CLIP, SOURCES, lean_misfit_wind, systematic_variance  # noqa: E402
 from firmware_py.estimator.control import Estimator  # noqa: E402
 from firmware_py.estimator.state import ATT_D, ATT_N, BARO_OFF, DRAG, MODE_TAUT  # noqa: E402
+from sim_hil.scenarios import SCENARIOS  # noqa: E402
 from sim_hil.simulator import TRUTH_COLUMNS, Simulation  # noqa: E402
-from study.spec import build  # noqa: E402
+from study.spec import build, scenario_sections  # noqa: E402
 
 START_S = 120.0
 WALK_WINDOW_S = 20.0
@@ -61,8 +64,9 @@ def override(sections: dict, setting: str) -> None:
 
 
 def world(point: dict, settings: tuple[str, ...] = ()) -> dict:
-    """The flight's sections with ``settings`` (``SECTION.KEY=VALUE``) applied."""
-    sections = sections_of(point)
+    """The flight's sections with ``settings`` (``SECTION.KEY=VALUE``) applied: an envelope flight's, or a named
+    scenario's (``point["scenario"]``)."""
+    sections = scenario_sections(SCENARIOS[point["scenario"]]) if "scenario" in point else sections_of(point)
     for setting in settings:
         override(sections, setting)
     return sections
@@ -171,7 +175,10 @@ def along_the_rope(along: np.ndarray, t: np.ndarray, truth: dict) -> dict[str, f
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("flights", type=int, nargs="+", help="flight numbers of the envelope's sample")
+    ap.add_argument("flights", type=int, nargs="*", help="flight numbers of the envelope's sample")
+    ap.add_argument("--scenario", action="append", default=[], metavar="NAME",
+                    help="a named scenario instead (repeatable; its seed --seed, default 1)")
+    ap.add_argument("--seed", type=int, default=1, help="the scenarios' seed")
     ap.add_argument("--quick", action="store_true", help="the --quick sample (64 flights) and 300 s")
     ap.add_argument("--duration", type=float, default=None, help="simulated seconds (default 300 quick, else 600)")
     ap.add_argument(
@@ -182,14 +189,24 @@ def main(argv: list[str] | None = None) -> int:
         help="change one thing of every flight's world or design (repeatable), e.g. sensors.gyro_dps=0.1",
     )
     a = ap.parse_args(argv)
-    points = sample(64 if a.quick else 200)
+    sampled = sample(64 if a.quick else 200)
     duration = a.duration or (300.0 if a.quick else 600.0)
     for f in a.flights:
-        if not 0 <= f < len(points):
-            print(f"accuracy_terms: no flight {f} in a sample of {len(points)}", file=sys.stderr)
+        if not 0 <= f < len(sampled):
+            print(f"accuracy_terms: no flight {f} in a sample of {len(sampled)}", file=sys.stderr)
             return 2
+    for name in a.scenario:
+        if name not in SCENARIOS:
+            print(f"accuracy_terms: unknown scenario {name!r} (balloon-sim --list-scenarios)", file=sys.stderr)
+            return 2
+    if not (a.flights or a.scenario):
+        print("accuracy_terms: name a flight or a --scenario", file=sys.stderr)
+        return 2
+    points: dict = {f: sampled[f] for f in a.flights}
+    points.update({name: {"scenario": name, "seed": a.seed, "wind_kind": SCENARIOS[name].wind.kind}
+                   for name in a.scenario})  # fmt: skip
     worlds = {}
-    for f in a.flights:  # every change judged before the first flight flies: a bad one is a user error
+    for f in points:  # every change judged before the first flight flies: a bad one is a user error
         try:
             worlds[f] = world(points[f], tuple(a.set))
             build(worlds[f])
@@ -210,12 +227,14 @@ def main(argv: list[str] | None = None) -> int:
           "| accel z misfit: its correlation with the truth's acceleration along the rope; "
           "the tension's SD |")  # fmt: skip
     print("|---|---|---|---:|---:|---:|---:|---:|---|---:|---:|---|---|---:|---:|---:|---:|")
-    for f in a.flights:
+    for f in points:
         p, w = points[f], worlds[f]
         t = terms(p, duration, tuple(a.set))
         nis = " ".join(f"{t['nis_' + s]:.2f}" for s in SOURCES)
-        # the flight as flown: the sample's names, or with --set the sections' (the wind's kind and IEC class)
-        kind = " ".join(str(w["wind"][k]) for k in ("kind", "iec_class") if w["wind"][k]) if a.set else p["wind_kind"]
+        # the flight as flown: the sample's names, or with --set (or a scenario) the sections' (the wind's kind and
+        # IEC class)
+        named = a.set or "scenario" in p
+        kind = " ".join(str(w["wind"][k]) for k in ("kind", "iec_class") if w["wind"][k]) if named else p["wind_kind"]
         print(f"| {f} | {kind} {w['wind']['mean_mps']:.1f} m/s | {w['truth']['rope_model']} | "
               f"{t['error']:.3f} | "
               f"{t['speed_error_pct']:+.1f} % | {t['direction_error_deg']:+.1f} deg | "
