@@ -276,13 +276,17 @@ class Firmware:
 
     # ----------------------------------------------------------------- input
 
-    def handle(self, msg) -> None:
+    def handle(self, msg, link=None) -> None:
+        """One decoded message; ``link``: the link it came in on (live), where a request's answer goes."""
         samples = self.sampler.convert(msg)
         if samples is None:
             self.other_messages += 1
-            if self._live:  # a ground station's request, answered on every link (firmware_py/gcs.py)
+            if self._live:  # a ground station's request, answered on its own link (firmware_py/gcs.py)
                 for frame in gcs.answer(self.mav, msg, self.params):
-                    self._send(frame, max(self.est.t_last_us, 0))
+                    if link is None:
+                        self._send(frame, max(self.est.t_last_us, 0))
+                    else:
+                        link.send(frame)
             return
         if samples and type(samples[-1]) is ImuSample:  # its time judged (ClockGuard), the barometer it carries with it
             for held in self.clock.admit(samples, self._prev_imu_us):

@@ -103,7 +103,7 @@ def run_live(fw: Firmware, spec: str, stop, progress: Progress | None = None,
             if data:
                 last_rx = now
                 for m in dec.feed(data):
-                    fw.handle(m)
+                    fw.handle(m, link)
                     streams.on_message(m, now)
             elif now - last_rx > 0.5 and now - last_emit > 0.1:
                 fw.coast(now)
@@ -111,7 +111,7 @@ def run_live(fw: Firmware, spec: str, stop, progress: Progress | None = None,
             for sink, gdec in back.items():
                 for m in gdec.feed(sink.recv(0.0)):
                     if not fw.sampler.is_sensor(m):  # the sensors come on --in
-                        fw.handle(m)
+                        fw.handle(m, sink)
             for frame in streams.poll(now):
                 link.send(frame)
             if progress is not None and now >= next_status:

@@ -8,8 +8,8 @@ one the balloon does not do); a balloon has no mission, fence or rally points (M
 the design the filter was started with (a table of ``Param`` the firmware builds once, ``firmware_py.app.PARAMETERS``):
 PARAM_REQUEST_LIST and PARAM_REQUEST_READ get their PARAM_VALUEs (an unknown name or index none, as the protocol
 says "no such parameter"); nothing is settable in flight, so PARAM_SET is refused as the protocol refuses it, with
-the current value, and a STATUSTEXT says why. Pure message in, frames out: the firmware sends them on its links
-(``Firmware.handle``)."""
+the current value, and a STATUSTEXT says why. Pure message in, frames out: the firmware sends them on the link the
+request came in on (``Firmware.handle``)."""
 
 from __future__ import annotations
 

@@ -43,6 +43,8 @@ from sim_hil.simulator import TRUTH_COLUMNS, Simulation  # noqa: E402
 from study.spec import build, scenario_sections  # noqa: E402
 
 START_S = 120.0
+MIN_SCORED_S = 30.0  # the least a flight is scored over (balloon_core.score needs some)
+MAX_DURATION_S = 86400.0
 WALK_WINDOW_S = 20.0
 
 
@@ -176,8 +178,13 @@ def along_the_rope(along: np.ndarray, t: np.ndarray, truth: dict) -> dict[str, f
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("flights", type=int, nargs="*", help="flight numbers of the envelope's sample")
-    ap.add_argument("--scenario", action="append", default=[], metavar="NAME",
-                    help="a named scenario instead (repeatable; its seed --seed, default 1)")
+    ap.add_argument(
+        "--scenario",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="a named scenario instead (repeatable, each flown once; its seed --seed, default 1)",
+    )
     ap.add_argument("--seed", type=int, default=1, help="the scenarios' seed")
     ap.add_argument("--quick", action="store_true", help="the --quick sample (64 flights) and 300 s")
     ap.add_argument("--duration", type=float, default=None, help="simulated seconds (default 300 quick, else 600)")
@@ -190,7 +197,15 @@ def main(argv: list[str] | None = None) -> int:
     )
     a = ap.parse_args(argv)
     sampled = sample(64 if a.quick else 200)
-    duration = a.duration or (300.0 if a.quick else 600.0)
+    duration = a.duration if a.duration is not None else (300.0 if a.quick else 600.0)
+    if not START_S + MIN_SCORED_S <= duration <= MAX_DURATION_S:  # NaN too
+        print(f"accuracy_terms: --duration {duration:g}: {START_S + MIN_SCORED_S:g}-{MAX_DURATION_S:g} s (scored from "
+              f"{START_S:g} s)", file=sys.stderr)  # fmt: skip
+        return 2
+    if a.seed < 0 or (a.seed != 1 and not a.scenario):
+        print(f"accuracy_terms: --seed {a.seed}: a scenario's seed, 0 or more (an envelope flight has its own)",
+              file=sys.stderr)  # fmt: skip
+        return 2
     for f in a.flights:
         if not 0 <= f < len(sampled):
             print(f"accuracy_terms: no flight {f} in a sample of {len(sampled)}", file=sys.stderr)

@@ -305,7 +305,6 @@ def test_the_paper_rope_in_class_b_gusts_keeps_its_lean(seed):
     assert s.band_skill >= 0.5, s
 
 
-
 @pytest.mark.parametrize("seed", [1, 2])
 def test_class_b_gusts_on_the_real_rope_say_how_fast_they_read(seed):
     """``field-gusty-6`` (6 m/s, IEC class B with vertical air, the real rope), ten minutes from 120 s, the two seeds
@@ -323,6 +322,7 @@ def test_class_b_gusts_on_the_real_rope_say_how_fast_they_read(seed):
 
     assert honest(est) and est["skill"] >= 0.5 and est["speed"] <= 10.0 and est["dir"] <= 3.0, est
     assert not honest(m["constant"]) and not honest(m["delayed"]), (m["constant"], m["delayed"])
+
 
 def test_an_hour_of_steady_wind_keeps_its_stated_accuracy():
     """A field day's hour in a steady 3 m/s on the real rope (``field-catenary``): nothing measures the drag scale on

@@ -235,3 +235,21 @@ def test_a_ground_station_loads_the_parameters_over_the_link(tmp_path):
     assert sorted(got) == list(range(len(want))) and {m.param_count for m in got.values()} == {len(want)}
     assert {m.param_id: m.param_value for m in got.values()} == want == {k: float(v) for k, v in station.params.items()}
     assert fw.returncode == 0 and "Traceback" not in fw.stderr.read()
+
+
+def test_a_request_is_answered_on_its_own_link():
+    """Live, the firmware talks on two links: the ground station's (--out) and the sensors' (--in), where an autopilot
+    may sit with the same system id. A request is answered on the link it came in on only: the autopilot never gets the
+    parameter list a ground station asked for, nor the ground station the autopilot's answers."""
+    station, autopilot = Frames(), Frames()
+    fw = app.Firmware(DESIGN, sink=station)
+    fw.sinks.append(autopilot)  # as run_live adds the sensors' link
+    them = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+    request = mavlink.MAVLink(None).decode(bytearray(them.param_request_list_encode(1, 1).pack(them)))
+    fw.handle(request, station)
+    assert [m.get_type() for m in station.msgs] == ["PARAM_VALUE"] * len(design_values(DESIGN))
+    assert autopilot.msgs == []
+    station.msgs.clear()
+    ping = mavlink.MAVLink(None).decode(bytearray(them.ping_encode(123, 7, 0, 0).pack(them)))
+    fw.handle(ping, autopilot)
+    assert station.msgs == [] and [m.get_type() for m in autopilot.msgs] == ["PING"]
