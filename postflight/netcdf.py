@@ -117,8 +117,9 @@ def _wind_vars(n, e, sn, se, suffix: str, what: str) -> dict:
         unc("northward_wind", sn, "m s-1", "northward wind", "northward_wind"),
         var("wind_speed", speed, "m s-1", "horizontal wind speed", "wind_speed"),
         unc("wind_speed", sig_s, "m s-1", "wind speed (linear propagation)", "wind_speed"),
-        var("wind_from_direction", direction_from_deg(n, e), "degree",
-            "direction the wind blows from, clockwise from north", "wind_from_direction"),
+        var("wind_from_direction", np.where(speed > 0.0, direction_from_deg(n, e), np.nan), "degree",
+            "direction the wind blows from, clockwise from north (north_reference says which), none in still air",
+            "wind_from_direction"),
         unc("wind_from_direction", sig_d, "degree", "wind direction (linear propagation, capped at 180)",
             "wind_from_direction"),
     ]  # fmt: skip
