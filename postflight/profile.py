@@ -303,8 +303,8 @@ def profile_dataset(prof: Profile, p: WindProduct, history: str | None = None):
                                   "units": "degree/(100 m)"}),
     }  # fmt: skip
     coords = {
-        "profile": ("profile", np.arange(k, dtype=np.int32), {"long_name": "winch leg number", "cf_role":
-                    "profile_id"}),
+        "profile": ("profile", np.arange(k, dtype=np.int32), {"long_name": "winch leg number", "units": "1",
+                    "cf_role": "profile_id"}),
         "time": ("profile", t_mid, t_attrs),
         "z": ("obs", z, {"standard_name": "height", "long_name": "middle of the height bin, above "
               "the tether anchor", "units": "m", "positive": "up", "axis": "Z", "bounds": "z_bnds"}),
