@@ -77,7 +77,8 @@ _BARO_PAD = (0.0,) * 7  # a barometer sample's unused values in a SampleBlock ro
 CONSISTENT_TEXT = "wind model consistent again"
 PACK_WIND_COV = FastPacker(mavlink.MAVLink_wind_cov_message)  # the 10 Hz output, packed without a message object
 RESTARTED_TEXT = "wind model check restarted (filter reset)"
-NEVER_STARTED = " (never started: no IMU sample with a magnetometer reading)"
+NEVER_STARTED = (" (never started: no IMU sample with a magnetometer reading and gravity's reaction up the body,"
+                 " FRD zacc < 0: level at rest zacc = -9.81; check the accelerometer's sign and mounting)")
 # an IMU time more than this ahead of the last one, or behind it by more than the reorder window, starts a new clock
 # (a reboot, a long silence) or is a glitch: it is used once CLOCK_CONFIRM samples in a row run on from it, each within
 # this of the one before (``ClockGuard``)

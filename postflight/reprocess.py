@@ -648,7 +648,7 @@ def run_reprocess(args, argv: list[str] | None) -> int:
                                 warn=lambda w: bar.log(f"{prog}: {w}"), store_dir=store)  # fmt: skip
         bar.update(len(flight), "smoother done; writing the products")
         if len(product.time_s) == 0:
-            raise ValueError(f"{args.flight}: the estimator never started (no usable IMU + magnetometer sample)")
+            raise ValueError(f"{args.flight}: the estimator never started (no IMU + magnetometer sample with zacc < 0)")
         product.utc_start_s = meta.utc_start_s
         meta.notes.append(product.attrs["optional_sources"])
         bar.log(f"{prog}: {product.attrs['optional_sources']}")

@@ -522,7 +522,7 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
     }
     mag_ok = finite3(mx, my, mz, (bw_real)BW_MAG_MAX) && (mx != BW_R(0.0) || my != BW_R(0.0) || mz != BW_R(0.0));
     if (!est->initialised) {
-        if (!mag_ok) {
+        if (!(mag_ok && az < BW_R(0.0))) { /* a start needs the field and the bottom down (Estimator.on_imu) */
             c->rejected += 1;
             return 0;
         }
@@ -543,7 +543,7 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
         steps = e->mode != BW_MODE_GROUND; /* (no local of its own: the stack's budget) */
         c->time_resets += 1;
         bw_reset(est);
-        if (mag_ok) { /* the new boot's first sample starts the filter again: it is counted */
+        if (mag_ok && az < BW_R(0.0)) { /* the new boot's first sample starts the filter again: it is counted */
             initialise(est, t_us, ax, ay, az, mx, my, mz);
             if (steps && !(t_us > BW_JOIN_IN_FLIGHT_US)) /* it rebooted while flying: the balloon is still up */
                 join_in_flight(est, e->q);                /* (Estimator._initialise's in_flight) */

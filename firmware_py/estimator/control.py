@@ -275,7 +275,10 @@ class Estimator:
             return False
         mag_ok = _finite3(mx, my, mz, MAG_MAX) and (mx != 0.0 or my != 0.0 or mz != 0.0)
         if not self.initialised:
-            if not mag_ok:
+            # a start needs the field and the balloon's bottom down: gravity's reaction up the body's z (FRD: level at
+            # rest az = -9.81; a tethered balloon never leans past 90 deg). An accelerometer whose sign or mounting is
+            # wrong (az = +9.81) would start the filter upside down, and its wind, 140 deg off, would look consistent
+            if not (mag_ok and az < 0.0):
                 c.rejected += 1
                 return False
             self._initialise(t_us, ax, ay, az, mx, my, mz)
@@ -292,7 +295,7 @@ class Estimator:
             airborne = self.ekf.mode != MODE_GROUND  # the balloon stays where it was
             c.time_resets += 1
             self.reset()
-            if mag_ok:  # the new boot's first sample starts the filter again: it is counted
+            if mag_ok and az < 0.0:  # the new boot's first sample starts the filter again: it is counted
                 self._initialise(t_us, ax, ay, az, mx, my, mz, in_flight=airborne)
                 c.imu_samples += 1
             return False

@@ -616,3 +616,31 @@ def test_one_sample_off_the_clock_does_not_split_the_reprocessed_flight(capture,
     with xr.open_dataset(tmp_path / "x.nc", decode_times=False) as ds:
         assert "segment" not in ds.variables  # one segment (a product of several numbers them)
         assert 1 <= int(ds.attrs["samples_off_clock"]) <= 2  # the IMU sample, and the barometer it carried
+
+
+def test_an_accelerometer_upside_down_never_starts_the_filter_and_says_why(capture, capsys, tmp_path):
+    """An accelerometer whose sign or mounting is wrong (zacc = +9.81 at rest, where FRD has -9.81) started the filter
+    upside down, and its wind, 140 deg off, looked consistent to the monitor (found by a clean-room simulator that
+    shares no code with ours). A tethered balloon's bottom is always down (it never leans past 90 deg), so no sample
+    with zacc >= 0 starts the filter: no wind is claimed, every sample is counted rejected, and the summary says what
+    to check. Both cores alike; the same log with the sign right starts at once."""
+    _, tlog, _ = capture
+    flipped = tmp_path / "flipped.tlog"
+
+    def change(k, m) -> bool:
+        m.xacc, m.yacc, m.zacc = -m.xacc, -m.yacc, -m.zacc
+        return True
+
+    n = rewritten(tlog, flipped, change)
+    for core in ("c", "py"):
+        out = tmp_path / f"o_{core}.tlog"
+        capsys.readouterr()
+        assert bounded(fw_cli.main, ["--in", str(flipped), "--out", str(out), "--quiet", "--core", core]) == 0
+        err = capsys.readouterr().err
+        assert "never started" in err and "sign and mounting" in err, err
+        assert summary_count(err, "rejected") == n, (err, n)
+        winds = [m for m in tlog_messages(str(out), LinkStats()) if m.get_type() == "WIND_COV"]
+        assert all(not np.isfinite(m.horiz_accuracy) or not np.isfinite(m.wind_x) for m in winds), winds[:3]
+    capsys.readouterr()
+    assert bounded(fw_cli.main, ["--in", str(tlog), "--out", str(tmp_path / "ok.tlog"), "--quiet"]) == 0
+    assert "never started" not in capsys.readouterr().err
