@@ -528,7 +528,7 @@ def _settling(t_us: np.ndarray, segment_start: np.ndarray, modes: np.ndarray) ->
     out = np.zeros(len(t_us), bool)
     for a in np.flatnonzero(segment_start):  # (n,) bool: Smoothed.segment_start
         if modes[a] == MODE_TAUT:
-            out[a:] |= t_us[a:] < t_us[a] + TAUT_SETTLE_S * 1e6
+            out[a : int(np.searchsorted(t_us, t_us[a] + TAUT_SETTLE_S * 1e6))] = True
     return out
 
 
