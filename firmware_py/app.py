@@ -85,31 +85,32 @@ NEVER_STARTED = (" (never started: no IMU sample with a magnetometer reading and
 CLOCK_STEP_MAX_US = 1_000_000
 CLOCK_CONFIRM = 5
 
-# The parameters a ground station reads (PARAM_REQUEST_LIST: firmware_py/gcs.py, docs/protocol.md), each named once:
-# the design the filter was started with (``balloon-fw --config``), in the design file's units, and the rate WIND_COV
-# goes out at; read-only (the filter is not reconfigured in flight). (name, value of (design, WIND_COV rate in Hz),
-# unit and design-file key); a value None is left out (no ground pressure given). All reals (REAL32: gcs.Param).
+# The parameters a ground station reads (PARAM_REQUEST_LIST: firmware_py/gcs.py; names, meanings and units in
+# docs/protocol.md), each named once: the design the filter was started with (``balloon-fw --config``), as (name,
+# design section, key) in the design file's units, read-only (the filter is not reconfigured in flight); a value None
+# is left out (no ground pressure given); then WIND_COV_HZ, the rate WIND_COV goes out at. All reals (gcs.Param).
 PARAMETERS = (
-    ("BAL_RADIUS", lambda d, hz: d.balloon.radius_m, "m: [balloon] radius_m"),
-    ("BAL_MASS", lambda d, hz: d.balloon.skin_and_avionics_kg, "kg: [balloon] skin_and_avionics_kg (no gas)"),
-    ("BAL_GAS_RHO", lambda d, hz: d.balloon.gas_density_kg_m3, "kg/m^3: [balloon] gas_density_kg_m3"),
-    ("BAL_CD", lambda d, hz: d.balloon.drag_coefficient, "1: [balloon] drag_coefficient"),
-    ("TETH_LEN", lambda d, hz: d.tether.length_m, "m: [tether] length_m"),
-    ("TETH_RHO_L", lambda d, hz: d.tether.linear_density_kg_m, "kg/m: [tether] linear_density_kg_m"),
-    ("SITE_ALT", lambda d, hz: d.site.altitude_amsl_m, "m AMSL: [site] altitude_amsl_m"),
-    ("SITE_DECL", lambda d, hz: d.site.mag_declination_deg, "deg, east positive: [site] mag_declination_deg"),
-    ("SITE_GND_P", lambda d, hz: d.site.ground_pressure_hpa, "hPa: [site] ground_pressure_hpa (only if given)"),
-    ("SNS_ACC_SD", lambda d, hz: d.sensors.accel_mps2, "m/s^2, 1-sigma: [sensors] accel_mps2"),
-    ("SNS_BARO_SD", lambda d, hz: d.sensors.baro_m, "m, 1-sigma: [sensors] baro_m"),
-    ("SNS_GYRO_SD", lambda d, hz: d.sensors.gyro_dps, "deg/s, 1-sigma: [sensors] gyro_dps"),
-    ("SNS_MAG_SD", lambda d, hz: d.sensors.mag_gauss, "gauss, 1-sigma: [sensors] mag_gauss"),
-    ("WIND_COV_HZ", lambda d, hz: hz, "Hz: the rate WIND_COV goes out at (on the sensor clock)"),
+    ("BAL_RADIUS", "balloon", "radius_m"),
+    ("BAL_MASS", "balloon", "skin_and_avionics_kg"),
+    ("BAL_GAS_RHO", "balloon", "gas_density_kg_m3"),
+    ("BAL_CD", "balloon", "drag_coefficient"),
+    ("TETH_LEN", "tether", "length_m"),
+    ("TETH_RHO_L", "tether", "linear_density_kg_m"),
+    ("SITE_ALT", "site", "altitude_amsl_m"),
+    ("SITE_DECL", "site", "mag_declination_deg"),
+    ("SITE_GND_P", "site", "ground_pressure_hpa"),
+    ("SNS_ACC_SD", "sensors", "accel_mps2"),
+    ("SNS_BARO_SD", "sensors", "baro_m"),
+    ("SNS_GYRO_SD", "sensors", "gyro_dps"),
+    ("SNS_MAG_SD", "sensors", "mag_gauss"),
 )
+WIND_COV_RATE_PARAM = "WIND_COV_HZ"
 
 
 def parameters(design: Design, wind_cov_hz: float) -> tuple[gcs.Param, ...]:
-    """``PARAMETERS`` of this design and WIND_COV rate, in that order (the indices a ground station reads)."""
-    values = ((name, get(design, wind_cov_hz)) for name, get, _ in PARAMETERS)
+    """``PARAMETERS`` of this design, then the WIND_COV rate, in that order (the indices a ground station reads)."""
+    values = [(name, getattr(getattr(design, section), key)) for name, section, key in PARAMETERS]
+    values.append((WIND_COV_RATE_PARAM, wind_cov_hz))
     return gcs.check_params(tuple(gcs.Param(name, v) for name, v in values if v is not None))
 
 
