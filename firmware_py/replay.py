@@ -75,6 +75,54 @@ def scanner() -> Scanner | None:
     return Scanner()
 
 
+def sampler_to_scanner(s, v: list, D: np.ndarray) -> None:
+    """What the scanner reads of a ``MavlinkSampler`` (the chosen IMU, its barometer and the ground station; the
+    thermometer's and the sensors' last readings and since when they repeat), into ``v`` (the head of S) and ``D``:
+    the one place the sampler's state crosses to C (the replay's lane and postflight's log reader alike)."""
+    v[S_IMU_MID], v[S_IMU_SYS], v[S_IMU_COMP], v[S_IMU_ID] = s.imu_key
+    v[S_HAVE_IMU] = 1
+    v[S_EMBEDDED], v[S_OTHERS] = s.embedded_baro, s._others
+    if s.baro_key is not None:
+        v[S_HAVE_BARO] = 1
+        v[S_BARO_MID], v[S_BARO_SYS], v[S_BARO_COMP] = s.baro_key[:3]
+    v[S_GROUND] = s.ground_sysid if s.ground_sysid is not None else -1
+    v[S_SINCE : S_SINCE + 3] = s.repeat_since
+    D[0] = s._last_temp_c
+    D[1:10] = s.last_readings
+
+
+def sampler_from_scanner(s, v: list, D: np.ndarray) -> None:
+    """What the scanner changed of the sampler's state (``sampler_to_scanner``), back into it."""
+    s.embedded_baro, s._others = bool(v[S_EMBEDDED]), v[S_OTHERS]
+    s.baro_beside += v[S_BESIDE]
+    s._last_temp_c = float(D[0])
+    s.last_readings[:] = D[1:10].tolist()
+    s.repeat_since[:] = v[S_SINCE : S_SINCE + 3]
+
+
+def senders_to_scanner(stats, v: list) -> list:
+    """Each sender's sequence record (at most MAX_SENDERS), appended to ``v`` as the scanner reads them; the records in
+    that order (``senders_from_scanner`` puts them back)."""
+    senders = []
+    for (sys, comp), q in stats.senders.items():
+        if len(senders) == MAX_SENDERS:
+            break
+        senders.append(q)
+        v += (sys, comp, q.received, q._newest, q._behind, q._t0, q._i0, q._t_mid, q._i_mid, q._t_last,
+              q._i_last, not q._holes, 0, 0, 0, 0)  # fmt: skip
+    v[S_NSEND] = len(senders)
+    return senders
+
+
+def senders_from_scanner(senders: list, S: np.ndarray) -> None:
+    """The senders' sequence records as the scanner left them (``senders_to_scanner``'s order)."""
+    k = S_SENDERS
+    for q in senders:
+        (q.received, q._newest, q._behind, q._t0, q._i0, q._t_mid, q._i_mid, q._t_last,
+         q._i_last) = S[k + 2 : k + 11].tolist()  # fmt: skip
+        k += Q_SIZE
+
+
 class _Lane:
     """The scanner's arrays, and the firmware's state copied into them (``load``) and back (``store``)."""
 
@@ -117,23 +165,11 @@ class _Lane:
             return
         v = [0] * S_SENDERS
         v[S_I], v[S_N], v[S_EOF], v[S_LANE] = i, n, eof, 1
-        v[S_IMU_MID], v[S_IMU_SYS], v[S_IMU_COMP], v[S_IMU_ID] = s.imu_key
-        v[S_HAVE_IMU] = 1
-        v[S_EMBEDDED], v[S_OTHERS] = s.embedded_baro, s._others
-        if s.baro_key is not None:
-            v[S_HAVE_BARO] = 1
-            v[S_BARO_MID], v[S_BARO_SYS], v[S_BARO_COMP] = s.baro_key[:3]
-        v[S_GROUND] = s.ground_sysid if s.ground_sysid is not None else -1
+        sampler_to_scanner(s, v, self.D)
         v[S_MISSING], v[S_PREV], v[S_BLOCK_T], v[S_DT] = fw.imu_missing, fw._prev_imu_us, fw._block_t_us, fw.est.dt_us
         v[S_NEXT_WIND], v[S_NEXT_HB] = fw._next_wind_us, fw._next_hb_us
         v[S_LEN], v[S_BATCH] = len(fw._block), BATCH_SAMPLES
-        for (sys, comp), q in fw.stats.senders.items():
-            if len(self.senders) == MAX_SENDERS:
-                break
-            self.senders.append(q)
-            v += (sys, comp, q.received, q._newest, q._behind, q._t0, q._i0, q._t_mid, q._i_mid, q._t_last,
-                  q._i_last, not q._holes, 0, 0, 0, 0)  # fmt: skip
-        v[S_NSEND] = len(self.senders)
+        self.senders = senders_to_scanner(fw.stats, v)
         # the outputs: the usual WIND_COV packed in C unless a signing link or WIND after each one
         v[S_EMIT] = not fw.wind_after_each and not fw.mav.signing.sign_outgoing
         v[S_TOLD], v[S_NEXT_TEXT], v[S_SENT], v[S_SEQ] = fw._told_flags, fw._next_text_us, fw.wind_cov_sent, fw.mav.seq
@@ -141,9 +177,6 @@ class _Lane:
         v[S_MSG_ID], v[S_MSG_EXTRA] = WIND_COV.id, WIND_COV.crc_extra
         v[S_GROUND_MODE], v[S_NSRC], v[S_LAST_STEP] = MODE_GROUND, len(SOURCES), fw._last_step
         S[: len(v)] = v
-        S[S_SINCE : S_SINCE + 3] = s.repeat_since
-        self.D[0] = s._last_temp_c
-        self.D[1:10] = s.last_readings
         self.ptrs[6] = C.addressof(fw.est._s)  # the estimator the scanner runs the block through
 
     def take_rows(self) -> None:
@@ -183,22 +216,13 @@ class _Lane:
             st.truncated = True
         if not v[S_LANE] or not v[S_FRAMES]:
             return
-        s = fw.sampler
-        s.embedded_baro, s._others = bool(v[S_EMBEDDED]), v[S_OTHERS]
-        s.baro_beside += v[S_BESIDE]
-        s._last_temp_c = float(self.D[0])
-        s.last_readings[:] = self.D[1:10].tolist()
-        s.repeat_since[:] = self.S[S_SINCE : S_SINCE + 3].tolist()
+        sampler_from_scanner(fw.sampler, v, self.D)
         if v[S_SAMPLES]:
             fw.silent = False
             fw.samples_in += v[S_SAMPLES]
             fw.imu_missing, fw._prev_imu_us, fw._block_t_us = v[S_MISSING], v[S_PREV], v[S_BLOCK_T]
             fw._recent_imu_us.extend(self.recent[: v[S_RECENT]].tolist())
-        k = S_SENDERS
-        for q in self.senders:
-            (q.received, q._newest, q._behind, q._t0, q._i0, q._t_mid, q._i_mid, q._t_last,
-             q._i_last) = S[k + 2 : k + 11].tolist()  # fmt: skip
-            k += Q_SIZE
+        senders_from_scanner(self.senders, S)
         # the blocks run in C (``run_rows`` in tlog.c): their step counts and WIND_COV frames
         if v[S_FLIGHT]:
             fw.flight_steps += v[S_FLIGHT]

@@ -155,28 +155,13 @@ class _Reader:
             return
         v = [0] * R.S_SENDERS
         v[R.S_I], v[R.S_N], v[R.S_EOF], v[R.S_LANE] = i, n, eof, 1
-        v[R.S_IMU_MID], v[R.S_IMU_SYS], v[R.S_IMU_COMP], v[R.S_IMU_ID] = s.imu_key
-        v[R.S_HAVE_IMU] = 1
-        v[R.S_EMBEDDED], v[R.S_OTHERS] = s.embedded_baro, s._others
-        if s.baro_key is not None:
-            v[R.S_HAVE_BARO] = 1
-            v[R.S_BARO_MID], v[R.S_BARO_SYS], v[R.S_BARO_COMP] = s.baro_key[:3]
-        v[R.S_GROUND] = s.ground_sysid if s.ground_sysid is not None else -1
+        R.sampler_to_scanner(s, v, self.D)
         never = 1 << 62
         v[R.S_PREV], v[R.S_BLOCK_T], v[R.S_DT] = self.prev, -never, 10_000
         v[R.S_NEXT_WIND] = v[R.S_NEXT_HB] = never
         v[R.S_LEN], v[R.S_BATCH] = 0, ROWS
-        for (sys, comp), q in self.stats.senders.items():
-            if len(self.senders) == R.MAX_SENDERS:
-                break
-            self.senders.append(q)
-            v += (sys, comp, q.received, q._newest, q._behind, q._t0, q._i0, q._t_mid, q._i_mid, q._t_last,
-                  q._i_last, not q._holes, 0, 0, 0, 0)  # fmt: skip
-        v[R.S_NSEND] = len(self.senders)
+        self.senders = R.senders_to_scanner(self.stats, v)
         S[: len(v)] = v
-        S[R.S_SINCE : R.S_SINCE + 3] = s.repeat_since
-        self.D[0] = s._last_temp_c
-        self.D[1:10] = s.last_readings
 
     def store(self) -> None:
         from firmware_py import replay as R
@@ -191,18 +176,9 @@ class _Reader:
             st.truncated = True
         if not v[R.S_LANE] or not v[R.S_FRAMES]:
             return
-        s = self.sampler
-        s.embedded_baro, s._others = bool(v[R.S_EMBEDDED]), v[R.S_OTHERS]
-        s.baro_beside += v[R.S_BESIDE]
-        s._last_temp_c = float(self.D[0])
-        s.last_readings[:] = self.D[1:10].tolist()
-        s.repeat_since[:] = S[R.S_SINCE : R.S_SINCE + 3].tolist()
+        R.sampler_from_scanner(self.sampler, v, self.D)
         self.prev = v[R.S_PREV]
-        k = R.S_SENDERS
-        for q in self.senders:
-            (q.received, q._newest, q._behind, q._t0, q._i0, q._t_mid, q._i_mid, q._t_last,
-             q._i_last) = S[k + 2 : k + 11].tolist()  # fmt: skip
-            k += R.Q_SIZE
+        R.senders_from_scanner(self.senders, S)
 
     def rows(self) -> SampleRows | None:
         """The samples the scanner took since the last call (None: none)."""
