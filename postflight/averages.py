@@ -121,7 +121,7 @@ def wind_averages(time_s: np.ndarray, wind_n: np.ndarray, wind_e: np.ndarray, pe
         out = {
             "time_start_s": k[starts] * period_s - clock_offset_s,
             "time_end_s": (k[starts] + 1) * period_s - clock_offset_s,
-            "n_samples": nv,
+            "n_samples": nv.astype(np.int32),
             "valid_fraction": np.minimum(nv * dt / period_s, 1.0),
             "eastward_wind": u_m,
             "northward_wind": v_m,

@@ -217,8 +217,9 @@ def global_attrs(p: WindProduct, history: str | None = None) -> dict[str, str]:
         name = _attr_name(k)
         if name == "history":
             attrs["history"] = f"{v}\n{attrs['history']}"
-        elif name not in ("Conventions",):
-            attrs[name] = str(v)
+        elif name not in ("Conventions",):  # a count or a number stays one (NetCDF attributes are typed)
+            numeric = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+            attrs[name] = v if numeric else str(v)
     return attrs
 
 

@@ -163,7 +163,7 @@ def _winch_rejected(p: WindProduct, a: int, b: int) -> bool:
     if p.winch_rejected is not None:
         return bool(np.any(p.winch_rejected[a:b] > 0))
     try:
-        return int(p.attrs.get("winch_status_rejected", "0")) > 0
+        return int(p.attrs.get("winch_status_rejected", 0)) > 0
     except ValueError:
         return False
 

@@ -193,14 +193,14 @@ class _SourceTally:
             acc[1] += rejected
             acc[2] = reason or acc[2]
 
-    def attrs(self) -> dict[str, str]:
-        """The counts as the product's global attributes, and the line the summary and notes say."""
+    def attrs(self) -> dict[str, int | str]:
+        """The counts as the product's global attributes (integers), and the line the summary and notes say."""
         from firmware_py.estimator.aid_sources import ground_ref, winch
 
         line = (winch.counts_text("winch", "WINCH_STATUS", *self.winch, winch.REJECT_WORDS) + "; "
                 + winch.counts_text("ground reference", "ground reference", *self.ground, ground_ref.REJECT_WORDS))
-        return {"winch_status_used": str(self.winch[0]), "winch_status_rejected": str(self.winch[1]),
-                "ground_reference_used": str(self.ground[0]), "ground_reference_rejected": str(self.ground[1]),
+        return {"winch_status_used": int(self.winch[0]), "winch_status_rejected": int(self.winch[1]),
+                "ground_reference_used": int(self.ground[0]), "ground_reference_rejected": int(self.ground[1]),
                 "optional_sources": line}  # fmt: skip
 
 

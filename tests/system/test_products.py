@@ -285,7 +285,8 @@ def test_write_products_writes_the_averages_as_csv_and_cf_netcdf(tmp_path):
         assert ds["wind_speed_of_gust"].attrs["standard_name"] == "wind_speed_of_gust"
         assert ds["time"].attrs["bounds"] == "time_bnds"
         # the ground samples (wind unknown) are not averaged in
-        assert float(rows[0]["n_samples"]) == np.sum((p.time_s < 400) & (p.time_s >= 5) & np.isfinite(p.wind_n))
+        assert int(rows[0]["n_samples"]) == np.sum((p.time_s < 400) & (p.time_s >= 5) & np.isfinite(p.wind_n))
+        assert ds["n_samples"].dtype.kind == "i"  # a count, written as one (CSV "123", not "123.0")
     with xr.open_dataset(tmp_path / "wind_avg_1s.nc") as ds:
         i = 100  # one 1-s period well inside the flight
         sel = p.time_s >= ds["time_bnds"].values[i, 0].astype("datetime64[ms]").astype(float) / 1e3 - UTC0 - 1e-6

@@ -234,7 +234,7 @@ def test_profile_quality_winch_fast_inconsistent_and_rejected(tmp_path):
     assert np.all(down["qc_profile"] & QC_WINCH_REJECTED) and not np.any(up["qc_profile"] & QC_WINCH_REJECTED)
     # a product knowing only the flight's count: every bin indeterminate
     p.winch_rejected = None
-    p.attrs["winch_status_rejected"] = "3"
+    p.attrs["winch_status_rejected"] = 3
     assert all(np.all(g.qc[g.count > 0] & QC_WINCH_REJECTED) for g in wind_profile(p).legs)
 
 
