@@ -239,11 +239,21 @@ def extra_metrics(rows, truth, est, start_s: float, duration_s: float) -> dict[s
     if len(grid) >= n:
         c = lambda x: np.concatenate([[0.0], np.cumsum(x)])  # noqa: E731
         mean = lambda cs: (cs[n:] - cs[:-n]) / n  # noqa: E731 - sliding 60 s means, every 0.1 s
-        d_est = np.degrees(np.arctan2(mean(c(ee)), mean(c(en))))
+        mn, me = mean(c(en)), mean(c(ee))
+        d_est = np.degrees(np.arctan2(me, mn))
         d_true = np.degrees(np.arctan2(mean(c(te)), mean(c(tn))))
-        out["worst_60s_dir_err_deg"] = float(np.max(np.abs((d_est - d_true + 180.0) % 360.0 - 180.0)))
+        d_err = np.abs((d_est - d_true + 180.0) % 360.0 - 180.0)
+        out["worst_60s_dir_err_deg"] = float(np.max(d_err))
+        # what the flight stated of that direction: the window's mean accuracy (its systematic part does not average
+        # out) across the mean vector (half the horizontal variance), as an angle: 90 deg where it exceeds the speed
+        sigma = np.degrees(np.arctan2(mean(c(ac)) / math.sqrt(2.0), np.hypot(mn, me)))
+        z = d_err / np.maximum(sigma, 1e-6)
+        out["worst_60s_dir_z"] = float(np.max(z))
+        out["share_60s_dir_beyond_3sigma"] = float(np.mean(z > 3.0))
+        out["worst_60s_dir_sigma_deg"] = float(sigma[int(np.argmax(d_err))])
     else:
-        out["worst_60s_dir_err_deg"] = math.nan
+        out["worst_60s_dir_err_deg"] = out["worst_60s_dir_z"] = math.nan
+        out["share_60s_dir_beyond_3sigma"] = out["worst_60s_dir_sigma_deg"] = math.nan
     err = np.hypot(en - tn, ee - te)
     out["beyond_3sigma"] = float(np.mean(err > 3.0 * ac))
     out["taut_resets"] = float(est.counters.taut_resets)
@@ -297,6 +307,10 @@ def summary(df) -> tuple[str, list[tuple[str, bool]]]:
         "taut re-placements /h": ok["replacements_per_h"],
         "band skill (fluctuating winds)": ok.loc[ok["wind_kind"] != "steady", "band_skill"],
     }
+    if "worst_60s_dir_z" in ok:
+        # not a target: did the flight say so? (the 60 s means' direction error over the direction's stated 1-sigma)
+        cols["worst 60 s mean |dir error| / its stated sigma"] = ok["worst_60s_dir_z"]
+        cols["60 s means beyond 3 stated sigma %"] = 100.0 * ok["share_60s_dir_beyond_3sigma"]
     if "tilt_err_deg" in ok and "tilt_sigma_deg" in ok:
         # not a target: the attitude's honesty (RMS tilt error over the filter's own RMS 1-sigma), which decides the
         # wind's in light air (a degree of lean)

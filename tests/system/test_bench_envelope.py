@@ -119,6 +119,11 @@ def test_extra_metrics_on_a_known_error():
     m = be.extra_metrics(rows, truth, Est, 120.0, 300.0)
     assert math.isclose(m["worst_60s_dir_err_deg"], math.degrees(math.atan2(0.4, 3.0)), rel_tol=1e-9)
     assert m["beyond_3sigma"] == 1.0  # 0.4 m/s off with 0.1 stated
+    # its direction: 7.6 deg off where 0.1 m/s stated across a 3.03 m/s mean says 1.3 deg
+    sigma = math.degrees(math.atan2(0.1 / math.sqrt(2.0), math.hypot(3.0, 0.4)))
+    assert math.isclose(m["worst_60s_dir_sigma_deg"], sigma, rel_tol=1e-9)
+    assert math.isclose(m["worst_60s_dir_z"], math.degrees(math.atan2(0.4, 3.0)) / sigma, rel_tol=1e-9)
+    assert m["share_60s_dir_beyond_3sigma"] == 1.0
     assert m["replacements_per_h"] == 12.0
     assert sum(m[f"cal_n_{b}"] for b in range(len(be.CAL_EDGES) - 1)) == 1800
 
