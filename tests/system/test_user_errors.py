@@ -49,6 +49,7 @@ def files(tmp_path_factory):
     (d / "empty.csv").write_text("")
     (d / "header-only.csv").write_text("time_s,wind_n,wind_e\n")
     (d / "no-wind.csv").write_text("time_s,pos_n\n0,1\n1,2\n2,3\n")
+    (d / "bad-wind.csv").write_text("time_s,wind_n,wind_e\n0,1,0\n1,abc,0\n2,1,0\n")
     rows = [",".join(CSV_COLUMNS)] + [f"{i * 100000},1,1,0.1,3,0,0.3,0,100,0.2,0,3,270" for i in range(50)]
     (d / "wind.csv").write_text("\n".join(rows) + "\n")
     return d
@@ -116,6 +117,7 @@ def cases(d) -> list[tuple[str, str, list[str], str]]:
         ("gs", "report input", ["report", wind, "--truth", str(d / "empty.csv")], "empty"),
         ("gs", "report input", ["report", wind, "--truth", str(d / "header-only.csv")], "fewer than 2 rows"),
         ("gs", "report input", ["report", wind, "--truth", str(d / "no-wind.csv")], "wind_n"),
+        ("gs", "report input", ["report", wind, "--truth", str(d / "bad-wind.csv")], "not numbers"),
         ("gs", "report input", ["report", str(d / "nope.csv"), "--truth", truth], "no such file"),
         ("gs", "report input", ["report", s], "--truth"),
     ]
