@@ -248,6 +248,18 @@ class Decoder:
             out.append(m)
         return out
 
+    def end_datagram(self) -> None:
+        """End of one UDP datagram: a datagram holds whole frames, so the bytes left in the parser (a frame cut
+        short, garbage) are counted as garbage and dropped, never joined to the next datagram's (from this or
+        another sender), whose frames they would swallow."""
+        mav = self.mav
+        left = len(mav.buf) - mav.buf_index
+        if left:
+            self.stats.garbage_bytes += left
+        mav.buf, mav.buf_index = bytearray(), 0
+        mav.expected_length = mavlink.HEADER_LEN_V1 + 2  # as a fresh parser: waiting for a frame's start
+        mav.have_prefix_error = False
+
     def finish(self) -> None:
         """End of a file: bytes left in the parser that start a frame are a frame cut off (a bad frame)."""
         left = bytes(self.mav.buf[self.mav.buf_index :])
@@ -422,16 +434,29 @@ class UdpLink:
         self.sock.close()
 
 
+DEFAULT_BAUD = 57600
+
+
+def serial_port(spec: str) -> tuple[str, int]:
+    """(port, baud rate) of a serial endpoint: a device with its baud rate (``/dev/ttyUSB0:57600``, ``COM3:57600``)
+    or without (``/dev/pts/3``: ``DEFAULT_BAUD``); a pyserial URL (``socket://HOST:PORT``, ``rfc2217://HOST:PORT``,
+    ``loop://``) goes to pyserial whole: its ``:PORT`` is no baud rate."""
+    if "://" in spec:
+        return spec, DEFAULT_BAUD
+    path, _, baud = spec.rpartition(":")
+    if not path or not baud.isdigit():
+        return spec, DEFAULT_BAUD
+    return path, int(baud)
+
+
 class SerialLink:
-    """A serial port (``/dev/ttyUSB0:57600``, ``/dev/pts/3`` or a pyserial URL)."""
+    """A serial port (``/dev/ttyUSB0:57600``, ``/dev/pts/3`` or a pyserial URL: ``serial_port``)."""
 
     def __init__(self, spec: str) -> None:
         import serial
 
-        path, _, baud = spec.rpartition(":")
-        if not path or not baud.isdigit():
-            path, baud = spec, "57600"
-        self.port = serial.serial_for_url(path, baudrate=int(baud), timeout=0, write_timeout=0.5)
+        path, baud = serial_port(spec)
+        self.port = serial.serial_for_url(path, baudrate=baud, timeout=0, write_timeout=0.5)
 
     def recv(self, timeout_s: float) -> bytes:
         self.port.timeout = timeout_s
@@ -456,7 +481,7 @@ def open_link(spec: str):
             raise
         except OSError as exc:
             raise ValueError(f"cannot open {spec}: {exc}") from exc
-    port = spec.rpartition(":")[0] if spec.rpartition(":")[2].isdigit() else spec
+    port = serial_port(spec)[0]
     if not (port.startswith("/dev/") or "://" in port):
         raise ValueError(f"{spec}: no such file, and not a UDP endpoint or serial port")
     try:

@@ -34,7 +34,7 @@ from rich.table import Table
 from rich.text import Text
 
 from balloon_core.progress import fmt_duration, stream_is_terminal
-from balloon_core.wire import Decoder, LinkStats, TlogSink, open_link, pack
+from balloon_core.wire import Decoder, LinkStats, TlogSink, UdpLink, open_link, pack
 from ground_station.wind import CSV_COLUMNS, WindRecord
 
 MODE_NAMES = {0: "ground", 1: "free", 2: "taut"}  # balloon-fw's HEARTBEAT custom_mode
@@ -53,7 +53,10 @@ SEVERITY_NAMES = {v: e.name.removeprefix("MAV_SEVERITY_") for v, e in mavlink.en
 # way here (sequence numbers), and the sensor packets the balloon lost (its SYS_STATUS errors_count1; empty
 # until it reported)
 LOSS_COLUMNS = ("link_lost", "input_lost")
-DEDUP_FRAMES = 512  # a frame identical (bytes and sequence number) to one of the last this many is a duplicate
+# a frame identical (bytes and sequence number) to one of the last this many of its sender (system, component) is a
+# duplicate: fewer than the 256 of a sequence cycle, after which a sender's unchanged message (a HEARTBEAT) comes back
+# byte for byte
+DEDUP_FRAMES = 128
 STALE_S = 2.0  # no WIND_COV for this long: the row's wind is old
 HB_LATE_S = 3.0  # no HEARTBEAT for this long: shown in red
 RATE_WINDOW_S = 2.0
@@ -224,8 +227,7 @@ class GroundStation:
         self._tlog = TlogSink(tlog_path) if tlog_path else None
         self.winch: Winch | None = None  # the last WINCH_STATUS (any system: the site has one winch)
         self.duplicates = 0  # frames received twice (a relay or a radio repeating), dropped
-        self._recent: deque[bytes] = deque()
-        self._recent_set: set[bytes] = set()
+        self._recent: dict[tuple[int, int], tuple[deque[bytes], set[bytes]]] = {}  # per sender: its last frames
 
     # ------------------------------------------------------------ input
 
@@ -235,21 +237,25 @@ class GroundStation:
             v = self.vehicles[sysid] = Vehicle(sysid)
         return v
 
-    def _duplicate(self, frame: bytes) -> bool:
-        """The same frame (bytes and sequence number) as one of the last ``DEDUP_FRAMES``."""
-        if frame in self._recent_set:
+    def _duplicate(self, sender: tuple[int, int], frame: bytes) -> bool:
+        """The same frame (bytes and sequence number) as one of the last ``DEDUP_FRAMES`` of its sender."""
+        recent = self._recent.get(sender)
+        if recent is None:
+            recent = self._recent[sender] = (deque(), set())
+        order, seen = recent
+        if frame in seen:
             self.duplicates += 1
             return True
-        self._recent.append(frame)
-        self._recent_set.add(frame)
-        if len(self._recent) > DEDUP_FRAMES:
-            self._recent_set.discard(self._recent.popleft())
+        order.append(frame)
+        seen.add(frame)
+        if len(order) > DEDUP_FRAMES:
+            seen.discard(order.popleft())
         return False
 
     def handle(self, m, now: float) -> bool:
         """Take one decoded message; False if it was a duplicate (dropped)."""
         frame = bytes(m.get_msgbuf())
-        if self._duplicate(frame):
+        if self._duplicate((m.get_srcSystem(), m.get_srcComponent()), frame):
             return False
         if self._tlog:
             self._tlog.send(frame)
@@ -542,6 +548,7 @@ class Receiver:
 
     def __init__(self, endpoint: str, gs: GroundStation, lock=None, on_message=None) -> None:
         self.link = open_link(endpoint)
+        self.datagrams = isinstance(self.link, UdpLink)  # each parsed on its own (a serial port is one stream)
         self.endpoint = endpoint
         self.gs = gs
         self.dec = Decoder(gs.stats)
@@ -557,6 +564,8 @@ class Receiver:
                 for m in self.dec.feed(data):
                     if self.gs.handle(m, now) and self.on_message is not None:
                         self.on_message(m, now)
+                if self.datagrams:
+                    self.dec.end_datagram()
             if now >= self._next_hb:
                 self.link.send(self.gs.heartbeat())
                 ground = self.gs.ground_reference()

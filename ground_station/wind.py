@@ -39,9 +39,10 @@ class WindRecord:
 
     @property
     def known(self) -> bool:
-        """Is the horizontal wind known (``balloon_core.score.wind_unknown``; a vehicle reporting accuracy
-        0, as PX4 does, counts as known)?"""
-        return not bool(wind_unknown(self.speed_mps, self.horiz_accuracy))
+        """Is the horizontal wind known (finite, and ``balloon_core.score.wind_unknown``; a vehicle reporting
+        accuracy 0, as PX4 does, counts as known)? An infinite component is never a wind (nor a calm from 180°)."""
+        finite = math.isfinite(self.wind_x) and math.isfinite(self.wind_y)
+        return finite and not bool(wind_unknown(self.speed_mps, self.horiz_accuracy))
 
     @property
     def from_deg(self) -> float:

@@ -4,6 +4,9 @@ computation (no I/O, no clock of its own: every time is an argument, in seconds)
 - the WMO means (WMO-No. 8, Vol. I, Ch. 5) over the last 2 and 10 minutes: the scalar mean speed and the
   direction of the vector mean (FROM, 0-360 deg: 350 deg and 10 deg average to 0 deg, never 180 deg);
 - the gust: the highest 3-s running mean of the speed whose window lies wholly within the last 10 minutes;
+- these windows on the flight's own clock (``FlightClock``: WIND_COV ``time_usec`` where it is known and goes
+  forward, so a log replayed at ``--speed 10`` is averaged over 2 minutes of flight, not of replay), on the
+  arrival times where it is not;
 - the charts' series, decimated to at most ``PUSH_HZ`` samples a second per balloon, and the hour's series
   as one-second means;
 - during a winched flight, the profile building up: per winch leg (the reel paying out or reeling in), the
@@ -11,8 +14,8 @@ computation (no I/O, no clock of its own: every time is an argument, in seconds)
   the stated accuracy as the error bar.
 
 Winds are the air's velocity TOWARD north (``n``) and east (``e``) as WIND_COV carries them. Samples whose
-wind is not known (``balloon_core.score.wind_unknown``) are left out of the means, the gust and the
-profile (as the products leave them out), and shown on the charts as gaps."""
+wind is not known (``balloon_core.score.wind_unknown``, or not a finite number) are left out of the means, the
+gust and the profile (as the products leave them out), and shown on the charts as gaps."""
 
 from __future__ import annotations
 
@@ -23,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from balloon_core.score import direction_from_deg, wind_unknown
+from balloon_core.wire import MAX_CLOCK_STEP_US
 from postflight.averages import GUST_WINDOW_S
 from postflight.profile import BIN_M
 
@@ -34,11 +38,17 @@ PUSH_HZ = 10.0  # at most this many samples a second per balloon go to the brows
 REEL_DEADBAND_MPS = 0.05  # the winch's reel slower than this is stopped: no leg
 WINCH_FRESH_S = 3.0  # a WINCH_STATUS older than this says nothing of the reel now
 DIRECTION_SIGMA_CAP_DEG = 180.0  # the direction's error bar when the speed is within its accuracy
+RECENT_MAX = int(LONG_MEAN_S * 100)  # the statistics keep at most 10 minutes at 100 Hz (whatever a clock says)
 
 
 def speed_from(n: float, e: float) -> tuple[float, float]:
     """(speed m/s, direction FROM deg in [0, 360)) of the air's velocity toward north ``n`` and east ``e``."""
     return math.hypot(n, e), float(direction_from_deg(n, e))
+
+
+def wind_known(n: float, e: float, acc: float) -> bool:
+    """A wind worth a sample of the means: finite components, and known (``balloon_core.score.wind_unknown``)."""
+    return math.isfinite(n) and math.isfinite(e) and not bool(wind_unknown(math.hypot(n, e), acc))
 
 
 def direction_sigma_deg(speed_mps: float, accuracy_mps: float) -> float:
@@ -106,6 +116,44 @@ class Decimator:
         self._due = (t if self._due is None else max(self._due, t - self.early_s)) + self.interval_s
         self.taken += 1
         return True
+
+
+class FlightClock:
+    """The statistics' time axis of one balloon (s): it runs with the flight's own clock (WIND_COV ``time_usec``)
+    while that is known (not 0) and goes forward (by less than a day), and with the arrival times elsewhere
+    (no time, a clock that stood still or went back: a restart, a late packet), continuously: the axis never
+    goes back. It starts at the first sample's arrival time."""
+
+    def __init__(self) -> None:
+        self.flight = False  # the last step was on the flight's clock
+        self._offset = 0.0  # axis = flight time + offset (flight) or arrival time + offset (arrival)
+        self._last: tuple[float, float, float | None] | None = None  # (axis, arrival, flight s) of the last sample
+
+    def see(self, wall: float, time_usec: int | None) -> float:
+        """The axis time of a sample that arrived at ``wall`` (s) carrying ``time_usec`` (None: no clock)."""
+        fs = time_usec * 1e-6 if time_usec else None
+        last = self._last
+        if last is None:
+            self._offset = 0.0
+            self.flight = False
+            t = wall
+        elif fs is not None and last[2] is not None and 0.0 < fs - last[2] <= MAX_CLOCK_STEP_US * 1e-6:
+            if not self.flight:
+                self._offset, self.flight = last[0] - last[2], True
+            t = fs + self._offset
+        else:
+            if self.flight:
+                self._offset, self.flight = last[0] - last[1], False
+            t = max(last[0], wall + self._offset)
+        self._last = (t, wall, fs)
+        return t
+
+    def now(self, wall: float) -> float:
+        """The axis time at ``wall``: the last sample's, plus the time since it arrived (a silence counts in full)."""
+        if self._last is None:
+            return wall
+        t, at, _ = self._last
+        return t + max(0.0, wall - at)
 
 
 @dataclass
@@ -192,7 +240,9 @@ class BalloonSeries:
     for the charts (those not yet sent in ``outbox``), the hour as one-second means, and the profile."""
 
     def __init__(self, max_hz: float = PUSH_HZ, bin_m: float = BIN_M) -> None:
-        self.recent: deque[tuple[float, float, float]] = deque()  # (t, n, e) of known winds, last LONG_MEAN_S
+        # (t, n, e) of known winds over the last LONG_MEAN_S of ``clock`` (the flight's, where known)
+        self.recent: deque[tuple[float, float, float]] = deque(maxlen=RECENT_MAX)
+        self.clock = FlightClock()
         self.charted: deque[Point] = deque()  # decimated, last LONG_MEAN_S
         self.hour: deque[Point] = deque()  # one-second means, last HOUR_S
         self.outbox: list[Point] = []  # decimated samples not sent yet
@@ -202,12 +252,15 @@ class BalloonSeries:
         self.received = 0
         self._sec: list[float] | None = None  # the second being averaged: [second, sum n, sum e, sum acc, count]
 
-    def add(self, t: float, n: float, e: float, acc: float, alt_m: float, reel_mps: float | None = None) -> None:
-        """One WIND_COV at time ``t`` (s); ``reel_mps`` the winch's reel speed then (None: no winch)."""
+    def add(self, t: float, n: float, e: float, acc: float, alt_m: float, reel_mps: float | None = None,
+            time_usec: int | None = None) -> None:  # fmt: skip
+        """One WIND_COV that arrived at ``t`` (s), carrying ``time_usec`` (the flight's clock; None: none);
+        ``reel_mps`` the winch's reel speed then (None: no winch)."""
         self.received += 1
-        known = not bool(wind_unknown(math.hypot(n, e), acc))
+        known = wind_known(n, e, acc)
+        ts = self.clock.see(t, time_usec)
         if known:
-            self.recent.append((t, n, e))
+            self.recent.append((ts, n, e))
             self.profile.add(t, n, e, acc, alt_m, reel_mps)
         if self.decimator.take(t):
             sp, frm = speed_from(n, e) if known else (math.nan, math.nan)
@@ -215,7 +268,7 @@ class BalloonSeries:
             self.charted.append(p)
             self.outbox.append(p)
         self._add_second(t, n, e, acc, known)
-        self._trim(t)
+        self._trim(t, ts)
 
     def _add_second(self, t: float, n: float, e: float, acc: float, known: bool) -> None:
         sec = math.floor(t / HOUR_BIN_S)
@@ -241,9 +294,10 @@ class BalloonSeries:
         self.hour.append(p)
         self.hour_outbox.append(p)
 
-    def _trim(self, now: float) -> None:
-        for dq, keep in ((self.recent, LONG_MEAN_S), (self.charted, LONG_MEAN_S), (self.hour, HOUR_S)):
-            while dq and _time(dq[0]) <= now - keep:
+    def _trim(self, now: float, now_stats: float) -> None:
+        for dq, keep, t in ((self.recent, LONG_MEAN_S, now_stats), (self.charted, LONG_MEAN_S, now),
+                            (self.hour, HOUR_S, now)):  # fmt: skip
+            while dq and _time(dq[0]) <= t - keep:
                 dq.popleft()
 
     def drain(self) -> tuple[list[Point], list[Point]]:
@@ -253,7 +307,9 @@ class BalloonSeries:
         return out, hour
 
     def statistics(self, now: float) -> dict:
-        """The WMO 2- and 10-minute means and the gust over the last 10 minutes, as of ``now``."""
+        """The WMO 2- and 10-minute means and the gust over the last 10 minutes as of ``now`` (arrival time, s),
+        on the flight's clock where it is known (``clock``: "balloon", else "arrival")."""
+        now = self.clock.now(now)
         if self.recent:
             a = np.array(self.recent)
             t, n, e = a[:, 0], a[:, 1], a[:, 2]
@@ -270,6 +326,7 @@ class BalloonSeries:
         if np.any(sel):
             g = gust(t[sel], np.hypot(n[sel], e[sel]), max(now - LONG_MEAN_S, float(t[sel][0])))
         out["gust"] = _num(g)
+        out["clock"] = "balloon" if self.clock.flight else "arrival"
         return out
 
 

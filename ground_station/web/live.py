@@ -42,7 +42,7 @@ class LiveModel:
             s = self.series[sysid] = BalloonSeries(self.max_hz)
         w = self.gs.winch
         reel = w.speed_mps if w is not None and now - w.at <= WINCH_FRESH_S else None
-        s.add(now + self.wall_minus_mono, m.wind_x, m.wind_y, m.horiz_accuracy, m.wind_alt, reel)
+        s.add(now + self.wall_minus_mono, m.wind_x, m.wind_y, m.horiz_accuracy, m.wind_alt, reel, m.time_usec)
 
     # ------------------------------------------------------------ output (the server, under lock)
 
@@ -90,17 +90,19 @@ class LiveModel:
                      "age_s": round(now - w.at, 1)}  # fmt: skip
         return {"t": round(now + self.wall_minus_mono, 3), "stale_s": STALE_S, "unknown": UNKNOWN,
                 "link": {"frames": st.frames, "lost": st.lost, "crc_errors": st.bad_frames,
-                         "duplicates": self.gs.duplicates}, "winch": winch}  # fmt: skip
+                         "garbage_bytes": st.garbage_bytes, "duplicates": self.gs.duplicates},
+                "winch": winch}  # fmt: skip
 
     def _balloon(self, v: Vehicle, now: float, force: bool) -> dict:
         r = v.last
         known = r.known
-        speed, frm = (r.speed_mps, r.from_deg) if known else (math.nan, math.nan)
+        speed, frm, n, e = (r.speed_mps, r.from_deg, r.wind_x, r.wind_y) if known else (math.nan,) * 4
         hb_age = None if v.hb_at is None else round(now - v.hb_at, 1)
         est = v.estimator_flags
         b = {
             "sysid": v.sysid, "state": v.state(now), "age_s": round(v.age(now), 1), "known": known,
-            "speed": _num(speed), "from": _num(frm, 1), "acc": _num(r.horiz_accuracy), "alt": _num(r.wind_alt, 1),
+            "speed": _num(speed), "from": _num(frm, 1), "n": _num(n), "e": _num(e), "var": _num(r.var_horiz),
+            "acc": _num(r.horiz_accuracy), "alt": _num(r.wind_alt, 1),
             "mode": v.mode, "misfit": v.misfit(), "sensors_lost": v.sensors_lost(), "resets": v.resets(),
             "estimator": None if est is None else [name for bit, name in ESTIMATOR_FLAG_NAMES.items() if est & bit],
             "link_lost": self.gs.link_lost(v.sysid), "input_loss": v.input_loss(), "said": v.said(now),

@@ -33,6 +33,27 @@ def _values(a, digits: int = 3) -> list[float | None]:
     return [round(float(x), digits) if math.isfinite(x) else None for x in np.asarray(a, float).ravel()]
 
 
+def time_is_utc(attrs) -> bool:
+    """Is a product's time axis UTC? Its CF units say so (``seconds since 1970-01-01 00:00:00 UTC``, as reprocess writes
+    a log with GPS time); a sensor clock's (units without UTC, its long_name / time_reference saying "NOT UTC" and
+    "since boot") is seconds since the boot, whatever date its units name."""
+    units = str(attrs.get("units", "")).upper()
+    said = " ".join(str(attrs.get(k, "")) for k in ("long_name", "time_reference")).upper()
+    return "UTC" in units and "NOT UTC" not in said and "BOOT" not in said
+
+
+def _check_series(ds, path: str) -> None:
+    """A UserError unless ``time`` is the one dimension of the time coordinate and of every series, all numbers."""
+    for var in ("time", *SERIES.values(), *(["height"] if "height" in ds else [])):
+        a = ds[var]
+        if a.dims != ("time",):
+            dims = ", ".join(map(str, a.dims)) or "none: a scalar"
+            raise userargs.UserError(f"{path}: not a balloon-gs reprocess product ({var} is not a series along a "
+                                     f"time dimension; its dimensions: {dims})")  # fmt: skip
+        if not np.issubdtype(a.dtype, np.number):
+            raise userargs.UserError(f"{path}: not a balloon-gs reprocess product ({var} holds {a.dtype}, not numbers)")
+
+
 def load_product(path: str) -> dict:
     """The product's series (thinned to ``MAX_POINTS``) and profiles as a JSON-able dict; a UserError
     (one line) if it is not a balloon-wind product."""
@@ -47,10 +68,10 @@ def load_product(path: str) -> dict:
         missing = [v for v in SERIES.values() if v not in ds]
         if missing or "time" not in ds:
             raise userargs.UserError(f"{path}: not a balloon-gs reprocess product (no {(missing or ['time'])[0]})")
+        _check_series(ds, path)
         n = ds.sizes["time"]
         step = max(1, math.ceil(n / MAX_POINTS))
-        utc = "UTC" in str(ds["time"].attrs.get("long_name", ""))
-        out: dict = {"name": os.path.basename(path), "utc": utc, "points": n, "step": step,
+        out: dict = {"name": os.path.basename(path), "utc": time_is_utc(ds["time"].attrs), "points": n, "step": step,
                      "title": str(ds.attrs.get("title", "")), "history": str(ds.attrs.get("history", "")),
                      "time": _values(ds["time"].values[::step], 3)}  # fmt: skip
         for key, var in SERIES.items():

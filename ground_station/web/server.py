@@ -3,7 +3,9 @@
 One receiver thread per endpoint decodes into the ``LiveModel`` (listen's ``GroundStation`` and each
 balloon's series); an asyncio task pushes an update to every connected page ``PUSH_HZ`` times a second
 over a WebSocket (a page that connects gets a snapshot first). Read-only: nothing the page sends reaches
-the link; a page's message that is not one of ``CLIENT_MESSAGES`` is dropped and counted.
+the link; a page's message that is not one of ``CLIENT_MESSAGES`` is dropped and counted. A WebSocket is
+opened only from the page's own origin (a browser's ``Origin`` naming another host is refused, 403, and counted);
+a malformed HTTP request is answered 400 by aiohttp and counted, without a traceback on stderr.
 
 Every file the page loads is served from ``static/`` by this program (uPlot vendored, no CDN): only the
 files that are there at start, by exact name; with ``--product`` only that file, by its exact name (its
@@ -13,15 +15,19 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import mimetypes
 import os
+import socket
 import sys
 import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from urllib.parse import urlsplit
 
 from aiohttp import WSMsgType, web
+from aiohttp.http_exceptions import HttpProcessingError
 
 from ground_station.listen import GroundStation, Receiver
 from ground_station.web.aggregate import PUSH_HZ
@@ -41,11 +47,30 @@ CSP = ("default-src 'self'; connect-src 'self'; img-src 'self' data:; style-src 
 
 @dataclass
 class Counters:
-    """What the server saw of the pages: malformed messages dropped, updates pushed, pages connected."""
+    """What the server saw of the pages: malformed messages dropped, updates pushed, pages connected, WebSockets
+    refused for another origin, malformed HTTP requests (answered 400)."""
 
     malformed: int = 0
     pushed: int = 0
     connections: int = 0
+    foreign_origins: int = 0
+    bad_requests: int = 0
+
+
+class _BadRequests(logging.Filter):
+    """aiohttp logs a malformed request (too long a line, a bad header, version or chunk) with its traceback:
+    counted here instead, not logged. Anything else (a fault of this server's) is logged as aiohttp logs it."""
+
+    def __init__(self, counters: Counters) -> None:
+        super().__init__()
+        self.counters = counters
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        exc = record.exc_info[1] if record.exc_info else None
+        if isinstance(exc, HttpProcessingError):
+            self.counters.bad_requests += 1
+            return False
+        return True
 
 
 def static_files(root: Path = STATIC_DIR) -> dict[str, Path]:
@@ -67,6 +92,8 @@ class WebStation:
         self.product_files = product_files or {}
         self.static = static_files()
         self.counters = Counters()
+        self.http_log = logging.Logger(f"{__name__}.http")  # aiohttp's server log: bad requests counted, not printed
+        self.http_log.addFilter(_BadRequests(self.counters))
         self.clients: set[web.WebSocketResponse] = set()
         self._halt = threading.Event()
         self.receiver_error: BaseException | None = None
@@ -142,14 +169,20 @@ class WebStation:
         with self.model.lock:
             st = self.gs.stats
             body = {"received": {str(k): n for k, n in self.model.received().items()}, "frames": st.frames,
-                    "lost": st.lost, "crc_errors": st.bad_frames, "duplicates": self.gs.duplicates,
+                    "lost": st.lost, "crc_errors": st.bad_frames, "garbage_bytes": st.garbage_bytes,
+                    "duplicates": self.gs.duplicates,
                     "malformed_client_messages": self.counters.malformed, "pushed": self.counters.pushed,
-                    "clients": len(self.clients), "connections": self.counters.connections}  # fmt: skip
+                    "clients": len(self.clients), "connections": self.counters.connections,
+                    "foreign_origins": self.counters.foreign_origins,
+                    "bad_requests": self.counters.bad_requests}  # fmt: skip
         return web.json_response(body)
 
     # ------------------------------------------------------------ the WebSocket
 
     async def _ws(self, request: web.Request) -> web.StreamResponse:
+        if not same_origin(request):  # another site's page in the user's browser: no data for it
+            self.counters.foreign_origins += 1
+            raise web.HTTPForbidden(text="WebSocket only from this server's own page\n")
         ws = web.WebSocketResponse(max_msg_size=MAX_CLIENT_MESSAGE_BYTES, heartbeat=10.0)
         await ws.prepare(request)
         self.counters.connections += 1
@@ -201,12 +234,16 @@ class WebStation:
 
     async def serve(self, host: str, port: int, stop, announce=print) -> None:
         """Serve until ``stop()`` (or a receiver fails); ``announce`` gets the URL once listening."""
-        runner = web.AppRunner(self.app(), access_log=None, handle_signals=False)
+        runner = web.AppRunner(self.app(), access_log=None, handle_signals=False, logger=self.http_log)
         await runner.setup()
         try:
             site = web.TCPSite(runner, host, port)
             try:
                 await site.start()
+            except socket.gaierror as exc:  # the resolver's error (its errno is no OS error's)
+                unknown = exc.errno in (socket.EAI_NONAME, getattr(socket, "EAI_NODATA", socket.EAI_NONAME))
+                why = "is not known" if unknown else "cannot be resolved"
+                raise OSError(f"cannot serve on {host}:{port}: host {host!r} {why} ({exc.strerror})") from None
             except OSError as exc:
                 why = os.strerror(exc.errno).lower() if exc.errno else str(exc)
                 raise OSError(f"cannot serve on {host}:{port}: {why}") from None
@@ -237,6 +274,18 @@ async def _headers(request: web.Request, handler) -> web.StreamResponse:
     resp.headers["Referrer-Policy"] = "no-referrer"
     resp.headers["Cache-Control"] = "no-store"
     return resp
+
+
+def same_origin(request: web.Request) -> bool:
+    """No ``Origin`` (not a browser), or one whose host and port are the ones the page was loaded from (``Host``)."""
+    origin = request.headers.get("Origin")
+    if origin is None:
+        return True
+    try:
+        parts = urlsplit(origin)
+    except ValueError:
+        return False
+    return parts.scheme in ("http", "https") and bool(parts.netloc) and parts.netloc.lower() == request.host.lower()
 
 
 def _url_host(host: str) -> str:

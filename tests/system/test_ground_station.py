@@ -163,3 +163,27 @@ def test_an_unhealthy_sensor_of_another_vehicle_is_not_a_misfit():
         for m in dec.feed(f):
             gs.handle(m, 0.0)
     assert gs.vehicles[42].misfit() == [] and "MISFIT" not in gs.status_line(0.5)
+
+
+def test_only_true_duplicates_are_dropped_not_a_sequence_cycle_later():
+    """A HEARTBEAT that does not change comes back byte for byte once the 8-bit sequence wraps (every 256 frames of its
+    sender: 16 s at balloon-fw's 16 frames a second). Not a duplicate; the same frame twice (two links) is."""
+    from balloon_core.wire import Decoder
+
+    gs = GroundStation(out=io.StringIO())
+    dec = Decoder(gs.stats)
+    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    other = mavlink.MAVLink(None, srcSystem=2, srcComponent=1)
+    hb = [pack(mav, mav.heartbeat_encode(mavlink.MAV_TYPE_FREE_BALLOON, mavlink.MAV_AUTOPILOT_GENERIC, 0, 2, 4))
+          for _ in range(600)]  # fmt: skip
+    assert hb[0] == hb[256] == hb[512]  # the same bytes, a cycle apart
+    taken = 0
+    for i, f in enumerate(hb):
+        frames = [f, px4_wind(other, 1000 * i, 1.0, 1.0)]  # another sender's traffic in between
+        if i % 100 == 7:
+            frames.append(f)  # a true duplicate: the same frame again at once (a second link)
+        for frame in frames:
+            for m in dec.feed(frame):
+                taken += gs.handle(m, 0.0) and m.get_srcSystem() == 1
+    assert taken == 600 and gs.duplicates == 6
+    assert gs.stats.lost == 0

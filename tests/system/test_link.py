@@ -244,3 +244,40 @@ def test_serial_replay_through_ptys(capture, tmp_path):
     last = csv.read_text().strip().splitlines()[-1].split(",")
     assert 1.5 < float(last[11]) < 4.5  # speed_mps
     assert mavlink.MAVLINK_MSG_ID_WIND_COV == 231
+
+
+def test_a_pyserial_url_is_given_to_pyserial_whole():
+    """``socket://HOST:PORT`` (pyserial's serial port over TCP): the URL's ``:PORT`` is no baud rate. ``listen``
+    reads WIND_COV through it; a device's ``:BAUD`` stays a baud rate."""
+    from balloon_core.wire import pack, serial_port
+
+    assert serial_port("socket://127.0.0.1:28032") == ("socket://127.0.0.1:28032", 57600)
+    assert serial_port("rfc2217://10.0.0.5:2217") == ("rfc2217://10.0.0.5:2217", 57600)
+    assert serial_port("loop://") == ("loop://", 57600)
+    assert serial_port("/dev/ttyUSB0:921600") == ("/dev/ttyUSB0", 921600)
+    assert serial_port("/dev/pts/3") == ("/dev/pts/3", 57600)
+    mav = mavlink.MAVLink(None, srcSystem=3, srcComponent=1)
+    frames = [pack(mav, mav.wind_cov_encode(1_000_000 + 100_000 * i, 2.0, -1.0, math.nan, 0.1, 0.0, 50.0, 0.3, 0.0))
+              for i in range(20)]  # fmt: skip
+    with socket.socket() as srv:
+        srv.bind(("127.0.0.1", 0))
+        srv.listen()
+        srv.settimeout(30)
+
+        def serve() -> None:
+            conn, _ = srv.accept()
+            with conn:
+                for f in frames:
+                    conn.sendall(f)
+                    time.sleep(0.02)
+                while conn.recv(4096):  # the listener's heartbeats, until it hangs up
+                    pass
+
+        t = threading.Thread(target=serve, daemon=True)
+        t.start()
+        url = f"socket://127.0.0.1:{srv.getsockname()[1]}"
+        r = subprocess.run([PY, "-m", "ground_station", "listen", url, "--duration", "3"], capture_output=True,
+                           text=True, timeout=60)  # fmt: skip
+        t.join(10)
+    assert r.returncode == 0, r.stderr
+    assert "20 WIND_COV from 1 systems" in r.stderr, r.stderr

@@ -35,8 +35,8 @@ def browser():
 class Page:
     """A page on the server, with its console errors and every request it made."""
 
-    def __init__(self, browser, url: str, width: int = 1280) -> None:
-        self.page = browser.new_page(viewport={"width": width, "height": 900})
+    def __init__(self, browser, url: str, width: int = 1280, timezone: str | None = None) -> None:
+        self.page = browser.new_page(viewport={"width": width, "height": 900}, timezone_id=timezone)
         self.errors: list[str] = []
         self.requests: list[str] = []
         self.page.on("console", lambda m: self.errors.append(m.text) if m.type == "error" else None)
@@ -169,6 +169,117 @@ def test_a_product_shows_causal_and_smoothed_wind_and_its_profiles(browser, tmp_
         assert "flight.nc" in text and "smoothed" in text and "causal" in text
         assert page.page.locator("#product .uplot").count() == 2
         assert "leg 2 down" in page.page.locator("#product .profile h3").inner_text()
+        assert not page.errors, page.errors
+    finally:
+        page.close()
+        srv.stop(signal.SIGTERM)
+
+
+def test_a_restarted_server_replaces_what_the_page_shows(browser):
+    """After a restart the page holds what the new server knows: a balloon it has not heard of leaves the page
+    (it is not left frozen as OK), the others go on."""
+    port = free_udp_port()
+    srv = WebServer(f"udpin:127.0.0.1:{port}")
+    feed = Feed(port, [Balloon(sysid=2), Balloon(sysid=3, n=-1.0)])
+    feed.start()
+    page = Page(browser, srv.url)
+    try:
+        page.page.wait_for_selector('article[data-sysid="3"] [data-k="state"]:text("OK")', timeout=15000)
+        http_port = srv.port
+        feed.stop.set()
+        feed.join(5)
+        srv.stop(signal.SIGTERM)
+        assert wait_until(lambda: "DISCONNECTED" in page.page.locator("#page-banner").inner_text(), 5.0)
+        srv = WebServer(f"udpin:127.0.0.1:{port}", port=http_port)  # no balloon yet
+        assert wait_until(lambda: page.page.locator("#conn").inner_text() == "live", 10.0)
+        assert wait_until(lambda: page.page.locator("article.card").count() == 0, 3.0)
+        assert page.page.locator("#waiting").is_visible()
+        feed = Feed(port, [Balloon(sysid=2)])  # one of them comes back
+        feed.start()
+        page.page.wait_for_selector('article[data-sysid="2"] [data-k="state"]:text("OK")', timeout=10000)
+        assert page.page.locator('article[data-sysid="3"]').count() == 0
+        assert not page.page.locator("#waiting").is_visible()
+        assert not [e for e in page.errors if "WebSocket" not in e and "ERR_CONNECTION_REFUSED" not in e], page.errors
+    finally:
+        feed.stop.set()
+        page.close()
+        srv.stop(signal.SIGTERM)
+
+
+def test_north_east_variability_and_the_means_clock_on_the_card(browser):
+    port = free_udp_port()
+    srv = WebServer(f"udpin:127.0.0.1:{port}")
+    feed = Feed(port, [Balloon(sysid=5, n=2.5, e=-1.25, wobble_mps=0.0)])
+    feed.start()
+    page = Page(browser, srv.url)
+    try:
+        page.page.wait_for_selector('article[data-sysid="5"] [data-k="state"]:text("OK")', timeout=15000)
+        assert wait_until(lambda: (page.text(5, "n"), page.text(5, "e")) == ("+2.50", "-1.25"), 5.0), (
+            page.text(5, "n"), page.text(5, "e"))
+        assert page.text(5, "var") == "0.20"  # the feed's var_horiz
+        assert wait_until(lambda: "of flight (the balloon's clock)" in page.text(5, "m2"), 5.0), page.text(5, "m2")
+        assert not page.errors, page.errors
+    finally:
+        feed.stop.set()
+        page.close()
+        srv.stop(signal.SIGTERM)
+
+
+def hover_time(page: Page, chart: str) -> tuple[str, str]:
+    """(label, value) of the time in a product chart's legend with the cursor in the middle of the chart."""
+    box = page.page.locator(f"#product {chart} .u-over").bounding_box()
+    page.page.mouse.move(box["x"] + 0.5 * box["width"], box["y"] + 0.5 * box["height"])
+    row = page.page.locator(f"#product {chart} .u-legend tr.u-series").first
+    return row.locator(".u-label").inner_text(), row.locator(".u-value").inner_text()
+
+
+def test_a_products_time_is_the_sensor_clock_or_utc_never_the_browsers_zone(browser, tmp_path):
+    """A simulated flight's product (sensor clock, no date): seconds since boot, not 1970. A product with GPS time:
+    UTC, also in a browser whose zone is not (Asia/Kolkata is UTC+05:30)."""
+    from tests.system.test_web import UTC_START_S, utc_product
+
+    srv = WebServer("--product", str(write_product(tmp_path / "flight.nc")))
+    page = Page(browser, srv.url)
+    try:
+        page.page.wait_for_selector("#product .pc-speed .u-over", timeout=15000)
+        label, value = hover_time(page, ".pc-speed")
+        assert "since boot" in label and "UTC" not in label.replace("not UTC", ""), label
+        assert "1970" not in value and 0.0 <= float(value.replace(",", "")) <= 1200.0, value
+        assert not page.errors, page.errors
+    finally:
+        page.close()
+        srv.stop(signal.SIGTERM)
+    assert UTC_START_S == 1_767_225_600.0  # 2026-01-01 00:00 UTC: the 20 minutes are 12:00am-12:20am there
+    srv = WebServer("--product", str(utc_product(tmp_path / "utc.nc")))
+    page = Page(browser, srv.url, timezone="Asia/Kolkata")
+    try:
+        page.page.wait_for_selector("#product .pc-speed .u-over", timeout=15000)
+        label, value = hover_time(page, ".pc-speed")
+        assert "UTC" in label, label
+        assert re.fullmatch(r"2026-01-01 12:[01]\dam", value), value  # not 5:40am, the browser's local time
+        assert not page.errors, page.errors
+    finally:
+        page.close()
+        srv.stop(signal.SIGTERM)
+
+
+def test_a_profile_bin_without_a_direction_is_a_gap(browser, tmp_path):
+    """A product's profile with a bin whose direction is NaN (its speed known): drawn with a gap there, no error."""
+    import netCDF4
+
+    from postflight.profile import QC_FEW_SAMPLES
+
+    product = write_product(tmp_path / "flight.nc")
+    with netCDF4.Dataset(product.with_name("flight_profile.nc"), "a") as nc:
+        drawn = [j for j, q in enumerate(nc["qc_profile"][:]) if not int(q) & QC_FEW_SAMPLES]
+        nc["wind_from_direction"][drawn[2]] = math.nan  # a bin in the middle of the first leg
+    srv = WebServer("--product", str(product))
+    page = Page(browser, srv.url)
+    try:
+        page.page.wait_for_selector("#product .profile:not(.hidden) .p-speed svg circle", timeout=15000)
+        page.page.wait_for_timeout(500)
+        speed = page.page.locator("#product .p-speed svg circle").count()
+        assert speed == len(drawn) and page.page.locator("#product .p-from svg circle").count() == speed - 1
         assert not page.errors, page.errors
     finally:
         page.close()

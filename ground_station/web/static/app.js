@@ -1,6 +1,7 @@
 // balloon-gs web: the page. Read-only: it only listens (a WebSocket from the same server) and draws.
-// Every message from the server is a "snapshot" (on connect) or an "update" (up to 10 a second);
-// each holds every balloon's state; samples are [t (s, wall clock), speed m/s, from deg, accuracy m/s].
+// Every message from the server is a "snapshot" (on connect: it replaces all the page holds, so a balloon the
+// server does not know, after a restart, leaves the page) or an "update" (up to 10 a second); each holds every
+// balloon's state; samples are [t (s, wall clock), speed m/s, from deg, accuracy m/s].
 "use strict";
 
 const TEN_MIN_S = 600, HOUR_S = 3600;
@@ -18,6 +19,7 @@ const balloons = new Map();       // sysid -> view
 let ws = null, lastMessage = 0, staleS = 2, unknown = "—";
 
 const fmt = (x, d) => (x === null || x === undefined || Number.isNaN(x)) ? unknown : x.toFixed(d);
+const fmtSigned = (x, d) => (x === null || x === undefined) ? unknown : (x >= 0 ? "+" : "") + x.toFixed(d);
 const fmtDir = (x) => (x === null || x === undefined) ? unknown : String(Math.round(x) % 360).padStart(3, "0");
 const el = (tag, cls, text) => { const e = document.createElement(tag); if (cls) e.className = cls;
   if (text !== undefined) e.textContent = text; return e; };
@@ -98,9 +100,10 @@ function needle(line, deg) {          // the needle points to where the wind com
 
 function profileSvg(legs, key, errKey, unit, fixedMax) {
   const W = 220, H = 200, L = 34, B = 24, T = 8, R = 8;
+  const has = (r) => r[key] !== null && r[key] !== undefined;   // a bin without this value is a gap
   const rows = legs.flatMap((g) => g.rows);
   const zmax = Math.max(10, ...rows.map((r) => r.z)) * 1.05;
-  const xmax = fixedMax || Math.max(1, ...rows.map((r) => r[key] + (r[errKey] || 0))) * 1.05;
+  const xmax = fixedMax || Math.max(1, ...rows.filter(has).map((r) => r[key] + (r[errKey] || 0))) * 1.05;
   const x = (v) => L + (W - L - R) * Math.min(Math.max(v, 0), xmax) / xmax;
   const y = (z) => H - B - (H - B - T) * z / zmax;
   const colors = ["#1f6feb", "#cf222e", "#1a7f37", "#8250df", "#9a6700", "#0a7ea4"];
@@ -112,9 +115,11 @@ function profileSvg(legs, key, errKey, unit, fixedMax) {
   s += `<text x="${W - R}" y="${H - B + 12}" text-anchor="end">${Math.round(xmax)}</text>`;
   legs.forEach((g, k) => {
     const c = colors[k % colors.length];
-    const pts = g.rows.map((r) => `${x(r[key]).toFixed(1)},${y(r.z).toFixed(1)}`).join(" ");
-    s += `<polyline points="${pts}" fill="none" stroke="${c}" stroke-width="1" opacity=".6"/>`;
-    for (const r of g.rows) {
+    let run = [];                    // the line between bins with a value; broken at a gap
+    const line = () => { if (run.length > 1) s += `<polyline points="${run.join(" ")}" fill="none" stroke="${c}" stroke-width="1" opacity=".6"/>`; run = []; };
+    for (const r of g.rows) { if (has(r)) run.push(`${x(r[key]).toFixed(1)},${y(r.z).toFixed(1)}`); else line(); }
+    line();
+    for (const r of g.rows.filter(has)) {
       const e = r[errKey] || 0, yy = y(r.z).toFixed(1);
       s += `<line x1="${x(r[key] - e).toFixed(1)}" x2="${x(r[key] + e).toFixed(1)}" y1="${yy}" y2="${yy}" stroke="${c}"/>`;
       s += `<circle cx="${x(r[key]).toFixed(1)}" cy="${yy}" r="2.5" fill="${c}"><title>leg ${k + 1} (${g.ascent ? "up" : "down"}) ${r.z} m: ${r[key].toFixed(1)} ± ${e.toFixed(1)}</title></circle>`;
@@ -144,6 +149,7 @@ function card(sysid) {
       <div class="big"><span data-k="speed"></span> <small>m/s</small></div>
       <div>from <span class="big" data-k="from"></span><span class="big">°</span></div>
       <div class="dim">±<span data-k="acc"></span> m/s · alt <span data-k="alt"></span> m · <span data-k="mode"></span></div>
+      <div class="dim">N <span data-k="n"></span> E <span data-k="e"></span> m/s · var <span data-k="var"></span> m/s</div>
     </div></div>
     <table class="kv">
       <tr><th>2-min mean</th><td data-k="m2"></td></tr>
@@ -184,15 +190,24 @@ function ensureView(sysid) {
     document.getElementById("waiting").classList.add("hidden");
     v.charts = [bandChart(v.root.querySelector(".c-speed"), "speed", "m/s", "#1f6feb", false),
                 bandChart(v.root.querySelector(".c-from"), "from", "°", "#8250df", true)];
-    new ResizeObserver(() => fitCharts(v)).observe(v.root);
+    v.resize = new ResizeObserver(() => fitCharts(v));
+    v.resize.observe(v.root);
     balloons.set(sysid, v);
   }
   return v;
 }
 
-function meanText(m) {
+function dropView(v) {
+  v.resize.disconnect();
+  for (const c of v.charts) c.destroy();
+  v.root.remove();
+  balloons.delete(v.sysid);
+}
+
+function meanText(m, clock) {      // clock: the windows' ("balloon": WIND_COV time_usec, or "arrival")
   if (!m) return unknown;
-  return `${fmt(m.speed, 2)} m/s from ${fmtDir(m.from)}° (${m.count} samples over ${Math.round(m.span_s)} s)`;
+  const by = clock === "balloon" ? "of flight (the balloon's clock)" : "as received";
+  return `${fmt(m.speed, 2)} m/s from ${fmtDir(m.from)}° (${m.count} samples over ${Math.round(m.span_s)} s ${by})`;
 }
 
 function drawBalloon(v, b, now) {
@@ -208,12 +223,15 @@ function drawBalloon(v, b, now) {
   k.speed.textContent = fmt(b.speed, 2);
   k.from.textContent = fmtDir(b.from);
   k.acc.textContent = fmt(b.acc, 2);
+  k.n.textContent = fmtSigned(b.n, 2);
+  k.e.textContent = fmtSigned(b.e, 2);
+  k.var.textContent = fmt(b.var, 2);
   k.alt.textContent = fmt(b.alt, 0);
   k.mode.textContent = `mode ${b.mode}`;
   if (b.stats) v.stats = b.stats;
   const st = v.stats || {};
-  k.m2.textContent = meanText(st.mean_2min);
-  k.m10.textContent = meanText(st.mean_10min);
+  k.m2.textContent = meanText(st.mean_2min, st.clock);
+  k.m10.textContent = meanText(st.mean_10min, st.clock);
   k.gust.textContent = st.gust === null || st.gust === undefined ? unknown : `${fmt(st.gust, 2)} m/s`;
   k.filter.textContent = `${b.mode}` + (b.estimator ? `; good: ${b.estimator.join(", ") || "none"}` : "") +
     (b.resets === null ? "" : `; ${b.resets} resets`);
@@ -249,10 +267,18 @@ function onMessage(msg) {
   document.getElementById("stale-s").textContent = staleS;
   const L = msg.link;
   document.getElementById("link").textContent =
-    `link: ${L.frames} frames, ${L.lost} lost, ${L.crc_errors} CRC errors, ${L.duplicates} duplicates`;
+    `link: ${L.frames} frames, ${L.lost} lost, ${L.crc_errors} CRC errors, ${L.garbage_bytes} garbage bytes, ` +
+    `${L.duplicates} duplicates`;
   document.getElementById("winch").textContent = msg.winch ?
     `winch: ${fmt(msg.winch.line_m, 1)} m out, reel ${fmt(msg.winch.reel_mps, 2)} m/s` : "";
-  if (msg.type === "snapshot") for (const v of balloons.values()) { v.short.clear(); v.hour.clear(); v.lastChart = 0; }
+  if (msg.type === "snapshot") {   // the server's state replaces the page's: a balloon it does not know leaves
+    const known = new Set(msg.balloons.map((b) => b.sysid));
+    for (const [sysid, v] of balloons) {
+      if (!known.has(sysid)) { dropView(v); continue; }
+      v.short.clear(); v.hour.clear(); v.lastChart = 0; v.stats = null;
+    }
+    document.getElementById("waiting").classList.toggle("hidden", balloons.size > 0 || msg.balloons.length > 0);
+  }
   for (const b of msg.balloons) drawBalloon(ensureView(b.sysid), b, msg.t);
   if (msg.product && !document.getElementById("product").dataset.loaded) loadProduct();
 }
@@ -297,6 +323,8 @@ async function loadProduct() {
     <div class="profile hidden"><h3>profile: <span class="legs"></span></h3><div class="pair"><div class="p-speed"></div><div class="p-from"></div></div></div></div>`;
   box.querySelector("a").textContent = p.name;
   box.querySelector(".p-title").textContent = p.title;
+  // a UTC product (its units say so) in UTC; a sensor clock's (no absolute time) as seconds since the boot
+  const timeLabel = p.utc ? "time (UTC)" : "s since boot (sensor clock, not UTC)";
   const band = (v, e, cap) => [v.map((x, i) => x === null || e[i] === null ? null : Math.max(0, x - e[i])),
                                v.map((x, i) => x === null || e[i] === null ? null : (cap ? Math.min(cap, x + e[i]) : x + e[i]))];
   const chart = (target, key, dir) => {
@@ -305,8 +333,9 @@ async function loadProduct() {
     const pts = (c) => dir ? { stroke: c, width: 0, paths: () => null, points: { show: true, size: 2, fill: c } } : { stroke: c, width: 1.2 };
     const hide = { stroke: "transparent", width: 0, points: { show: false } };
     return new uPlot({ width: Math.max(200, target.clientWidth), height: 200, scales: { x: { time: p.utc }, y: dir ? { range: [0, 360] } : {} },
-      legend: { show: true }, axes: [{ label: p.utc ? "UTC" : "s since boot" }, { size: 48 }],
-      series: [{}, { label: "smoothed", ...pts("#1f6feb") }, { label: "causal", ...pts("#cf222e") }, hide, hide, hide, hide],
+      ...(p.utc ? { tzDate: (ts) => uPlot.tzDate(new Date(ts * 1e3), "Etc/UTC") } : {}),   // UTC, not the browser's zone
+      legend: { show: true }, axes: [{ label: timeLabel }, { size: 48 }],
+      series: [{ label: timeLabel }, { label: "smoothed", ...pts("#1f6feb") }, { label: "causal", ...pts("#cf222e") }, hide, hide, hide, hide],
       bands: [{ series: [4, 3], fill: "rgba(31,111,235,.15)" }, { series: [6, 5], fill: "rgba(207,34,46,.12)" }] },
       [p.time, p[key], p["causal_" + key], slo, shi, clo, chi], target);
   };
