@@ -15,7 +15,7 @@ import sys
 import time
 
 from balloon_core import userargs
-from balloon_core.wire import Decoder, LinkStats, open_link
+from balloon_core.wire import Decoder, LinkStats, UdpLink, open_link
 from sim_hil.packets import SensorPacketEncoder
 from sim_hil.simulator import Simulation
 
@@ -48,6 +48,8 @@ class Lockstep:
                     self.engaged = True
                 elif kind == "SYS_STATUS":
                     self.fw_status, self.fw_status_at = m, time.monotonic()
+            if isinstance(self.link, UdpLink):
+                self.dec.end_datagram()  # a datagram holds whole frames: no leftover joins the next one
             data = self.link.recv(0.0)
 
     def wait_for(self, t_us: int) -> None:

@@ -179,6 +179,34 @@ def test_firmware_live_survives_silence_garbage_and_restart(capture):
     assert records[-1][1] > 50_000_000 and math.isfinite(records[-1][2])
 
 
+def test_firmware_parses_each_datagram_on_its_own():
+    """A datagram holds whole frames: one that ends inside a frame it started (a v2 start claiming 16 bytes of payload
+    it does not carry) is garbage, and the next datagram's frame is taken whole, not eaten as its missing bytes."""
+    port = free_port()
+    fw = subprocess.Popen([PY, "-m", "firmware_py", "--in", f"udpin:127.0.0.1:{port}"], stderr=subprocess.PIPE,
+                          text=True)  # fmt: skip
+    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    broken = b"\xfd\x10\x00\x00\x01\x01\x01\x69\x00\x00" + b"\x00" * 12
+    try:
+        time.sleep(0.6)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            for k in range(300):
+                s.sendto(broken, ("127.0.0.1", port))
+                imu = mav.highres_imu_encode(10_000 * (k + 1), 0, 0, -9.8, 0, 0, 0, 0.2, 0, 0.4, 1000.0, 0, 0, 20.0,
+                                             0x1FFF, 0)  # fmt: skip
+                s.sendto(imu.pack(mav), ("127.0.0.1", port))
+                time.sleep(0.002)
+        time.sleep(0.3)
+    finally:
+        fw.send_signal(signal.SIGTERM)
+        fw.wait(10)
+    summary = fw.stderr.read()
+    counts = {k: int(re.search(rf"(\d+) {k}", summary).group(1)) for k in ("IMU samples", "rejected", "garbage bytes")}
+    # every IMU frame decoded (taken, or judged and rejected: these are no flight's), every broken one garbage
+    assert counts == {"IMU samples": counts["IMU samples"], "rejected": 300 - counts["IMU samples"],
+                      "garbage bytes": 300 * len(broken)}, summary  # fmt: skip
+
+
 def test_mavlogdump_reads_the_firmware_log(capture, tmp_path):
     out = tmp_path / "fw.tlog"
     subprocess.run([PY, "-m", "firmware_py", "--in", str(capture), "--out", str(out)], check=True, capture_output=True)
