@@ -675,15 +675,15 @@ def run_reprocess(args, argv: list[str] | None) -> int:
     return 0
 
 
-def loss_attrs(meta, product: WindProduct) -> dict[str, str]:
-    """What the log lost, as the product's global attributes (each counted once, by the reader)."""
+def loss_attrs(meta, product: WindProduct) -> dict[str, int | str]:
+    """What the log lost, as the product's global attributes (each counted once, by the reader; counts as integers)."""
     segments = 1 if product.segment is None else int(product.segment.max()) + 1
     return {
-        "source_log_bad_frames": str(meta.bad_frames),
+        "source_log_bad_frames": int(meta.bad_frames),
         "source_log_truncated": "yes" if meta.truncated else "no",
-        "source_log_imu_samples_missing": str(meta.imu_missing),
-        "source_log_gaps": str(meta.gaps),
-        "source_log_segments": str(segments),
+        "source_log_imu_samples_missing": int(meta.imu_missing),
+        "source_log_gaps": int(meta.gaps),
+        "source_log_segments": segments,
         "source_log_losses": loss_line(meta),
         "source_log_notes": "; ".join(meta.notes) if meta.notes else "none",
     }

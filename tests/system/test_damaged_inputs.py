@@ -265,7 +265,7 @@ def test_a_reboot_log_is_reprocessed_in_two_segments(capture, capsys, tmp_path):
         assert np.allclose(boot[:n0], boot[n0 : 2 * n0])  # each boot its own run: the same estimates
         assert np.allclose(ds["eastward_wind"].values[:n0], ds["eastward_wind"].values[n0 : 2 * n0])
         assert ds["flags"].values[n0] & 2  # segment_start
-        assert ds.attrs["source_log_segments"] == "2"
+        assert ds.attrs["source_log_segments"] == 2
     rc, err = fw_on(two, tmp_path / "fw.tlog", capsys)
     assert rc == 0 and "1 reboot" in err
 
