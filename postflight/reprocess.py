@@ -739,6 +739,9 @@ def _write_profile(product: WindProduct, out: str, plot: str | None, history: st
     return paths
 
 
+MISFIT_DOUBT_SHARE = 0.5  # the consistency monitor flagged more of the flight than this: the summary doubts the design
+
+
 def _summary(p: WindProduct, meta, wall_s: float) -> str:
     known = (p.flags & FLAG_WIND_UNKNOWN) == 0
     segments = int(np.count_nonzero(p.flags & FLAG_SEGMENT_START))
@@ -751,6 +754,10 @@ def _summary(p: WindProduct, meta, wall_s: float) -> str:
         wind = "the wind is NOT known anywhere in this flight (accuracy too poor: not a tethered balloon?)"
     baro = "" if meta.has_baro else ", NO barometer: height unknown"
     log_segments = 1 if p.segment is None else int(p.segment.max()) + 1
+    misfit = float(np.mean(p.consistency_flags != 0)) if p.consistency_flags is not None else 0.0
+    # most of the flight unexplained: the first thing to doubt is the design the log was reprocessed with
+    doubt = (f"; the model did not explain the data {misfit:.0%} of the time (consistency_flags): is the design "
+             f"(--config) this flight's?") if misfit > MISFIT_DOUBT_SHARE else ""  # fmt: skip
     return (f"{meta.source}: {len(p.time_s)} estimates over {p.time_s[-1] - p.time_s[0]:.0f} s, {log_segments} log "
             f"segment{'s' if log_segments != 1 else ''}, {segments} smoother segments, "
-            f"{wind}{baro}; {wall_s:.1f} s")  # fmt: skip
+            f"{wind}{baro}{doubt}; {wall_s:.1f} s")  # fmt: skip

@@ -4,6 +4,7 @@ user runs it; real autopilot logs that are not balloons; user errors."""
 from __future__ import annotations
 
 import hashlib
+import re
 import subprocess
 import sys
 
@@ -210,3 +211,19 @@ def test_without_a_compiler_reprocess_runs_the_python_core_and_agrees_with_the_c
             np.testing.assert_allclose(a, b, rtol=1e-7, atol=1e-10, err_msg=f.name)
         else:
             assert np.array_equal(a, b), f.name
+
+
+def test_a_flight_the_design_does_not_explain_makes_the_summary_doubt_the_design(flight):
+    """Reprocessed with the wrong tether (50 m for a 100 m flight: a valid design, not this flight's), the consistency
+    monitor flags most of the flight and the summary says what to doubt first; with the flight's own design it does
+    not."""
+    d, tlog, _ = flight
+    wrong = d / "wrong-tether.toml"
+    wrong.write_text("[tether]\nlength_m = 50.0\n")
+    doubt = "is the design (--config) this flight's?"
+    r = gs("reprocess", tlog, "--out", d / "wrong.nc", "--config", wrong, "--quiet")
+    assert r.returncode == 0 and doubt in r.stdout, r.stdout + r.stderr
+    share = int(re.search(r"did not explain the data (\d+)% of the time", r.stdout).group(1))
+    assert share > 50
+    r = gs("reprocess", tlog, "--out", d / "right.nc", "--quiet")
+    assert r.returncode == 0 and doubt not in r.stdout, r.stdout + r.stderr
