@@ -106,6 +106,46 @@ class Progress:
 
 # ---------------------------------------------------------------- clients
 
+#: the whole connection to a --scheduler (TCP connect, Dask's handshake and its first reply) ends within this
+SCHEDULER_TIMEOUT_S = 10.0
+
+
+class NoScheduler(Exception):
+    """No Dask scheduler answers at the address: nothing listens, or something else does (a banner, silence)."""
+
+
+def check_scheduler(address: str, timeout_s: float | None = None) -> None:
+    """Ask ``address`` who it is, the whole exchange under one deadline: a NoScheduler unless a Dask
+    scheduler answers. (``Client(address, timeout=...)`` bounds only the TCP connect: a silent peer hangs its
+    handshake for ever, and a peer that sends a banner first has it read as a frame length.)"""
+    import asyncio
+
+    from distributed.comm import connect
+    from distributed.security import Security
+
+    timeout_s = SCHEDULER_TIMEOUT_S if timeout_s is None else timeout_s
+
+    async def ask() -> Any:
+        comm = await connect(address, timeout=timeout_s, **Security().get_connection_args("client"))
+        try:
+            await comm.write({"op": "identity"})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    try:
+        reply = asyncio.run(asyncio.wait_for(ask(), timeout_s))
+    except TimeoutError:
+        raise NoScheduler(f"no answer within {timeout_s:g} s") from None
+    except (OSError, ValueError) as e:  # refused, no route, a name that does not resolve, a protocol Dask lacks
+        raise NoScheduler(str(e).splitlines()[0] if str(e) else type(e).__name__) from None
+    except Exception as e:  # noqa: BLE001 - whatever a peer that is no Dask makes the handshake raise
+        raise NoScheduler(f"what listens there does not speak Dask ({type(e).__name__})") from None
+    if not isinstance(reply, dict) or reply.get("type") != "Scheduler":
+        kind = reply.get("type") if isinstance(reply, dict) else None
+        raise NoScheduler(f"what answers there is a Dask {kind}, not a scheduler" if kind
+                                   else "what answers there is not a Dask scheduler")  # fmt: skip
+
 
 @contextlib.contextmanager
 def dask_client(workers: int | None = None, scheduler: str | None = None) -> Iterator[Any]:
@@ -114,7 +154,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
     from distributed import Client, LocalCluster
 
     if scheduler:
-        with Client(scheduler, timeout="10s") as client:
+        with Client(scheduler, timeout=f"{SCHEDULER_TIMEOUT_S:g}s") as client:
             yield client
         return
     n = workers or os.cpu_count() or 1
@@ -133,18 +173,21 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
     finally:
         signal.signal(signal.SIGINT, previous)
     with dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"}):
-        # a Ctrl-C while the cluster starts is held until it is up (interrupting its start-up leaves
-        # half-made nannies that print tracebacks at exit), then raised: the cluster closes cleanly
+        # a Ctrl-C (or SIGTERM) while the cluster starts is held until it is up (interrupting its start-up
+        # leaves half-made nannies that print tracebacks at exit), then delivered to this process's own
+        # handler: the KeyboardInterrupt it raises closes the cluster cleanly
         pressed: list[int] = []
-        previous = signal.signal(signal.SIGINT, lambda *_: pressed.append(1))
+        held = (signal.SIGINT, signal.SIGTERM)
+        previous = {s: signal.signal(s, lambda signum, _: pressed.append(signum)) for s in held}
         try:
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=dashboard,
                                    silence_logs=logging.ERROR)  # fmt: skip
         finally:
-            signal.signal(signal.SIGINT, previous)
+            for s in held:
+                signal.signal(s, previous[s])
         with cluster:
             if pressed:
-                raise KeyboardInterrupt
+                signal.raise_signal(pressed[0])
             with Client(cluster) as client:
                 yield client
 

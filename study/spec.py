@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from balloon_core.config import ConfigError, Design, LiftError, design_from_dict, read_toml
-from balloon_core.userargs import MAX_DURATION_S
+from balloon_core.userargs import MAX_DURATION_S, MAX_SEED
 from firmware_py.estimator.state import FilterConfig
 from sim_hil.dynamics import TruthConfig
 from sim_hil.scenarios import SCENARIOS, Scenario
@@ -53,6 +53,9 @@ SECTIONS: dict[str, type] = {
 STUDY_KEYS = ("base", "seeds", "duration_s", "start_s", "combine", "metrics")
 SWEEP_KEYS = ("name", "combine", "axes")
 MIN_SCORED_S = 30.0
+#: the most cases (points x seeds, over all sweeps) one run takes: the client holds the resolved case list
+#: (1-5 kB a case) and every row in memory, 0.6-3 GB at this size (docs/study.md, "A 100 000-case sweep")
+MAX_CASES = 500_000
 #: bump when a metric's definition changes: stored parts of older versions are not reused
 METRICS_VERSION = 1
 
@@ -162,6 +165,7 @@ def parse_spec(data: dict[str, Any]) -> Spec:
         raise ConfigError(f"sweep names must differ, got {names}")
     axis_names = tuple(dict.fromkeys(a.name for sw in sweeps for a in sw.axes))
     spec = Spec(base, overrides, sweeps, seeds, duration, start, metrics, axis_names)
+    check_size(spec)
     validate_designs(spec)
     return spec
 
@@ -229,6 +233,8 @@ def grid_values(name: str, raw: dict) -> tuple[float, ...]:
     num = raw["num"]
     if not isinstance(num, int) or isinstance(num, bool) or num < 0:
         raise ConfigError(f"axis '{name}': num must be a whole number >= 0, got {num!r}")
+    if num > MAX_CASES:  # before the grid is made
+        raise ConfigError(f"axis '{name}': num must be at most {MAX_CASES} (the most cases of a study), got {num}")
     return tuple(round(float(x), 12) for x in np.linspace(start, stop, num))
 
 
@@ -269,14 +275,33 @@ def number(what: str, v: Any) -> float:
 
 def parse_seeds(v: Any) -> tuple[int, ...]:
     if isinstance(v, int) and not isinstance(v, bool):
-        if v < 1:
-            raise ConfigError(f"[study] seeds must be >= 1, got {v}")
+        if not 1 <= v <= MAX_CASES:  # before the seeds are made
+            raise ConfigError(f"[study] seeds must be 1 .. {MAX_CASES} (the most cases of a study), got {v}")
         return tuple(range(1, v + 1))
-    if isinstance(v, list) and v and all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in v):
+    if isinstance(v, list) and v and all(isinstance(s, int) and not isinstance(s, bool) for s in v):
+        for s in v:  # the range of balloon-sim --seed
+            if not 0 <= s <= MAX_SEED:
+                raise ConfigError(f"[study] seeds: a seed must be 0 .. {MAX_SEED}, got {s}")
         if len(set(v)) != len(v):
             raise ConfigError(f"[study] seeds repeats a seed: {v}")
         return tuple(v)
     raise ConfigError(f"[study] seeds must be a count >= 1 or a non-empty list of whole numbers, got {v!r}")
+
+
+def n_cases(spec: Spec) -> int:
+    """How many cases ``spec.cases()`` makes, counted without making them."""
+    n_points = 0
+    for sw in spec.sweeps:
+        sizes = [len(a.values) for a in sw.axes]  # zip: all of one length (parse_sweep); no axes: one point
+        n_points += (sizes[0] if sizes else 1) if sw.combine == "zip" else math.prod(sizes)
+    return n_points * len(spec.seeds)
+
+
+def check_size(spec: Spec) -> None:
+    n = n_cases(spec)
+    if n > MAX_CASES:
+        raise ConfigError(f"the study has {n} cases (points x seeds); one run takes at most {MAX_CASES} "
+                          "(fewer points or seeds, or the sweeps in several files)")  # fmt: skip
 
 
 def parse_metrics(v: Any) -> tuple[str, ...]:
