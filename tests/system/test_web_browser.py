@@ -107,6 +107,11 @@ def test_two_balloons_shown_as_sent_then_sensors_lost_then_stale(browser):
         srv.stop(signal.SIGTERM)
 
 
+def own_errors(page) -> list[str]:
+    """The page's console errors but those of the refused connections while the server was down (the browser's)."""
+    return [e for e in page.errors if "WebSocket" not in e and "ERR_CONNECTION_REFUSED" not in e]
+
+
 def test_the_page_reconnects_after_the_server_restarts(browser):
     port = free_udp_port()
     srv = WebServer(f"udpin:127.0.0.1:{port}")
@@ -124,8 +129,7 @@ def test_the_page_reconnects_after_the_server_restarts(browser):
         assert wait_until(lambda: page.page.locator("#conn").inner_text() == "live", 10.0)
         page.page.wait_for_selector('article[data-sysid="2"] [data-k="state"]:text("OK")', timeout=10000)
         assert not banner.is_visible()
-        # a console error for the refused connections while the server was down is the browser's, not the page's
-        assert not [e for e in page.errors if "WebSocket" not in e and "ERR_CONNECTION_REFUSED" not in e], page.errors
+        assert not own_errors(page), page.errors
     finally:
         feed.stop.set()
         page.close()
@@ -199,7 +203,7 @@ def test_a_restarted_server_replaces_what_the_page_shows(browser):
         page.page.wait_for_selector('article[data-sysid="2"] [data-k="state"]:text("OK")', timeout=10000)
         assert page.page.locator('article[data-sysid="3"]').count() == 0
         assert not page.page.locator("#waiting").is_visible()
-        assert not [e for e in page.errors if "WebSocket" not in e and "ERR_CONNECTION_REFUSED" not in e], page.errors
+        assert not own_errors(page), page.errors
     finally:
         feed.stop.set()
         page.close()
