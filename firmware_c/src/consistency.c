@@ -74,8 +74,8 @@ void bw_consistency_evaluate(bw_consistency_t *m)
     bw_real worst = BW_R(1.0);
     int i;
     for (i = 0; i < BW_N_SOURCES; i++) {
-        if (m->nis[i] > (bw_real)BW_FLAG_NIS)
-            flags |= 1 << i;
+        if (m->nis[i] > (bw_real)BW_FLAG_NIS || ((m->flags >> i & 1) && m->nis[i] > (bw_real)BW_FLAG_NIS_CLEAR))
+            flags |= 1 << i; /* set above FLAG_NIS, cleared below FLAG_NIS_CLEAR (consistency.py evaluate) */
         if (m->nis[i] > worst)
             worst = m->nis[i];
     }

@@ -122,6 +122,7 @@
 #define BW_CONSISTENCY_S 20.0
 #define BW_NIS_CLIP 25.0
 #define BW_FLAG_NIS 2.0
+#define BW_FLAG_NIS_CLEAR 1.5
 #define BW_SLOW_INNOV_S 10.0
 #define BW_HEADING_MISFIT_RATIO 2.0
 #define BW_N_SOURCES 6

@@ -16,8 +16,8 @@ every step the measurements pull the balloon back by the same amount. The innova
 their mean pull on the velocity, over the window, does not.
 
 What the monitor does with it:
-- ``flags``: one bit per source whose windowed NIS is above ``FLAG_NIS``; the firmware reports them
-  (SYS_STATUS, a STATUSTEXT when they change, the summary) and the products carry them;
+- ``flags``: one bit per source whose windowed NIS is above ``FLAG_NIS`` (until it is below ``FLAG_NIS_CLEAR``); the
+  firmware reports them (SYS_STATUS, a STATUSTEXT when they change, the summary) and the products carry them;
 - ``inflation``: the factor on the reported wind accuracy, the square root of the largest windowed
   NIS (>= 1): innovations sqrt(NIS) times larger than the filter expects say its errors are too.
 
@@ -51,6 +51,10 @@ ACCEL, ALIGN, RADIUS, BARO, MAG, FORCE = range(len(SOURCES))
 CONSISTENCY_S = 20.0  # averaging time of each source's NIS
 NIS_CLIP = 25.0  # one innovation counts at most as a 5-sigma one: a transient does not rule the window
 FLAG_NIS = 2.0  # a windowed NIS above this flags the source: its innovations are 1.4x their expectation
+# a flagged source is cleared once its windowed NIS is below this (1.2x): a NIS that hovers about FLAG_NIS does not
+# flip the flag, and its STATUSTEXT, every few seconds (a four-hour field-all through balloon-fw: 119 STATUSTEXT
+# about it at 2.0 alone, 61 with this)
+FLAG_NIS_CLEAR = 1.5
 # the accelerometer's slow innovation (``field_tilt_reading``) is low-passed over this long: longer than the rope's
 # waves and the balloon's response to a gust (seconds), shorter than the attitude's wander about the field's axis
 # (tens of seconds); over 20 s it lost what turns a 1.9 m/s multisine's heading (envelope flight 181: 3.4 % beyond 3
@@ -141,11 +145,12 @@ class Consistency:
         self.lean_misfit += alpha * (misfit_rad - self.lean_misfit)
 
     def evaluate(self) -> None:
-        """The flags and the accuracy factor from the windowed NIS."""
+        """The flags (set above FLAG_NIS, cleared below FLAG_NIS_CLEAR) and the accuracy factor from the windowed
+        NIS (the factor follows the NIS itself: the flags are what is said, not what is stated)."""
         flags = 0
         worst = 1.0
         for i, v in enumerate(self.nis):
-            if v > FLAG_NIS:
+            if v > FLAG_NIS or (self.flags >> i & 1 and v > FLAG_NIS_CLEAR):
                 flags |= 1 << i
             if v > worst:
                 worst = v
