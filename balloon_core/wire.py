@@ -231,7 +231,16 @@ class Decoder:
         self.stats = stats
         self.fast = fastmav.decode if fast else None
 
-    def feed(self, data: bytes) -> list:
+    def feed(self, data: bytes, datagram: bool = False) -> list:
+        """The messages in ``data``; a ``datagram`` (a link's ``datagrams``) is whole: what is left of it after its
+        frames is garbage (``end_datagram``), not the start of the next one's."""
+        try:
+            return self._feed(data)
+        finally:
+            if datagram:
+                self.end_datagram()
+
+    def _feed(self, data: bytes) -> list:
         self.stats.bytes += len(data)
         out = []
         try:
@@ -389,6 +398,8 @@ class UdpLink:
     """``udpin:HOST:PORT`` (bind and listen; replies go to the last sender) or ``udpout:HOST:PORT``
     (send there; packets coming back are read too)."""
 
+    datagrams = True  # each recv is one datagram, whole frames (Decoder.feed)
+
     def __init__(self, spec: str) -> None:
         kind, host, port = spec.split(":", 2)
         # no SO_REUSEADDR: a port another program holds (pymavlink, MAVProxy and QGroundControl set it)
@@ -451,6 +462,8 @@ def serial_port(spec: str) -> tuple[str, int]:
 
 class SerialLink:
     """A serial port (``/dev/ttyUSB0:57600``, ``/dev/pts/3`` or a pyserial URL: ``serial_port``)."""
+
+    datagrams = False  # one byte stream: a frame may span reads
 
     def __init__(self, spec: str) -> None:
         import serial

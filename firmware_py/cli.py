@@ -12,7 +12,7 @@ from balloon_core import userargs
 from balloon_core.atomic import Products
 from balloon_core.config import ConfigError, design_from_dict, load_toml
 from balloon_core.progress import Progress, RateMeter
-from balloon_core.wire import Decoder, LinkStats, UdpLink, capture_messages, open_link, open_sink
+from balloon_core.wire import Decoder, LinkStats, capture_messages, open_link, open_sink
 from firmware_c.build import BuildError
 from firmware_py.app import Firmware, OutputConfig
 from firmware_py.estimator.state import FilterConfig
@@ -85,7 +85,6 @@ def run_live(fw: Firmware, spec: str, stop, progress: Progress | None = None,
     # an autopilot on the link that does not stream its sensors fast enough is asked to (streams.py)
     fw.streams = streams = StreamRequester(fw.mav, fw.sampler, fw.est.cfg.imu_rate_hz)
     dec = Decoder(fw.stats)
-    datagrams = isinstance(link, UdpLink)  # each parsed on its own (a serial port is one stream)
     # what a ground station sends back on the output link (its requests: firmware_py/gcs.py), read too
     back = {s: Decoder(LinkStats()) for s in fw.sinks if s is not link and hasattr(s, "recv")}
     last_rx = time.monotonic()
@@ -103,20 +102,16 @@ def run_live(fw: Firmware, spec: str, stop, progress: Progress | None = None,
                 return True
             if data:
                 last_rx = now
-                for m in dec.feed(data):
+                for m in dec.feed(data, link.datagrams):
                     fw.handle(m, link)
                     streams.on_message(m, now)
-                if datagrams:
-                    dec.end_datagram()  # a datagram holds whole frames: what is left is garbage, not the next's start
             elif now - last_rx > 0.5 and now - last_emit > 0.1:
                 fw.coast(now)
                 last_emit = now
             for sink, gdec in back.items():
-                for m in gdec.feed(sink.recv(0.0)):
+                for m in gdec.feed(sink.recv(0.0), sink.datagrams):
                     if not fw.sampler.is_sensor(m):  # the sensors come on --in
                         fw.handle(m, sink)
-                if isinstance(sink, UdpLink):
-                    gdec.end_datagram()
             for frame in streams.poll(now):
                 link.send(frame)
             if progress is not None and now >= next_status:

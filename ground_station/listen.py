@@ -34,7 +34,7 @@ from rich.table import Table
 from rich.text import Text
 
 from balloon_core.progress import fmt_duration, stream_is_terminal
-from balloon_core.wire import Decoder, LinkStats, TlogSink, UdpLink, open_link, pack
+from balloon_core.wire import Decoder, LinkStats, TlogSink, open_link, pack
 from ground_station.wind import CSV_COLUMNS, WindRecord
 
 MODE_NAMES = {0: "ground", 1: "free", 2: "taut"}  # balloon-fw's HEARTBEAT custom_mode
@@ -548,7 +548,6 @@ class Receiver:
 
     def __init__(self, endpoint: str, gs: GroundStation, lock=None, on_message=None) -> None:
         self.link = open_link(endpoint)
-        self.datagrams = isinstance(self.link, UdpLink)  # each parsed on its own (a serial port is one stream)
         self.endpoint = endpoint
         self.gs = gs
         self.dec = Decoder(gs.stats)
@@ -561,11 +560,9 @@ class Receiver:
         now = time.monotonic()
         with self.lock:
             if data:
-                for m in self.dec.feed(data):
+                for m in self.dec.feed(data, self.link.datagrams):
                     if self.gs.handle(m, now) and self.on_message is not None:
                         self.on_message(m, now)
-                if self.datagrams:
-                    self.dec.end_datagram()
             if now >= self._next_hb:
                 self.link.send(self.gs.heartbeat())
                 ground = self.gs.ground_reference()

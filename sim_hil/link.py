@@ -15,7 +15,7 @@ import sys
 import time
 
 from balloon_core import userargs
-from balloon_core.wire import Decoder, LinkStats, UdpLink, open_link
+from balloon_core.wire import Decoder, LinkStats, open_link
 from sim_hil.packets import SensorPacketEncoder
 from sim_hil.simulator import Simulation
 
@@ -40,7 +40,7 @@ class Lockstep:
     def poll(self, wait_s: float) -> None:
         data = self.link.recv(wait_s)
         while data:
-            for m in self.dec.feed(data):
+            for m in self.dec.feed(data, self.link.datagrams):
                 kind = m.get_type()
                 if kind == "WIND_COV":
                     if m.time_usec <= self.sent_us:  # not a stale one from before a restart
@@ -48,8 +48,6 @@ class Lockstep:
                     self.engaged = True
                 elif kind == "SYS_STATUS":
                     self.fw_status, self.fw_status_at = m, time.monotonic()
-            if isinstance(self.link, UdpLink):
-                self.dec.end_datagram()  # a datagram holds whole frames: no leftover joins the next one
             data = self.link.recv(0.0)
 
     def wait_for(self, t_us: int) -> None:
