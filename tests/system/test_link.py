@@ -41,6 +41,21 @@ def procs_with(text: str) -> list[int]:
     return out
 
 
+def udp_bound(port: int, timeout_s: float = 30.0) -> bool:
+    """Wait until a process has bound UDP ``port`` here (``/proc/net/udp``), whatever its start-up time."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        for table in ("/proc/net/udp", "/proc/net/udp6"):
+            try:
+                with open(table) as fh:
+                    if any(row.split()[1].endswith(f":{port:04X}") for row in fh.readlines()[1:]):
+                        return True
+            except OSError:
+                continue
+        time.sleep(0.05)
+    return False
+
+
 def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
@@ -188,7 +203,7 @@ def test_firmware_parses_each_datagram_on_its_own():
     mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
     broken = b"\xfd\x10\x00\x00\x01\x01\x01\x69\x00\x00" + b"\x00" * 12
     try:
-        time.sleep(0.6)
+        assert udp_bound(port), "balloon-fw did not bind its input port"
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             for k in range(300):
                 s.sendto(broken, ("127.0.0.1", port))
