@@ -335,3 +335,20 @@ def test_the_wind_of_a_heading_the_gyro_alone_has_held():
     assert math.isclose(gyro_heading_wind(3.0, b, 10.0), 3.0 * b * 10.0, rel_tol=1e-3)
     assert math.isclose(gyro_heading_wind(3.0, b, 120.0), 2 * 3.0 * math.sin(math.radians(30.0)), rel_tol=1e-12)
     assert gyro_heading_wind(3.0, b, 1e6) == 6.0 and gyro_heading_wind(3.0, b, 0.0) == 0.0
+
+
+def test_a_flag_is_set_above_flag_nis_and_cleared_only_below_flag_nis_clear():
+    """Hysteresis: a windowed NIS that hovers between FLAG_NIS_CLEAR and FLAG_NIS keeps what the source was (flagged
+    or not), so the flag and its STATUSTEXT do not flip with every wobble; the accuracy factor follows the NIS."""
+    from firmware_py.estimator.consistency import ACCEL, BARO, FLAG_NIS, FLAG_NIS_CLEAR, Consistency
+
+    mid = 0.5 * (FLAG_NIS + FLAG_NIS_CLEAR)
+    mon = Consistency()
+    seen = []
+    for accel, baro in ((mid, mid), (FLAG_NIS * 1.1, mid), (mid, mid), (FLAG_NIS_CLEAR * 0.9, mid)):
+        mon.nis[ACCEL], mon.nis[BARO] = accel, baro
+        mon.evaluate()
+        seen.append((mon.flags >> ACCEL & 1, mon.flags >> BARO & 1))
+        assert mon.inflation == pytest.approx(max(accel, baro) ** 0.5)
+    assert seen == [(0, 0), (1, 0), (1, 0), (0, 0)]
+    assert mon.flag_changes == 2
