@@ -15,9 +15,9 @@ one flown (the truth's C_d over the design's) and the RMS of each term of the re
 monitor's mean factor and its windowed NIS per source (the accelerometer's also per body axis, the mean of its
 samples'); how far the barometer offset state walked in its worst 20 s against its own stated 1-sigma (the rope
 model's disagreement with the barometer, which no single innovation shows); the accelerometer's misfit along the
-rope against the truth's acceleration there and the spread of the rope's tension; and the attitude's RMS error about
-the magnetic field's axis (which the magnetometer cannot see) against its stated 1-sigma, with its correlation with
-the wind's error across the mean wind."""
+rope against the truth's acceleration there and the rope's tension (mean and spread); and the attitude's RMS error
+about the magnetic field's axis (which the magnetometer cannot see) against its stated 1-sigma, with its correlation
+with the wind's error across the mean wind, and the balloon's own position and velocity errors across it."""
 
 from __future__ import annotations
 
@@ -37,7 +37,7 @@ from balloon_core.score import score  # noqa: E402
 from benchmarks.bench_envelope import sample, sections_of  # noqa: E402
 from firmware_py.estimator.consistency import NIS_CLIP, SOURCES, lean_misfit_wind, systematic_variance  # noqa: E402
 from firmware_py.estimator.control import Estimator  # noqa: E402
-from firmware_py.estimator.state import ATT_D, ATT_N, BARO_OFF, DRAG, MODE_TAUT  # noqa: E402
+from firmware_py.estimator.state import ATT_D, ATT_N, BARO_OFF, DRAG, MODE_TAUT, POS_E, POS_N, VEL_E, VEL_N  # noqa: E402
 from sim_hil.scenarios import SCENARIOS  # noqa: E402
 from sim_hil.simulator import TRUTH_COLUMNS, Simulation  # noqa: E402
 from study.spec import build, scenario_sections  # noqa: E402
@@ -103,6 +103,8 @@ def terms(point: dict, duration_s: float, settings: tuple[str, ...] = ()) -> dic
                 *ekf.P[ATT_N : ATT_D + 1, ATT_N : ATT_D + 1].ravel(),
                 est.field_extra_variance(),
                 est.consistency.slow_tilt,
+                *ekf.x[POS_N : POS_E + 1].tolist(),
+                *ekf.x[VEL_N : VEL_E + 1].tolist(),
             )
         )
         rb = rotation(*ekf.q.tolist())
@@ -145,7 +147,8 @@ def about_field(att: np.ndarray, r: np.ndarray, truth: dict, tn: np.ndarray, te:
     """The attitude's error about the magnetic field's axis (true = (I + [d x]) estimate, d . b), RMS in deg, its
     stated 1-sigma (sqrt(b' P_att b), and with what P does not hold there: consistency.field_attitude_extra and
     consistency.heading_misfit_variance), the accelerometer's slow innovation read as that rotation (RMS in deg, its
-    correlation with the error) and the correlation of the error with the wind's error across the mean wind (m/s)."""
+    correlation with the error) and the correlation of the error with the wind's error across the mean wind (m/s); the
+    balloon's position and velocity errors across the mean wind (RMS) and the velocity's correlation with the wind's."""
     eb, sb, sx = [], [], []
     for row, (t, *_rest) in zip(att, r):
         ri = [float(np.interp(t, truth["time_s"], truth[c])) for c in ("roll_deg", "pitch_deg", "yaw_deg")]
@@ -158,7 +161,16 @@ def about_field(att: np.ndarray, r: np.ndarray, truth: dict, tn: np.ndarray, te:
     cross = -(r[:, 1] - tn) * math.sin(ang) + (r[:, 2] - te) * math.cos(ang)
     eb_a, slow = np.array(eb), att[:, 17]
     corr, slow_corr = correlation(eb_a, cross), correlation(eb_a, slow)
-    return {"about_field_deg": math.degrees(math.sqrt(np.mean(eb_a**2))),
+    # the balloon's own position and velocity across the mean wind: a wind error that is the velocity's leaves the
+    # drag as it was (the air relative to the balloon), and only the tether's pull across tells the position
+    t = r[:, 0]
+    at = lambda c: np.interp(t, truth["time_s"], truth[c])  # noqa: E731
+    pos_cross = -(att[:, 18] - at("pos_n")) * math.sin(ang) + (att[:, 19] - at("pos_e")) * math.cos(ang)
+    vel_cross = -(att[:, 20] - at("vel_n")) * math.sin(ang) + (att[:, 21] - at("vel_e")) * math.cos(ang)
+    return {"cross_position_error_m": float(np.sqrt(np.mean(pos_cross**2))),
+            "cross_velocity_error_mps": float(np.sqrt(np.mean(vel_cross**2))),
+            "cross_velocity_corr": correlation(vel_cross, cross),
+            "about_field_deg": math.degrees(math.sqrt(np.mean(eb_a**2))),
             "slow_innovation_deg": math.degrees(math.sqrt(np.mean(slow**2))), "slow_innovation_corr": slow_corr,
             "about_field_sigma_deg": math.degrees(math.sqrt(np.mean(sb))),
             "about_field_stated_deg": math.degrees(math.sqrt(np.mean(sx))),
@@ -167,11 +179,12 @@ def about_field(att: np.ndarray, r: np.ndarray, truth: dict, tn: np.ndarray, te:
 
 def along_the_rope(along: np.ndarray, t: np.ndarray, truth: dict) -> dict[str, float]:
     """The accelerometer's misfit along the body's z (the rope's axis) against the truth's acceleration along that
-    axis (its correlation: the balloon moving along its rope, which the taut model holds still) and the spread of
-    the truth's rope tension at the balloon, N."""
+    axis (its correlation: the balloon moving along its rope, which the taut model holds still) and the mean and
+    spread of the truth's rope tension at the balloon, N."""
     acc = [np.interp(t, truth["time_s"], np.gradient(truth[c], truth["time_s"])) for c in ("vel_n", "vel_e", "vel_d")]
     a_along = along[:, 1] * acc[0] + along[:, 2] * acc[1] + along[:, 3] * acc[2]
     return {"accel_z_along_corr": correlation(along[:, 0], a_along),
+            "tension_mean_n": float(np.mean(np.interp(t, truth["time_s"], truth["tension_n"]))),
             "tension_sd_n": float(np.std(np.interp(t, truth["time_s"], truth["tension_n"])))}  # fmt: skip
 
 
@@ -239,9 +252,10 @@ def main(argv: list[str] | None = None) -> int:
           "| the accelerometer's slow innovation as that rotation: RMS, deg (its correlation with the error: positive "
           "where the attitude followed a misfit, negative where the accelerometer sees the error) "
           "| its correlation with the cross-wind error (RMS) "
+          "| the balloon's position error across the wind, RMS; its velocity's (its correlation with the wind's) "
           "| accel z misfit: its correlation with the truth's acceleration along the rope; "
-          "the tension's SD |")  # fmt: skip
-    print("|---|---|---|---:|---:|---:|---:|---:|---|---:|---:|---|---|---:|---:|---:|---:|")
+          "the tension at the balloon, mean and SD |")  # fmt: skip
+    print("|---|---|---|---:|---:|---:|---:|---:|---|---:|---:|---|---|---:|---:|---:|---:|---:|")
     for f in points:
         p, w = points[f], worlds[f]
         t = terms(p, duration, tuple(a.set))
@@ -261,7 +275,10 @@ def main(argv: list[str] | None = None) -> int:
               f"{t['about_field_deg']:.2f} / {t['about_field_sigma_deg']:.2f} / {t['about_field_stated_deg']:.2f} | "
               f"{t['slow_innovation_deg']:.2f} ({t['slow_innovation_corr']:+.2f}) | "
               f"{t['about_field_cross_corr']:+.2f} ({t['cross_error']:.2f} m/s) | "
-              f"{t['accel_z_along_corr']:+.2f}; {t['tension_sd_n']:.1f} N |", flush=True)  # fmt: skip
+              f"{t['cross_position_error_m']:.2f} m; {t['cross_velocity_error_mps']:.2f} m/s "
+              f"({t['cross_velocity_corr']:+.2f}) | "
+              f"{t['accel_z_along_corr']:+.2f}; {t['tension_mean_n']:.1f} ± {t['tension_sd_n']:.1f} N |",
+              flush=True)  # fmt: skip
     return 0
 
 
