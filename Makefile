@@ -23,11 +23,13 @@ $(BENCH_STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install -q -e '.[all,test,bench]'
 	touch $(BENCH_STAMP) $(STAMP)
 
-# the suite: two workers for what runs in process or on files, then the UDP and terminal tests one at a time
+# the suite: two workers for what runs in process or on files, then two for the UDP tests (each on its own free
+# ports; they mostly wait: 2.5 minutes where one at a time took 4), then the terminal tests (tmux) one at a time
 test: $(STAMP)
 	$(BIN)/ruff check balloon_core firmware_py sim_hil ground_station postflight sil study tests benchmarks tools
 	$(BIN)/python -m pytest -n 2 -m "not network and not terminal"
-	$(BIN)/python -m pytest -m "network or terminal"
+	$(BIN)/python -m pytest -n 2 -m "network and not terminal"
+	$(BIN)/python -m pytest -m "terminal"
 
 # the quick loop: no slow, UDP, terminal or Dask tests (under 2 minutes)
 test-fast: $(STAMP)
