@@ -76,7 +76,8 @@ def score_start(duration_s: float, start_s: float | None) -> float | None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = userargs.Parser(prog=PROG, description="simulator + firmware + ground station")
-    ap.add_argument("--scenario", default="paper-reference")
+    ap.add_argument("--scenario", help="named scenario (default paper-reference, with --config the real world: "
+                    "field-rope with the file's sections)")  # fmt: skip
     ap.add_argument("--duration", type=userargs.duration, default=600.0, help="simulated seconds")
     ap.add_argument("--seed", type=userargs.seed, default=1)
     ap.add_argument("--speed", type=userargs.positive_speed, default=10.0,
@@ -86,6 +87,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--start", type=userargs.start_time,
                     help="score from this time since boot [s] (default 120, earlier for a short run)")
     args = ap.parse_args(argv)
+    from sim_hil.scenarios import scenario_name
+
+    args.scenario = scenario_name(args.scenario, args.config)
     tag = f"{args.scenario}-seed{args.seed}"
     truth = os.path.join(args.outdir, f"{tag}-truth.csv")
     gs_csv = os.path.join(args.outdir, f"{tag}-wind.csv")

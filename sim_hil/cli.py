@@ -12,7 +12,7 @@ from balloon_core.config import ConfigError
 from balloon_core.progress import Progress
 from balloon_core.wire import TlogWriter
 from sim_hil.packets import SensorPacketEncoder
-from sim_hil.scenarios import SCENARIOS, WIND_CHOICES, resolve
+from sim_hil.scenarios import SCENARIOS, WIND_CHOICES, resolve, scenario_name
 from sim_hil.simulator import Simulation, TruthCsvWriter
 
 PROG = "balloon-sim"
@@ -20,7 +20,8 @@ PROG = "balloon-sim"
 
 def build_parser() -> userargs.Parser:
     p = userargs.Parser(prog=PROG, description="Tethered-balloon HIL simulator")
-    p.add_argument("--scenario", default="paper-reference", help="named scenario (see --list-scenarios)")
+    p.add_argument("--scenario", help="named scenario (see --list-scenarios; default paper-reference, with --config "
+                   "the real world: field-rope with the file's sections)")  # fmt: skip
     p.add_argument("--duration", type=userargs.duration, default=600.0, help="simulated seconds (at most 7 days)")
     p.add_argument("--seed", type=userargs.seed, default=1, help="0 .. 2^32-1")
     p.add_argument("--out", type=userargs.sink, help="FILE.tlog or a raw FILE (as fast as possible), or a UDP "
@@ -61,6 +62,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{name:20s} {sc.description}")
         return 0
     try:
+        args.scenario = scenario_name(args.scenario, args.config)
         sc = resolve(args.scenario, args.config, args.wind)
     except ConfigError as exc:
         return userargs.fail(PROG, exc)

@@ -244,6 +244,20 @@ WIND_CHOICES = {
 }
 
 
+# what a run flies when it names no scenario: a design file alone flies the real world (the lumped rope with its own
+# drag, vertical air: the default truth of a design file), with neither the paper's reference case
+DESIGN_FILE_SCENARIO = "field-rope"
+DEFAULT_SCENARIO = "paper-reference"
+
+
+def scenario_name(name: str | None, config_path: str | None) -> str:
+    """The scenario a run flies: ``name`` if given, else DESIGN_FILE_SCENARIO with a design file (``config_path``),
+    else DEFAULT_SCENARIO."""
+    if name is not None:
+        return name
+    return DESIGN_FILE_SCENARIO if config_path else DEFAULT_SCENARIO
+
+
 def resolve(name: str, config_path: str | None = None, wind_choice: str | None = None) -> Scenario:
     """The scenario ``name``, overridden by a TOML config file's sections and a ``--wind`` choice."""
     if name not in SCENARIOS:

@@ -178,7 +178,7 @@ DERIVED = {
                           lambda d, f: _reprocess(d, "--config", f)),
     "reprocess-plot-profile": ("balloon-gs", "--plot", "p_profile.png", "design.toml",
                                lambda d, f: _reprocess(d, "--config", f, "--plot", str(d / "p.png"))),
-    "sil-design": ("balloon-sil", "--outdir", "paper-reference-seed1-design.toml", "design.toml",
+    "sil-design": ("balloon-sil", "--outdir", "field-rope-seed1-design.toml", "design.toml",  # a design file alone
                    lambda d, f: ["--config", f, "--outdir", str(d)]),
     "study-cases": ("balloon-study", "--out", "cases.csv", "spec.toml", lambda d, f: [f, "--out", str(d)]),
 }  # fmt: skip
@@ -245,8 +245,9 @@ def no_leftovers(d: Path, finals: list[Path]) -> None:
 def test_a_diverging_simulation_leaves_no_output(tmp_path: Path, capsys):
     cfg = tmp_path / "stiff.toml"
     cfg.write_text("[tether]\nlength_m = 1\n[truth]\ntether_ea_n = 1e9\nground_baro_hz = 1.0\n")
-    finals = [tmp_path / "d.tlog", tmp_path / "d.csv", tmp_path / "g.csv"]
-    code, err = run("balloon-sim", ["--config", str(cfg), "--duration", "60", "--out", str(finals[0]),
+    finals = [tmp_path / "d.tlog", tmp_path / "d.csv", tmp_path / "g.csv"]  # the paper's rope (a rod) diverges
+    code, err = run("balloon-sim", ["--scenario", "paper-reference", "--config", str(cfg), "--duration", "60",
+                                    "--out", str(finals[0]),
                                     "--truth", str(finals[1]), "--ground-csv", str(finals[2])], capsys)  # fmt: skip
     assert code == 2 and "diverged" in err
     no_leftovers(tmp_path, finals)

@@ -117,6 +117,29 @@ def test_config_file_changes_the_design(tmp_path):
     assert sc.design.tether.length_m == 100.0
 
 
+def test_a_design_file_alone_flies_the_real_world(tmp_path):
+    """A design file's default truth is the real world (the lumped rope with its own drag, vertical air): a run that
+    gives a design file and names no scenario flies it (field-rope with the file's sections), where it flew the
+    paper's reference case with the paper's rope; one that names neither flies the paper's reference case, and a
+    named scenario keeps its own world under the file."""
+    import tomllib
+
+    cfg = tmp_path / "d.toml"
+    cfg.write_text("[balloon]\nradius_m = 1.1\n")
+
+    def printed(*args: str) -> dict:
+        out = subprocess.run([sys.executable, "-m", "sim_hil", *args, "--print-config"], capture_output=True,
+                             text=True, check=True)  # fmt: skip
+        return tomllib.loads(out.stdout)
+
+    alone = printed("--config", str(cfg))
+    assert alone["truth"]["rope_model"] == "lumped" and alone["truth"]["rope_drag"] is True
+    assert alone["wind"]["vertical"] is True and alone["balloon"]["radius_m"] == 1.1
+    assert printed()["truth"]["rope_model"] == "paper"
+    named = printed("--scenario", "paper-reference", "--config", str(cfg))
+    assert named["truth"]["rope_model"] == "paper" and named["balloon"]["radius_m"] == 1.1
+
+
 @pytest.mark.parametrize("name", ["rope-drag", "realistic-mems", "multisine"])
 def test_scenario_design_file_round_trips_through_both_programs(name, tmp_path):
     from firmware_py.cli import load_config
