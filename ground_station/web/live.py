@@ -77,6 +77,23 @@ class LiveModel:
             balloons.append(b)
         return {"type": "update", **self._head(now), "balloons": balloons}
 
+    def plain_text(self, now: float) -> list[str]:
+        """Each balloon in one line of words, as the page's script would show it: its system id, its wind
+        (speed and the direction it comes FROM, or not known) and its state, STALE with the link's silence.
+        The page carries these lines for a reader without its script (``<noscript>``, ``server._index``)."""
+        lines = []
+        for v in self._vehicles():
+            r = v.last
+            state = v.state(now)
+            if state == "STALE":
+                state = f"STALE: no WIND_COV for {v.age(now):.0f} s"
+            if r.known:
+                wind = f"{r.speed_mps:.2f} m/s from {round(r.from_deg) % 360:03d}°"
+            else:
+                wind = f"wind {UNKNOWN} (not known)"
+            lines.append(f"Balloon sys {v.sysid}: {wind}, {state}")
+        return lines
+
     def _vehicles(self) -> list[Vehicle]:
         """The balloons: every system that sent WIND_COV."""
         return [v for _, v in sorted(self.gs.vehicles.items()) if v.last is not None]

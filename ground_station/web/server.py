@@ -14,6 +14,7 @@ profile's legs are in ``/product/data.json``). Anything else is 404."""
 from __future__ import annotations
 
 import asyncio
+import html
 import json
 import logging
 import mimetypes
@@ -29,7 +30,7 @@ from urllib.parse import urlsplit
 from aiohttp import WSMsgType, web
 from aiohttp.http_exceptions import HttpProcessingError
 
-from ground_station.listen import GroundStation, Receiver
+from ground_station.listen import STALE_S, GroundStation, Receiver
 from ground_station.web.aggregate import PUSH_HZ
 from ground_station.web.live import LiveModel
 
@@ -139,7 +140,17 @@ class WebStation:
         return app
 
     async def _index(self, request: web.Request) -> web.StreamResponse:
-        return self._file(self.static["index.html"])
+        """The page, with each balloon's wind and state in words for a reader without its script
+        (``<noscript>``: a browser that runs the script ignores it), refreshed every STALE_S seconds then."""
+        page = self.static["index.html"].read_text(encoding="utf-8")
+        with self.model.lock:
+            lines = self.model.plain_text(time.monotonic())
+        items = "".join(f"<li>{html.escape(line)}</li>" for line in lines)
+        refresh = f'<noscript><meta http-equiv="refresh" content="{STALE_S:g}"></noscript>'
+        page = page.replace("</head>", f"{refresh}\n</head>", 1)
+        main = '<main id="balloons"'
+        page = page.replace(main, f'<noscript><ul id="plain">{items}</ul></noscript>\n{main}', 1)
+        return web.Response(text=page, content_type="text/html", charset="utf-8")
 
     async def _static(self, request: web.Request) -> web.StreamResponse:
         path = self.static.get(request.match_info["path"])  # exact names only: no "..", no absolute path
