@@ -13,6 +13,7 @@ import os
 import re
 import stat
 import sys
+import tempfile
 from collections.abc import Callable
 from typing import NoReturn
 
@@ -67,6 +68,16 @@ def stop_flag() -> StopFlag:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda signum, _frame: flag.signals.append(signum))
     return flag
+
+
+def ctrl_c_raises() -> object:
+    """Ctrl-C (SIGINT) raises KeyboardInterrupt even when the process started with SIGINT ignored, as a shell starts
+    a background job (``balloon-sim --out x.tlog & kill -INT $!``): for runs that do not poll a ``stop_flag`` (which
+    takes SIGINT over in any case), so that every program stops on it alike (exit 130, nothing written). Returns the
+    handler it replaced."""
+    import signal
+
+    return signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 # what each optional part needs; `pip install balloon-wind` brings the firmware, simulator and live station
@@ -266,9 +277,24 @@ def output_path(path: str) -> str:
     parent = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(parent):
         raise argparse.ArgumentTypeError(f"{path}: directory {parent} does not exist")
-    if not os.access(parent, os.W_OK | os.X_OK) or (os.path.exists(path) and not os.access(path, os.W_OK)):
+    if not _can_create_in(parent) or (os.path.exists(path) and not os.access(path, os.W_OK)):
         raise argparse.ArgumentTypeError(f"{path}: not writable")
     return path
+
+
+def _can_create_in(directory: str) -> bool:
+    """Whether a file can be made in ``directory`` (each product is written beside its final name, then renamed):
+    tried with a file made and removed at once, as ``os.access`` says yes to root on a read-only file system or in
+    /sys."""
+    if not os.access(directory, os.W_OK | os.X_OK):
+        return False
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".write-check-", dir=directory)
+    except OSError:
+        return False
+    os.close(fd)
+    os.unlink(probe)
+    return True
 
 
 def plot_path(path: str) -> str:
@@ -288,7 +314,7 @@ def plot_path(path: str) -> str:
 def output_dir(path: str) -> str:
     """A directory to write into: it exists and is writable, or its parent does (it will be created)."""
     if os.path.isdir(path):
-        if not os.access(path, os.W_OK | os.X_OK):
+        if not _can_create_in(path):
             raise argparse.ArgumentTypeError(f"{path}: directory not writable")
         return path
     if os.path.exists(path):

@@ -599,10 +599,12 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"seconds per flight (quick: {QUICK_DURATION_S:g}, else {FULL_DURATION_S:g})")  # fmt: skip
     ap.add_argument("--start", type=userargs.start_time, default=120.0, help="scoring starts here, s")
     ap.add_argument("--out", default="out/envelope", help="output directory (default out/envelope)")
-    ap.add_argument("--serial", action="store_true", help="in this process, no Dask")
-    ap.add_argument("--workers", type=userargs.count, help="Dask workers (default: one per core)")
-    ap.add_argument("--scheduler", type=userargs.scheduler_address,
-                    help="a running Dask scheduler, tcp://HOST:PORT (instead of local workers)")  # fmt: skip
+    where = ap.add_mutually_exclusive_group()  # [--workers N | --scheduler tcp://HOST:PORT] (or --serial)
+    where.add_argument("--serial", action="store_true", help="in this process, no Dask")
+    where.add_argument("--workers", type=userargs.count, help="Dask workers (default: one per core; at most 4 per "
+                       "core)")  # fmt: skip
+    where.add_argument("--scheduler", type=userargs.scheduler_address,
+                       help="a running Dask scheduler, tcp://HOST:PORT (instead of local workers)")  # fmt: skip
     ap.add_argument("--cd-sigma", type=float, default=CD_SIGMA,
                     help=f"1-sigma of what the user knows of the balloon's C_d, relative (default {CD_SIGMA:g}: "
                          "a sphere's from the literature; 0.02: measured); the truth's drawn with it, the filter "
@@ -627,10 +629,29 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bench_envelope: error: --start {args.start:g} must be before the flight's end ({duration:g} s)",
               file=sys.stderr)  # fmt: skip
         return 2
+    most = 4 * (os.cpu_count() or 1)  # as balloon-study: more only time-share the cores
+    if args.workers is not None and args.workers > most:
+        return userargs.fail("bench_envelope", f"--workers must be 1 .. {most} (4 per core; a bigger cluster is "
+                             f"--scheduler), got {args.workers}")  # fmt: skip
     try:
         out = output_directory(args.out)
+        if args.scheduler:  # before any work: a scheduler that answers
+            try:
+                engine.check_scheduler(args.scheduler)
+            except engine.NoScheduler as exc:
+                raise userargs.UserError(f"no Dask scheduler at {args.scheduler}: {exc}") from None
     except userargs.UserError as exc:
         return userargs.fail("bench_envelope", exc)
+    userargs.ctrl_c_raises()  # (also when started in the background)
+    try:
+        return _run(args, out, n, duration)
+    except KeyboardInterrupt:
+        print(f"bench_envelope: interrupted; the finished flights are kept in {out / 'parts'}: run the same command "
+              "again to resume", file=sys.stderr)  # fmt: skip
+        return 130
+
+
+def _run(args, out: Path, n: int, duration: float) -> int:
     import pandas as pd
 
     out.mkdir(parents=True, exist_ok=True)

@@ -19,7 +19,7 @@ def main(argv: list[str] | None = None) -> int:
     li.add_argument("endpoint", type=userargs.link, help="udpin:0.0.0.0:14550, udpout:HOST:PORT, /dev/ttyUSB0:57600")
     li.add_argument("--csv", type=userargs.output_path, help="log every WIND_COV to this CSV")
     li.add_argument("--tlog", type=userargs.output_path, help="log every received frame to this tlog")
-    li.add_argument("--duration", type=userargs.positive_float, help="stop after this many seconds")
+    li.add_argument("--duration", type=userargs.duration, help="stop after this many seconds")
     li.add_argument("--ground-pressure", type=userargs.input_file, metavar="CSV",
                     help="send the newest reading of this ground-barometer CSV (a logger appends to it) up the "
                          "link each second as the ground reference")  # fmt: skip

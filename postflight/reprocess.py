@@ -600,10 +600,11 @@ def run_reprocess(args, argv: list[str] | None) -> int:
     import shlex
 
     from balloon_core.atomic import Products, sigterm_raises
-    from balloon_core.userargs import require_extra
+    from balloon_core.userargs import ctrl_c_raises, require_extra
 
     require_extra("postflight")  # before any work: a missing extra is one line, exit 2
     sigterm_raises()  # SIGTERM ends the run like Ctrl-C: its temporary files are removed
+    ctrl_c_raises()
 
     from balloon_core.config import ConfigError, design_from_dict, load_toml
     from balloon_core.progress import Progress

@@ -83,6 +83,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             if not (args.out and userargs.is_link(args.out)):
                 sigterm_raises()  # a file run: SIGTERM ends it like Ctrl-C, its temporary files removed
+                userargs.ctrl_c_raises()
             truth_csv = TruthCsvWriter(products.path(args.truth)) if args.truth else None
             code = _run(args, sc, truth_csv, products)
             if code == 0:

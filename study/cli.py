@@ -118,6 +118,7 @@ def load(args):
 def main(argv: list[str] | None = None) -> int:
     main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _terminate) if main_thread else None
+    previous_int = userargs.ctrl_c_raises() if main_thread else None  # also when started in the background
     try:
         return _main(argv)
     except KeyboardInterrupt as e:  # before the sweep started (while parsing, validating, starting the cluster)
@@ -126,6 +127,7 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if main_thread:
             signal.signal(signal.SIGTERM, previous)
+            signal.signal(signal.SIGINT, previous_int)
 
 
 def _main(argv: list[str] | None) -> int:
