@@ -75,6 +75,19 @@ def _ignore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # as a shell starts a background job: `prog & kill -INT $!`
 
 
+def _interrupted_once(p: subprocess.Popen, ready, within_s: float) -> str:
+    """SIGINT to ``p`` once ``ready()`` (it must be within ``within_s`` and while ``p`` runs); its stderr."""
+    try:
+        end = time.monotonic() + within_s
+        while not ready():
+            assert p.poll() is None and time.monotonic() < end, p.communicate()
+            time.sleep(0.05)
+        p.send_signal(signal.SIGINT)
+        return p.communicate(timeout=60)[1]
+    finally:
+        p.kill()
+
+
 @pytest.mark.slow
 def test_ctrl_c_stops_a_file_simulation_started_in_the_background(tmp_path: Path):
     """SIGINT to a file run of balloon-sim started with SIGINT ignored (a shell's background job): exit 130, nothing
@@ -83,51 +96,17 @@ def test_ctrl_c_stops_a_file_simulation_started_in_the_background(tmp_path: Path
     p = subprocess.Popen([sys.executable, "-m", "sim_hil", "--duration", "7200", "--quiet", "--out", str(finals[0]),
                           "--truth", str(finals[1])], stderr=subprocess.PIPE, text=True,
                          preexec_fn=_ignore_sigint)  # fmt: skip
-    try:
-        end = time.monotonic() + 60
-        while not any(f.stat().st_size > 0 for f in tmp_path.glob(".long.part-*")):
-            assert p.poll() is None and time.monotonic() < end, p.communicate()
-            time.sleep(0.05)
-        p.send_signal(signal.SIGINT)
-        _, err = p.communicate(timeout=60)
-    finally:
-        p.kill()
+    err = _interrupted_once(p, lambda: any(f.stat().st_size > 0 for f in tmp_path.glob(".long.part-*")), 60.0)
     assert p.returncode == 130, err
     assert "Traceback" not in err
     assert not list(tmp_path.iterdir())
-
-
-@pytest.mark.slow
-def test_ctrl_c_stops_a_reprocess_started_in_the_background(tmp_path: Path):
-    flight = tmp_path / "flight.tlog"
-    assert sim_cli.main(["--duration", "300", "--quiet", "--out", str(flight)]) == 0
-    p = subprocess.Popen([sys.executable, "-m", "ground_station", "reprocess", str(flight), "--out",
-                          str(tmp_path / "w.nc")], stderr=subprocess.PIPE, text=True,
-                         preexec_fn=_ignore_sigint)  # fmt: skip
-    try:
-        line = p.stderr.readline()  # the reader has opened the flight: the run is under way
-        assert "balloon-gs reprocess" in line, line
-        p.send_signal(signal.SIGINT)
-        _, err = p.communicate(timeout=60)
-    finally:
-        p.kill()
-    assert p.returncode == 130, line + err
-    assert sorted(x.name for x in tmp_path.iterdir()) == ["flight.tlog"]
 
 
 def _interrupted_after_first_case(argv: list[str], out: Path, ignore: bool) -> tuple[int, str]:
     """Run ``python -m ...argv`` until its first finished case is in ``out/parts``, then SIGINT it."""
     p = subprocess.Popen([sys.executable, "-m", *argv], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
                          cwd=Path(__file__).parents[2], preexec_fn=_ignore_sigint if ignore else None)  # fmt: skip
-    try:
-        end = time.monotonic() + 120
-        while not list(out.glob("parts/*")):
-            assert p.poll() is None and time.monotonic() < end, p.communicate()
-            time.sleep(0.05)
-        p.send_signal(signal.SIGINT)
-        _, err = p.communicate(timeout=60)
-    finally:
-        p.kill()
+    err = _interrupted_once(p, lambda: bool(list(out.glob("parts/*"))), 120.0)
     return p.returncode, err
 
 

@@ -289,16 +289,25 @@ def test_sigterm_mid_simulation_leaves_no_output(tmp_path: Path):
     no_leftovers(tmp_path, finals)
 
 
-def test_sigterm_mid_reprocess_leaves_no_output(inputs: Path, tmp_path: Path):
+def _sigint_ignored() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # as a shell starts a background job: `prog & kill -INT $!`
+
+
+@pytest.mark.parametrize("sig, background", [(signal.SIGTERM, False), (signal.SIGINT, True)],
+                         ids=["sigterm", "ctrl-c-in-the-background"])  # fmt: skip
+def test_a_signal_mid_reprocess_leaves_no_output(sig, background, inputs: Path, tmp_path: Path):
+    """SIGTERM, or Ctrl-C to a run started as a shell starts a background job (SIGINT ignored; it ran to its end,
+    exit 0, products written): exit 130, nothing under a final name."""
     flight = tmp_path / "flight.tlog"
-    assert sim_cli.main(["--duration", "120", "--quiet", "--out", str(flight)]) == 0
+    assert sim_cli.main(["--duration", "120" if not background else "300", "--quiet", "--out", str(flight)]) == 0
     finals = [tmp_path / "w.nc", tmp_path / "w_avg_1s.csv", tmp_path / "w_avg_1s.nc"]
     p = subprocess.Popen([sys.executable, "-m", "ground_station", "reprocess", str(flight), "--out", str(finals[0])],
-                         stderr=subprocess.PIPE, text=True)  # fmt: skip
+                         stderr=subprocess.PIPE, text=True,
+                         preexec_fn=_sigint_ignored if background else None)  # fmt: skip
     try:
         line = p.stderr.readline()  # the reader has opened the flight: the run is under way
         assert "balloon-gs reprocess" in line, line
-        p.send_signal(signal.SIGTERM)
+        p.send_signal(sig)
         _, err = p.communicate(timeout=60)
     finally:
         p.kill()
