@@ -41,6 +41,8 @@ def main(argv: list[str] | None = None) -> int:
     rp.add_argument("--truth", required=True, type=userargs.input_file, help="balloon-sim --truth CSV")
     rp.add_argument("--plot", type=userargs.plot_path, help="write the Fig. 6-style figure here (PNG)")
     rp.add_argument("--start", type=userargs.start_time, default=120.0, help="score from this time since boot [s]")
+    rp.add_argument("--sysid", type=userargs.sysid,
+                    help="the balloon's MAVLink system id, where the log holds WIND_COV from more than one")
     rr = sub.add_parser("reprocess", help="post-flight: filter + smoother over a whole flight log -> NetCDF (CF-1.8)")
     rr.add_argument("flight", type=userargs.input_file, help="a .tlog, raw capture, PX4 .ulg or ArduPilot .bin")
     rr.add_argument("--out", required=True, type=userargs.output_path, help="the NetCDF product (FILE.nc)")
@@ -95,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         with Products() as products:
-            s = report(args.file, args.truth, args.plot and products.path(args.plot), args.start)
+            s = report(args.file, args.truth, args.plot and products.path(args.plot), args.start, args.sysid)
             products.commit()
     except (ValueError, OSError, userargs.UserError) as exc:
         return userargs.fail(f"{PROG} report", exc)

@@ -15,8 +15,8 @@ TRUTH_NEEDED = ("time_s", "wind_n", "wind_e")
 
 def read_truth(path: str) -> dict[str, np.ndarray]:
     """A balloon-sim truth CSV, checked: a header with the columns scoring needs and at least 2 rows."""
-    with open(path, errors="replace") as fh:
-        header = fh.readline().strip().split(",")
+    with open(path, encoding="utf-8-sig", errors="replace") as fh:
+        header = [c.strip() for c in fh.readline().split(",")]
         has_rows = bool(fh.readline().strip()) and bool(fh.readline().strip())
     if header == [""]:
         raise ValueError(f"{path}: the truth CSV is empty")
@@ -31,21 +31,29 @@ def read_truth(path: str) -> dict[str, np.ndarray]:
         truth = {}
     if not (truth and all(np.all(np.isfinite(truth[c])) for c in TRUTH_NEEDED)):
         raise ValueError(f"{path}: the truth CSV holds values that are not numbers")
+    back = np.flatnonzero(np.diff(truth["time_s"]) < 0)
+    if len(back):  # the scores interpolate the truth in time: rows out of order would give a wrong score, silently
+        k = int(back[0])
+        raise ValueError(
+            f"{path}: the truth CSV's time_s goes back (data row {k + 2}: {truth['time_s'][k + 1]:g} s "
+            f"after {truth['time_s'][k]:g} s); a balloon-sim truth is in time order"
+        )
     return truth
 
 
 def read_truth_csv(path: str, columns: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
     """The simulator's truth CSV (``balloon-sim --truth``): a header row, one row per IMU sample; ``columns`` (None:
     all of them) read alone, so that a day's truth (64 MB an hour, 18 columns) takes only what is asked of it."""
-    with open(path, errors="replace") as fh:
-        header = fh.readline().strip().split(",")
+    with open(path, encoding="utf-8-sig", errors="replace") as fh:
+        header = [c.strip() for c in fh.readline().split(",")]
     names = header if columns is None else list(columns)
     cols = [header.index(c) for c in names]
     data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=cols, ndmin=2)
     return {name: np.ascontiguousarray(data[:, j]) for j, name in enumerate(names)}
 
 
-def report(wind_path: str, truth_path: str, plot_path: str | None = None, start_s: float = 120.0) -> Score:
+def report(wind_path: str, truth_path: str, plot_path: str | None = None, start_s: float = 120.0,
+           sysid: int | None = None) -> Score:  # fmt: skip
     if wind_path.endswith(".nc"):  # a balloon-gs reprocess product: its smoothed wind and accuracy
         from balloon_core.userargs import require_extra
 
@@ -54,10 +62,30 @@ def report(wind_path: str, truth_path: str, plot_path: str | None = None, start_
 
         est = read_netcdf_wind(wind_path)
     else:
-        est = as_arrays(read_records(wind_path))
+        records = read_records(wind_path)
+        systems = sorted({r.sysid for r in records})
+        counts = ", ".join(f"sys {s}: {sum(1 for r in records if r.sysid == s)}" for s in systems)
+        if sysid is not None:
+            if sysid not in systems:
+                raise ValueError(f"{wind_path}: no WIND_COV from system {sysid} (it holds {counts or 'none'})")
+            records = [r for r in records if r.sysid == sysid]
+        elif len(systems) > 1:  # one truth scores one balloon: mixed by time, two systems' winds would score neither
+            raise ValueError(
+                f"{wind_path}: WIND_COV from {len(systems)} systems ({counts}); a report scores one "
+                "balloon against its truth: pick it with --sysid"
+            )
+        est = as_arrays(records)
     if len(est["time_s"]) < 10:
         raise ValueError(f"{wind_path}: fewer than 10 WIND_COV messages")
     truth = read_truth(truth_path)
+    t_est = est["time_s"][np.isfinite(est["wind_n"]) & np.isfinite(est["wind_e"])]
+    t_true = truth["time_s"]
+    if len(t_est) >= 2 and min(t_est[-1], t_true[-1]) - max(t_est[0], t_true[0]) < 10.0:
+        raise ValueError(
+            f"{wind_path}: the estimates ({t_est[0]:.1f}-{t_est[-1]:.1f} s since boot) and the truth "
+            f"{truth_path} ({t_true[0]:.1f}-{t_true[-1]:.1f} s) do not overlap for the 10 s a score "
+            "needs: is it this flight's truth?"
+        )
     s = score(est["time_s"], est["wind_n"], est["wind_e"], est["accuracy"],
               truth["time_s"], truth["wind_n"], truth["wind_e"], start_s=start_s)  # fmt: skip
     if plot_path:

@@ -150,11 +150,47 @@ def _read_dataflash(path: str) -> Flight:
         else:
             baro_t, baro = np.zeros(0, np.int64), np.zeros((0, 2))
         utc = _df_utc(log)
+        bad, cut, unread = _df_losses(log)
     except (KeyError, ValueError, IndexError, OverflowError) as exc:
         raise ValueError(str(exc) if str(exc).startswith(path) else f"{path}: {describe_error(exc)}") from exc
     finally:
         log.close()
-    return build_flight(path, "dataflash", imu_t, imu, baro_t, baro, sensors, notes, utc)
+    return build_flight(path, "dataflash", imu_t, imu, baro_t, baro, sensors, notes, utc, bad_frames=bad,
+                        truncated=cut, unread=unread)  # fmt: skip
+
+
+TRAILING_PAD = 528  # block-based logs end in up to a page of padding; DFReader ignores this much after the last record
+
+
+def _df_losses(log) -> tuple[int, bool, str | None]:
+    """What DFReader's index skipped, from where its records lie: (damaged stretches between records, whether the
+    last record is cut off by the file's end, why and where the index stopped before the end if it did: DFReader
+    stops at the first record of a type no FMT defined, a damaged type byte, and drops the rest silently)."""
+    starts, ends = [], []
+    if not all(hasattr(log, a) for a in ("offsets", "formats", "data_len")):  # a DFReader without its index
+        return 0, False, None
+    for mtype, offs in enumerate(log.offsets):
+        if len(offs) and mtype in log.formats:
+            o = np.asarray(offs, dtype=np.int64)
+            starts.append(o)
+            ends.append(o + log.formats[mtype].len)
+    if not starts:
+        return 0, False, None
+    s, e = np.concatenate(starts), np.concatenate(ends)
+    order = np.argsort(s, kind="stable")
+    s, e = s[order], e[order]
+    size = int(log.data_len)
+    reach = np.maximum.accumulate(e)
+    bad = int(np.count_nonzero(s[1:] > reach[:-1])) + (1 if s[0] > 0 else 0)
+    last = int(reach[-1])
+    cut = last > size
+    unread = None
+    if size - last >= TRAILING_PAD:
+        unread = (
+            f"the DataFlash reader stopped at byte {last} of {size} (a damaged record: a type no FMT defines); "
+            f"the rest, {size - last} bytes, is unread"
+        )
+    return bad, cut, unread
 
 
 def _df_utc(log) -> tuple[float, str] | None:

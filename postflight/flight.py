@@ -53,6 +53,7 @@ class FlightMeta:
     imu_missing: int = 0  # IMU samples missing by their time stamps (at the measured rate)
     gaps: int = 0  # holes in the IMU stream (two or more steps without a sample)
     clock_breaks: int = 0  # the sensor clock going back (a reboot) or jumping: where a new segment starts
+    unread: str | None = None  # why and where a reader stopped before the file's end (the rest unread), if it did
 
     def describe(self) -> str:
         rate = f"{self.imu_rate_hz:.1f} Hz" if self.imu_rate_hz else "unknown rate"
@@ -192,6 +193,7 @@ class WatchedFile:
         self.stall_s = stall_s
         self.furthest = 0
         self.stalled_at: int | None = None  # where the reader kept going back to when the watchdog ended the read
+        self.last_read = (0, 0)  # (bytes asked, bytes got) of the last read
         self._low = 0  # the lowest position read from since the furthest last advanced
         self._moved = time.monotonic()
 
@@ -209,7 +211,15 @@ class WatchedFile:
             if now - self._moved > self.stall_s:
                 self.stalled_at = self._low
                 return b""
+        self.last_read = (n, len(data))
         return data
+
+    def ended_inside(self) -> bool:
+        """Whether the reader's last read ran into the file's end inside a message: it got part of what it asked
+        for, or nothing of a message body (pyulog reads a 3-byte header, then the body; a whole file ends with a
+        header read that gets nothing)."""
+        asked, got = self.last_read
+        return got < asked and (got > 0 or asked != 3)
 
     def seek(self, offset: int, whence: int = 0) -> int:
         return self.fh.seek(offset, whence)
@@ -294,10 +304,12 @@ def loss_notes(meta: FlightMeta) -> list[str]:
     """One note per kind of loss the flight file holds (none for a clean file)."""
     out = []
     if meta.bad_frames:
-        cut = ", the last one cut off: the file ends inside a frame" if meta.truncated else ""
+        cut = ", the last one cut off: the file ends inside a frame" if meta.truncated and not meta.unread else ""
         out.append(f"{meta.bad_frames} bad frames skipped{cut}")
-    elif meta.truncated:
+    elif meta.truncated and not meta.unread:
         out.append("the file ends inside a record (truncated)")
+    if meta.unread:
+        out.append(meta.unread)
     if meta.imu_missing:
         out.append(f"{meta.imu_missing} IMU samples missing by their time stamps, in {meta.gaps} gaps")
     return out
@@ -345,7 +357,9 @@ def merge_streams(imu_t: np.ndarray, imu: np.ndarray, baro_t: np.ndarray, baro: 
     return kind[order], t[order], values
 
 
-def build_flight(path: str, fmt: str, imu_t, imu, baro_t, baro, sensors, notes, utc=None) -> Flight:
+def build_flight(path: str, fmt: str, imu_t, imu, baro_t, baro, sensors, notes, utc=None, bad_frames: int = 0,
+                 truncated: bool = False, unread: str | None = None) -> Flight:
+    """``bad_frames``, ``truncated``, ``unread``: what the reader lost of the file (``FlightMeta``)."""
     if len(imu_t) == 0:
         raise ValueError(f"{path}: no IMU samples in this {fmt} file")
     kind, t, values = merge_streams(np.asarray(imu_t), np.asarray(imu), np.asarray(baro_t), np.asarray(baro))
@@ -355,6 +369,7 @@ def build_flight(path: str, fmt: str, imu_t, imu, baro_t, baro, sensors, notes, 
         has_baro=len(baro_t) > 0, imu_rate_hz=first_rate_hz(np.asarray(imu_t)), n_imu=len(imu_t),
         n_baro=len(baro_t), n_mag=n_mag, duration_s=sensor_span_s(t),
         utc_start_s=utc[0] if utc else None, utc_source=utc[1] if utc else None, sensors=sensors, notes=notes,
+        bad_frames=bad_frames, truncated=truncated or unread is not None, unread=unread,
     )  # fmt: skip
     if not meta.has_baro:
         meta.notes.append("no barometer in the log: height and air data unknown")

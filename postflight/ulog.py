@@ -70,8 +70,18 @@ def read_ulog(path: str, stall_s: float | None = None) -> Flight:
         if new.any():
             sensors["mag"] = "sensor_combined.magnetometer_ga"
     baro_t, baro = _ulog_baro(topics, sensors, notes)
-    flight = build_flight(path, "ulog", imu_t, imu, baro_t, baro, sensors, notes, _ulog_utc(topics))
-    flight.meta.truncated = stalled is not None
+    # pyulog flags a damaged stretch (an unknown message type, a message that does not parse) without counting:
+    # at least one bad message, skipped; then it searches for the next sync marker, to the file's end if none
+    bad = 1 if getattr(u, "file_corruption", False) else 0
+    unread = None
+    if bad and getattr(u, "_has_sync", True) is False:
+        unread = "pyulog found a damaged stretch and no sync marker after it: the rest of the file is unread"
+    elif bad:
+        notes.append("pyulog found a damaged stretch in the file (a message it could not parse) and skipped it")
+    cut = stalled is None and unread is None and fh.ended_inside()  # the file ends inside a message
+    flight = build_flight(path, "ulog", imu_t, imu, baro_t, baro, sensors, notes, _ulog_utc(topics), bad_frames=bad,
+                          truncated=cut, unread=unread)  # fmt: skip
+    flight.meta.truncated = flight.meta.truncated or stalled is not None
     return flight
 
 

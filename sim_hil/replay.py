@@ -28,11 +28,15 @@ from balloon_core.progress import Progress
 from balloon_core.wire import (
     MAGIC_V1,
     MAGIC_V2,
+    MAX_FRAME,
     TLOG_HEADER,
     Decoder,
     LinkStats,
+    _next_magic,
     capture_messages,
     frame_length,
+    mavlink,
+    message_time_us,
     open_link,
 )
 from sim_hil.link import Lockstep
@@ -75,23 +79,44 @@ def tlog_records(path: str):
         i += TLOG_HEADER + ln
 
 
-def raw_chunks(path: str, chunk: int = 64):
-    """(time us or None, newest IMU time us or None, bytes) of a raw capture, timed by the messages
-    decoded so far."""
+def raw_chunks(path: str, chunk: int = 65536):
+    """(time us or None, IMU sample time us or None, bytes) of a raw capture, one piece per MAVLink frame and
+    one per run of bytes between frames (garbage, a frame cut short), so that the byte stream is sent exactly
+    as captured while a datagram link (UDP) still carries whole frames, each in its own datagram, as a
+    receiver that parses every datagram on its own needs. A frame is timed by its own time field."""
     dec = Decoder(LinkStats())
+    known = mavlink.mavlink_map
     with open(path, "rb") as fh:
-        while piece := fh.read(chunk):
-            t = t_imu = None
-            for m in dec.feed(piece):
-                if hasattr(m, "time_usec"):
-                    t = m.time_usec
-                    if m.get_msgId() in IMU_MSG_IDS:
-                        t_imu = t
-                elif hasattr(m, "time_boot_ms"):
-                    t = m.time_boot_ms * 1000
-                    if m.get_msgId() in IMU_MS_MSG_IDS:
-                        t_imu = t
-            yield t, t_imu, piece
+        buf, i, eof = b"", 0, False
+        garbage_from = 0
+        while True:
+            if not eof and len(buf) - i < MAX_FRAME:
+                if i > garbage_from:  # no frame starts before i: send the bytes so far (memory stays bounded)
+                    yield None, None, buf[garbage_from:i]
+                    garbage_from = i
+                more = fh.read(chunk)
+                buf, garbage_from, i, eof = buf[garbage_from:] + more, 0, i - garbage_from, not more
+                continue
+            if i >= len(buf):
+                break
+            ln = frame_length(buf, i)
+            if ln == 0 or i + ln > len(buf):
+                i = _next_magic(buf, i + 1) if ln == 0 else i + 1
+                continue
+            frame = buf[i : i + ln]
+            msgid = frame[7] | frame[8] << 8 | frame[9] << 16 if frame[0] == MAGIC_V2 else frame[5]
+            m = dec.decode_frame(frame) if msgid in known else None
+            if m is None:  # a CRC error or a message no receiver knows (pymavlink's parser skips it alike)
+                i += 1  # a garbage byte
+                continue
+            if i > garbage_from:
+                yield None, None, buf[garbage_from:i]
+            t = message_time_us(m)
+            yield t, imu_time_us(frame), frame
+            i += ln
+            garbage_from = i
+        if len(buf) > garbage_from:
+            yield None, None, buf[garbage_from:]
 
 
 @dataclass
@@ -107,7 +132,7 @@ class ReplayResult:
     fw_time_s: float = -1.0  # the newest sample time the firmware's WIND_COV acknowledged
     sent_time_s: float = -1.0  # the newest sample time sent
     interrupted: bool = False
-    records_sent: int = 0  # tlog records or raw chunks sent
+    records_sent: int = 0  # tlog records, or a raw capture's frames and runs of bytes between them, sent
 
     def final_line(self, out: str, speed: float) -> str:
         head = f"balloon-replay: {self.imu_sent} IMU samples ({self.bytes_sent} bytes) sent to {out}"

@@ -1,0 +1,258 @@
+"""Audit findings for balloon-replay, balloon-gs report and reprocess's log readers: each test fails without
+its fix."""
+
+from __future__ import annotations
+
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+PY = sys.executable
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def raw_capture(tmp_path_factory):
+    """A 10 s simulated flight as a raw serial capture (the tlog's frames without their record stamps), with
+    some line noise between frames."""
+    from sim_hil.replay import tlog_records
+
+    d = tmp_path_factory.mktemp("raw")
+    tlog = d / "sensors.tlog"
+    subprocess.run([PY, "-m", "sim_hil", "--duration", "10", "--seed", "3", "--out", str(tlog), "--quiet"],
+                   check=True, capture_output=True)  # fmt: skip
+    frames = [f for _, _, f in tlog_records(str(tlog))]
+    clean = d / "sensors.raw"
+    clean.write_bytes(b"".join(frames))
+    noisy = d / "noisy.raw"
+    noise = bytes([0xFD, 0x40, 0x00, 0x13, 0x37, 0x55])  # a false frame start and junk
+    noisy.write_bytes(b"".join(f + (noise if k % 7 == 3 else b"") for k, f in enumerate(frames)))
+    n_imu = sum(1 for _, t_imu, _ in tlog_records(str(tlog)) if t_imu is not None)
+    return clean, noisy, n_imu
+
+
+def test_raw_capture_is_sent_as_whole_frames_and_exactly_its_bytes(raw_capture):
+    """A raw capture's pieces (one a datagram on UDP) are whole frames or runs of garbage between them: 64-byte
+    chunks cut frames across datagrams, and a receiver that parses each datagram on its own (balloon-fw,
+    balloon-gs) got no sample at all."""
+    from sim_hil.replay import raw_chunks
+
+    clean, noisy, n_imu = raw_capture
+    for path in (clean, noisy):
+        pieces = list(raw_chunks(str(path)))
+        assert b"".join(p for _, _, p in pieces) == path.read_bytes()  # exactly as captured, garbage and all
+        imu = 0
+        for _, t_imu, piece in pieces:
+            mav = mavlink.MAVLink(None)
+            mav.robust_parsing = True
+            msgs = [m for m in mav.parse_buffer(piece) or [] if m.get_type() != "BAD_DATA"]
+            if t_imu is not None:
+                imu += 1
+                assert len(msgs) == 1 and len(msgs[0].get_msgbuf()) == len(piece)
+                assert msgs[0].time_usec == t_imu
+        assert imu == n_imu
+
+
+@pytest.mark.network
+def test_raw_capture_replayed_over_udp_in_lockstep_reaches_the_firmware_whole(raw_capture):
+    clean, _, n_imu = raw_capture
+    port = free_port()
+    fw = subprocess.Popen([PY, "-m", "firmware_py", "--in", f"udpin:127.0.0.1:{port}", "--quiet"],
+                          stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        time.sleep(0.6)
+        r = subprocess.run([PY, "-m", "sim_hil.replay", str(clean), "--out", f"udpout:127.0.0.1:{port}",
+                            "--quiet", "--speed", "0"], capture_output=True, text=True, timeout=60)  # fmt: skip
+        time.sleep(0.3)
+    finally:
+        fw.send_signal(signal.SIGINT)
+        fw.wait(10)
+    fw_summary = fw.stderr.read()
+    assert r.returncode == 0, r.stderr
+    assert int(re.search(r"(\d+) IMU samples", fw_summary).group(1)) == n_imu, fw_summary
+    assert " 0 bad frames, 0 garbage bytes" in fw_summary
+    last = r.stderr.strip().splitlines()[-1]
+    assert f"{n_imu} IMU samples" in last and "the firmware counted 0 packets lost" in last, last
+
+
+@pytest.fixture(scope="module")
+def scored_flight(tmp_path_factory):
+    """A 40 s flight: the firmware's WIND_COV log and the simulator's truth."""
+    d = tmp_path_factory.mktemp("report")
+    cap, truth, wind = d / "sensors.tlog", d / "truth.csv", d / "wind.tlog"
+    subprocess.run([PY, "-m", "sim_hil", "--duration", "40", "--seed", "4", "--out", str(cap), "--truth", str(truth),
+                    "--quiet"], check=True, capture_output=True)  # fmt: skip
+    subprocess.run([PY, "-m", "firmware_py", "--in", str(cap), "--out", str(wind), "--quiet"], check=True,
+                   capture_output=True)  # fmt: skip
+    return d, wind, truth
+
+
+def report_run(capsys, *argv) -> tuple[int, str, str]:
+    from ground_station.cli import main
+
+    capsys.readouterr()
+    try:
+        code = main(["report", *map(str, argv)])
+    except SystemExit as exc:
+        code = exc.code
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def truth_variant(scored_flight, name: str, edit) -> str:
+    d, _, truth = scored_flight
+    lines = truth.read_text().splitlines()
+    header, rows = edit(lines[0], lines[1:])
+    path = d / name
+    path.write_text("\n".join([header, *rows]) + "\n")
+    return str(path)
+
+
+def test_report_refuses_a_truth_out_of_time_order(scored_flight, capsys):
+    """np.interp needs the truth in time order: shuffled rows scored 0.5 m/s RMSE with exit 0, rows reversed said
+    'the truth ends at 0.0 s'."""
+    _, wind, _ = scored_flight
+    for name, edit in (("shuffled.csv", lambda h, r: (h, r[1::2] + r[0::2])),
+                       ("reversed.csv", lambda h, r: (h, r[::-1]))):  # fmt: skip
+        code, out, err = report_run(capsys, wind, "--truth", truth_variant(scored_flight, name, edit), "--start", "5")
+        assert code == 2 and out == "", out
+        assert len(err.strip().splitlines()) == 1 and "time_s goes back" in err and "Traceback" not in err, err
+
+
+def test_report_says_the_truth_does_not_overlap_the_estimates(scored_flight, capsys):
+    """A truth of another time span: 'the estimates end at 39.9 s ... (score from earlier: --start 10000)' was a
+    hint that could not work."""
+    _, wind, _ = scored_flight
+
+    def shift(h, rows):
+        return h, [",".join([f"{float(r.split(',')[0]) + 10000:.6f}", *r.split(",")[1:]]) for r in rows]
+
+    code, out, err = report_run(capsys, wind, "--truth", truth_variant(scored_flight, "shifted.csv", shift))
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "do not overlap" in err and "--start" not in err, err
+
+
+def test_report_reads_a_truth_header_with_spaces_or_a_bom(scored_flight, capsys):
+    """The contract writes the header as `time_s, wind_n, wind_e, ...`; a spreadsheet adds a BOM."""
+    _, wind, truth = scored_flight
+    code, ref, _ = report_run(capsys, wind, "--truth", truth, "--start", "5")
+    assert code == 0
+    for name, edit in (("spaces.csv", lambda h, r: (h.replace(",", ", "), [x.replace(",", ", ") for x in r])),
+                       ("bom.csv", lambda h, r: ("\ufeff" + h, r))):  # fmt: skip
+        code, out, err = report_run(capsys, wind, "--truth", truth_variant(scored_flight, name, edit), "--start", "5")
+        assert code == 0 and out == ref, err
+
+
+def test_report_refuses_two_systems_in_one_log(scored_flight, capsys):
+    """Two balloons' WIND_COV in one log were merged by time (the later one of each time kept) and scored as one:
+    now refused, naming --sysid, which picks one."""
+    import struct
+
+    from balloon_core.wire import LinkStats, tlog_messages
+
+    d, wind, truth = scored_flight
+    mav2 = mavlink.MAVLink(None, srcSystem=2, srcComponent=1)
+    out = b""
+    for m in tlog_messages(str(wind), LinkStats()):
+        t = struct.pack(">Q", int(m._timestamp * 1e6)) if hasattr(m, "_timestamp") else bytes(8)
+        out += t + bytes(m.get_msgbuf())
+        if m.get_type() == "WIND_COV":
+            m2 = mavlink.MAVLink_wind_cov_message(
+                m.time_usec,
+                m.wind_x + 5.0,
+                m.wind_y,
+                m.wind_z,
+                m.var_horiz,
+                m.var_vert,
+                m.wind_alt,
+                m.horiz_accuracy,
+                m.vert_accuracy,
+            )
+            out += t + m2.pack(mav2)
+    two = d / "two.tlog"
+    two.write_bytes(out)
+    code, out_, err = report_run(capsys, two, "--truth", truth, "--start", "5")
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "2 systems" in err and "--sysid" in err, err
+    # --sysid picks the balloon: its own log's score, and the other's (5 m/s off) far worse
+    code, alone, err = report_run(capsys, wind, "--truth", truth, "--start", "5")
+    assert code == 0, err
+    code, one, err = report_run(capsys, two, "--truth", truth, "--start", "5", "--sysid", "1")
+    assert code == 0 and one == alone, err
+    code, other, err = report_run(capsys, two, "--truth", truth, "--start", "5", "--sysid", "2")
+    assert code == 0 and other != alone, err
+    code, _, err = report_run(capsys, two, "--truth", truth, "--start", "5", "--sysid", "9")
+    assert code == 2 and "no WIND_COV from system 9" in err, err
+
+
+DATA = __import__("pathlib").Path(__file__).resolve().parents[1] / "data"
+
+
+def test_dataflash_reader_tells_a_cut_a_damaged_stretch_and_a_stop(tmp_path):
+    """DFReader drops a cut-off last record, skips a damaged stretch and stops at a record of an undefined type,
+    all without a word: the flight said 'nothing lost' (a log cut to 18 % of its length, or read to 2 % only)."""
+    from postflight.dataflash import read_dataflash
+
+    data = (DATA / "balloon-sim.bin").read_bytes()
+    clean = read_dataflash(str(DATA / "balloon-sim.bin")).meta
+    assert clean.bad_frames == 0 and not clean.truncated and clean.unread is None
+    cut = tmp_path / "cut.bin"
+    cut.write_bytes(data[:140941])  # inside a record
+    m = read_dataflash(str(cut)).meta
+    assert m.truncated and m.bad_frames == 0 and any("truncated" in n for n in m.notes), m.notes
+    zeroed = tmp_path / "zeroed.bin"
+    zeroed.write_bytes(data[:177560] + bytes(4096) + data[177560 + 4096 :])
+    m = read_dataflash(str(zeroed)).meta
+    assert m.bad_frames == 1 and not m.truncated, m.notes
+    stop = bytearray(data)  # a record's type byte damaged into a type no FMT defines, a fifth into the log
+    k = stop.index(b"\xa3\x95", len(data) // 5)
+    stop[k + 2] = 39
+    stopped = tmp_path / "stopped.bin"
+    stopped.write_bytes(bytes(stop))
+    m = read_dataflash(str(stopped)).meta
+    assert m.truncated and m.unread and f"stopped at byte {k} of {len(data)}" in m.unread, m.unread
+    assert m.unread in m.notes
+
+
+def test_ulog_reader_tells_a_cut_and_a_damaged_stretch(tmp_path):
+    """pyulog stops quietly at a message cut by the file's end, and flags a damaged stretch only in
+    ``file_corruption``: the product said 'nothing lost' of a log whose last 95 % went unread."""
+    from postflight.ulog import read_ulog
+
+    for name in ("pyulog-sample_px4_events.ulg", "pyulog-sample_log_small.ulg"):
+        clean = read_ulog(str(DATA / name)).meta
+        assert clean.bad_frames == 0 and not clean.truncated and clean.unread is None, (name, clean.notes)
+    data = (DATA / "pyulog-sample_px4_events.ulg").read_bytes()
+    cut = tmp_path / "cut.ulg"
+    cut.write_bytes(data[:525446])  # inside a message
+    m = read_ulog(str(cut)).meta
+    assert m.truncated and m.bad_frames == 0 and any("truncated" in n for n in m.notes), m.notes
+    small = (DATA / "pyulog-sample_log_small.ulg").read_bytes()
+    zeroed = tmp_path / "zeroed.ulg"
+    zeroed.write_bytes(small[:68170] + bytes(4096) + small[68170 + 4096 :])
+    m = read_ulog(str(zeroed)).meta
+    assert m.bad_frames >= 1 and m.truncated and m.unread and "unread" in m.unread, m.notes
+
+
+def test_reprocess_of_a_cut_dataflash_log_says_so_in_the_product(tmp_path):
+    xr = pytest.importorskip("xarray")
+    cut = tmp_path / "cut.bin"
+    cut.write_bytes((DATA / "balloon-sim.bin").read_bytes()[:596903])
+    out = tmp_path / "w.nc"
+    r = subprocess.run([PY, "-m", "ground_station", "reprocess", str(cut), "--out", str(out), "--quiet"],
+                       capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert "DATA LOST" in r.stderr and "truncated" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    with xr.open_dataset(out, decode_times=False) as ds:
+        assert ds.attrs["source_log_truncated"] == "yes"
+        assert "truncated" in ds.attrs["source_log_losses"]
+        assert bool((ds["time"].diff("time") > 0).all())
