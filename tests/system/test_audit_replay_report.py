@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import re
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -13,13 +12,9 @@ import time
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from tests.helpers.web import free_udp_port
+
 PY = sys.executable
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")
@@ -67,7 +62,7 @@ def test_raw_capture_is_sent_as_whole_frames_and_exactly_its_bytes(raw_capture):
 @pytest.mark.network
 def test_raw_capture_replayed_over_udp_in_lockstep_reaches_the_firmware_whole(raw_capture):
     clean, _, n_imu = raw_capture
-    port = free_port()
+    port = free_udp_port()
     fw = subprocess.Popen([PY, "-m", "firmware_py", "--in", f"udpin:127.0.0.1:{port}", "--quiet"],
                           stderr=subprocess.PIPE, text=True)  # fmt: skip
     try:
