@@ -4,15 +4,11 @@ its fix."""
 from __future__ import annotations
 
 import re
-import signal
 import subprocess
 import sys
-import time
 
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
-
-from tests.helpers.web import free_udp_port
 
 PY = sys.executable
 
@@ -61,19 +57,10 @@ def test_raw_capture_is_sent_as_whole_frames_and_exactly_its_bytes(raw_capture):
 
 @pytest.mark.network
 def test_raw_capture_replayed_over_udp_in_lockstep_reaches_the_firmware_whole(raw_capture):
+    from tests.system.test_link_loss import replay_into_firmware
+
     clean, _, n_imu = raw_capture
-    port = free_udp_port()
-    fw = subprocess.Popen([PY, "-m", "firmware_py", "--in", f"udpin:127.0.0.1:{port}", "--quiet"],
-                          stderr=subprocess.PIPE, text=True)  # fmt: skip
-    try:
-        time.sleep(0.6)
-        r = subprocess.run([PY, "-m", "sim_hil.replay", str(clean), "--out", f"udpout:127.0.0.1:{port}",
-                            "--quiet", "--speed", "0"], capture_output=True, text=True, timeout=60)  # fmt: skip
-        time.sleep(0.3)
-    finally:
-        fw.send_signal(signal.SIGINT)
-        fw.wait(10)
-    fw_summary = fw.stderr.read()
+    r, fw_summary = replay_into_firmware(clean, "--speed", "0")
     assert r.returncode == 0, r.stderr
     assert int(re.search(r"(\d+) IMU samples", fw_summary).group(1)) == n_imu, fw_summary
     assert " 0 bad frames, 0 garbage bytes" in fw_summary
