@@ -482,7 +482,8 @@ class GroundStation:
         s = self.stats
         said = "; ".join(f"sys {v.sysid} reported its sensor input {v.input_loss()}"
                          for v in sorted(self.vehicles.values(), key=lambda v: v.sysid) if v.input_loss())  # fmt: skip
-        return (f"balloon-gs: {self.wind_count} WIND_COV from {len(self.vehicles)} systems, {s.frames} frames, "
+        n = len(self.vehicles)
+        return (f"balloon-gs: {self.wind_count} WIND_COV from {n} system{'' if n == 1 else 's'}, {s.frames} frames, "
                 f"{s.lost} lost, {s.bad_frames} CRC errors, {s.garbage_bytes} garbage bytes, "
                 f"{self.duplicates} duplicates dropped" + (f"; {said}" if said else ""))  # fmt: skip
 

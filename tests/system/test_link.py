@@ -324,5 +324,5 @@ def test_a_pyserial_url_is_given_to_pyserial_whole():
                            text=True, timeout=60)  # fmt: skip
         t.join(10)
     assert r.returncode == 0, r.stderr
-    got = re.search(r"(\d+) WIND_COV from 1 systems, (\d+) frames, 0 lost, 0 CRC errors, 0 garbage bytes", r.stderr)
+    got = re.search(r"(\d+) WIND_COV from 1 system, (\d+) frames, 0 lost, 0 CRC errors, 0 garbage bytes", r.stderr)
     assert got and int(got.group(1)) >= 20, r.stderr
