@@ -1,5 +1,5 @@
 import sys
 
-from firmware_py.cli import main
+from firmware_py.entry import main
 
 sys.exit(main())

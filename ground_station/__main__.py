@@ -1,5 +1,5 @@
 import sys
 
-from ground_station.cli import main
+from ground_station.entry import main
 
 sys.exit(main())

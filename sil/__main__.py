@@ -1,5 +1,5 @@
 import sys
 
-from sil.cli import main
+from sil.entry import main
 
 sys.exit(main())

@@ -1,5 +1,5 @@
 import sys
 
-from sim_hil.cli import main
+from sim_hil.entry import main
 
 sys.exit(main())

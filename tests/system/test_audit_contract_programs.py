@@ -160,3 +160,19 @@ def test_listen_refuses_a_duration_beyond_a_week_as_balloon_fw_does(capsys):
         code, err = run_main(main, argv, capsys)
         assert code == 2, err
         one_line_naming(err, "--duration")
+
+
+@pytest.mark.parametrize("module", ["sim_hil", "firmware_py", "ground_station", "sil", "study"])
+def test_ctrl_c_while_a_program_is_still_starting_is_one_line(module: str):
+    """A Ctrl-C in a program's first fraction of a second, while its modules import (numpy, pymavlink), was Python's
+    KeyboardInterrupt traceback: now one line and exit 130 (balloon_core.entry). Before Python's own handler is in
+    place the signal ends it as a signal; after the imports, --help has answered (0)."""
+    p = subprocess.Popen([sys.executable, "-m", module, "--help"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                         text=True, cwd=Path(__file__).parents[2])  # fmt: skip
+    time.sleep(0.08)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=60)
+    assert "Traceback" not in err, err
+    assert p.returncode in (130, -signal.SIGINT, 0), err
+    if p.returncode == 130:
+        assert len(err.strip().splitlines()) == 1 and "interrupted (Ctrl-C)" in err, err
