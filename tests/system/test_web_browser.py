@@ -112,6 +112,17 @@ def own_errors(page) -> list[str]:
     return [e for e in page.errors if "WebSocket" not in e and "ERR_CONNECTION_REFUSED" not in e]
 
 
+def restarted(page, srv: WebServer, udp_port: int) -> tuple[WebServer, int]:
+    """``srv`` stopped while the page watches, which says DISCONNECTED; a new server on the same HTTP port, and the
+    page live on it again; and the old server's exit code."""
+    http_port = srv.port
+    code, _ = srv.stop(signal.SIGTERM)
+    assert wait_until(lambda: "DISCONNECTED" in page.page.locator("#page-banner").inner_text(), 5.0)
+    new = WebServer(f"udpin:127.0.0.1:{udp_port}", port=http_port)
+    assert wait_until(lambda: page.page.locator("#conn").inner_text() == "live", 10.0)
+    return new, code
+
+
 def test_the_page_reconnects_after_the_server_restarts(browser):
     port = free_udp_port()
     srv = WebServer(f"udpin:127.0.0.1:{port}")
@@ -120,15 +131,10 @@ def test_the_page_reconnects_after_the_server_restarts(browser):
     page = Page(browser, srv.url)
     try:
         page.page.wait_for_selector('article[data-sysid="2"] [data-k="state"]:text("OK")', timeout=15000)
-        http_port = srv.port
-        code, _ = srv.stop(signal.SIGTERM)
+        srv, code = restarted(page, srv, port)
         assert code == 0
-        banner = page.page.locator("#page-banner")
-        assert wait_until(lambda: "DISCONNECTED" in banner.inner_text(), 5.0)
-        srv = WebServer(f"udpin:127.0.0.1:{port}", port=http_port)
-        assert wait_until(lambda: page.page.locator("#conn").inner_text() == "live", 10.0)
         page.page.wait_for_selector('article[data-sysid="2"] [data-k="state"]:text("OK")', timeout=10000)
-        assert not banner.is_visible()
+        assert not page.page.locator("#page-banner").is_visible()
         assert not own_errors(page), page.errors
     finally:
         feed.stop.set()
@@ -189,13 +195,9 @@ def test_a_restarted_server_replaces_what_the_page_shows(browser):
     page = Page(browser, srv.url)
     try:
         page.page.wait_for_selector('article[data-sysid="3"] [data-k="state"]:text("OK")', timeout=15000)
-        http_port = srv.port
         feed.stop.set()
         feed.join(5)
-        srv.stop(signal.SIGTERM)
-        assert wait_until(lambda: "DISCONNECTED" in page.page.locator("#page-banner").inner_text(), 5.0)
-        srv = WebServer(f"udpin:127.0.0.1:{port}", port=http_port)  # no balloon yet
-        assert wait_until(lambda: page.page.locator("#conn").inner_text() == "live", 10.0)
+        srv, _ = restarted(page, srv, port)  # no balloon yet
         assert wait_until(lambda: page.page.locator("article.card").count() == 0, 3.0)
         assert page.page.locator("#waiting").is_visible()
         feed = Feed(port, [Balloon(sysid=2)])  # one of them comes back
