@@ -71,13 +71,15 @@ bw_real bw_lean_misfit_wind(bw_real speed, bw_real tilt, bw_real misfit)
 void bw_consistency_evaluate(bw_consistency_t *m)
 {
     int32_t flags = 0;
-    bw_real worst = BW_R(1.0);
+    bw_real worst = BW_R(1.0), v;
     int i;
     for (i = 0; i < BW_N_SOURCES; i++) {
         if (m->nis[i] > (bw_real)BW_FLAG_NIS || ((m->flags >> i & 1) && m->nis[i] > (bw_real)BW_FLAG_NIS_CLEAR))
             flags |= 1 << i; /* set above FLAG_NIS, cleared below FLAG_NIS_CLEAR (consistency.py evaluate) */
-        if (m->nis[i] > worst)
-            worst = m->nis[i];
+        /* the accelerometer's as (1 + NIS) / 2: a slow gain's error (consistency.py) */
+        v = i == BW_ACCEL ? BW_R(0.5) * (BW_R(1.0) + m->nis[i]) : m->nis[i];
+        if (v > worst)
+            worst = v;
     }
     if (flags != m->flags)
         m->flag_changes += 1;

@@ -69,6 +69,17 @@ static bw_real turbulence_excess(const bw_estimator_t *est)
     return BW_MAX(BW_R(1.0), seen / (expected * expected));
 }
 
+/* control.py _wind_noise_ratio: the force model's misfit times the light air's meandering, at most what IEC
+ * 61400-1's class A turbulence would be (a taut state swinging across its rope with the wind in step fed it) */
+static bw_real wind_noise_ratio(const bw_estimator_t *est)
+{
+    bw_real u = BW_MAX(est->mean_speed, BW_R(0.5));
+    bw_real expected = est->ekf.m.turbulence_intensity * u;
+    bw_real most = (bw_real)BW_WIND_MISFIT_IREF * (BW_R(0.75) * u + (bw_real)BW_WIND_MISFIT_B_MPS);
+    bw_real misfit = BW_MAX(BW_R(1.0), est->accel_innov2 / est->accel_taut_var) * turbulence_excess(est);
+    return BW_MIN(misfit, BW_MAX(BW_R(1.0), most * most / (expected * expected)));
+}
+
 static void init_clock(bw_estimator_t *est)
 {
     est->initialised = 0;
@@ -643,10 +654,8 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
         if (est->ascent_var > BW_R(0.0))
             weigh_ascent(est, speed);
         if (e->noise_phase == 0) {
-            bw_real misfit;
             est->vertical_gust_var = vertical_gust_var(est, est->mean_speed, est->rho);
-            misfit = BW_MAX(BW_R(1.0), est->accel_innov2 / est->accel_taut_var) * turbulence_excess(est);
-            bw_ekf_adapt_wind_noise(e, est->mean_speed, misfit);
+            bw_ekf_adapt_wind_noise(e, est->mean_speed, wind_noise_ratio(est));
         }
     }
     return 1;

@@ -19,7 +19,12 @@ What the monitor does with it:
 - ``flags``: one bit per source whose windowed NIS is above ``FLAG_NIS`` (until it is below ``FLAG_NIS_CLEAR``); the
   firmware reports them (SYS_STATUS, a STATUSTEXT when they change, the summary) and the products carry them;
 - ``inflation``: the factor on the reported wind accuracy, the square root of the largest windowed
-  NIS (>= 1): innovations sqrt(NIS) times larger than the filter expects say its errors are too.
+  NIS (>= 1): innovations sqrt(NIS) times larger than the filter expects say its errors are too. The
+  accelerometer's counts as (1 + NIS) / 2: it is fused every sample at a slow gain, and a filter whose noise is NIS
+  times what it assumes errs by (1 + NIS) / 2 of its P (the gain averages the excess over as many samples as the
+  state's walk); in class B gusts its misfit is the gusts the wind's state does not follow, sqrt(NIS) stated them
+  1.6-3 times too cautiously. The other sources' misfits are the state's own (the force balance, the lean) and
+  keep sqrt(NIS).
 
 The accuracy itself also carries what the covariance cannot know (``systematic_variance``): the
 drag scale's uncertainty (inhibited on the taut tether, so decorrelated from the wind in P) and the
@@ -152,6 +157,8 @@ class Consistency:
         for i, v in enumerate(self.nis):
             if v > FLAG_NIS or (self.flags >> i & 1 and v > FLAG_NIS_CLEAR):
                 flags |= 1 << i
+            if i == ACCEL:  # a slow gain's error: (1 + NIS) / 2 of P (module docstring)
+                v = 0.5 * (1.0 + v)
             if v > worst:
                 worst = v
         if flags != self.flags:

@@ -69,6 +69,8 @@ from firmware_py.estimator.params import (
     TURBULENCE_FROM_S,
     TURBULENCE_TO_S,
     VERTICAL_TURBULENCE_RATIO,
+    WIND_MISFIT_B_MPS,
+    WIND_MISFIT_IREF,
     Schedule,
 )
 from firmware_py.estimator.state import (
@@ -380,9 +382,22 @@ class Estimator:
                 self._weigh_ascent(speed)
             if self.step % self.schedule.wind_noise_every == 0:
                 self.vertical_gust_var = self._vertical_gust_var(self._mean_speed, self.rho)
-                misfit = max(1.0, self._accel_innov2 / self.accel_taut_var) * self._turbulence_excess()
-                ekf.adapt_wind_noise(self._mean_speed, misfit)
+                ekf.adapt_wind_noise(self._mean_speed, self._wind_noise_ratio())
         return True
+
+    def _wind_noise_ratio(self) -> float:
+        """The wind's process noise over what the expected spectrum gives (a variance ratio >= 1): the force model's
+        misfit (the accelerometer's innovations over their taut allowance: the wind then is known less well than the
+        spectrum alone says) times the light air's meandering (_turbulence_excess), at most what IEC 61400-1's class A
+        turbulence would be (``WIND_MISFIT_IREF``). Unbounded, a taut state that swings across its rope with the wind
+        in step (a mode the magnetometer cannot see: the attitude about the field's axis) fed the noise that let the
+        wind follow the velocity, so the drag that damps the swing never acted: a 2 m balloon on 300 m in 6 m/s from
+        the south swung +-70 m across for ten minutes, its wind +-10 m/s."""
+        u = max(self._mean_speed, 0.5)
+        expected = self.cfg.turbulence_intensity * u
+        most = WIND_MISFIT_IREF * (0.75 * u + WIND_MISFIT_B_MPS)
+        misfit = max(1.0, self._accel_innov2 / self.accel_taut_var) * self._turbulence_excess()
+        return min(misfit, max(1.0, most * most / (expected * expected)))
 
     def _turbulence_excess(self) -> float:
         """The wind's process noise is sized for sigma_u = TI U (adapt_wind_noise). Light air does not calm

@@ -80,5 +80,6 @@ def test_the_misfit_along_the_rope_is_the_balloon_moving_along_it():
     swings by newtons."""
     gusts = next(i for i, p in enumerate(sample(64)) if p["wind_kind"] == "gusts" and p["rope_model"] == "lumped")
     t = terms(sample(64)[gusts], 150.0)
-    assert t["accel_z_along_corr"] > 0.9 and t["nis_accel_z"] > 2.0 > max(t["nis_accel_x"], t["nis_accel_y"])
+    across = max(t["nis_accel_x"], t["nis_accel_y"])
+    assert t["accel_z_along_corr"] > 0.9 and t["nis_accel_z"] > max(2.0, 1.5 * across), t
     assert t["tension_sd_n"] > 1.0

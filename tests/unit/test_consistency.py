@@ -339,7 +339,8 @@ def test_the_wind_of_a_heading_the_gyro_alone_has_held():
 
 def test_a_flag_is_set_above_flag_nis_and_cleared_only_below_flag_nis_clear():
     """Hysteresis: a windowed NIS that hovers between FLAG_NIS_CLEAR and FLAG_NIS keeps what the source was (flagged
-    or not), so the flag and its STATUSTEXT do not flip with every wobble; the accuracy factor follows the NIS."""
+    or not), so the flag and its STATUSTEXT do not flip with every wobble; the accuracy factor follows the NIS (the
+    accelerometer's as (1 + NIS) / 2: test_a_filter_whose_noise_is_larger_than_it_assumes_errs_by_half_the_excess)."""
     from firmware_py.estimator.consistency import ACCEL, BARO, FLAG_NIS, FLAG_NIS_CLEAR, Consistency
 
     mid = 0.5 * (FLAG_NIS + FLAG_NIS_CLEAR)
@@ -349,6 +350,22 @@ def test_a_flag_is_set_above_flag_nis_and_cleared_only_below_flag_nis_clear():
         mon.nis[ACCEL], mon.nis[BARO] = accel, baro
         mon.evaluate()
         seen.append((mon.flags >> ACCEL & 1, mon.flags >> BARO & 1))
-        assert mon.inflation == pytest.approx(max(accel, baro) ** 0.5)
+        assert mon.inflation == pytest.approx(max(0.5 * (1.0 + accel), baro) ** 0.5)
     assert seen == [(0, 0), (1, 0), (1, 0), (0, 0)]
     assert mon.flag_changes == 2
+
+
+def test_a_filter_whose_noise_is_larger_than_it_assumes_errs_by_half_the_excess():
+    """Why the accelerometer's windowed NIS enters the accuracy factor as (1 + NIS) / 2: a random walk seen in white
+    noise NIS times larger than the filter assumes (its own process noise as assumed, its gain the slow one of q << R)
+    has an actual error variance (1 + NIS) / 2 times the filter's P in the steady state, not NIS times (the gain
+    averages the excess noise over the same steps as the walk). The exact steady state of the scalar Riccati equation
+    and of the actual error's recursion, against that law."""
+    q, r = 1e-4, 1.0
+    p = 0.5 * (q + math.sqrt(q * q + 4.0 * q * r))  # a priori: P^2 / (P + R) = q
+    k = p / (p + r)
+    for nis in (1.0, 2.0, 5.0, 20.0):
+        actual = (k * k * nis * r + q) / (1.0 - (1.0 - k) ** 2)  # a priori, with the gain the filter computed
+        assert actual / p == pytest.approx(0.5 * (1.0 + nis), rel=0.02), nis
+        if nis > 1.0:  # NIS times P states more than the error
+            assert actual / p < nis
