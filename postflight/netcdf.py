@@ -190,7 +190,8 @@ def _consistency_vars(p: WindProduct) -> dict:
         out["accuracy_inflation_causal"] = (_as_written(p.accuracy_inflation), {
             "long_name": "factor on the real-time (causal) filter's horizontal accuracy from its consistency "
                          "monitor", "units": "1",
-            "comment": "sqrt of the largest windowed normalised innovation squared, at least 1. WIND_COV's "
+            "comment": "sqrt of the largest windowed normalised innovation squared (the accelerometer's counted as "
+                       "(1 + NIS) / 2), at least 1. WIND_COV's "
                        "horiz_accuracy included it, and so do the *_causal_uncertainty variables (that accuracy) "
                        "and the smoothed *_uncertainty ones (the smoother's model is the filter's)."})  # fmt: skip
     return out

@@ -14,6 +14,7 @@ from balloon_core.config import Design
 from balloon_core.rotation import euler_from_quat
 from balloon_core.score import response, score
 from firmware_py.core_c import new_core
+from firmware_py.estimator.consistency import stated_nis
 from firmware_py.estimator.state import ATT_E, ATT_N, DRAG, FilterConfig
 from sim_hil.dynamics import TruthConfig
 from sim_hil.simulator import TRUTH_COLUMNS, Simulation
@@ -38,8 +39,8 @@ def fly(design: Design, wind: WindConfig, truth: TruthConfig, filt: FilterConfig
         factor = mon.inflation
         source = -1.0
         if factor > 1.0:
-            nis = mon.nis
-            source = float(nis.index(max(nis)))
+            stated = [stated_nis(k, v) for k, v in enumerate(mon.nis)]
+            source = float(stated.index(max(stated)))
         rows[i] = (s.time_usec * 1e-6, wn, we, est.wind_accuracy(), *euler_from_quat(*ekf.q.tolist()),
                    math.sqrt(ekf.P[ATT_N, ATT_N] + ekf.P[ATT_E, ATT_E]), factor, source)  # fmt: skip
     truth_cols = {c: sim.truth[:, k] for k, c in enumerate(TRUTH_COLUMNS)}

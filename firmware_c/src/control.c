@@ -70,7 +70,7 @@ static bw_real turbulence_excess(const bw_estimator_t *est)
 }
 
 /* control.py _wind_noise_ratio: the force model's misfit times the light air's meandering, at most what IEC
- * 61400-1's class A turbulence would be (a taut state swinging across its rope with the wind in step fed it) */
+ * 61400-1's class A turbulence would be (unbounded it fed on itself: a balloon blown down ran away) */
 static bw_real wind_noise_ratio(const bw_estimator_t *est)
 {
     bw_real u = BW_MAX(est->mean_speed, BW_R(0.5));

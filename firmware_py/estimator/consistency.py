@@ -20,11 +20,11 @@ What the monitor does with it:
   firmware reports them (SYS_STATUS, a STATUSTEXT when they change, the summary) and the products carry them;
 - ``inflation``: the factor on the reported wind accuracy, the square root of the largest windowed
   NIS (>= 1): innovations sqrt(NIS) times larger than the filter expects say its errors are too. The
-  accelerometer's counts as (1 + NIS) / 2: it is fused every sample at a slow gain, and a filter whose noise is NIS
-  times what it assumes errs by (1 + NIS) / 2 of its P (the gain averages the excess over as many samples as the
-  state's walk); in class B gusts its misfit is the gusts the wind's state does not follow, sqrt(NIS) stated them
-  1.6-3 times too cautiously. The other sources' misfits are the state's own (the force balance, the lean) and
-  keep sqrt(NIS).
+  accelerometer's counts as (1 + NIS) / 2 (``stated_nis``): it is fused every sample at a slow gain, and a filter
+  whose noise is NIS times what it assumes errs by (1 + NIS) / 2 of its P (the gain averages the excess over as many
+  samples as the state's walk); in class B gusts its misfit is the gusts the wind's state does not follow, and
+  sqrt(NIS) stated them 1.6-3 times too cautiously. The other sources' misfits are the state's own (the force
+  balance, the lean) and keep sqrt(NIS).
 
 The accuracy itself also carries what the covariance cannot know (``systematic_variance``): the
 drag scale's uncertainty (inhibited on the taut tether, so decorrelated from the wind in P) and the
@@ -70,6 +70,15 @@ SLOW_INNOV_S = 10.0
 # 0.41 / 0.27 deg (2.2, 2.7, 1.5) in the envelope's three light-air multisines that went beyond 3 sigma without it
 # (python tools/accuracy_terms.py 187 181 151: the attitude's error about the field against the slow innovation)
 HEADING_MISFIT_RATIO = 2.0
+
+
+def stated_nis(source: int, nis: float) -> float:
+    """What a source's windowed NIS says of the wind's error, as a variance ratio (the accuracy factor is the square
+    root of the largest): the NIS itself, but the accelerometer's (1 + NIS) / 2. It is fused every sample at a slow
+    gain, and a filter whose noise is NIS times what it assumes errs by (1 + NIS) / 2 of its P in the steady state
+    (tests/unit/test_consistency.py; at most that here, where the fused noise already follows part of the
+    innovations)."""
+    return 0.5 * (1.0 + nis) if source == ACCEL else nis
 
 
 class Consistency:
@@ -151,14 +160,14 @@ class Consistency:
 
     def evaluate(self) -> None:
         """The flags (set above FLAG_NIS, cleared below FLAG_NIS_CLEAR) and the accuracy factor from the windowed
-        NIS (the factor follows the NIS itself: the flags are what is said, not what is stated)."""
+        NIS (the factor follows the NIS itself, the accelerometer's as ``stated_nis`` counts it: the flags are what is
+        said, not what is stated)."""
         flags = 0
         worst = 1.0
         for i, v in enumerate(self.nis):
             if v > FLAG_NIS or (self.flags >> i & 1 and v > FLAG_NIS_CLEAR):
                 flags |= 1 << i
-            if i == ACCEL:  # a slow gain's error: (1 + NIS) / 2 of P (module docstring)
-                v = 0.5 * (1.0 + v)
+            v = stated_nis(i, v)
             if v > worst:
                 worst = v
         if flags != self.flags:

@@ -389,10 +389,11 @@ class Estimator:
         """The wind's process noise over what the expected spectrum gives (a variance ratio >= 1): the force model's
         misfit (the accelerometer's innovations over their taut allowance: the wind then is known less well than the
         spectrum alone says) times the light air's meandering (_turbulence_excess), at most what IEC 61400-1's class A
-        turbulence would be (``WIND_MISFIT_IREF``). Unbounded, a taut state that swings across its rope with the wind
-        in step (a mode the magnetometer cannot see: the attitude about the field's axis) fed the noise that let the
-        wind follow the velocity, so the drag that damps the swing never acted: a 2 m balloon on 300 m in 6 m/s from
-        the south swung +-70 m across for ten minutes, its wind +-10 m/s."""
+        turbulence would be (``WIND_MISFIT_IREF``). Unbounded, the misfit fed on itself: the noisier wind raised the
+        model's drag and tension until a balloon blown down ran away (14.4 m/s class B gusts on the paper's rope read
+        616 % fast), and a taut state swinging across its rope with the wind in step (the attitude about the field's
+        axis, which the magnetometer cannot see) let the wind follow the velocity, so the drag that damps the swing
+        never acted (docs/estimator.md, "Tuning derived from the wind spectrum")."""
         u = max(self._mean_speed, 0.5)
         expected = self.cfg.turbulence_intensity * u
         most = WIND_MISFIT_IREF * (0.75 * u + WIND_MISFIT_B_MPS)

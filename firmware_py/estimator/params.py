@@ -124,8 +124,9 @@ MEAN_WIND_S = 60.0  # averaging time of the mean wind that scales the wind's pro
 LIGHT_AIR_SIGMA_U_MPS = 0.5
 # the most turbulent wind the force model's misfit may be taken for (control._wind_noise_ratio): IEC 61400-1's normal
 # turbulence model for class A, sigma_u = I_ref (0.75 U + b), the 90th percentile of its most turbulent class (57 % of
-# a 2 m/s mean, 27 % of 6 m/s, 21 % of 10 m/s). A misfit beyond it is not the wind's: a taut state swinging across its
-# rope, the wind in step with the velocity, raised the wind's noise that let the wind follow (docs/estimator.md)
+# a 2 m/s mean, 27 % of 6 m/s, 21 % of 10 m/s). A misfit beyond it is not the wind's: unbounded, the noisier wind raised
+# the model's drag until a balloon blown down ran away (616 % fast), and let a swinging state's wind follow its
+# velocity (docs/estimator.md, "Tuning derived from the wind spectrum")
 WIND_MISFIT_IREF = 0.16
 WIND_MISFIT_B_MPS = 5.6
 WIND_NOISE_PERIOD_S = 1.0  # time between updates of that noise

@@ -413,8 +413,8 @@ def test_a_wind_held_across_the_lean_by_the_unseen_rotation_says_so(name):
     measurements pull the balloon back every step; the force balance (consistency.balance_nis) states it: error /
     accuracy 0.6-1.4, at most 3 % beyond 3 sigma. The estimate has no skill in the band (-1.4 to 0.15) and says
     so: its stated accuracy covers the wind's whole spread about its mean, so the constant true mean's error is
-    within it (error/accuracy at most 1.33, the envelope's band), and no reference can be dishonest against it (were
-    it ever skilful, they must be dishonest). The hard
+    within it (error/accuracy at most 1.33, the top of the envelope's band), and no reference can be dishonest against
+    it (were it ever skilful, they must be dishonest). The hard
     iron from the south-east still reads 5.7 % beyond 3 sigma (error/accuracy 0.72): the window's mean lags the
     error's onset by tens of seconds."""
     scenario, from_deg, seed = UNSEEN_ROTATION[name]
@@ -437,20 +437,22 @@ def test_a_balloon_blown_down_by_a_strong_wind_says_how_little_it_knows():
     component once was the horizontal projection of the body's axis, which moves by only cos(lean) of the lean's
     change and saturates: the state slid to the horizontal, the barometer's offset took the height, and the wind
     read 79 % fast at error/accuracy 2.1, 7.6 % beyond 3 sigma (the same flight on the paper's rope: 1678 % fast).
-    Taken along the lean's tangent (aid_sources/tether.py fuse_taut) it reads 43 % fast, and says so: error /
+    Taken along the lean's tangent (aid_sources/tether.py fuse_taut) it read 43 % fast, and said so; with the wind's
+    process noise bounded at IEC class A turbulence (control._wind_noise_ratio) 5.6 % fast, held within 15 %: error /
     accuracy within the envelope's 0.5-2 (1.18 with the lean's misfit stated, consistency.lean_misfit_wind; 1.52
     before it), at most 3 % beyond 3 sigma. No skill in the band: its stated accuracy covers the wind's whole spread,
     so the constant true mean's error is within it; the constant and the truth delayed by 4 s, against the same
     stated accuracy, fell below the error/accuracy band (0.29 and 0.28) while the accelerometer's misfit counted in
-    full (sqrt(NIS)); counted as a slow gain's error ((1 + NIS) / 2, consistency.py) the stated accuracy is the wind's
-    own spread, and a reference within that spread is as honest as the estimate (0.66 and 0.75): what is held is that
-    the estimate says it knows no more than the wind's spread (the constant's error/accuracy at most 1.33)."""
+    full (sqrt(NIS)); counted as a slow gain's error ((1 + NIS) / 2, consistency.stated_nis) the stated accuracy is
+    the wind's own spread, and a reference within that spread is as honest as the estimate (0.66 and 0.75): what is
+    held is that the estimate says it knows no more than the wind's spread (the constant's error/accuracy at most
+    1.33, the top of the envelope's band)."""
     p = dict(be.sample(200)[0], mean_mps=15.0)
     m = judged(be.sections_of(p), p["seed"], be.FULL_DURATION_S, 120.0)
     est = m["estimate"]
 
     def honest(x: dict[str, float]) -> bool:
-        return 0.5 <= x["err_acc"] <= 2.0 and x["beyond_3sigma"] <= 0.03 and x["speed"] < 60.0
+        return 0.5 <= x["err_acc"] <= 2.0 and x["beyond_3sigma"] <= 0.03 and x["speed"] < 15.0
 
     assert honest(est), est
     assert est["skill"] < 0.3 and m["constant"]["err_acc"] <= 1.33, (est, m["constant"])
@@ -459,14 +461,18 @@ def test_a_balloon_blown_down_by_a_strong_wind_says_how_little_it_knows():
 def test_a_balloon_blown_down_on_the_paper_rope_in_class_b_gusts_says_its_wind_is_unknown():
     """Beyond the envelope: the stress sample's flight 8 (``bench_envelope --quick --max-wind 15``), class B gusts of
     14.4 m/s with vertical air on the paper's rope, r = 1.06 m on 52 m, five minutes from 120 s. The balloon leans
-    75-85 deg and its state slides to the horizontal, the barometer's offset taking the height: the wind reads seven
-    times the truth, and that is not removed. But the body's tilt (77 deg) and the lean of the pull the model puts on
-    the balloon (87) disagree by 0.2 rad for minutes, and the winds the two leans tell differ by the wind's whole
-    scale (consistency.lean_misfit_wind). Stated, error/accuracy is within the envelope's 0.5-2 (1.5; 5.1 before)
-    and none of the estimates is beyond 3 sigma (99 % before). The constant true mean and the truth delayed by 4 s,
-    against the same stated accuracy, fall below the band (0.04). The estimate has no skill there: a reference within
-    the wind's spread is not held to fail (its error/accuracy at most 1.33 says the stated accuracy covers that
-    spread; test_a_balloon_blown_down_by_a_strong_wind_says_how_little_it_knows)."""
+    75-85 deg. Its state slid to the horizontal, the barometer's offset taking the height, and the wind read seven
+    times the truth (616 % fast): the accelerometer's misfit raised the wind's process noise without bound, the
+    noisier wind the model's drag and tension. Bounded at IEC class A turbulence (control._wind_noise_ratio) it reads
+    within 1 %, and held here within 20 %. The body's tilt (77 deg) and the lean of the model's pull (87) had
+    disagreed by 0.2 rad for minutes, which the lean's misfit states (consistency.lean_misfit_wind): error/accuracy
+    within the envelope's 0.5-2 (1.5; 5.1 before it) and none of the estimates beyond 3 sigma (99 % before). The
+    constant true mean and the truth delayed by 4 s, against the same stated accuracy, fell below the band (0.04)
+    while the accelerometer's misfit counted in full; as a slow gain's error ((1 + NIS) / 2, consistency.stated_nis)
+    they are within the wind's spread as the estimate is (0.80 and 0.75). The estimate has no skill there: a
+    reference within the wind's spread is not held to fail; its error/accuracy at most 1.33 (the top of the
+    envelope's band) says the stated accuracy covers that spread
+    (test_a_balloon_blown_down_by_a_strong_wind_says_how_little_it_knows)."""
     p = dict(be.sample(64, max_wind_mps=15.0)[8])
     m = judged(be.sections_of(p), p["seed"], 300.0, 120.0)
     est = m["estimate"]
@@ -474,7 +480,7 @@ def test_a_balloon_blown_down_on_the_paper_rope_in_class_b_gusts_says_its_wind_i
     def honest(x: dict[str, float]) -> bool:
         return 0.5 <= x["err_acc"] <= 2.0 and x["beyond_3sigma"] <= 0.03
 
-    assert honest(est), est
+    assert honest(est) and abs(est["speed"]) <= 20.0, est
     if est["skill"] < 0.3:
         assert m["constant"]["err_acc"] <= 1.33, (est, m["constant"])
     else:
