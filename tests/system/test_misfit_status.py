@@ -24,7 +24,8 @@ from balloon_core.wire import TLOG_EPOCH_US, LinkStats, tlog_messages
 from firmware_py import app
 from firmware_py.app import CONSISTENT_TEXT, RESTARTED_TEXT, SENSOR_BITS, TEXT_MAX, Firmware
 from firmware_py.estimator import control
-from firmware_py.estimator.consistency import SOURCES, Consistency
+from firmware_py.estimator.consistency import ACCEL as ACCEL_SOURCE
+from firmware_py.estimator.consistency import FLAG_NIS, FLAG_NIS_CLEAR, SOURCES, Consistency, stated_nis
 from firmware_py.estimator.state import FilterConfig
 from ground_station.listen import GroundStation
 
@@ -97,7 +98,9 @@ def test_a_gusty_flight_tells_its_misfit(gusty):
     for _, m in texts:
         assert len(m.text) <= TEXT_MAX
         if m.severity == mavlink.MAV_SEVERITY_WARNING:
-            assert float(re.search(r"x(\d\.\d)\)?$", m.text).group(1)) >= 1.4, m.text  # sqrt(NIS > 2)
+            # a flagged source's NIS is above FLAG_NIS_CLEAR, the accelerometer's stated as (1 + NIS) / 2
+            least = math.sqrt(stated_nis(ACCEL_SOURCE, FLAG_NIS_CLEAR))
+            assert float(re.search(r"x(\d\.\d)\)?$", m.text).group(1)) >= round(least, 1), m.text
         else:
             assert (m.severity, m.text) == (mavlink.MAV_SEVERITY_INFO, CONSISTENT_TEXT)
     assert all(b - a >= 1.0 - 1e-9 for (a, _), (b, _) in zip(texts, texts[1:]))  # at most one a second
@@ -170,9 +173,11 @@ def test_the_product_carries_the_flags_the_firmware_told(gusty):
     same = np.abs(t[k] - np.array([t_ for t_, _ in said])) < 1e-3
     assert same.sum() > 0.9 * len(said) and np.any(factor[k[same]] > 1.5)
     np.testing.assert_allclose(causal[k[same]], np.array([a for _, a in said])[same], rtol=1e-3)
-    # a flagged time has a factor above sqrt(2) (a windowed NIS above 2), an unflagged one at most that
+    # an unflagged time has every windowed NIS at most FLAG_NIS, so a factor at most its root; a flagged one a NIS
+    # above FLAG_NIS_CLEAR, stated at least as the accelerometer's (1 + NIS) / 2 (consistency.stated_nis)
     assert np.all(factor >= 1.0 - 1e-6)
-    assert np.all((flags != 0) == (factor > math.sqrt(2.0) * (1 + 1e-6)))
+    assert np.all(factor[flags == 0] <= math.sqrt(FLAG_NIS) * (1 + 1e-6))
+    assert np.all(factor[flags != 0] > math.sqrt(stated_nis(ACCEL_SOURCE, FLAG_NIS_CLEAR)) * (1 - 1e-6))
     assert np.any(flags & BIT["accel"])
     # the same as the firmware said in flight: its first STATUSTEXT when the first flag came up, and its
     # SYS_STATUS health (the reprocessing runs the firmware's estimator on the same samples)
