@@ -308,6 +308,15 @@ def frame_length(buf: bytes, i: int) -> int:
     return 0
 
 
+def frame_msgid(frame: bytes) -> int | None:
+    """The message id of a whole frame, from its header (None if it does not start with a MAVLink magic)."""
+    if len(frame) >= 10 and frame[0] == MAGIC_V2:
+        return frame[7] | frame[8] << 8 | frame[9] << 16
+    if len(frame) >= 6 and frame[0] == MAGIC_V1:
+        return frame[5]
+    return None
+
+
 def tlog_messages(path: str, stats: LinkStats, chunk: int = 1 << 20, fast: bool = False) -> Iterator:
     """Messages of a telemetry log: [8-byte big-endian us timestamp][frame] records, read a chunk at a
     time (memory does not grow with the file). A corrupt record is skipped by resynchronising on the
@@ -335,7 +344,7 @@ def tlog_messages(path: str, stats: LinkStats, chunk: int = 1 << 20, fast: bool 
                 break
             if ln == 0:
                 # resync: the next byte that could start a record
-                k = _next_magic(buf, j + 1)
+                k = next_magic(buf, j + 1)
                 stats.garbage_bytes += k - j
                 i = k - TLOG_HEADER
                 if k >= n and eof:
@@ -359,7 +368,7 @@ def tlog_messages(path: str, stats: LinkStats, chunk: int = 1 << 20, fast: bool 
 
 def _chained_magic(buf: bytes, k: int, stop: int) -> int:
     """The first frame start in buf[k:stop] that a record follows (or the buffer ends after), 0 if none."""
-    while (k := _next_magic(buf, k)) < stop:
+    while (k := next_magic(buf, k)) < stop:
         ln = frame_length(buf, k)
         after = k + ln + TLOG_HEADER
         if ln and (after >= len(buf) or frame_length(buf, after)):
@@ -368,7 +377,7 @@ def _chained_magic(buf: bytes, k: int, stop: int) -> int:
     return 0
 
 
-def _next_magic(buf: bytes, k: int) -> int:
+def next_magic(buf: bytes, k: int) -> int:
     """The index of the next byte at or after ``k`` that could start a frame (len(buf) if none)."""
     a, b = buf.find(MAGIC_V2, k), buf.find(MAGIC_V1, k)
     found = [x for x in (a, b) if x >= 0]

@@ -46,6 +46,7 @@ from balloon_core.score import on_grid
 from firmware_py.estimator.consistency import SOURCES
 from sim_hil.scenarios import SCENARIOS
 from study import engine
+from study.cli import max_workers
 from study.metrics import FACTOR_SHOWN
 from study.spec import Case, case_key, scenario_sections
 
@@ -629,7 +630,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bench_envelope: error: --start {args.start:g} must be before the flight's end ({duration:g} s)",
               file=sys.stderr)  # fmt: skip
         return 2
-    most = 4 * (os.cpu_count() or 1)  # as balloon-study: more only time-share the cores
+    most = max_workers()  # balloon-study's: more only time-share the cores
     if args.workers is not None and args.workers > most:
         return userargs.fail("bench_envelope", f"--workers must be 1 .. {most} (4 per core; a bigger cluster is "
                              f"--scheduler), got {args.workers}")  # fmt: skip

@@ -13,10 +13,16 @@ from ground_station.wind import as_arrays, read_records
 TRUTH_NEEDED = ("time_s", "wind_n", "wind_e")
 
 
+def _header(fh) -> list[str]:
+    """A CSV's column names from its first line (a byte-order mark and spaces about the names are not part of them:
+    open the file as ``utf-8-sig``)."""
+    return [c.strip() for c in fh.readline().split(",")]
+
+
 def read_truth(path: str) -> dict[str, np.ndarray]:
     """A balloon-sim truth CSV, checked: a header with the columns scoring needs and at least 2 rows."""
     with open(path, encoding="utf-8-sig", errors="replace") as fh:
-        header = [c.strip() for c in fh.readline().split(",")]
+        header = _header(fh)
         has_rows = bool(fh.readline().strip()) and bool(fh.readline().strip())
     if header == [""]:
         raise ValueError(f"{path}: the truth CSV is empty")
@@ -45,7 +51,7 @@ def read_truth_csv(path: str, columns: tuple[str, ...] | None = None) -> dict[st
     """The simulator's truth CSV (``balloon-sim --truth``): a header row, one row per IMU sample; ``columns`` (None:
     all of them) read alone, so that a day's truth (64 MB an hour, 18 columns) takes only what is asked of it."""
     with open(path, encoding="utf-8-sig", errors="replace") as fh:
-        header = [c.strip() for c in fh.readline().split(",")]
+        header = _header(fh)
     names = header if columns is None else list(columns)
     cols = [header.index(c) for c in names]
     data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=cols, ndmin=2)

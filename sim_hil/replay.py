@@ -26,17 +26,17 @@ from dataclasses import dataclass
 from balloon_core import userargs
 from balloon_core.progress import Progress
 from balloon_core.wire import (
-    MAGIC_V1,
     MAGIC_V2,
     MAX_FRAME,
     TLOG_HEADER,
     Decoder,
     LinkStats,
-    _next_magic,
     capture_messages,
     frame_length,
+    frame_msgid,
     mavlink,
     message_time_us,
+    next_magic,
     open_link,
 )
 from sim_hil.link import Lockstep
@@ -48,14 +48,10 @@ IMU_MS_MSG_IDS = {26}  # SCALED_IMU: time_boot_ms (uint32) is the first payload 
 def imu_time_us(frame: bytes) -> int | None:
     """The sample time of an IMU frame (HIGHRES_IMU, HIL_SENSOR, SCALED_IMU), else None; read from the
     frame's header and first payload field, without decoding it."""
-    if len(frame) < 8:
+    msgid = frame_msgid(frame) if len(frame) >= 8 else None
+    if msgid is None:
         return None
-    if frame[0] == MAGIC_V2:
-        msgid, payload = frame[7] | frame[8] << 8 | frame[9] << 16, frame[10 : 10 + frame[1]]
-    elif frame[0] == MAGIC_V1:
-        msgid, payload = frame[5], frame[6 : 6 + frame[1]]
-    else:
-        return None
+    payload = frame[10 : 10 + frame[1]] if frame[0] == MAGIC_V2 else frame[6 : 6 + frame[1]]
     if msgid in IMU_MSG_IDS:
         return struct.unpack("<Q", (bytes(payload[:8]) + bytes(8))[:8])[0]  # MAVLink 2 trims trailing zeros
     if msgid in IMU_MS_MSG_IDS:
@@ -101,11 +97,10 @@ def raw_chunks(path: str, chunk: int = 65536):
                 break
             ln = frame_length(buf, i)
             if ln == 0 or i + ln > len(buf):
-                i = _next_magic(buf, i + 1) if ln == 0 else i + 1
+                i = next_magic(buf, i + 1) if ln == 0 else i + 1
                 continue
             frame = buf[i : i + ln]
-            msgid = frame[7] | frame[8] << 8 | frame[9] << 16 if frame[0] == MAGIC_V2 else frame[5]
-            m = dec.decode_frame(frame) if msgid in known else None
+            m = dec.decode_frame(frame) if frame_msgid(frame) in known else None
             if m is None:  # a CRC error or a message no receiver knows (pymavlink's parser skips it alike)
                 i += 1  # a garbage byte
                 continue

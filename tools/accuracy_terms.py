@@ -158,15 +158,19 @@ def about_field(att: np.ndarray, r: np.ndarray, truth: dict, tn: np.ndarray, te:
         sb.append(float(b @ row[7:16].reshape(3, 3) @ b))
         sx.append(sb[-1] + float(row[16]))
     ang = math.atan2(te.mean(), tn.mean())
-    cross = -(r[:, 1] - tn) * math.sin(ang) + (r[:, 2] - te) * math.cos(ang)
+
+    def across(dn: np.ndarray, de: np.ndarray) -> np.ndarray:  # a north-east error's part across the mean wind
+        return -dn * math.sin(ang) + de * math.cos(ang)
+
+    cross = across(r[:, 1] - tn, r[:, 2] - te)
     eb_a, slow = np.array(eb), att[:, 17]
     corr, slow_corr = correlation(eb_a, cross), correlation(eb_a, slow)
     # the balloon's own position and velocity across the mean wind: a wind error that is the velocity's leaves the
     # drag as it was (the air relative to the balloon), and only the tether's pull across tells the position
     t = r[:, 0]
     at = lambda c: np.interp(t, truth["time_s"], truth[c])  # noqa: E731
-    pos_cross = -(att[:, 18] - at("pos_n")) * math.sin(ang) + (att[:, 19] - at("pos_e")) * math.cos(ang)
-    vel_cross = -(att[:, 20] - at("vel_n")) * math.sin(ang) + (att[:, 21] - at("vel_e")) * math.cos(ang)
+    pos_cross = across(att[:, 18] - at("pos_n"), att[:, 19] - at("pos_e"))
+    vel_cross = across(att[:, 20] - at("vel_n"), att[:, 21] - at("vel_e"))
     return {"cross_position_error_m": float(np.sqrt(np.mean(pos_cross**2))),
             "cross_velocity_error_mps": float(np.sqrt(np.mean(vel_cross**2))),
             "cross_velocity_corr": correlation(vel_cross, cross),
