@@ -175,4 +175,5 @@ def test_ctrl_c_while_a_program_is_still_starting_is_one_line(module: str):
     assert "Traceback" not in err, err
     assert p.returncode in (130, -signal.SIGINT, 0), err
     if p.returncode == 130:
-        assert len(err.strip().splitlines()) == 1 and "interrupted (Ctrl-C)" in err, err
+        # while importing (balloon_core.entry) or already in the program's own handler: which is the machine's timing
+        assert len(err.strip().splitlines()) == 1 and "interrupted" in err, err
