@@ -90,10 +90,10 @@ static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, 
         e->H3[2][BW_ABIAS_Z] = BW_R(1.0);
     pred[2] += e->x[BW_ABIAS_Z];
     /* accel.py: in flight the tilt takes only what a correlated model error allows (BW_ACCEL_MODEL_CORR_S), the
-     * heading and the gyro bias too in proportion to the misfit */
+     * heading and the gyro bias less in proportion to the misfit, at least BW_ACCEL_HEADING_GAIN_MIN */
     tilt = ground ? BW_R(1.0) : BW_MIN(BW_R(1.0), BW_SQRT(e->dt / (bw_real)BW_ACCEL_MODEL_CORR_S));
     bw_ekf_fuse3(e, fx - pred[0], fy - pred[1], fz - pred[2], var, est->accel_status, var_z_extra, tilt,
-                 BW_R(1.0) - misfit * (BW_R(1.0) - tilt), radial, radial_var);
+                 BW_R(1.0) - misfit * (BW_R(1.0) - (bw_real)BW_ACCEL_HEADING_GAIN_MIN), radial, radial_var);
     if (e->taut_phase == 0) {
         const bw_real step_s = (bw_real)est->sched.taut_every * e->dt;
         const bw_real walk = (bw_real)est->cfg->accel_bias_walk_mps2_rt_s;

@@ -61,23 +61,13 @@ static bw_real vertical_gust_var(const bw_estimator_t *est, bw_real mean_speed_m
 }
 
 /* control.py _turbulence_excess: below BW_LIGHT_AIR_SIGMA_U_MPS the filter's own turbulence raises the wind's
- * noise when larger than sigma_u = TI U (light air meanders), as a variance ratio >= 1 */
+ * noise when larger than sigma_u = TI U (light air meanders), as a variance ratio >= 1; the force model's misfit
+ * does not (taken for turbulence it fed on itself) */
 static bw_real turbulence_excess(const bw_estimator_t *est)
 {
     bw_real expected = est->ekf.m.turbulence_intensity * BW_MAX(est->mean_speed, BW_R(0.5));
     bw_real seen = BW_MIN(est->speed_var, (bw_real)(BW_LIGHT_AIR_SIGMA_U_MPS * BW_LIGHT_AIR_SIGMA_U_MPS));
     return BW_MAX(BW_R(1.0), seen / (expected * expected));
-}
-
-/* control.py _wind_noise_ratio: the force model's misfit times the light air's meandering, at most what IEC
- * 61400-1's class A turbulence would be (unbounded it fed on itself: a balloon blown down ran away) */
-static bw_real wind_noise_ratio(const bw_estimator_t *est)
-{
-    bw_real u = BW_MAX(est->mean_speed, BW_R(0.5));
-    bw_real expected = est->ekf.m.turbulence_intensity * u;
-    bw_real most = (bw_real)BW_WIND_MISFIT_IREF * (BW_R(0.75) * u + (bw_real)BW_WIND_MISFIT_B_MPS);
-    bw_real misfit = BW_MAX(BW_R(1.0), est->accel_innov2 / est->accel_taut_var) * turbulence_excess(est);
-    return BW_MIN(misfit, BW_MAX(BW_R(1.0), most * most / (expected * expected)));
 }
 
 static void init_clock(bw_estimator_t *est)
@@ -655,7 +645,7 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
             weigh_ascent(est, speed);
         if (e->noise_phase == 0) {
             est->vertical_gust_var = vertical_gust_var(est, est->mean_speed, est->rho);
-            bw_ekf_adapt_wind_noise(e, est->mean_speed, wind_noise_ratio(est));
+            bw_ekf_adapt_wind_noise(e, est->mean_speed, turbulence_excess(est));
         }
     }
     return 1;

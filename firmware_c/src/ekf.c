@@ -347,11 +347,11 @@ void bw_ekf_predict(bw_ekf_t *e, bw_real gx, bw_real gy, bw_real gz, bw_real rho
 #endif
 }
 
-void bw_ekf_adapt_wind_noise(bw_ekf_t *e, bw_real mean_speed_mps, bw_real model_misfit)
+void bw_ekf_adapt_wind_noise(bw_ekf_t *e, bw_real mean_speed_mps, bw_real excess)
 {
     bw_real u = BW_MIN(BW_MAX(mean_speed_mps, BW_R(0.5)), BW_R(20.0));
     bw_real ratio = u / e->u0;
-    bw_real q = e->q_rate0 * BW_POW(ratio, BW_R(14.0) / BW_R(3.0)) * model_misfit;
+    bw_real q = e->q_rate0 * BW_POW(ratio, BW_R(14.0) / BW_R(3.0)) * excess;
     bw_real t = e->wp_tau_s / ratio;
     e->q_flight[BW_WRATE_N] = e->q_flight[BW_WRATE_E] = q;
     e->qd_ground[BW_WRATE_N] = e->qd_ground[BW_WRATE_E] = q;

@@ -69,8 +69,6 @@ from firmware_py.estimator.params import (
     TURBULENCE_FROM_S,
     TURBULENCE_TO_S,
     VERTICAL_TURBULENCE_RATIO,
-    WIND_MISFIT_B_MPS,
-    WIND_MISFIT_IREF,
     Schedule,
 )
 from firmware_py.estimator.state import (
@@ -382,30 +380,19 @@ class Estimator:
                 self._weigh_ascent(speed)
             if self.step % self.schedule.wind_noise_every == 0:
                 self.vertical_gust_var = self._vertical_gust_var(self._mean_speed, self.rho)
-                ekf.adapt_wind_noise(self._mean_speed, self._wind_noise_ratio())
+                ekf.adapt_wind_noise(self._mean_speed, self._turbulence_excess())
         return True
-
-    def _wind_noise_ratio(self) -> float:
-        """The wind's process noise over what the expected spectrum gives (a variance ratio >= 1): the force model's
-        misfit (the accelerometer's innovations over their taut allowance: the wind then is known less well than the
-        spectrum alone says) times the light air's meandering (_turbulence_excess), at most what IEC 61400-1's class A
-        turbulence would be (``WIND_MISFIT_IREF``). Unbounded, the misfit fed on itself: the noisier wind raised the
-        model's drag and tension until a balloon blown down ran away (14.4 m/s class B gusts on the paper's rope read
-        616 % fast), and a taut state swinging across its rope with the wind in step (the attitude about the field's
-        axis, which the magnetometer cannot see) let the wind follow the velocity, so the drag that damps the swing
-        never acted (docs/estimator.md, "Tuning derived from the wind spectrum")."""
-        u = max(self._mean_speed, 0.5)
-        expected = self.cfg.turbulence_intensity * u
-        most = WIND_MISFIT_IREF * (0.75 * u + WIND_MISFIT_B_MPS)
-        misfit = max(1.0, self._accel_innov2 / self.accel_taut_var) * self._turbulence_excess()
-        return min(misfit, max(1.0, most * most / (expected * expected)))
 
     def _turbulence_excess(self) -> float:
         """The wind's process noise is sized for sigma_u = TI U (adapt_wind_noise). Light air does not calm
         in proportion: it meanders, sigma_u near 0.3-0.5 m/s at any mean speed. So below
         ``LIGHT_AIR_SIGMA_U_MPS`` the filter's own turbulence, its speed's variance about the 60 s mean, raises
         the noise when larger (a variance ratio >= 1). Never above that: in a strong wind TI U holds, and a
-        noise that followed the estimate's own scatter would feed on it."""
+        noise that followed the estimate's own scatter would feed on it. Nor does the force model's misfit raise it
+        (the accelerometer's innovations beyond their taut allowance): taken for turbulence, the noisier wind raised
+        the model's drag and tension until a balloon blown down ran away (class B gusts of 14.4 m/s on the paper's
+        rope read 616 % fast), and let a state swinging across its rope carry the wind with its velocity, so that
+        the drag which damps the swing never acted (docs/estimator.md, "The swing across the rope")."""
         expected = self.cfg.turbulence_intensity * max(self._mean_speed, 0.5)
         seen = min(self._speed_var, LIGHT_AIR_SIGMA_U_MPS * LIGHT_AIR_SIGMA_U_MPS)
         return max(1.0, seen / (expected * expected))

@@ -339,15 +339,15 @@ class WindEkf:
         F[WIND_N, WRATE_N] = F[WIND_E, WRATE_E] = self.dt
         F[WRATE_N, WRATE_N] = F[WRATE_E, WRATE_E] = self.rate_decay
 
-    def adapt_wind_noise(self, mean_speed_mps: float, model_misfit: float = 1.0) -> None:
+    def adapt_wind_noise(self, mean_speed_mps: float, excess: float = 1.0) -> None:
         """Kaimal turbulence at the mean wind U: in the inertial range the spectrum the filter matches
         (tuning.py) scales as sigma_u^2 (L/U)^(-2/3) / U ~ TI^2 U^(8/3), and the rate's time constant
         D/U as 1/U, so q_rate ~ U^(14/3). Called about once a second with the filter's own mean wind.
-        ``model_misfit`` (>= 1) scales it further when the force model fits the accelerometer worse than
-        its allowance: the wind then is known less well than the spectrum alone says."""
+        ``excess`` (>= 1, a variance ratio) scales it further where light air meanders beyond TI U
+        (Estimator._turbulence_excess)."""
         u = min(max(mean_speed_mps, 0.5), 20.0)
         ratio = u / self._u0
-        q = self._q_rate0 * ratio ** (14.0 / 3.0) * model_misfit
+        q = self._q_rate0 * ratio ** (14.0 / 3.0) * excess
         self._q_flight[WRATE_N] = self._q_flight[WRATE_E] = q
         self._qd_flight[WRATE_N] = self._qd_flight[WRATE_E] = q
         self._qd_ground[WRATE_N] = self._qd_ground[WRATE_E] = q

@@ -106,29 +106,30 @@ ACCEL_INNOV_S = 2.0  # averaging time of the accelerometer's innovations that se
 # magnetometer also measures, that is its error. The tilt takes sqrt(dt / ACCEL_MODEL_CORR_S) of its gain in flight
 # (0.1 at 100 Hz: a correlated error is worth that many fewer independent samples, and a walking state's gain goes as
 # 1 / sqrt(R)); the covariance is the one for the gain used (ekf.fuse3, Joseph form). The heading and the gyro bias
-# take it in proportion to the accelerometer's windowed NIS from consistency.FLAG_NIS to twice that (aid_sources/
-# accel.py): taut, the accelerometer reads the heading through the lean's azimuth (the pull's direction), from the
-# same force model, and about the magnetic field's axis only it holds the attitude; at the full gain the paper's rope
-# blown down 65 deg in class B gusts drove the bias 0.16 deg/s in 20 s and the attitude 3 deg about the field, where
-# 0.5 was stated, and the wind 1.4 m/s across (the envelope's quick flight 23). Always at the reduced gain, the
+# take less in proportion to the accelerometer's windowed NIS from consistency.FLAG_NIS to twice that (aid_sources/
+# accel.py), down to ACCEL_HEADING_GAIN_MIN: taut, the accelerometer reads the heading through the lean's azimuth
+# (the pull's direction), from the same force model, and about the magnetic field's axis only it holds the attitude;
+# at the full gain the paper's rope blown down 65 deg in class B gusts drove the bias 0.16 deg/s in 20 s and the
+# attitude 3 deg about the field, where 0.5 was stated, and the wind 1.4 m/s across (the envelope's quick flight 23,
+# before the wind's noise stopped following the misfit, control._turbulence_excess). Always at the reduced gain, the
 # heading lost what the accelerometer tells of it where the model fits (the real rope's multisine: band skill
 # 0.76 -> 0.57), and the bias in light air, where it must be learnt in flight. What the heading's full gain takes from
 # a correlated misfit is stated instead: the accuracy carries the attitude's variance about the field's axis with
 # the accelerometer's and the alignment's information worth dt / (NIS ACCEL_MODEL_CORR_S) of what they fused, NIS
 # against the noise fused (dt / ACCEL_MODEL_CORR_S for a consistent source; consistency.field_attitude_extra)
 ACCEL_MODEL_CORR_S = 1.0
+# the least of its gain the heading and the gyro bias take where the accelerometer misfits (above). Not the tilt's
+# tenth: the same rows move the position's azimuth about the anchor at the full gain, and a heading that lagged it let
+# the pair's rotation about the magnetic field's axis (which the magnetometer cannot see) swing across the rope and
+# grow after the taut entry, position, attitude and wind together: 200-300 m tethers in 10 m/s from the south read
+# 1-5 m/s RMS off at error/accuracy up to 2.2. At the full gain class B gusts in 10-15 m/s lost band skill (0.06-0.28
+# in 9 of 64 stress flights); at half they keep most of it (docs/estimator.md, "The swing across the rope")
+ACCEL_HEADING_GAIN_MIN = 0.5
 TAUT_PULL_S = 1.0  # after a slack spell the rope must pull this long before the filter is taut again
 MEAN_WIND_S = 60.0  # averaging time of the mean wind that scales the wind's process noise
 # light air meanders: sigma_u stays near 0.3-0.5 m/s however low the mean wind (low-wind meandering), so where
 # TI U is below this the filter's own turbulence (its speed's variance) may raise the wind's noise up to it
 LIGHT_AIR_SIGMA_U_MPS = 0.5
-# the most turbulent wind the force model's misfit may be taken for (control._wind_noise_ratio): IEC 61400-1's normal
-# turbulence model for class A, sigma_u = I_ref (0.75 U + b), the 90th percentile of its most turbulent class (57 % of
-# a 2 m/s mean, 27 % of 6 m/s, 21 % of 10 m/s). A misfit beyond it is not the wind's: unbounded, the noisier wind raised
-# the model's drag until a balloon blown down ran away (616 % fast), and let a swinging state's wind follow its
-# velocity (docs/estimator.md, "Tuning derived from the wind spectrum")
-WIND_MISFIT_IREF = 0.16
-WIND_MISFIT_B_MPS = 5.6
 WIND_NOISE_PERIOD_S = 1.0  # time between updates of that noise
 FIELD_LEARN_S = 1.0  # at least this much magnetometer on the ground (all of the ground time is used)
 MAG_MODEL_GAUSS = 0.004  # field direction model error (~0.5 deg of a 0.5 G field: soft iron, anomalies)

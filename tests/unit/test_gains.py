@@ -14,7 +14,7 @@ from firmware_py.estimator.consistency import ACCEL, FLAG_NIS
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.ekf import SLOW_STATES, FusionStatus
 from firmware_py.estimator.model import BalloonModel, rope_pickup_n
-from firmware_py.estimator.params import ACCEL_MODEL_CORR_S
+from firmware_py.estimator.params import ACCEL_HEADING_GAIN_MIN, ACCEL_MODEL_CORR_S
 from firmware_py.estimator.state import ATT_E, ATT_N, MODE_TAUT, N_STATES
 from tools.ascent_scale import ascent_error
 
@@ -60,8 +60,9 @@ def test_the_reduced_gains_keep_the_covariance_of_the_gain_used(tilt, heading):
 
 @pytest.mark.parametrize("nis", [0.5, FLAG_NIS, 1.5 * FLAG_NIS, 2.0 * FLAG_NIS, 5.0 * FLAG_NIS])
 def test_the_heading_takes_the_reduced_gain_as_the_accelerometer_stops_being_explained(nis):
-    """Below FLAG_NIS the heading and the gyro bias take the whole gain, from twice FLAG_NIS the tilt's reduced
-    one, linearly between; the tilt always takes its reduced gain in flight."""
+    """Below FLAG_NIS the heading and the gyro bias take the whole gain, from twice FLAG_NIS ACCEL_HEADING_GAIN_MIN
+    of it, linearly between (never the tilt's tenth: the position's azimuth, which the same rows move, takes the
+    whole); the tilt always takes its reduced gain in flight."""
     est = Estimator(Design())
     est.on_imu(0, 0.0, 0.0, -9.81, 0.0, 0.0, 0.0, 0.2, 0.0, 0.45)
     ekf = est.ekf
@@ -77,8 +78,9 @@ def test_the_heading_takes_the_reduced_gain_as_the_accelerometer_stops_being_exp
     a = math.sqrt(ekf.dt / ACCEL_MODEL_CORR_S)
     assert tilt == pytest.approx(a)
     misfit = min(1.0, max(0.0, nis / FLAG_NIS - 1.0))
-    assert heading == pytest.approx(1.0 - misfit * (1.0 - a))
-    assert a - 1e-12 <= heading <= 1.0
+    assert heading == pytest.approx(1.0 - misfit * (1.0 - ACCEL_HEADING_GAIN_MIN))
+    assert ACCEL_HEADING_GAIN_MIN - 1e-12 <= heading <= 1.0
+    assert a < ACCEL_HEADING_GAIN_MIN
 
 
 def test_the_rope_pickup_is_the_climbs_momentum_while_rope_lies_on_the_ground():

@@ -15,6 +15,7 @@ from firmware_py.estimator.params import (
     ACCEL_HBIAS_MAX_MPS2,
     ACCEL_HBIAS_RESIDUE,
     ACCEL_HBIAS_S,
+    ACCEL_HEADING_GAIN_MIN,
     ACCEL_MODEL_CORR_S,
 )
 from firmware_py.estimator.state import (
@@ -81,9 +82,10 @@ def fuse_accel(
         H[2, ABIAS_Z] = 1.0
     pred[2] += float(ekf.x[ABIAS_Z])
     # in flight the tilt takes only what a correlated model error allows (params.ACCEL_MODEL_CORR_S); the heading and
-    # the gyro bias too, in proportion to ``misfit`` (0: the model explains the accelerometer, 1: it does not)
+    # the gyro bias less in proportion to ``misfit`` (0: the model explains the accelerometer, 1: it does not), at
+    # least ACCEL_HEADING_GAIN_MIN (the position's azimuth, which these rows also move, takes all of it)
     tilt_gain = 1.0 if ground else min(1.0, math.sqrt(ekf.dt / ACCEL_MODEL_CORR_S))
-    heading_gain = 1.0 - misfit * (1.0 - tilt_gain)
+    heading_gain = 1.0 - misfit * (1.0 - ACCEL_HEADING_GAIN_MIN)
     ekf.fuse3(fx - pred[0], fy - pred[1], fz - pred[2], var, status, var_z_extra, tilt_gain, heading_gain,
               (radial[0], radial[1], radial[2]), radial_var)  # fmt: skip
     return radial[0], radial[1], radial[2]
