@@ -60,6 +60,15 @@ static bw_real vertical_gust_var(const bw_estimator_t *est, bw_real mean_speed_m
     return a * a;
 }
 
+/* control.py _mean_weight: in the first taut spell, until it fills the window, a speed above the mean counts as one
+ * of the spell's own samples */
+static bw_real mean_weight(const bw_estimator_t *est, bw_real dev)
+{
+    if (dev > BW_R(0.0) && !est->was_slack && (bw_real)est->dwell * est->speed_alpha < BW_R(1.0))
+        return BW_R(1.0) / (bw_real)(est->dwell + 1);
+    return est->speed_alpha;
+}
+
 /* control.py _turbulence_excess: below BW_LIGHT_AIR_SIGMA_U_MPS the filter's own turbulence raises the wind's
  * noise when larger than sigma_u = TI U (light air meanders), as a variance ratio >= 1; the force model's misfit
  * does not (taken for turbulence it fed on itself) */
@@ -639,7 +648,7 @@ int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real
     if (e->mode == BW_MODE_TAUT) {
         bw_real wn = e->x[BW_WIND_N], we = e->x[BW_WIND_E];
         bw_real speed = BW_SQRT(wn * wn + we * we), dev = speed - est->mean_speed;
-        est->mean_speed += est->speed_alpha * dev;
+        est->mean_speed += mean_weight(est, dev) * dev;
         est->speed_var += est->speed_alpha * (dev * dev - est->speed_var);
         if (est->ascent_var > BW_R(0.0))
             weigh_ascent(est, speed);

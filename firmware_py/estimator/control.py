@@ -374,7 +374,7 @@ class Estimator:
             wn, we = self.wind()
             speed = math.sqrt(wn * wn + we * we)
             dev = speed - self._mean_speed
-            self._mean_speed += self._speed_alpha * dev
+            self._mean_speed += self._mean_weight(dev) * dev
             self._speed_var += self._speed_alpha * (dev * dev - self._speed_var)
             if self._ascent_var > 0.0:
                 self._weigh_ascent(speed)
@@ -382,6 +382,19 @@ class Estimator:
                 self.vertical_gust_var = self._vertical_gust_var(self._mean_speed, self.rho)
                 ekf.adapt_wind_noise(self._mean_speed, self._turbulence_excess())
         return True
+
+    def _mean_weight(self, dev: float) -> float:
+        """The weight of this taut step's wind speed, ``dev`` above the filter's mean wind (MEAN_WIND_S), in that
+        mean, which sizes the wind's process noise (q_rate ~ U^(14/3)). In the first taut spell, until it fills the
+        window, a speed above the mean counts as one of the spell's own samples (1 / n): from the design's expected
+        wind (3 m/s) a 60 s running mean took two minutes to reach a 10 m/s day, and with the wind's noise a tenth of
+        its size the state's swing across a long rope grew (docs/estimator.md, "The swing across the rope"). Below it
+        the running mean: in light air the expected wind's larger noise is the cautious side while it meanders (the
+        spell's own mean there cost the light-air flights 2 % of their RMS error). A later spell (after the rope went
+        slack) keeps the running mean."""
+        if dev > 0.0 and not self._was_slack and self._dwell * self._speed_alpha < 1.0:
+            return 1.0 / (self._dwell + 1)
+        return self._speed_alpha
 
     def _turbulence_excess(self) -> float:
         """The wind's process noise is sized for sigma_u = TI U (adapt_wind_noise). Light air does not calm

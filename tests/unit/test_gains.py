@@ -130,3 +130,27 @@ def test_the_noise_along_one_axis_is_its_outer_product(scale):
 def test_the_ropes_breathing_adds_to_the_radius_what_its_innovations_have_beyond_the_shared_noise():
     assert radial_noise(0.5, 0.2) == pytest.approx(0.3)
     assert radial_noise(0.1, 0.2) == 0.0  # never less along the radius than on every axis
+
+
+def test_the_first_taut_spell_counts_a_speed_above_the_mean_as_one_of_its_own_samples():
+    """The filter's 60 s mean wind sizes the wind's process noise (q_rate ~ U^(14/3)). In the first taut spell, until it
+    fills the window, a speed above the mean counts as one of the spell's own n samples, so a 10 m/s day is sized as
+    one within seconds of the taut entry, not over two minutes from the design's 3 m/s; a speed below it, a spell
+    after the rope went slack and a spell past its window take the running mean's weight."""
+    est = Estimator(Design())
+    alpha = est._speed_alpha
+    window = int(round(1.0 / alpha))
+    est._dwell, est._was_slack = 99, False
+    assert est._mean_weight(1.0) == pytest.approx(1.0 / 100.0)
+    assert est._mean_weight(-1.0) == alpha
+    est._dwell = window
+    assert est._mean_weight(1.0) == alpha
+    est._dwell, est._was_slack = 99, True
+    assert est._mean_weight(1.0) == alpha
+    # from 3 m/s, 10 m/s seen since the entry: the mean is there after a second (100 steps), where the running mean
+    # of the whole window has taken 1.6 % of the way
+    est._was_slack, mean = False, 3.0
+    for k in range(100):
+        est._dwell = k
+        mean += est._mean_weight(10.0 - mean) * (10.0 - mean)
+    assert mean == pytest.approx(10.0)
