@@ -440,7 +440,8 @@ def test_a_balloon_blown_down_by_a_strong_wind_says_how_little_it_knows():
     change and saturates: the state slid to the horizontal, the barometer's offset took the height, and the wind
     read 79 % fast at error/accuracy 2.1, 7.6 % beyond 3 sigma (the same flight on the paper's rope: 1678 % fast).
     Taken along the lean's tangent (aid_sources/tether.py fuse_taut) it read 43 % fast, and said so; with the wind's
-    process noise bounded at IEC class A turbulence (control._wind_noise_ratio) 5.6 % fast, held within 15 %: error /
+    process noise bounded at IEC class A turbulence 5.6 % fast (no longer raised by the misfit at all,
+    control._turbulence_excess), held within 15 %: error /
     accuracy within the envelope's 0.5-2 (1.18 with the lean's misfit stated, consistency.lean_misfit_wind; 1.52
     before it), at most 3 % beyond 3 sigma. No skill in the band: its stated accuracy covers the wind's whole spread,
     so the constant true mean's error is within it; the constant and the truth delayed by 4 s, against the same
@@ -465,7 +466,8 @@ def test_a_balloon_blown_down_on_the_paper_rope_in_class_b_gusts_says_its_wind_i
     14.4 m/s with vertical air on the paper's rope, r = 1.06 m on 52 m, five minutes from 120 s. The balloon leans
     75-85 deg. Its state slid to the horizontal, the barometer's offset taking the height, and the wind read seven
     times the truth (616 % fast): the accelerometer's misfit raised the wind's process noise without bound, the
-    noisier wind the model's drag and tension. Bounded at IEC class A turbulence (control._wind_noise_ratio) it reads
+    noisier wind the model's drag and tension. Bounded at IEC class A turbulence, and since not raised by the misfit
+    at all (control._turbulence_excess), it reads
     within 1 %, and held here within 20 %. The body's tilt (77 deg) and the lean of the model's pull (87) had
     disagreed by 0.2 rad for minutes, which the lean's misfit states (consistency.lean_misfit_wind): error/accuracy
     within the envelope's 0.5-2 (1.5; 5.1 before it) and none of the estimates beyond 3 sigma (99 % before). The
@@ -515,7 +517,8 @@ def test_a_small_balloon_on_a_short_tether_in_a_strong_wind_reads_its_speed(from
     """Beyond the envelope (``balloon-study examples/long-tether-study.toml``): r = 0.8 m on 30 m of the real rope,
     Kaimal with vertical air at 10 m/s, blown 77 deg down, ten minutes from 120 s. The accelerometer's misfit raised
     the wind's process noise without bound, and the noisier wind read 10-18 % fast (band skill -0.16 and -0.99 from
-    the north and the west) at error/accuracy 1.2-1.5. Bounded at IEC class A turbulence (control._wind_noise_ratio):
+    the north and the west) at error/accuracy 1.2-1.5. Bounded at IEC class A turbulence, and since not raised by the
+    misfit at all (control._turbulence_excess):
     within 2 % and skilful (0.50-0.60), stated cautiously (0.6-0.7). Held: within 5 %, band skill 0.4, honest within
     the envelope's 0.5-2 and at most 3 % beyond 3 sigma; the constant true mean has no skill and fails. The truth 4 s
     late would pass (skill 0.60, error/accuracy 0.86-0.91): at 10 m/s the band below 0.05 Hz is slow against 4 s,

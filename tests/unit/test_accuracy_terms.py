@@ -77,8 +77,8 @@ def test_a_flight_outside_the_sample_is_a_user_error():
 def test_the_misfit_along_the_rope_is_the_balloon_moving_along_it():
     """In IEC class B gusts on the real rope the accelerometer's misfit along the body's z (the rope's axis, which
     the taut model holds still) is the balloon's acceleration along its rope, as the truth has it: the rope's pull
-    swings by newtons. Across the rope the misfit is the gusts the wind's state does not follow (since its noise is
-    bounded at IEC class A turbulence, a NIS of 2 or more there too), along it half as much again."""
+    swings by newtons. Across the rope the misfit is the gusts the wind's state does not follow (since its noise no
+    longer follows the misfit, a NIS of 2 or more there too), along it half as much again."""
     gusts = next(i for i, p in enumerate(sample(64)) if p["wind_kind"] == "gusts" and p["rope_model"] == "lumped")
     t = terms(sample(64)[gusts], 150.0)
     across = max(t["nis_accel_x"], t["nis_accel_y"])
