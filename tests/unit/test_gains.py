@@ -147,8 +147,8 @@ def test_the_first_taut_spell_counts_a_speed_above_the_mean_as_one_of_its_own_sa
     assert est._mean_weight(1.0) == alpha
     est._dwell, est._was_slack = 99, True
     assert est._mean_weight(1.0) == alpha
-    # from 3 m/s, 10 m/s seen since the entry: the mean is there after a second (100 steps), where the running mean
-    # of the whole window has taken 1.6 % of the way
+    # from 3 m/s, 10 m/s seen since the entry: the spell's first sample sets the mean, and the spell's mean holds it
+    # over its first second (100 steps), where the running mean of the whole window would have taken 1.6 % of the way
     est._was_slack, mean = False, 3.0
     for k in range(100):
         est._dwell = k
