@@ -614,6 +614,9 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"the mean wind's upper end, m/s, {MAX_WIND_RANGE[0]:g}-{MAX_WIND_RANGE[1]:g} (default "
                          f"{MAX_WIND_MPS:g}, the envelope's; above it a stress, its targets shown as they "
                          "are)")  # fmt: skip
+    ap.add_argument("--sample-seed", type=userargs.seed, default=SEED,
+                    help=f"the sample's seed (default {SEED}: the fixed sample every run compares on; any other draws "
+                         "a fresh set of points, flights no tuning has seen)")  # fmt: skip
     args = ap.parse_args(argv)
     wlo, whi = MAX_WIND_RANGE
     if not wlo <= args.max_wind <= whi:
@@ -656,7 +659,7 @@ def _run(args, out: Path, n: int, duration: float) -> int:
     import pandas as pd
 
     out.mkdir(parents=True, exist_ok=True)
-    params = sample(n, cd_sigma=args.cd_sigma, max_wind_mps=args.max_wind)
+    params = sample(n, seed=args.sample_seed, cd_sigma=args.cd_sigma, max_wind_mps=args.max_wind)
     cs = cases(params, duration, args.start)
     store = engine.Store(out / "parts")
     t0 = time.perf_counter()
@@ -706,7 +709,8 @@ def write_products(df, part: Path, out: Path, n: int, duration: float, args, st,
     head = (
         f"envelope: {n} flights of {duration:g} s (scored from {args.start:g} s), base {BASE}"
         f"{'' if args.cd_sigma == CD_SIGMA else f', the C_d known to {100 * args.cd_sigma:g} %'}"
-        f"{'' if args.max_wind == MAX_WIND_MPS else f', mean wind 1-{args.max_wind:g} m/s'}, "
+        f"{'' if args.max_wind == MAX_WIND_MPS else f', mean wind 1-{args.max_wind:g} m/s'}"
+        f"{'' if args.sample_seed == SEED else f', sample seed {args.sample_seed}'}, "
         f"{'serial' if args.serial else f'{st.workers} Dask workers'}; {st.computed} computed, {st.reused} "
         f"reused, {st.failed} failed; wall {wall:.0f} s (mean flight {st.case_s / max(st.computed, 1):.1f} s)"
     )

@@ -82,6 +82,31 @@ def test_a_stress_beyond_the_envelope_moves_only_the_mean_wind(capsys):
         assert err.count("\n") == 1 and "--max-wind must be between" in err
 
 
+def test_a_held_out_sample_is_another_draw_of_the_same_envelope(tmp_path, capsys):
+    """--sample-seed: other points (none of the fixed sample's), by the same rules (the ranges, the lift's spare), the
+    summary saying which sample it is; a seed that is not one is one line and exit 2."""
+    fixed, held = be.sample(64), be.sample(64, seed=7)
+    assert not {tuple(sorted(p.items())) for p in fixed} & {tuple(sorted(p.items())) for p in held}
+    df = pd.DataFrame(held)
+    assert df["from_deg"].between(0, 360).all() and df["mean_mps"].between(1, 8).all()
+    assert df["tether_m"].between(50, 150).all() and set(df["wind_kind"]) == set(be.WIND_KINDS)
+    for p in held[:10]:
+        design, _, _, _ = build(be.sections_of(p))
+        buoy, skin, gas, rope, _ = lift_balance(design)
+        assert buoy >= 1.2 * (skin + gas + rope) - 1e-9
+    for bad in ("-1", "seven"):
+        code, err = run_main(be.main, ["--sample-seed", bad, "--out", str(tmp_path / "never")], capsys)
+        assert code == 2 and err.count("\n") == 1 and "--sample-seed" in err and "Traceback" not in err
+    assert not (tmp_path / "never").exists()
+    out = tmp_path / "held"
+    assert be.main(["--out", str(out), "--serial", "--flights", "1", "--duration", "150", "--start", "60",
+                    "--sample-seed", "7"]) == 0  # fmt: skip
+    capsys.readouterr()
+    head = (out / "envelope_summary.md").read_text().splitlines()[0]
+    assert "sample seed 7" in head
+    assert pd.read_csv(out / "envelope.csv")["from_deg"].iloc[0] == be.sample(1, seed=7)[0]["from_deg"]
+
+
 def test_its_out_is_judged_before_any_flight_and_its_products_appear_whole(tmp_path, capsys):
     """--out that is a file, under one, or holding a directory where a product goes: one line, exit 2, before any
     flight is flown; a bad count one line too. A run writes every product under its final name only at the end (no
