@@ -558,8 +558,9 @@ class Firmware:
     def estimator_status(self, t_us: int) -> None:
         """ESTIMATOR_STATUS (230) at 1 Hz: ``estimator_flags``; the ratios are the consistency monitor's
         windowed NIS over its flag threshold (1 = flagged): vel_ratio accel, pos_horiz_ratio align,
-        pos_vert_ratio baro, mag_ratio mag, hagl_ratio radius, tas_ratio the largest (what inflates
-        the wind's accuracy, the accelerometer's as consistency.stated_nis counts it); the position's 1-sigma from P."""
+        pos_vert_ratio baro, mag_ratio mag, hagl_ratio radius, tas_ratio the largest of the six (the wind's accuracy
+        factor is the square root of the largest as consistency.stated_nis counts it: the accelerometer's NIS as
+        (1 + NIS) / 2); the position's 1-sigma from P."""
         est = self.est
         c, P = est.consistency, est.ekf.P
         bits = estimator_flags(est.initialised, self.silent, est.ekf.mode, c.flags, self.wind_known())
