@@ -356,6 +356,17 @@ static void switch_mode(bw_estimator_t *est, int mode)
     est->ekf.mode = mode;
     est->counters.mode_switches += 1;
     est->dwell = 0;
+    if (mode == BW_MODE_FREE) /* a free flight of its own: its ascent may learn again (control.py _switch) */
+        est->ascent_var = BW_R(0.0);
+}
+
+/* ... and while the air flows past the balloon mostly from above: its horizontal relative wind at most
+ * BW_ASCENT_AIRFLOW_RATIO times the climb (Estimator._airflow_from_above) */
+static int airflow_from_above(const bw_estimator_t *est)
+{
+    const bw_real *x = est->ekf.x;
+    bw_real un = x[BW_WIND_N] - x[BW_VEL_N], ue = x[BW_WIND_E] - x[BW_VEL_E], vd = x[BW_VEL_D];
+    return un * un + ue * ue <= (bw_real)(BW_ASCENT_AIRFLOW_RATIO * BW_ASCENT_AIRFLOW_RATIO) * vd * vd;
 }
 
 /* the climb tells the drag scale only while the rope's pull is known (Estimator._rope_load_known) */
@@ -426,7 +437,11 @@ static void update_mode(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
     est->dwell = count_up(est->dwell);
     dwell_ok = est->dwell >= est->n_dwell;
     {
-        int learning = e->mode == BW_MODE_FREE && est->dwell >= est->n_learn_drag && rope_load_known(est);
+        /* a spell starts where the air flows from above and no earlier spell of this free flight awaits its
+         * weighing; it goes on while the rope's pull is known (control.py _update_mode) */
+        int learning = e->mode == BW_MODE_FREE && est->dwell >= est->n_learn_drag &&
+                       (e->learn_drag || (est->ascent_var == BW_R(0.0) && airflow_from_above(est))) &&
+                       rope_load_known(est);
         if (learning)
             est->ascent_climb = -e->x[BW_VEL_D];
         if (learning != e->learn_drag) {

@@ -43,6 +43,7 @@ from firmware_py.estimator.params import (
     ACCEL_INNOV_S,
     ACCEL_MODEL_CORR_S,
     ALIGN_INNOV_S,
+    ASCENT_AIRFLOW_RATIO,
     BARO_MODEL_M,
     BARO_NOMINAL_HZ,
     CONFIRM_EXPLAINED,
@@ -598,6 +599,16 @@ class Estimator:
         f = accelerations(self.model, self.rho, pn, pe, pd, vn, ve, vd, *x[12:17], True, self._probe)
         return f.taut
 
+    def _airflow_from_above(self) -> bool:
+        """The climb tells the drag scale through the vertical drag, k c |u| u_z against the net lift, u the air
+        relative to the balloon. Its horizontal part enters |u|: where it is no larger than the climb
+        (ASCENT_AIRFLOW_RATIO) the climb's share rules the drag; just after a release in a wind the balloon sits in
+        the whole of it, and the vertical drag turns on a horizontal wind the state has only begun to learn (from
+        rest, where the drag's linearisation is flat in the wind, it takes the first acceleration overconfidently)."""
+        x = self.ekf.x
+        un, ue, vd = float(x[WIND_N] - x[VEL_N]), float(x[WIND_E] - x[VEL_E]), float(x[VEL_D])
+        return un * un + ue * ue <= ASCENT_AIRFLOW_RATIO * ASCENT_AIRFLOW_RATIO * vd * vd
+
     def _rope_load_known(self) -> bool:
         """The climb tells the drag scale only as well as the rope's pull on the balloon is known: the
         airborne rope hanging straight down (the free model) and fed from the anchor (a catenary from
@@ -617,14 +628,23 @@ class Estimator:
         self.ekf.mode = mode
         self.counters.mode_switches += 1
         self._dwell = 0
+        if mode == MODE_FREE:  # a free flight of its own (a release, a slack rope): its ascent may learn the drag
+            # again, and an earlier one's capped data that await their weighing stay as the cap left them
+            self._ascent_var = 0.0
 
     def _update_mode(self, ax: float, ay: float, az: float) -> None:
         ekf = self.ekf
         cfg = self.cfg
         self._dwell = count_up(self._dwell)
         dwell_ok = self._dwell >= cfg.mode_dwell_s * cfg.imu_rate_hz
+        # a spell of learning starts where the air flows past the balloon from above and no earlier spell of this free
+        # flight awaits its weighing (one that starts again on the edge of the rope's load learns that load for drag),
+        # and goes on while the rope's pull is known
         learning = (
-            ekf.mode == MODE_FREE and self._dwell >= LEARN_DRAG_AFTER_S * cfg.imu_rate_hz and self._rope_load_known()
+            ekf.mode == MODE_FREE
+            and self._dwell >= LEARN_DRAG_AFTER_S * cfg.imu_rate_hz
+            and (ekf.learn_drag or (self._ascent_var == 0.0 and self._airflow_from_above()))
+            and self._rope_load_known()
         )
         if learning:
             self._ascent_climb = -float(ekf.x[VEL_D])
