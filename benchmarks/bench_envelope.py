@@ -1,19 +1,19 @@
-"""The operating envelope: many flights from a fixed-seed low-discrepancy sample of the conditions a
+"""The operating envelope: many flights from a seeded low-discrepancy sample of the conditions a
 user may meet, each run through the study engine, scored, summarised against the issue's targets.
 
     .venv/bin/python -m benchmarks.bench_envelope [--quick] [--flights N] [--out DIR] [--cd-sigma S]
-        [--max-wind U] [--serial | --workers N | --scheduler tcp://HOST:PORT]
+        [--max-wind U] [--sample-seed N] [--serial | --workers N | --scheduler tcp://HOST:PORT]
 
-Sampled per flight (a scrambled Halton sequence, fixed seed): wind direction 0-360 deg, mean speed 1-8 m/s
-(``--max-wind``: up to another, e.g. a stress beyond the envelope the targets are set for), wind kind (steady |
-multisine both axes | VdH + Kaimal with vertical | IEC class B gusts with vertical), rope model of the truth
-(lumped | paper), tether 50-150 m, balloon radius from the smallest that lifts its tether with 20 % spare lift
-(``balloon_core.config.lift_balance``) up to 1.6 m, weather pressure drift +-3 hPa/h, wandering
-gyro/accelerometer biases (0-1 x the field-biases scenario's), sensor grade (Table 2 | MEMS | tactical), the
-simulator seed, and the balloon's and the rope's drag coefficients about the design's (a sphere's C_d known to
-10 %, ``--cd-sigma``; a rope's C_n to 30 %). The firmware is told only the design (balloon, tether, sensors);
-everything else is truth only, its [filter] stays the default (with ``--cd-sigma`` other than 0.1 it is told that
-1-sigma: ``[filter] init_drag``).
+Sampled per flight (a scrambled Halton sequence, a fixed seed unless ``--sample-seed`` draws a held-out one): wind
+direction 0-360 deg, mean speed 1-8 m/s (``--max-wind``: up to another, e.g. a stress beyond the envelope the targets
+are set for), wind kind (steady | multisine both axes | VdH + Kaimal with vertical | IEC class B gusts with
+vertical), rope model of the truth (lumped | paper), tether 50-150 m, balloon radius from the smallest that lifts its
+tether with 20 % spare lift (``balloon_core.config.lift_balance``) up to 1.6 m, weather pressure drift +-3 hPa/h,
+wandering gyro/accelerometer biases (0-1 x the field-biases scenario's), sensor grade (Table 2 | MEMS | tactical),
+the simulator seed, and the balloon's and the rope's drag coefficients about the design's (a sphere's C_d known to
+10 %, ``--cd-sigma``; a rope's C_n to 30 %). The firmware is told only the design (balloon, tether, sensors); everything
+else is truth only, its [filter] stays the default (with ``--cd-sigma`` other than 0.1 it is told that 1-sigma:
+``[filter] init_drag``).
 
 Per flight (after ``start_s``): the study metrics (``study.case.metrics``) plus the worst 60 s mean
 direction error, the share of samples whose horizontal error exceeds 3 x the reported accuracy,

@@ -360,8 +360,8 @@ static void switch_mode(bw_estimator_t *est, int mode)
         est->ascent_var = BW_R(0.0);
 }
 
-/* ... and while the air flows past the balloon mostly from above: its horizontal relative wind at most
- * BW_ASCENT_AIRFLOW_RATIO times the climb (Estimator._airflow_from_above) */
+/* a spell of learning the drag starts only where the air flows past the balloon mostly along its vertical: its
+ * horizontal relative wind at most BW_ASCENT_AIRFLOW_RATIO times its vertical speed (Estimator._airflow_from_above) */
 static int airflow_from_above(const bw_estimator_t *est)
 {
     const bw_real *x = est->ekf.x;

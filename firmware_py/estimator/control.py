@@ -217,7 +217,8 @@ class Estimator:
         self._align_innov2 = [0.0, 0.0]  # along, cross (aid_sources/tether.py)
         self._align_mean = 0.0  # the along innovations' running mean (their spread is the noise)
         self._drag_prior = (1.0, 0.0)  # the drag scale and its variance when a free ascent starts to learn it
-        # the drag scale the last ascent's data told, the variance it claimed (0: nothing to weigh again), its climb m/s
+        # the drag scale the last ascent's data told, the variance it claimed (0: nothing to weigh again, and a spell of
+        # learning may start), its climb m/s
         self._ascent_data, self._ascent_var, self._ascent_climb = 0.0, 0.0, 0.0
         # the taut wind speed at the measuring window's start, its departures from it summed, and squared
         self._turbulence = [0.0, 0.0, 0.0]
@@ -601,8 +602,9 @@ class Estimator:
 
     def _airflow_from_above(self) -> bool:
         """The climb tells the drag scale through the vertical drag, k c |u| u_z against the net lift, u the air
-        relative to the balloon. Its horizontal part enters |u|: where it is no larger than the climb
-        (ASCENT_AIRFLOW_RATIO) the climb's share rules the drag; just after a release in a wind the balloon sits in
+        relative to the balloon. Its horizontal part enters |u|: where it is no larger than the vertical speed
+        (ASCENT_AIRFLOW_RATIO; a climb's, or a sinking balloon's, whose drag tells it as well) the vertical flow rules
+        the drag; just after a release in a wind the balloon sits in
         the whole of it, and the vertical drag turns on a horizontal wind the state has only begun to learn (from
         rest, where the drag's linearisation is flat in the wind, it takes the first acceleration overconfidently)."""
         x = self.ekf.x
