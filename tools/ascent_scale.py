@@ -9,9 +9,8 @@ the taut entry, and takes the ascent's drag scale that the taut flight weighs (`
 cap at the end of its last spell of learning; the learning stops while the rope's pull is not known) and prints, over
 those flights, how far it is from the truth's (``cd_scale``, the truth's C_d over the design's): the RMS, the
 worst and the mean relative error, and the median 1-sigma the ascent's data claimed; and the wind the state took from
-the release, AFTER_RELEASE_S later: its error over the 1-sigma the state's covariance gave it (sqrt(P_NN + P_EE), not
-the reported accuracy; median, p90). ``DRAG_ASCENT_FLOOR`` is the
-steady flights' RMS.
+the release, AFTER_RELEASE_S later: its error over the 1-sigma the state's covariance gave it
+(``WindEkf.wind_accuracy``, not the reported accuracy; median, p90). ``DRAG_ASCENT_FLOOR`` is the steady flights' RMS.
 """
 
 from __future__ import annotations
@@ -54,10 +53,9 @@ def ascent_error(point: dict, duration_s: float = FULL_DURATION_S) -> tuple[floa
         elif est.ekf.mode == MODE_FREE and not released <= t:
             released = t
         if math.isnan(wind_z) and t >= released + AFTER_RELEASE_S:
-            x, P, truth = est.ekf.x, est.ekf.P, sim.truth[k]  # the truth's row of this sample
+            x, truth = est.ekf.x, sim.truth[k]  # the truth's row of this sample
             tn, te = truth[TRUTH_COLUMNS.index("wind_n")], truth[TRUTH_COLUMNS.index("wind_e")]
-            err = math.hypot(x[WIND_N] - tn, x[WIND_E] - te)
-            wind_z = err / math.sqrt(P[WIND_N, WIND_N] + P[WIND_E, WIND_E])
+            wind_z = math.hypot(x[WIND_N] - tn, x[WIND_E] - te) / est.ekf.wind_accuracy()
         if est.ekf.mode == MODE_TAUT and not est.ekf.learn_drag and est._ascent_var > 0.0:  # the ascent over and its
             # last spell of learning capped: what the taut flight weighs
             break

@@ -604,9 +604,9 @@ class Estimator:
         """The climb tells the drag scale through the vertical drag, k c |u| u_z against the net lift, u the air
         relative to the balloon. Its horizontal part enters |u|: where it is no larger than the vertical speed
         (ASCENT_AIRFLOW_RATIO; a climb's, or a sinking balloon's, whose drag tells it as well) the vertical flow rules
-        the drag; just after a release in a wind the balloon sits in
-        the whole of it, and the vertical drag turns on a horizontal wind the state has only begun to learn (from
-        rest, where the drag's linearisation is flat in the wind, it takes the first acceleration overconfidently)."""
+        the drag; just after a release in a wind the balloon sits in the whole of it, and the vertical drag turns on a
+        horizontal wind the state has only begun to learn (from rest, where the drag's linearisation is flat in the
+        wind, it takes the first acceleration overconfidently)."""
         x = self.ekf.x
         un, ue, vd = float(x[WIND_N] - x[VEL_N]), float(x[WIND_E] - x[VEL_E]), float(x[VEL_D])
         return un * un + ue * ue <= ASCENT_AIRFLOW_RATIO * ASCENT_AIRFLOW_RATIO * vd * vd

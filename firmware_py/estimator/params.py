@@ -100,10 +100,10 @@ BARO_MODEL_M = 0.3  # hypsometric conversion error (temperature profile, lag) ad
 # the design's (the steady flights: 4.2 % RMS, 10.8 % worst)
 LEARN_DRAG_AFTER_S = 0.5
 # ... and only while the air flows past the balloon mostly from above: the state's horizontal wind relative to it at
-# most this times its climb (control._airflow_from_above). Released in a wind, the balloon first sits in the whole of
-# it, and the vertical drag k c |u| u_z turns on the horizontal part of |u|, which the state has only begun to learn:
-# in Kaimal turbulence a 2 s spell there read the drag scale 24 % low, claimed to 4 % (docs/estimator.md, "A
-# held-out sample")
+# most this times its vertical speed (control._airflow_from_above). Released in a wind, the balloon first sits in the
+# whole of it, and the vertical drag k c |u| u_z turns on the horizontal part of |u|, which the state has only begun
+# to learn: in Kaimal turbulence a 2 s spell there read the drag scale 24 % low, claimed to 4 % (docs/estimator.md,
+# "A held-out sample")
 ASCENT_AIRFLOW_RATIO = 1.0
 FIELD_FLIGHT_S = 60.0  # magnetometer averaged this long in flight when there was no rest on the ground
 ACCEL_INNOV_S = 2.0  # averaging time of the accelerometer's innovations that set its noise floor
