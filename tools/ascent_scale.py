@@ -3,6 +3,8 @@
     .venv/bin/python tools/ascent_scale.py steady        # the full sample's 50 steady flights (about 10 s)
     .venv/bin/python tools/ascent_scale.py gusts --flights 64 --duration 300   # the quick sample's
     .venv/bin/python tools/ascent_scale.py kaimal --flights 64 --duration 300 --sample-seed 12   # a held-out one
+    .venv/bin/python tools/ascent_scale.py steady --set tether.length_m=20 --set truth.rope_segments=48
+                                                           # the same flights, their world changed (TOML values)
 
 Flies each flight of ``benchmarks.bench_envelope``'s sample whose wind is of that kind on the Python core until
 the taut entry, and takes the ascent's drag scale that the taut flight weighs (``Estimator._ascent_data``: the
@@ -26,20 +28,24 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from balloon_core import userargs  # noqa: E402
-from benchmarks.bench_envelope import FULL_DURATION_S, SEED, WIND_KINDS, sample, sections_of  # noqa: E402
+from benchmarks.bench_envelope import FULL_DURATION_S, SEED, WIND_KINDS, sample  # noqa: E402
 from firmware_py.estimator.control import Estimator  # noqa: E402
 from firmware_py.estimator.state import MODE_FREE, MODE_GROUND, MODE_TAUT, WIND_E, WIND_N  # noqa: E402
 from sim_hil.simulator import TRUTH_COLUMNS, Simulation  # noqa: E402
 from study.spec import build  # noqa: E402
+from tools.accuracy_terms import world  # noqa: E402
 
 AFTER_RELEASE_S = 0.5  # when the wind the state took from the release is judged (the drag scale learns from then on)
 
 
-def ascent_error(point: dict, duration_s: float = FULL_DURATION_S) -> tuple[float, float, float, float, float] | None:
+def ascent_error(
+    point: dict, duration_s: float = FULL_DURATION_S, settings: tuple[str, ...] = ()
+) -> tuple[float, float, float, float, float] | None:  # fmt: skip
     """(the ascent's scale over the truth's - 1, the 1-sigma its data claimed, the ascent's scale, its climb m/s, the
     wind's error AFTER_RELEASE_S after the release over the 1-sigma the state gave it), None if it learnt nothing. The
-    flight is the benchmark's of ``duration_s`` (its wind depends on the length), flown until the ascent is weighed."""
-    design, wind, truth_cfg, filt = build(sections_of(point))
+    flight is the benchmark's of ``duration_s`` (its wind depends on the length), with ``settings``
+    (``SECTION.KEY=VALUE``, ``accuracy_terms.override``) applied, flown until the ascent is weighed."""
+    design, wind, truth_cfg, filt = build(world(point, settings))
     est = Estimator(design, dataclasses.replace(filt, core="py"))
     sim = Simulation(design, wind, truth_cfg, duration_s, point["seed"])
     released, wind_z = math.nan, math.nan
@@ -61,7 +67,7 @@ def ascent_error(point: dict, duration_s: float = FULL_DURATION_S) -> tuple[floa
             break
     if not est._ascent_var > 0.0:
         return None
-    return (est._ascent_data / point["cd_scale"] - 1.0, math.sqrt(est._ascent_var), est._ascent_data,
+    return (est._ascent_data / truth_cfg.drag_coefficient_scale - 1.0, math.sqrt(est._ascent_var), est._ascent_data,
             est._ascent_climb, wind_z)  # fmt: skip
 
 
@@ -73,9 +79,17 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"the flights' length, s ({FULL_DURATION_S:g}: the full benchmark's; the wind depends on it)")
     ap.add_argument("--sample-seed", type=userargs.seed, default=SEED,
                     help=f"the sample's seed ({SEED}: the benchmark's fixed sample; another draws a held-out one)")
+    ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="change every flight's world or design (TOML values), e.g. truth.rope_segments=48")
     a = ap.parse_args(argv)
     points = sample(a.flights, seed=a.sample_seed)
-    res = [(i, r) for i, p in enumerate(points) if p["wind_kind"] == a.kind and (r := ascent_error(p, a.duration))]
+    settings = tuple(a.set)
+    try:
+        res = [(i, r) for i, p in enumerate(points)
+               if p["wind_kind"] == a.kind and (r := ascent_error(p, a.duration, settings))]  # fmt: skip
+    except (ValueError, TypeError) as e:  # ConfigError is a ValueError
+        print(f"ascent_scale: {e}", file=sys.stderr)
+        return 2
     if not res:
         print(f"ascent_scale: no {a.kind} flight learnt a drag scale", file=sys.stderr)
         return 2

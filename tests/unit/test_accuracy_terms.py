@@ -1,5 +1,5 @@
-"""tools/accuracy_terms.py: its terms add up to the accuracy the estimator reports, and a wrong flight number is
-a user error."""
+"""tools/accuracy_terms.py and tools/ascent_scale.py: the terms add up to the accuracy the estimator reports, the
+ascent is judged against the world it flew, and a wrong flight number or setting is a user error."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ from benchmarks.bench_envelope import sample, sections_of
 from study.case import fly
 from study.spec import build
 from tools.accuracy_terms import override, terms
+from tools.ascent_scale import ascent_error
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -66,6 +67,18 @@ def test_one_thing_of_the_flight_changed():
         cmd = [sys.executable, str(ROOT / "tools" / "accuracy_terms.py"), "3", "--quick", "--set", bad]
         r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
         assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and said in r.stderr and not r.stdout
+
+
+def test_the_ascent_tool_flies_the_world_it_is_told():
+    """tools/ascent_scale.py --set: the ascent is judged against the C_d the truth flew, not the sample's; a drag 20 %
+    above the sample's is learnt as such (read against the sample's it would be 20 % off); a wrong setting is a
+    user error."""
+    p = next(p for p in sample(200) if p["wind_kind"] == "steady" and p["rope_model"] == "lumped")
+    err, _, scale, _, _ = ascent_error(p, settings=(f"truth.drag_coefficient_scale={1.2 * p['cd_scale']}",))
+    assert abs(err) < 0.05 and scale / p["cd_scale"] > 1.12
+    cmd = [sys.executable, str(ROOT / "tools" / "ascent_scale.py"), "steady", "--flights", "8", "--set", "truth.x=1"]
+    r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "truth.x=1" in r.stderr and not r.stdout
 
 
 def test_a_flight_outside_the_sample_is_a_user_error():
