@@ -321,7 +321,8 @@ def tlog_messages(path: str, stats: LinkStats, chunk: int = 1 << 20, fast: bool 
     """Messages of a telemetry log: [8-byte big-endian us timestamp][frame] records, read a chunk at a
     time (memory does not grow with the file). A corrupt record is skipped by resynchronising on the
     next plausible record start; a file that ends inside a frame counts it as a bad frame
-    (``stats.truncated``). ``fast``: the sensor messages as ``fastmav`` messages (``Decoder``)."""
+    (``stats.truncated``). Each message's ``_timestamp`` is its record's time, s (as pymavlink's tlog
+    reader sets it). ``fast``: the sensor messages as ``fastmav`` messages (``Decoder``), without it."""
     dec = Decoder(stats, fast)
     with open(path, "rb") as fh:
         buf, i, eof = b"", 0, False
@@ -361,6 +362,8 @@ def tlog_messages(path: str, stats: LinkStats, chunk: int = 1 << 20, fast: bool 
                     i = k - TLOG_HEADER
                     continue
             m = dec.decode_frame(buf[j:end])
+            if m is not None and not fast:  # the record's time as pymavlink's tlog reader gives it: s since the epoch
+                m._timestamp = int.from_bytes(buf[i:j], "big") * 1e-6
             i = end
             if m is not None:
                 yield m

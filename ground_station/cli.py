@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 
 from balloon_core import userargs
@@ -15,8 +16,10 @@ DEFAULT_BIND = ("127.0.0.1", 8000)
 def main(argv: list[str] | None = None) -> int:
     ap = userargs.Parser(prog=PROG, description="WIND_COV ground station")
     sub = ap.add_subparsers(dest="cmd", required=True)
-    li = sub.add_parser("listen", help="live view of WIND_COV from a UDP endpoint or a serial port")
-    li.add_argument("endpoint", type=userargs.link, help="udpin:0.0.0.0:14550, udpout:HOST:PORT, /dev/ttyUSB0:57600")
+    li = sub.add_parser("listen", help="live view of WIND_COV from a UDP endpoint or a serial port, or a recorded "
+                        "link's (a .tlog or a raw capture) at once")  # fmt: skip
+    li.add_argument("endpoint", type=userargs.source, help="udpin:0.0.0.0:14550, udpout:HOST:PORT, "
+                    "/dev/ttyUSB0:57600, or FILE (a .tlog or a raw capture)")  # fmt: skip
     li.add_argument("--csv", type=userargs.output_path, help="log every WIND_COV to this CSV")
     li.add_argument("--tlog", type=userargs.output_path, help="log every received frame to this tlog")
     li.add_argument("--duration", type=userargs.duration, help="stop after this many seconds")
@@ -32,13 +35,14 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"serve the page here (default {DEFAULT_BIND[0]}:{DEFAULT_BIND[1]}: this machine only)")
     we.add_argument("--product", type=userargs.input_file, metavar="FILE.nc",
                     help="also show this balloon-gs reprocess product (and its <stem>_profile.nc)")
-    rp = sub.add_parser("report", help="score a WIND_COV log against a truth CSV and plot it")
+    rp = sub.add_parser("report", help="score a WIND_COV log against a truth CSV and plot it (without a truth: "
+                        "summarise and plot the estimate alone)")  # fmt: skip
     rp.add_argument(
         "file",
         type=userargs.input_file,
         help="ground-station CSV, .tlog or raw capture holding WIND_COV, or a reprocess .nc",
     )
-    rp.add_argument("--truth", required=True, type=userargs.input_file, help="balloon-sim --truth CSV")
+    rp.add_argument("--truth", type=userargs.input_file, help="balloon-sim --truth CSV (none: a real flight)")
     rp.add_argument("--plot", type=userargs.plot_path, help="write the Fig. 6-style figure here (PNG)")
     rp.add_argument("--start", type=userargs.start_time, default=120.0, help="score from this time since boot [s]")
     rp.add_argument("--sysid", type=userargs.sysid,
@@ -71,8 +75,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.cmd == "web":
         return _web(args)
     if args.cmd == "listen":
-        from ground_station.listen import GroundStation, listen
+        from ground_station.listen import GroundStation, listen, read_file
 
+        recorded = os.path.isfile(args.endpoint)
+        if recorded and args.ground_pressure:
+            return userargs.fail(PROG, f"--ground-pressure goes up a live link; {args.endpoint} is a recording")
         stop = userargs.stop_flag()
         with Products() as products:  # the logs under temporary names, renamed when listening stops
             try:
@@ -82,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
             except OSError as exc:
                 return userargs.fail(PROG, exc)
             try:
-                listen(args.endpoint, gs, stop, args.duration)
+                (read_file if recorded else listen)(args.endpoint, gs, stop, args.duration)
             except (ValueError, OSError) as exc:
                 gs.close()
                 return userargs.fail(PROG, exc)
@@ -135,7 +142,9 @@ def _files(args) -> tuple[dict[str, str | None], dict[str, str | None]]:
     if args.cmd == "web":  # read-only: it writes nothing
         return {"--product": args.product}, {}
     if args.cmd == "listen":
-        return {"--ground-pressure": args.ground_pressure}, {"--csv": args.csv, "--tlog": args.tlog}
+        recorded = args.endpoint if os.path.isfile(args.endpoint) else None  # a recording is an input too
+        ins = {"ENDPOINT": recorded, "--ground-pressure": args.ground_pressure}
+        return ins, {"--csv": args.csv, "--tlog": args.tlog}
     if args.cmd == "report":
         return {"file": args.file, "--truth": args.truth}, {"--plot": args.plot}
     from postflight.netcdf import product_paths

@@ -1,5 +1,6 @@
 """``balloon-gs listen ENDPOINT``: live view of WIND_COV from any MAVLink vehicle, with link
-statistics, CSV and tlog logging; stops cleanly on SIGINT/SIGTERM (or after --duration).
+statistics, CSV and tlog logging; stops cleanly on SIGINT/SIGTERM (or after --duration). ``balloon-gs listen
+FILE`` (a .tlog or a raw capture) reads a recorded link through the same station at once (``read_file``).
 
 On a terminal: a table redrawn in place (rich Live), one row per balloon (system id), that fits 80x24
 and shows more columns (N/E components, variability, altitude, a sparkline of the last minutes) on a
@@ -34,7 +35,7 @@ from rich.table import Table
 from rich.text import Text
 
 from balloon_core.progress import fmt_duration, stream_is_terminal
-from balloon_core.wire import Decoder, LinkStats, TlogSink, open_link, pack
+from balloon_core.wire import Decoder, LinkStats, TlogSink, capture_messages, message_time_us, open_link, pack
 from ground_station.wind import CSV_COLUMNS, WindRecord
 
 MODE_NAMES = {0: "ground", 1: "free", 2: "taut"}  # balloon-fw's HEARTBEAT custom_mode
@@ -611,3 +612,32 @@ def listen(endpoint: str, gs: GroundStation, stop, duration_s: float | None = No
         if live is not None:
             live.update(gs.view(time.monotonic(), live.console.size.width), refresh=True)
             live.stop()
+
+
+def read_file(path: str, gs: GroundStation, stop, duration_s: float | None = None) -> None:
+    """A recorded link (a .tlog or a raw capture, ``wire.capture_messages``) through the station as it came: the
+    CSV and the tlog logged as a live run logs them, then the view at the recording's end. Its clock is the record's
+    time where the file has one (a tlog's), else the sender's own (``wire.message_time_us``, never going back);
+    ``duration_s``: only the recording's first seconds. Nothing is sent: a file has no one to send to."""
+    gs.endpoint = path
+    now = start = None
+    for m in capture_messages(path, gs.stats):
+        if stop():
+            break
+        t = getattr(m, "_timestamp", None)
+        if t is None:
+            us = message_time_us(m)
+            t = None if us is None else us * 1e-6
+        if t is not None and math.isfinite(t):
+            now = t if now is None else max(now, t)
+            start = now if start is None else start
+            if duration_s is not None and now - start > duration_s:
+                break
+        gs.handle(m, 0.0 if now is None else now)
+    now = 0.0 if now is None else now
+    if stream_is_terminal(gs.out):
+        Console(file=gs.out).print(gs.view(now, Console(file=gs.out).size.width))
+    else:
+        for line in gs.status_lines(now):
+            gs.out.write(line + "\n")
+        gs.out.flush()

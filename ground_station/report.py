@@ -1,13 +1,16 @@
 """``balloon-gs report``: score a WIND_COV log against the simulator's truth and draw the paper's
-Fig. 6 (wind estimate vs truth over time, and their spectra)."""
+Fig. 6 (wind estimate vs truth over time, and their spectra); without a truth (a real flight), summarise and draw the
+estimate alone."""
 
 from __future__ import annotations
 
+import math
 import os
+from dataclasses import dataclass
 
 import numpy as np
 
-from balloon_core.score import Score, direction_from_deg, lowpass, psd, score
+from balloon_core.score import Score, direction_from_deg, lowpass, psd, score, wind_unknown
 from ground_station.wind import as_arrays, read_records
 
 TRUTH_NEEDED = ("time_s", "wind_n", "wind_e")
@@ -58,8 +61,9 @@ def read_truth_csv(path: str, columns: tuple[str, ...] | None = None) -> dict[st
     return {name: np.ascontiguousarray(data[:, j]) for j, name in enumerate(names)}
 
 
-def report(wind_path: str, truth_path: str, plot_path: str | None = None, start_s: float = 120.0,
-           sysid: int | None = None) -> Score:  # fmt: skip
+def read_estimate(wind_path: str, sysid: int | None = None) -> dict[str, np.ndarray]:
+    """One balloon's WIND_COV in time order (``as_arrays``) from a ground-station CSV, a .tlog, a raw capture or a
+    reprocess .nc; ``sysid`` picks the balloon where the log holds more than one (else it is an error)."""
     if wind_path.endswith(".nc"):  # a balloon-gs reprocess product: its smoothed wind and accuracy
         from balloon_core.userargs import require_extra
 
@@ -83,6 +87,19 @@ def report(wind_path: str, truth_path: str, plot_path: str | None = None, start_
         est = as_arrays(records)
     if len(est["time_s"]) < 10:
         raise ValueError(f"{wind_path}: fewer than 10 WIND_COV messages")
+    return est
+
+
+def report(wind_path: str, truth_path: str | None, plot_path: str | None = None, start_s: float = 120.0,
+           sysid: int | None = None) -> Score | Summary:  # fmt: skip
+    """The estimate scored against the simulator's truth (a ``Score``) and drawn; without a truth (a real flight)
+    what the estimate says of itself (a ``Summary``), drawn the same way."""
+    est = read_estimate(wind_path, sysid)
+    if truth_path is None:
+        summ = summarise(est, start_s, wind_path)
+        if plot_path:
+            plot(est, None, summ.title(), plot_path, start_s)
+        return summ
     truth = read_truth(truth_path)
     t_est = est["time_s"][np.isfinite(est["wind_n"]) & np.isfinite(est["wind_e"])]
     t_true = truth["time_s"]
@@ -95,8 +112,40 @@ def report(wind_path: str, truth_path: str, plot_path: str | None = None, start_
     s = score(est["time_s"], est["wind_n"], est["wind_e"], est["accuracy"],
               truth["time_s"], truth["wind_n"], truth["wind_e"], start_s=start_s)  # fmt: skip
     if plot_path:
-        plot(est, truth, s, plot_path, start_s)
+        plot(est, truth, title(s), plot_path, start_s)
     return s
+
+
+@dataclass(frozen=True)
+class Summary:
+    """What a WIND_COV log says of itself over ``duration_s`` from the start time: the mean wind vector's speed and
+    the direction it comes from, the mean of the speeds, the RMS of the reported accuracy, and the share of the
+    estimates that are not known (NaN, or an accuracy as large as the wind: ``score.wind_unknown``)."""
+
+    mean_speed_mps: float
+    from_deg: float
+    speed_mean_mps: float
+    accuracy_mps: float
+    unknown_share: float
+    messages: int
+    duration_s: float
+
+    def title(self) -> str:
+        return (f"mean wind {self.mean_speed_mps:.2f} m/s from {self.from_deg:.0f}°, "
+                f"horiz_accuracy {self.accuracy_mps:.2f} m/s (RMS), {self.duration_s:.0f} s")  # fmt: skip
+
+
+def summarise(est: dict, start_s: float, path: str) -> Summary:
+    t = est["time_s"]
+    n, e, acc = est["wind_n"], est["wind_e"], est["accuracy"]
+    sel = t >= start_s
+    known = sel & ~np.asarray(wind_unknown(np.hypot(n, e), acc), bool) & np.isfinite(n) & np.isfinite(e)
+    if known.sum() < 2:
+        raise ValueError(f"{path}: fewer than 2 known winds from {start_s:g} s on (--start)")
+    mn, me = float(np.mean(n[known])), float(np.mean(e[known]))
+    return Summary(math.hypot(mn, me), float(direction_from_deg(mn, me)), float(np.mean(np.hypot(n, e)[known])),
+                   float(np.sqrt(np.mean(acc[known] ** 2))), 1.0 - known.sum() / max(int(sel.sum()), 1),
+                   int(sel.sum()), float(t[known][-1] - t[known][0]))  # fmt: skip
 
 
 def direction_from(wind_n: np.ndarray, wind_e: np.ndarray, centre_deg: float) -> np.ndarray:
@@ -106,64 +155,84 @@ def direction_from(wind_n: np.ndarray, wind_e: np.ndarray, centre_deg: float) ->
     return (d - centre_deg + 180.0) % 360.0 - 180.0 + centre_deg
 
 
-def plot(est: dict, truth: dict, s: Score, path: str, start_s: float, band_hz: float = 0.05) -> None:
+def title(s: Score) -> str:
+    return (f"band RMSE {s.band_rmse_mps:.2f} m/s, speed error {s.speed_error_pct:+.1f} %, "
+            f"direction error {s.direction_error_deg:+.1f}°, error/accuracy {s.error_ratio:.2f}")  # fmt: skip
+
+
+def plot(est: dict, truth: dict | None, heading: str, path: str, start_s: float, band_hz: float = 0.05) -> None:
     """The paper's Fig. 6 and more: speed with the reported accuracy, direction, the low-passed speed
-    (the band that is scored) from the launch on, and the spectra with the band edge."""
+    (the band that is scored) from the launch on, and the spectra with the band edge; the truth's beside each where
+    there is one (a simulated flight)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fs = 10.0
-    t_end = min(est["time_s"][-1], truth["time_s"][-1])
+    t_end = est["time_s"][-1] if truth is None else min(est["time_s"][-1], truth["time_s"][-1])
     grid = np.arange(0.0, t_end, 1.0 / fs)
-    sp_est = np.interp(grid, est["time_s"], np.hypot(est["wind_n"], est["wind_e"]))
-    sp_true = np.interp(grid, truth["time_s"], np.hypot(truth["wind_n"], truth["wind_e"]))
+    finite = np.isfinite(est["wind_n"]) & np.isfinite(est["wind_e"])
+    sp_est = np.interp(grid, est["time_s"][finite], np.hypot(est["wind_n"], est["wind_e"])[finite])
+    sp_true = None if truth is None else np.interp(grid, truth["time_s"], np.hypot(truth["wind_n"], truth["wind_e"]))
     scored = grid >= start_s
     fig, ax = plt.subplots(4, 1, figsize=(9, 11.5))
     t_all = est["time_s"]
     speed = np.hypot(est["wind_n"], est["wind_e"])
-    ax[0].plot(truth["time_s"], np.hypot(truth["wind_n"], truth["wind_e"]), lw=0.6, label="truth", color="0.5")
+    if truth is not None:
+        ax[0].plot(truth["time_s"], np.hypot(truth["wind_n"], truth["wind_e"]), lw=0.6, label="truth", color="0.5")
     ax[0].plot(t_all, speed, lw=0.8, label="estimate (WIND_COV)")
     ax[0].fill_between(t_all, speed - est["accuracy"], speed + est["accuracy"], alpha=0.2,
                        label="± horiz_accuracy")  # fmt: skip
     ax[0].set_ylabel("wind speed [m/s]")
-    ax[0].set_ylim(0, max(6.0, 1.3 * np.percentile(sp_true, 99)))
+    ax[0].set_ylim(0, max(6.0, 1.3 * np.percentile(sp_est if sp_true is None else sp_true, 99)))
     ax[0].legend(loc="upper right", fontsize=8)
-    centre = float(np.degrees(np.arctan2(-np.mean(truth["wind_e"]), -np.mean(truth["wind_n"])))) % 360.0
-    ax[1].plot(truth["time_s"], direction_from(truth["wind_n"], truth["wind_e"], centre), lw=0.6,
-               label="truth", color="0.5")  # fmt: skip
+    ref = est if truth is None else truth
+    ok = (ref["time_s"] >= start_s) & np.isfinite(ref["wind_n"]) & np.isfinite(ref["wind_e"])
+    if not ok.any():
+        ok = np.isfinite(ref["wind_n"]) & np.isfinite(ref["wind_e"])
+    centre = float(direction_from_deg(np.mean(ref["wind_n"][ok]), np.mean(ref["wind_e"][ok])))
+    if truth is not None:
+        ax[1].plot(truth["time_s"], direction_from(truth["wind_n"], truth["wind_e"], centre), lw=0.6,
+                   label="truth", color="0.5")  # fmt: skip
     moving = speed > 0.3  # the direction of a near-zero estimate (before the release) means nothing
     ax[1].plot(t_all[moving], direction_from(est["wind_n"], est["wind_e"], centre)[moving], ".", ms=1.0,
                label="estimate (speed > 0.3 m/s)")  # fmt: skip
     ax[1].set_ylabel("direction (from) [deg]")
     ax[1].set_ylim(centre - 60.0, centre + 60.0)
     ax[1].legend(loc="upper right", fontsize=8, markerscale=6)
-    ax[2].plot(grid, lowpass(sp_true, fs, band_hz), label=f"truth < {band_hz:g} Hz", color="0.3")
+    if sp_true is not None:
+        ax[2].plot(grid, lowpass(sp_true, fs, band_hz), label=f"truth < {band_hz:g} Hz", color="0.3")
     ax[2].plot(grid, lowpass(sp_est, fs, band_hz), label=f"estimate < {band_hz:g} Hz")
-    ax[2].axvspan(0.0, start_s, color="0.9", label=f"not scored (before {start_s:g} s)")
+    not_used = "not summarised" if truth is None else "not scored"
+    ax[2].axvspan(0.0, start_s, color="0.9", label=f"{not_used} (before {start_s:g} s)")
     ax[2].set_ylabel("low-passed speed [m/s]")
     ax[2].legend(loc="upper right", fontsize=8)
     for a in ax[:3]:
         a.set_xlim(0.0, t_end)
         a.set_xlabel("time since boot [s]")
-    f, p_true = psd(sp_true[scored], fs)
-    _, p_est = psd(sp_est[scored], fs)
-    ax[3].loglog(f[1:], p_true[1:], label="truth", color="0.4")
+    f, p_est = psd(sp_est[scored], fs)
+    if sp_true is not None:
+        ax[3].loglog(f[1:], psd(sp_true[scored], fs)[1][1:], label="truth", color="0.4")
     ax[3].loglog(f[1:], p_est[1:], label="estimate")
     ax[3].axvline(band_hz, ls=":", color="k", lw=0.8, label=f"{band_hz:g} Hz: upper edge of the scored band")
     ax[3].set_xlabel(f"frequency [Hz] (speed from {start_s:g} s on)")
     ax[3].set_ylabel("PSD [(m/s)²/Hz]")
     ax[3].legend(loc="lower left", fontsize=8)
-    fig.suptitle(f"band RMSE {s.band_rmse_mps:.2f} m/s, speed error {s.speed_error_pct:+.1f} %, "
-                 f"direction error {s.direction_error_deg:+.1f}°, error/accuracy {s.error_ratio:.2f}")  # fmt: skip
+    fig.suptitle(heading)
     fig.tight_layout()
     os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
     fig.savefig(path, dpi=90)
     plt.close(fig)
 
 
-def format_score(s: Score) -> str:
+def format_score(s: Score | Summary) -> str:
+    if isinstance(s, Summary):
+        return (
+            f"no truth: the estimate alone | mean wind {s.mean_speed_mps:.2f} m/s from {s.from_deg:.1f} deg "
+            f"(mean speed {s.speed_mean_mps:.2f} m/s) | horiz_accuracy {s.accuracy_mps:.2f} m/s (RMS) | "
+            f"{100 * s.unknown_share:.1f} % of {s.messages} WIND_COV not known | {s.duration_s:.0f} s"
+        )
     return (
         f"band RMSE (<0.05 Hz) {s.band_rmse_mps:.3f} m/s, skill {s.band_skill:.2f} | "
         f"raw RMSE {s.raw_rmse_mps:.3f} m/s | "

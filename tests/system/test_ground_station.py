@@ -187,3 +187,70 @@ def test_only_true_duplicates_are_dropped_not_a_sequence_cycle_later():
                 taken += gs.handle(m, 0.0) and m.get_srcSystem() == 1
     assert taken == 600 and gs.duplicates == 6
     assert gs.stats.lost == 0
+
+
+def _recording(tmp_path):
+    """A PX4 vehicle's WIND_COV at 10 Hz for 20 s (3 m/s from 135°), one frame lost, as a tlog (record times 0.1 s
+    apart) and as the raw bytes of the same frames."""
+    from balloon_core.wire import TlogWriter
+
+    px4 = mavlink.MAVLink(None, srcSystem=42, srcComponent=1)
+    frames = [(0, pack(px4, px4.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 0, 0, 4)))]
+    frames += [(100_000 * i, pack(px4, px4.wind_cov_encode(100_000 * i, 2.1213, -2.1213, 0.0, 0.5, 0.1, 120.0, 0.4,
+                                                           0.0))) for i in range(200)]  # fmt: skip
+    del frames[51]  # lost on the way
+    tlog, raw = tmp_path / "flight.tlog", tmp_path / "capture.raw"
+    with open(tlog, "wb") as fh:
+        w = TlogWriter(fh)
+        for t, f in frames:
+            w.write(t, f)
+    raw.write_bytes(b"".join(f for _, f in frames))
+    return tlog, raw
+
+
+def test_listen_reads_a_recorded_link_as_it_came(tmp_path):
+    """``balloon-gs listen FILE``: a .tlog or a raw capture through the station at once, logged to CSV as a live
+    run logs it (each WIND_COV once, the loss counted), the view at the recording's end; ``--duration`` keeps the
+    recording's first seconds; the ground reference needs a live link (exit 2, one line); the input is untouched."""
+    import subprocess
+    import sys
+
+    tlog, raw = _recording(tmp_path)
+    before = tlog.read_bytes()
+    for src, name in ((tlog, "a.csv"), (raw, "b.csv")):
+        r = subprocess.run([sys.executable, "-m", "ground_station", "listen", str(src), "--csv", str(tmp_path / name)],
+                           capture_output=True, text=True)  # fmt: skip
+        assert r.returncode == 0, r.stderr
+        assert "from 135.0 deg" in r.stdout and "199 WIND_COV from 1 system" in r.stderr and "1 lost" in r.stderr
+        recs = read_records(str(tmp_path / name))
+        assert len(recs) == 199 and {x.sysid for x in recs} == {42}
+        assert [x.time_usec for x in recs][:51] == [100_000 * i for i in range(52) if i != 50]
+    r = subprocess.run([sys.executable, "-m", "ground_station", "listen", str(tlog), "--duration", "5",
+                        "--csv", str(tmp_path / "c.csv")], capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 0 and len(read_records(str(tmp_path / "c.csv"))) == 50  # 0-5 s, the one at 5.0 s lost
+    r = subprocess.run([sys.executable, "-m", "ground_station", "listen", str(tlog), "--ground-pressure", str(raw)],
+                       capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "live link" in r.stderr
+    for opt in ("--csv", "--tlog"):  # the recording is an input: no log may overwrite it
+        r = subprocess.run([sys.executable, "-m", "ground_station", "listen", str(tlog), opt, str(tlog)],
+                           capture_output=True, text=True)  # fmt: skip
+        assert r.returncode == 2 and "input" in r.stderr
+    assert tlog.read_bytes() == before
+
+
+def test_report_without_a_truth_summarises_the_estimate(tmp_path):
+    """A real flight has no truth: ``balloon-gs report FILE`` says what the estimate says of itself (the mean wind,
+    where it comes from, the accuracy it stated) and draws it; too little after ``--start`` is a user error."""
+    import subprocess
+    import sys
+
+    tlog, _ = _recording(tmp_path)
+    plot = tmp_path / "w.png"
+    r = subprocess.run([sys.executable, "-m", "ground_station", "report", str(tlog), "--start", "5",
+                        "--plot", str(plot)], capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert "mean wind 3.00 m/s from 135.0 deg" in r.stdout and "horiz_accuracy 0.40 m/s" in r.stdout
+    assert plot.stat().st_size > 10_000
+    r = subprocess.run([sys.executable, "-m", "ground_station", "report", str(tlog), "--start", "30"],
+                       capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "--start" in r.stderr
