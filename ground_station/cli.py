@@ -29,8 +29,8 @@ def main(argv: list[str] | None = None) -> int:
     li.add_argument("--ground-sysid", type=userargs.sysid, default=255, help="this ground station's MAVLink system id "
                     "([site] ground_sysid of the firmware's design file)")  # fmt: skip
     we = sub.add_parser("web", help="the ground station in a browser: live WIND_COV of every balloon, or a product")
-    we.add_argument("endpoint", nargs="*", type=userargs.link, help="as for listen; one or more (or none with "
-                    "--product)")  # fmt: skip
+    we.add_argument("endpoint", nargs="*", type=userargs.source, help="as for listen; one or more (or none with "
+                    "--product); a recording's last state is shown as it ended")  # fmt: skip
     we.add_argument("--bind", type=userargs.bind, default=DEFAULT_BIND, metavar="HOST:PORT",
                     help=f"serve the page here (default {DEFAULT_BIND[0]}:{DEFAULT_BIND[1]}: this machine only)")
     we.add_argument("--product", type=userargs.input_file, metavar="FILE.nc",

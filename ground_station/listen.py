@@ -614,25 +614,33 @@ def listen(endpoint: str, gs: GroundStation, stop, duration_s: float | None = No
             live.stop()
 
 
-def read_file(path: str, gs: GroundStation, stop, duration_s: float | None = None) -> None:
-    """A recorded link (a .tlog or a raw capture, ``wire.capture_messages``) through the station as it came: the
-    CSV and the tlog logged as a live run logs them, then the view at the recording's end. Its clock is the record's
-    time where the file has one (a tlog's), else the sender's own (``wire.message_time_us``, never going back);
-    ``duration_s``: only the recording's first seconds. Nothing is sent: a file has no one to send to."""
-    gs.endpoint = path
-    now = start = None
-    for m in capture_messages(path, gs.stats):
-        if stop():
-            break
+def recording(path: str, stats: LinkStats):
+    """(message, time s) of a recorded link (a .tlog or a raw capture, ``wire.capture_messages``) in its order: the
+    record's time where the file has one (a tlog's), else the senders' own (``wire.message_time_us``, never going
+    back); None before the first message that tells one."""
+    now = None
+    for m in capture_messages(path, stats):
         t = getattr(m, "_timestamp", None)
         if t is None:
             us = message_time_us(m)
             t = None if us is None else us * 1e-6
         if t is not None and math.isfinite(t):
             now = t if now is None else max(now, t)
-            start = now if start is None else start
-            if duration_s is not None and now - start > duration_s:
-                break
+        yield m, now
+
+
+def read_file(path: str, gs: GroundStation, stop, duration_s: float | None = None) -> None:
+    """A recorded link through the station as it came (``recording``): the CSV and the tlog logged as a live run
+    logs them, then the view at the recording's end, on the recording's clock; ``duration_s``: only its first
+    seconds. Nothing is sent: a file has no one to send to."""
+    gs.endpoint = path
+    now = start = None
+    for m, now in recording(path, gs.stats):
+        if stop():
+            break
+        start = now if start is None else start
+        if duration_s is not None and now is not None and now - start > duration_s:
+            break
         gs.handle(m, 0.0 if now is None else now)
     now = 0.0 if now is None else now
     if stream_is_terminal(gs.out):

@@ -30,7 +30,8 @@ from urllib.parse import urlsplit
 from aiohttp import WSMsgType, web
 from aiohttp.http_exceptions import HttpProcessingError
 
-from ground_station.listen import STALE_S, GroundStation, Receiver
+from balloon_core.wire import LinkStats
+from ground_station.listen import STALE_S, GroundStation, Receiver, recording
 from ground_station.web.aggregate import PUSH_HZ
 from ground_station.web.live import LiveModel
 
@@ -101,7 +102,11 @@ class WebStation:
         self.receivers: list[Receiver] = []
         try:
             for ep in endpoints:  # opened here: a port already bound is the user's error, before serving
-                self.receivers.append(Receiver(ep, self.gs, lock=self.model.lock, on_message=self.model.on_message))
+                if os.path.isfile(ep):
+                    self.load_recording(ep)
+                else:
+                    self.receivers.append(Receiver(ep, self.gs, lock=self.model.lock,
+                                                   on_message=self.model.on_message))  # fmt: skip
         except BaseException:
             self.close_links()
             raise
@@ -109,6 +114,19 @@ class WebStation:
                          for rx in self.receivers]  # fmt: skip
 
     # ------------------------------------------------------------ the link
+
+    def load_recording(self, path: str) -> None:
+        """A recorded link (a .tlog or a raw capture: ``listen.recording``) taken at once, as if it had just come,
+        its end now: the page shows its last state and charts, which then turn stale as a quiet link does."""
+        end = None
+        for _, t in recording(path, LinkStats()):  # the first pass finds the end (a day's log is not held)
+            end = t if t is not None else end
+        now = time.monotonic()
+        with self.model.lock:
+            for m, t in recording(path, self.gs.stats):
+                at = now if t is None or end is None else now - (end - t)
+                if self.gs.handle(m, at):
+                    self.model.on_message(m, at)
 
     def _receive(self, rx: Receiver) -> None:
         try:

@@ -212,6 +212,28 @@ def test_two_balloons_decoded_as_listen_decodes_them_and_malformed_messages_coun
     assert seen[3]["state"] == "OK" and seen[9]["state"] == "MISFIT" and seen[9]["misfit"] == ["baro"]
 
 
+def test_a_recording_is_shown_as_it_ended(tmp_path):
+    """``balloon-gs web FILE``: a recorded link (a .tlog) decoded as ``listen FILE`` decodes it, at once, its end
+    now: every WIND_COV taken, the loss counted, the last wind (3 m/s from 135°) on the page, then stale as a quiet
+    link; the recording is not touched."""
+    from tests.system.test_ground_station import _recording
+
+    tlog, _ = _recording(tmp_path)
+    before = tlog.read_bytes()
+    srv = WebServer(str(tlog))
+    try:
+        stats = srv.stats()
+        assert stats["received"] == {"42": 199} and stats["lost"] == 1
+        seen = asyncio.run(read_ws(srv.url, {42}, []))
+        assert seen[42]["speed"] == pytest.approx(3.0, abs=0.01) and seen[42]["from"] == pytest.approx(135.0, abs=0.1)
+        time.sleep(2.5)
+        assert asyncio.run(read_ws(srv.url, {42}, []))[42]["state"] == "STALE"
+    finally:
+        code, err = srv.stop(signal.SIGTERM)
+    assert code == 0, err
+    assert "199 WIND_COV from 1 system" in err and tlog.read_bytes() == before
+
+
 def test_stats_endpoint_is_json():
     srv = WebServer(f"udpin:127.0.0.1:{free_udp_port()}")
     try:
