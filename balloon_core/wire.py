@@ -221,62 +221,137 @@ def message_time_us(msg) -> int | None:
 
 
 class Decoder:
-    """Byte stream -> MAVLink messages with pymavlink's robust parser. ``fast``: whole frames
-    (``decode_frame``) of the sensor messages go through ``balloon_core.fastmav`` first (light message
-    objects with the same fields, for the firmware's replay), every other one through pymavlink."""
+    """Byte stream -> MAVLink messages. Frames are found by their start byte and length (``frame_length``) and
+    decoded by pymavlink (CRC, signing); a candidate whose CRC fails is a corrupted frame (one bad frame, its bytes
+    skipped) unless a frame starts within its span (``_inner``): then it was a start byte in garbage, and only the
+    bytes before that frame are garbage (pymavlink's own parser skips the whole span, and the frames in it). Every
+    byte is a frame's, a bad frame's or garbage (counted). ``fast``: whole frames (``decode_frame``) of the sensor
+    messages go through ``balloon_core.fastmav`` first (light message objects with the same fields, for the
+    firmware's replay), every other one through pymavlink."""
 
     def __init__(self, stats: LinkStats, fast: bool = False) -> None:
         self.mav = mavlink.MAVLink(None)
         self.mav.robust_parsing = True
         self.stats = stats
         self.fast = fastmav.decode if fast else None
+        self._buf = bytearray()  # bytes not yet a frame, a bad frame or garbage
+        self._chained = True  # the scan is right after a frame (or at the stream's start)
 
     def feed(self, data: bytes, datagram: bool = False) -> list:
         """The messages in ``data``; a ``datagram`` (a link's ``datagrams``) is whole: what is left of it after its
         frames is garbage (``end_datagram``), not the start of the next one's."""
-        try:
-            return self._feed(data)
-        finally:
-            if datagram:
-                self.end_datagram()
-
-    def _feed(self, data: bytes) -> list:
         self.stats.bytes += len(data)
-        out = []
-        try:
-            msgs = self.mav.parse_buffer(data) or []
-        except mavlink.MAVError:
-            self.stats.bad_frames += 1
-            return out
-        for m in msgs:
-            if m.get_type() == "BAD_DATA":
-                self.stats.bad_frames += 1
-                continue
-            self.stats.frames += 1
-            self.stats.sequence(m)
-            out.append(m)
+        self._buf += data
+        out: list = []
+        self._scan(out, final=False)
+        if datagram:
+            self._scan(out, final=True)
+            self.end_datagram()
         return out
 
-    def end_datagram(self) -> None:
-        """End of one UDP datagram: a datagram holds whole frames, so the bytes left in the parser (a frame cut
-        short, garbage) are counted as garbage and dropped, never joined to the next datagram's (from this or
-        another sender), whose frames they would swallow."""
-        mav = self.mav
-        left = len(mav.buf) - mav.buf_index
-        if left:
-            self.stats.garbage_bytes += left
-        mav.buf, mav.buf_index = bytearray(), 0
-        mav.expected_length = mavlink.HEADER_LEN_V1 + 2  # as a fresh parser: waiting for a frame's start
-        mav.have_prefix_error = False
+    def _decode(self, buf: bytearray, k: int, ln: int, final: bool, chained: bool = False):
+        """The message of the frame buf[k:k+ln]; None if it does not decode; False if that is not known yet. A message
+        whose id the dialect does not know has no CRC pymavlink can check: it is a frame only in a chain of frames
+        (``chained``: right after one, or at the stream's start) and where another frame (or the stream's end)
+        follows it; a start byte in garbage reads as such an id most of the time, and would swallow the frames
+        after it."""
+        try:
+            m = self.mav.decode(bytearray(buf[k : k + ln]))
+        except Exception:  # pymavlink raises MAVError and struct/index errors on corrupt frames
+            return None
+        if m.get_type().startswith("UNKNOWN"):
+            if not chained:
+                return None
+            end = k + ln
+            if end == len(buf):
+                return m if final else False
+            if buf[end] not in (MAGIC_V2, MAGIC_V1):
+                return None
+        return m
 
-    def finish(self) -> None:
-        """End of a file: bytes left in the parser that start a frame are a frame cut off (a bad frame)."""
-        left = bytes(self.mav.buf[self.mav.buf_index :])
+    def _inner(self, buf: bytearray, lo: int, hi: int, final: bool, strict: bool) -> int:
+        """The first start in buf[lo:hi] of a frame that decodes (``strict``), or also of one that another frame's
+        start byte follows (a frame corrupted on the way, which the scan then counts); 0 if none; -1 if one there is
+        not all here yet."""
+        k = lo
+        while (k := next_magic(buf, k)) < hi:
+            ln = frame_length(buf, k)
+            m = self._decode(buf, k, ln, final) if ln and k + ln <= len(buf) else False
+            if m is False:
+                if not final:
+                    return -1
+            elif m is not None or not strict and _followed(buf, k + ln):
+                return k
+            k += 1
+        return 0
+
+    def _scan(self, out: list, final: bool) -> None:
+        """Frames from the buffer's start; ``final``: no more bytes will come (a datagram's or a file's end), so a
+        candidate cut off is looked into for frames that decode (what is left then stays for ``end_datagram`` or
+        ``finish``)."""
+        buf, st, i = self._buf, self.stats, 0
+        while i < len(buf):
+            k = next_magic(buf, i)
+            st.garbage_bytes += k - i
+            if k > i:
+                self._chained = False
+            i = k
+            if i >= len(buf):
+                break
+            ln = frame_length(buf, i)
+            whole = ln > 0 and i + ln <= len(buf)
+            m = self._decode(buf, i, ln, final, self._chained) if whole else None
+            if m is False:
+                break  # wait for the byte after it
+            if m is not None:
+                st.frames += 1
+                st.sequence(m)
+                out.append(m)
+                i += ln
+                self._chained = True
+                continue
+            if not (whole or final):
+                break  # wait for the rest
+            self._chained = False
+            # a frame that decodes within its span says it was a start byte in garbage; failing that, one that a
+            # frame follows says so where it is not followed by one itself (else it is a frame corrupted on the way)
+            hi = i + ln if whole else len(buf)
+            k = self._inner(buf, i + 1, hi, final, strict=True)
+            if k == 0 and not (whole and _followed(buf, i + ln)):
+                k = self._inner(buf, i + 1, hi, final, strict=False)
+            if k < 0:
+                break
+            if k:  # a start byte in garbage: the frame after it is real
+                st.garbage_bytes += k - i
+                i = k
+            elif whole:  # a corrupted frame
+                st.bad_frames += 1
+                i += ln
+            else:  # cut off, nothing inside: left for the caller
+                break
+        del buf[:i]
+
+    def end_datagram(self) -> None:
+        """End of one UDP datagram: a datagram holds whole frames, so the bytes left (a frame cut short, garbage)
+        are counted as garbage and dropped, never joined to the next datagram's (from this or another sender),
+        whose frames they would swallow."""
+        self.stats.garbage_bytes += len(self._buf)
+        self._buf.clear()
+        self._chained = True  # the next datagram starts with a frame
+
+    def finish(self) -> list:
+        """End of a file: the frames still in its last bytes; what is left that starts a frame is a frame cut off
+        (a bad frame), anything else garbage."""
+        out: list = []
+        self._scan(out, final=True)
+        left = bytes(self._buf)
         if left and left[0] in (MAGIC_V2, MAGIC_V1):
             self.stats.bad_frames += 1
             self.stats.truncated = True
         elif left:
             self.stats.garbage_bytes += len(left)
+        self._buf.clear()
+        return out
 
     def decode_frame(self, frame: bytes):
         """One complete frame (from a tlog record); None and counted if it is corrupt."""
@@ -295,6 +370,11 @@ class Decoder:
         self.stats.frames += 1
         self.stats.sequence(m)
         return m
+
+
+def _followed(buf: bytes, end: int) -> bool:
+    """Does a frame's start byte follow at ``end`` (where a frame that ends there would be followed by the next)?"""
+    return end < len(buf) and buf[end] in (MAGIC_V2, MAGIC_V1)
 
 
 def frame_length(buf: bytes, i: int) -> int:
@@ -392,7 +472,7 @@ def raw_messages(fh: BinaryIO, stats: LinkStats, chunk: int = 65536) -> Iterator
     dec = Decoder(stats)
     while data := fh.read(chunk):
         yield from dec.feed(data)
-    dec.finish()
+    yield from dec.finish()
 
 
 def capture_messages(path: str, stats: LinkStats, fast: bool = False) -> Iterator:
