@@ -48,6 +48,7 @@ DEFAULT_SCENARIOS = (
     "field-reduced", "field-gusty-6", "field-all",
 )  # fmt: skip
 START_S = 120.0
+MIN_SCORED_S = 30.0  # the least a flight is scored over (balloon_core.score needs 10 s; a band, more)
 FREQS_HZ = (0.01, 0.02, 0.05, 0.1)
 # targets
 TARGET_HZ = (0.01, 0.02, 0.05)  # |H - 1| <= H_ERR_MAX here, along and across
@@ -335,6 +336,10 @@ def main(argv: list[str] | None = None) -> None:
         userargs.check_outputs({}, {"--json": args.json})
         if not 1 <= args.directions <= 360:
             raise userargs.UserError(f"--directions {args.directions}: give 1 to 360")
+        if not (math.isfinite(args.duration) and args.duration >= START_S + MIN_SCORED_S):
+            least = START_S + MIN_SCORED_S
+            raise userargs.UserError(f"--duration {args.duration:g}: the flights are scored from {START_S:g} s; "
+                                     f"give at least {least:g} s")  # fmt: skip
         if args.window and not (math.isfinite(args.window) and 2.0 * START_S <= args.window <= args.duration):
             raise userargs.UserError(f"--window {args.window:g}: give {2.0 * START_S:g} s up to --duration")
         flights = directions(args.scenarios, args.directions)
