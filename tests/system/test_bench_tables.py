@@ -109,7 +109,9 @@ def test_directions_fly_each_turned_scenario_once(capsys, monkeypatch):
                                         (["--directions", "abc"], "invalid int value"),
                                         (["--scenarios", "steady@north"], "'steady@north'"),
                                         (["--window", "100"], "--window 100"),
-                                        (["--window", "900"], "--window 900")])  # fmt: skip
+                                        (["--window", "900"], "--window 900"),
+                                        (["--duration", "120"], "give at least 150 s"),
+                                        (["--duration", "nan"], "--duration nan")])  # fmt: skip
 def test_bad_directions_are_a_user_error(argv, says, capsys):
     with pytest.raises(SystemExit) as e:
         ba.main(argv + (["--scenarios", "steady"] if "--scenarios" not in argv else []))
