@@ -235,7 +235,12 @@ class Decoder:
         self.stats = stats
         self.fast = fastmav.decode if fast else None
         self._buf = bytearray()  # bytes not yet a frame, a bad frame or garbage
+        self._base = 0  # the stream offset of the buffer's first byte
+        self._corrupt: set[int] = set()  # stream offsets of candidates already found not to decode (small reads)
         self._chained = True  # the scan is right after a frame (or at the stream's start)
+        self._wait = 0  # where the scan stopped for more bytes: the buffer length it needs
+        self._need = 0  # the same as a stream offset: a read that ends before it changes nothing (small reads)
+        self._looked: dict[tuple[int, bool], int] = {}  # (a span's start, strict): where its look inside got to
 
     def feed(self, data: bytes, datagram: bool = False) -> list:
         """The messages in ``data``; a ``datagram`` (a link's ``datagrams``) is whole: what is left of it after its
@@ -243,7 +248,8 @@ class Decoder:
         self.stats.bytes += len(data)
         self._buf += data
         out: list = []
-        self._scan(out, final=False)
+        if self._base + len(self._buf) >= self._need:
+            self._scan(out, final=False)
         if datagram:
             self._scan(out, final=True)
             self.end_datagram()
@@ -252,44 +258,62 @@ class Decoder:
     def _decode(self, buf: bytearray, k: int, ln: int, final: bool, chained: bool = False):
         """The message of the frame buf[k:k+ln]; None if it does not decode; False if that is not known yet. A message
         whose id the dialect does not know has no CRC pymavlink can check: it is a frame only in a chain of frames
-        (``chained``: right after one, or at the stream's start) and where another frame (or the stream's end)
-        follows it; a start byte in garbage reads as such an id most of the time, and would swallow the frames
-        after it."""
+        (``chained``: right after a known one, or at the stream's start), where another frame (or the stream's end)
+        follows it and no frame that decodes starts inside it; a start byte in garbage reads as such an id most of
+        the time, and would swallow the frames after it."""
+        if self._base + k in self._corrupt:
+            return None
         try:
             m = self.mav.decode(bytearray(buf[k : k + ln]))
         except Exception:  # pymavlink raises MAVError and struct/index errors on corrupt frames
+            self._corrupt.add(self._base + k)
             return None
         if m.get_type().startswith("UNKNOWN"):
-            if not chained:
-                return None
             end = k + ln
-            if end == len(buf):
-                return m if final else False
-            if buf[end] not in (MAGIC_V2, MAGIC_V1):
+            if not chained or (end < len(buf) and not _followed(buf, end)):
                 return None
+            if end == len(buf) and not final:
+                self._wait = end + 1
+                return False
+            inner = self._inner(buf, k + 1, end, final, strict=True)
+            if inner:
+                return None if inner > 0 else False
         return m
 
     def _inner(self, buf: bytearray, lo: int, hi: int, final: bool, strict: bool) -> int:
         """The first start in buf[lo:hi] of a frame that decodes (``strict``), or also of one that another frame's
-        start byte follows (a frame corrupted on the way, which the scan then counts); 0 if none; -1 if one there is
-        not all here yet."""
-        k = lo
+        start byte follows (a frame corrupted on the way, which the scan then counts); 0 if none; -1 if that is not
+        known until more bytes come."""
+        key = (self._base + lo, strict)  # what was looked at inside this span before stays as it was found
+        k = max(lo, self._looked.get(key, 0) - self._base)
         while (k := next_magic(buf, k)) < hi:
             ln = frame_length(buf, k)
-            m = self._decode(buf, k, ln, final) if ln and k + ln <= len(buf) else False
+            whole = ln and k + ln <= len(buf)
+            m = self._decode(buf, k, ln, final) if whole else False
             if m is False:
                 if not final:
+                    if not whole:
+                        self._wait = k + (ln or 3)
+                    self._looked[key] = self._base + k
                     return -1
-            elif m is not None or not strict and _followed(buf, k + ln):
+            elif m is not None:
                 return k
+            elif not strict:
+                if k + ln == len(buf) and not final:
+                    self._wait = k + ln + 1
+                    self._looked[key] = self._base + k
+                    return -1
+                if _followed(buf, k + ln):
+                    return k
             k += 1
         return 0
 
     def _scan(self, out: list, final: bool) -> None:
         """Frames from the buffer's start; ``final``: no more bytes will come (a datagram's or a file's end), so a
         candidate cut off is looked into for frames that decode (what is left then stays for ``end_datagram`` or
-        ``finish``)."""
+        ``finish``). The counts do not depend on how the bytes were cut into reads: what is not known yet waits."""
         buf, st, i = self._buf, self.stats, 0
+        self._wait = 0
         while i < len(buf):
             k = next_magic(buf, i)
             st.garbage_bytes += k - i
@@ -302,21 +326,25 @@ class Decoder:
             whole = ln > 0 and i + ln <= len(buf)
             m = self._decode(buf, i, ln, final, self._chained) if whole else None
             if m is False:
-                break  # wait for the byte after it
+                break  # wait for the bytes after it
             if m is not None:
                 st.frames += 1
                 st.sequence(m)
                 out.append(m)
                 i += ln
-                self._chained = True
+                self._chained = not m.get_type().startswith("UNKNOWN")
                 continue
             if not (whole or final):
+                self._wait = i + (ln or 3)
                 break  # wait for the rest
             self._chained = False
             # a frame that decodes within its span says it was a start byte in garbage; failing that, one that a
             # frame follows says so where it is not followed by one itself (else it is a frame corrupted on the way)
             hi = i + ln if whole else len(buf)
             k = self._inner(buf, i + 1, hi, final, strict=True)
+            if k == 0 and whole and i + ln == len(buf) and not final:
+                self._wait = i + ln + 1
+                break  # whether a frame's start byte follows it is not known yet
             if k == 0 and not (whole and _followed(buf, i + ln)):
                 k = self._inner(buf, i + 1, hi, final, strict=False)
             if k < 0:
@@ -329,14 +357,23 @@ class Decoder:
                 i += ln
             else:  # cut off, nothing inside: left for the caller
                 break
-        del buf[:i]
+        self._need = self._base + self._wait if self._wait > i else 0
+        self._consume(i)
+
+    def _consume(self, n: int) -> None:
+        del self._buf[:n]
+        self._base += n
+        if self._corrupt:
+            self._corrupt = {o for o in self._corrupt if o >= self._base}
+        if self._looked:
+            self._looked = {key: v for key, v in self._looked.items() if key[0] >= self._base}
 
     def end_datagram(self) -> None:
         """End of one UDP datagram: a datagram holds whole frames, so the bytes left (a frame cut short, garbage)
         are counted as garbage and dropped, never joined to the next datagram's (from this or another sender),
         whose frames they would swallow."""
         self.stats.garbage_bytes += len(self._buf)
-        self._buf.clear()
+        self._consume(len(self._buf))
         self._chained = True  # the next datagram starts with a frame
 
     def finish(self) -> list:
@@ -350,7 +387,7 @@ class Decoder:
             self.stats.truncated = True
         elif left:
             self.stats.garbage_bytes += len(left)
-        self._buf.clear()
+        self._consume(len(left))
         return out
 
     def decode_frame(self, frame: bytes):
@@ -620,6 +657,10 @@ class TlogSink(TlogWriter):
 
     def send_at(self, data: bytes, t_us: int) -> None:
         self.write(t_us, data)
+
+    def send_stamped(self, data: bytes, stamp_us: int) -> None:
+        """A frame with the record time it had elsewhere (another tlog's, us since the epoch)."""
+        self.fh.write(struct.pack(">Q", stamp_us) + data)
 
     def close(self) -> None:
         self.fh.close()

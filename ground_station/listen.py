@@ -35,7 +35,16 @@ from rich.table import Table
 from rich.text import Text
 
 from balloon_core.progress import fmt_duration, stream_is_terminal
-from balloon_core.wire import Decoder, LinkStats, TlogSink, capture_messages, message_time_us, open_link, pack
+from balloon_core.wire import (
+    TLOG_EPOCH_US,
+    Decoder,
+    LinkStats,
+    TlogSink,
+    capture_messages,
+    message_time_us,
+    open_link,
+    pack,
+)
 from ground_station.wind import CSV_COLUMNS, WindRecord
 
 MODE_NAMES = {0: "ground", 1: "free", 2: "taut"}  # balloon-fw's HEARTBEAT custom_mode
@@ -253,13 +262,17 @@ class GroundStation:
             seen.discard(order.popleft())
         return False
 
-    def handle(self, m, now: float) -> bool:
-        """Take one decoded message; False if it was a duplicate (dropped)."""
+    def handle(self, m, now: float, stamp_us: int | None = None) -> bool:
+        """Take one decoded message; False if it was a duplicate (dropped). ``stamp_us``: its record's time in the tlog
+        log (a recording's own; None: now)."""
         frame = bytes(m.get_msgbuf())
         if self._duplicate((m.get_srcSystem(), m.get_srcComponent()), frame):
             return False
         if self._tlog:
-            self._tlog.send(frame)
+            if stamp_us is None:
+                self._tlog.send(frame)
+            else:
+                self._tlog.send_stamped(frame, stamp_us)
         t = m.get_type()
         if t == "WIND_COV":
             rec = WindRecord.from_msg(m)
@@ -616,14 +629,20 @@ def listen(endpoint: str, gs: GroundStation, stop, duration_s: float | None = No
 
 def recording(path: str, stats: LinkStats):
     """(message, time s) of a recorded link (a .tlog or a raw capture, ``wire.capture_messages``) in its order: the
-    record's time where the file has one (a tlog's), else the senders' own (``wire.message_time_us``, never going
-    back); None before the first message that tells one."""
+    record's time where the file has one (a tlog's); in a raw capture the senders' own clocks
+    (``wire.message_time_us``), each sender's set where it is first heard against the time then (two balloons booted
+    an hour apart are heard on one clock), never going back; None before the first message that tells one."""
     now = None
+    offset: dict[int, float] = {}  # a raw capture's sender: its clock's offset from the recording's
     for m in capture_messages(path, stats):
         t = getattr(m, "_timestamp", None)
         if t is None:
             us = message_time_us(m)
-            t = None if us is None else us * 1e-6
+            if us is not None:
+                sysid = m.get_srcSystem()
+                if sysid not in offset:
+                    offset[sysid] = 0.0 if now is None else now - us * 1e-6
+                t = us * 1e-6 + offset[sysid]
         if t is not None and math.isfinite(t):
             now = t if now is None else max(now, t)
         yield m, now
@@ -632,16 +651,18 @@ def recording(path: str, stats: LinkStats):
 def read_file(path: str, gs: GroundStation, stop, duration_s: float | None = None) -> None:
     """A recorded link through the station as it came (``recording``): the CSV and the tlog logged as a live run
     logs them, then the view at the recording's end, on the recording's clock; ``duration_s``: only its first
-    seconds. Nothing is sent: a file has no one to send to."""
+    seconds; the tlog log stamped with the recording's times. Nothing is sent: a file has no one to send to."""
     gs.endpoint = path
     now = start = None
+    epoch_us = 0 if path.endswith(".tlog") else TLOG_EPOCH_US  # the tlog log's stamps: the record's, or as simulated
     for m, now in recording(path, gs.stats):
         if stop():
             break
         start = now if start is None else start
         if duration_s is not None and now is not None and now - start > duration_s:
             break
-        gs.handle(m, 0.0 if now is None else now)
+        stamp = None if now is None else epoch_us + round(now * 1e6)
+        gs.handle(m, 0.0 if now is None else now, stamp)
     now = 0.0 if now is None else now
     if stream_is_terminal(gs.out):
         Console(file=gs.out).print(gs.view(now, Console(file=gs.out).size.width))

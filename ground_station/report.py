@@ -98,6 +98,9 @@ def report(wind_path: str, truth_path: str | None, plot_path: str | None = None,
     if truth_path is None:
         summ = summarise(est, start_s, wind_path)
         if plot_path:
+            if summ.duration_s < 10.0:  # as a score needs: a spectrum of fewer seconds says nothing
+                raise ValueError(f"{wind_path}: {summ.duration_s:.1f} s of known wind after --start {start_s:g} s; "
+                                 "the figure needs 10 s")  # fmt: skip
             plot(est, None, summ.title(), plot_path, start_s)
         return summ
     truth = read_truth(truth_path)

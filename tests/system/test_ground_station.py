@@ -36,7 +36,7 @@ def test_any_vehicle_csv_and_losses(tmp_path):
     for f in frames:
         for m in dec.feed(f):
             gs.handle(m, 0.0)
-    dec.feed(b"\xfd\x09\x00\x00\x07\x2a\x01\xe7\x00\x00" + b"\x00" * 11)  # a corrupt WIND_COV
+    dec.feed(b"\xfd\x09\x00\x00\x07\x2a\x01\xe7\x00\x00" + b"\x00" * 11, datagram=True)  # a corrupt WIND_COV
     line = gs.status_line(0.0)
     gs.close()
     assert gs.wind_count == 19 and gs.stats.lost == 1 and gs.stats.bad_frames >= 1
@@ -254,3 +254,32 @@ def test_report_without_a_truth_summarises_the_estimate(tmp_path):
     r = subprocess.run([sys.executable, "-m", "ground_station", "report", str(tlog), "--start", "30"],
                        capture_output=True, text=True)  # fmt: skip
     assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "--start" in r.stderr
+
+
+def test_a_recording_of_two_balloons_is_heard_on_one_clock_and_logged_with_its_times(tmp_path):
+    """A raw capture of two balloons booted 5000 s apart (the second heard from half-way): ``--duration 60`` keeps the
+    recording's first minute of both; a tlog read again is logged with its own record times, not the reading's."""
+    import subprocess
+    import sys
+
+    from balloon_core.wire import LinkStats, tlog_messages
+
+    one, two = (mavlink.MAVLink(None, srcSystem=s, srcComponent=1) for s in (1, 2))
+    raw = bytearray()
+    for i in range(1000):  # 100 s at 10 Hz
+        raw += pack(one, one.wind_cov_encode(100_000 * i, 3.0, -2.0, 0.0, 0.2, 0.0, 100.0, 0.3, 0.0))
+        if i >= 500:
+            raw += pack(two, two.wind_cov_encode(5_000_000_000 + 100_000 * i, 1.0, 1.0, 0.0, 0.2, 0.0, 100.0, 0.3, 0.0))
+    (tmp_path / "two.raw").write_bytes(bytes(raw))
+    r = subprocess.run([sys.executable, "-m", "ground_station", "listen", str(tmp_path / "two.raw"), "--duration", "60",
+                        "--csv", str(tmp_path / "two.csv")], capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    by_sys = [x.sysid for x in read_records(str(tmp_path / "two.csv"))]
+    assert by_sys.count(1) == 601 and by_sys.count(2) == 101  # 0-60 s of the first, 50-60 s of the second
+    tlog, _ = _recording(tmp_path)
+    out = tmp_path / "o.tlog"
+    r = subprocess.run([sys.executable, "-m", "ground_station", "listen", str(tlog), "--tlog", str(out)],
+                       capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    t_in, t_out = ([m._timestamp for m in tlog_messages(str(p), LinkStats())] for p in (tlog, out))
+    assert t_out == t_in and t_out[-1] - t_out[0] == pytest.approx(19.9)

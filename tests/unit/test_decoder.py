@@ -91,3 +91,45 @@ def test_a_datagram_is_whole_its_noise_counted_and_its_frames_taken():
     out += dec.feed(good[3], datagram=True)
     assert [bytes(m.get_msgbuf()) for m in out] == [good[0], good[1], good[3]]
     assert st.garbage_bytes == len(g) + 10 and st.bad_frames == 0
+
+
+def counts(st: LinkStats) -> tuple:
+    return st.frames, st.bad_frames, st.garbage_bytes, st.bytes, st.truncated
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_the_counts_do_not_depend_on_how_the_bytes_were_cut_into_reads(seed):
+    """Noise (start bytes among it), bit errors and cut frames, MAVLink 2 and 1: the same messages and the same
+    counts fed whole, a byte at a time and in random reads."""
+    rng = random.Random(seed)
+    v1 = mavlink.MAVLink(None, srcSystem=2, srcComponent=1)
+    v1.WIRE_PROTOCOL_VERSION = "1.0"
+    data = bytearray()
+    for k, f in enumerate(frames(120)):
+        f = bytearray(f if k % 3 else pack(v1, v1.heartbeat_encode(8, 0, 0, 2, 4)))
+        c = rng.random()
+        if c < 0.1:
+            f[rng.randrange(len(f))] ^= 1 << rng.randrange(8)
+        elif c < 0.2:
+            data += bytes(rng.choice([0xFD, 0xFE, rng.randrange(256)]) for _ in range(rng.randrange(1, 40)))
+        elif c < 0.25:
+            del f[rng.randrange(len(f)) :]
+        data += f
+    whole = decode(bytes(data), 1 << 20)
+    cuts = sorted(rng.sample(range(1, len(data)), 60))
+    st = LinkStats()
+    dec = Decoder(st)
+    got = [m for a, b in zip([0, *cuts], [*cuts, len(data)]) for m in dec.feed(bytes(data[a:b]))] + dec.finish()
+    for out, st2 in (decode(bytes(data), 1), (got, st)):
+        assert [bytes(m.get_msgbuf()) for m in out] == [bytes(m.get_msgbuf()) for m in whole[0]]
+        assert counts(st2) == counts(whole[1])
+
+
+def test_noise_that_reads_as_an_unknown_id_after_a_frame_does_not_swallow_the_frames_in_it():
+    """A start byte right after a frame, its id one the dialect does not know (no CRC pymavlink can check), its
+    length over the next two frames: they are taken, and the ten bytes are garbage."""
+    good = frames(4)
+    span = len(good[1]) + len(good[2]) - 2
+    noise = bytes([MAGIC_V2, span, 0, 0, 0x11, 0x22, 0x33, 0x56, 0x34, 0x12])
+    out, st = decode(good[0] + noise + b"".join(good[1:]), 1 << 20)
+    assert [bytes(m.get_msgbuf()) for m in out] == good and st.garbage_bytes == 10 and st.bad_frames == 0
