@@ -19,6 +19,7 @@ from balloon_core.samples import MAX_TIME_US
 
 TLOG_HEADER = 8
 MAGIC_V2, MAGIC_V1 = 0xFD, 0xFE
+MAGICS = (MAGIC_V2, MAGIC_V1)
 CLOCK_BACK_US = 1_000_000  # a sender's clock going back further than this restarted (less: a late packet)
 MAX_CLOCK_STEP_US = 86_400_000_000  # a sender's clock stepping further than a day is not its boot clock
 MAX_FRAME = 280  # the longest MAVLink 2 frame: 10 header + 255 payload + 2 CRC + 13 signature
@@ -288,7 +289,7 @@ class Decoder:
         k = max(lo, self._looked.get(key, 0) - self._base)
         while (k := next_magic(buf, k)) < hi:
             ln = frame_length(buf, k)
-            whole = ln and k + ln <= len(buf)
+            whole = ln > 0 and k + ln <= len(buf)
             m = self._decode(buf, k, ln, final) if whole else False
             if m is False:
                 if not final:
@@ -382,7 +383,7 @@ class Decoder:
         out: list = []
         self._scan(out, final=True)
         left = bytes(self._buf)
-        if left and left[0] in (MAGIC_V2, MAGIC_V1):
+        if left and left[0] in MAGICS:
             self.stats.bad_frames += 1
             self.stats.truncated = True
         elif left:
@@ -411,7 +412,7 @@ class Decoder:
 
 def _followed(buf: bytes, end: int) -> bool:
     """Does a frame's start byte follow at ``end`` (where a frame that ends there would be followed by the next)?"""
-    return end < len(buf) and buf[end] in (MAGIC_V2, MAGIC_V1)
+    return end < len(buf) and buf[end] in MAGICS
 
 
 def frame_length(buf: bytes, i: int) -> int:
@@ -641,9 +642,13 @@ class TlogWriter:
     def __init__(self, fh: BinaryIO) -> None:
         self.fh = fh
 
+    def record(self, stamp_us: int, frame: bytes) -> None:
+        """A frame with its record time, us since the epoch (another tlog's, when a recording is logged again)."""
+        self.fh.write(struct.pack(">Q", stamp_us) + frame)
+
     def write(self, time_usec: int, frame: bytes) -> None:
         """A frame at a simulated time (since boot), stamped TLOG_EPOCH_US + time_usec."""
-        self.fh.write(struct.pack(">Q", TLOG_EPOCH_US + time_usec) + frame)
+        self.record(TLOG_EPOCH_US + time_usec, frame)
 
 
 class TlogSink(TlogWriter):
@@ -653,14 +658,10 @@ class TlogSink(TlogWriter):
         super().__init__(open(path, "wb"))
 
     def send(self, data: bytes) -> None:
-        self.fh.write(struct.pack(">Q", int(time.time() * 1e6)) + data)
+        self.record(int(time.time() * 1e6), data)
 
     def send_at(self, data: bytes, t_us: int) -> None:
         self.write(t_us, data)
-
-    def send_stamped(self, data: bytes, stamp_us: int) -> None:
-        """A frame with the record time it had elsewhere (another tlog's, us since the epoch)."""
-        self.fh.write(struct.pack(">Q", stamp_us) + data)
 
     def close(self) -> None:
         self.fh.close()

@@ -272,7 +272,7 @@ class GroundStation:
             if stamp_us is None:
                 self._tlog.send(frame)
             else:
-                self._tlog.send_stamped(frame, stamp_us)
+                self._tlog.record(stamp_us, frame)
         t = m.get_type()
         if t == "WIND_COV":
             rec = WindRecord.from_msg(m)
@@ -665,7 +665,8 @@ def read_file(path: str, gs: GroundStation, stop, duration_s: float | None = Non
         gs.handle(m, 0.0 if now is None else now, stamp)
     now = 0.0 if now is None else now
     if stream_is_terminal(gs.out):
-        Console(file=gs.out).print(gs.view(now, Console(file=gs.out).size.width))
+        console = Console(file=gs.out)
+        console.print(gs.view(now, console.size.width))
     else:
         for line in gs.status_lines(now):
             gs.out.write(line + "\n")

@@ -115,7 +115,7 @@ def report(wind_path: str, truth_path: str | None, plot_path: str | None = None,
     s = score(est["time_s"], est["wind_n"], est["wind_e"], est["accuracy"],
               truth["time_s"], truth["wind_n"], truth["wind_e"], start_s=start_s)  # fmt: skip
     if plot_path:
-        plot(est, truth, title(s), plot_path, start_s)
+        plot(est, truth, score_title(s), plot_path, start_s)
     return s
 
 
@@ -158,7 +158,7 @@ def direction_from(wind_n: np.ndarray, wind_e: np.ndarray, centre_deg: float) ->
     return (d - centre_deg + 180.0) % 360.0 - 180.0 + centre_deg
 
 
-def title(s: Score) -> str:
+def score_title(s: Score) -> str:
     return (f"band RMSE {s.band_rmse_mps:.2f} m/s, speed error {s.speed_error_pct:+.1f} %, "
             f"direction error {s.direction_error_deg:+.1f}°, error/accuracy {s.error_ratio:.2f}")  # fmt: skip
 
