@@ -247,8 +247,12 @@ def extra_metrics(rows, truth, est, start_s: float, duration_s: float) -> dict[s
         out["worst_60s_dir_err_deg"] = float(np.max(d_err))
         # what the flight stated of that direction: the window's mean accuracy (its systematic part does not average
         # out) across the mean vector (half the horizontal variance), as an angle: 90 deg where it exceeds the speed
-        sigma = np.degrees(np.arctan2(mean(c(ac)) / math.sqrt(2.0), np.hypot(mn, me)))
-        z = d_err / np.maximum(sigma, 1e-6)
+        axis = mean(c(ac)) / math.sqrt(2.0)
+        sigma = np.degrees(np.arctan2(axis, np.hypot(mn, me)))
+        # how many of those sigmas the estimate's mean lies from the nearest wind of the truth's direction (the ray
+        # from calm): |m| sin(err) up to 90 deg off, |m| beyond. An angle's ratio would read a calm minute's mean,
+        # 0.1 m/s in gusts and 180 deg off, beyond 3 sigma where the vectors are within their stated accuracy
+        z = np.hypot(mn, me) * np.sin(np.radians(np.minimum(d_err, 90.0))) / np.maximum(axis, 1e-9)
         out["worst_60s_dir_z"] = float(np.max(z))
         out["share_60s_dir_beyond_3sigma"] = float(np.mean(z > 3.0))
         out["worst_60s_dir_sigma_deg"] = float(sigma[int(np.argmax(d_err))])

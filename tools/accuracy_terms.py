@@ -2,6 +2,7 @@
 
     python tools/accuracy_terms.py 23 17 --quick          # flights of the --quick sample, 300 s
     python tools/accuracy_terms.py 0 4 8 --duration 600    # flights of the full sample
+    python tools/accuracy_terms.py 83 --sample-seed 21      # a flight of a held-out sample
     python tools/accuracy_terms.py 103 --set truth.accel_bias_mps2=0 --set truth.accel_bias_walk_mps2_rt_s=0
                                                            # the same flight, its world changed (TOML values)
     python tools/accuracy_terms.py --scenario field-gusty-6 --seed 2 --set filter.init_drag=0.001
@@ -32,9 +33,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from balloon_core import userargs  # noqa: E402
 from balloon_core.rotation import quat_from_euler, rotation, rotation_error  # noqa: E402
 from balloon_core.score import score  # noqa: E402
-from benchmarks.bench_envelope import sample, sections_of  # noqa: E402
+from benchmarks.bench_envelope import SEED, sample, sections_of  # noqa: E402
 from firmware_py.estimator.consistency import NIS_CLIP, SOURCES, lean_misfit_wind, systematic_variance  # noqa: E402
 from firmware_py.estimator.control import Estimator  # noqa: E402
 from firmware_py.estimator.state import ATT_D, ATT_N, BARO_OFF, DRAG, MODE_TAUT, POS_E, POS_N, VEL_E, VEL_N  # noqa: E402
@@ -205,6 +207,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=1, help="the scenarios' seed")
     ap.add_argument("--quick", action="store_true", help="the --quick sample (64 flights) and 300 s")
     ap.add_argument("--duration", type=float, default=None, help="simulated seconds (default 300 quick, else 600)")
+    ap.add_argument("--sample-seed", type=userargs.seed, default=SEED,
+                    help="the envelope sample's seed (bench_envelope --sample-seed; default its fixed sample)")
     ap.add_argument(
         "--set",
         action="append",
@@ -213,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
         help="change one thing of every flight's world or design (repeatable), e.g. sensors.gyro_dps=0.1",
     )
     a = ap.parse_args(argv)
-    sampled = sample(64 if a.quick else 200)
+    sampled = sample(64 if a.quick else 200, a.sample_seed)
     duration = a.duration if a.duration is not None else (300.0 if a.quick else 600.0)
     if not START_S + MIN_SCORED_S <= duration <= MAX_DURATION_S:  # NaN too
         print(f"accuracy_terms: --duration {duration:g}: {START_S + MIN_SCORED_S:g}-{MAX_DURATION_S:g} s (scored from "

@@ -147,10 +147,29 @@ def test_extra_metrics_on_a_known_error():
     # its direction: 7.6 deg off where 0.1 m/s stated across a 3.03 m/s mean says 1.3 deg
     sigma = math.degrees(math.atan2(0.1 / math.sqrt(2.0), math.hypot(3.0, 0.4)))
     assert math.isclose(m["worst_60s_dir_sigma_deg"], sigma, rel_tol=1e-9)
-    assert math.isclose(m["worst_60s_dir_z"], math.degrees(math.atan2(0.4, 3.0)) / sigma, rel_tol=1e-9)
+    assert math.isclose(m["worst_60s_dir_z"], 0.4 / (0.1 / math.sqrt(2.0)), rel_tol=1e-9)  # 0.4 m/s off the ray
     assert m["share_60s_dir_beyond_3sigma"] == 1.0
     assert m["replacements_per_h"] == 12.0
     assert sum(m[f"cal_n_{b}"] for b in range(len(be.CAL_EDGES) - 1)) == 1800
+
+
+def test_a_calm_minute_is_judged_by_its_vectors():
+    """A minute of gusts whose mean is 0.1 m/s from the south where the estimate says 0.5 m/s from the north, stated
+    to 0.8 m/s: 180 deg off, but its mean is 0.6 m/s from the truth's, within a sigma; 1.5 m/s from the north at
+    0.3 m/s is 3.5 sigma from any southerly wind."""
+    t = np.arange(0.0, 200.0, 0.01)
+    truth = {"time_s": t, "wind_n": np.full_like(t, 0.1), "wind_e": np.zeros_like(t)}
+
+    class Est:
+        class counters:  # noqa: N801
+            taut_resets = 0
+
+    for speed, stated, z in ((0.5, 0.8, 0.5 / (0.8 / math.sqrt(2.0))), (1.5, 0.3, 1.5 / (0.3 / math.sqrt(2.0)))):
+        rows = np.column_stack([t, np.full_like(t, -speed), np.zeros_like(t), np.full_like(t, stated)])
+        m = be.extra_metrics(rows, truth, Est, 60.0, 200.0)
+        assert math.isclose(m["worst_60s_dir_err_deg"], 180.0, abs_tol=1e-9)
+        assert math.isclose(m["worst_60s_dir_z"], z, rel_tol=1e-9)
+        assert m["share_60s_dir_beyond_3sigma"] == (1.0 if z > 3.0 else 0.0)
 
 
 def test_summary_verdicts():
