@@ -5,12 +5,13 @@ takes only what pymavlink takes alike); bad frames are counted, never raised."""
 from __future__ import annotations
 
 import errno
+import itertools
 import socket
 import struct
 import time
 from collections import deque
-from collections.abc import Iterator
-from typing import BinaryIO
+from collections.abc import Iterable, Iterator
+from typing import BinaryIO, TypeVar
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -23,6 +24,13 @@ MAGICS = (MAGIC_V2, MAGIC_V1)
 CLOCK_BACK_US = 1_000_000  # a sender's clock going back further than this restarted (less: a late packet)
 MAX_CLOCK_STEP_US = 86_400_000_000  # a sender's clock stepping further than a day is not its boot clock
 MAX_FRAME = 280  # the longest MAVLink 2 frame: 10 header + 255 payload + 2 CRC + 13 signature
+# a tlog record's time (its 8-byte header: no CRC covers it) further than this from the last plausible one is held
+# until the records after it decide (``plausible_record_times``): RECORD_CONFIRM of them near it confirm it (a
+# recording resumed after a pause, two logs end to end); one near the old clock, or none near it among the next
+# RECORD_LOOKAHEAD records (or before the file ends), says it is damaged
+RECORD_JUMP_S = 3600.0
+RECORD_CONFIRM = 2
+RECORD_LOOKAHEAD = 16
 
 
 def pack(mav, msg) -> bytes:
@@ -173,10 +181,11 @@ class LinkStats:
     component) the packets received, lost, reordered and duplicated (``SenderSeq``). ``lost`` is the
     total over the senders."""
 
-    __slots__ = ("bytes", "frames", "bad_frames", "garbage_bytes", "lost", "senders", "truncated")
+    __slots__ = ("bytes", "frames", "bad_frames", "garbage_bytes", "lost", "senders", "truncated", "bad_stamps")
 
     def __init__(self) -> None:
         self.bytes = self.frames = self.bad_frames = self.garbage_bytes = self.lost = 0
+        self.bad_stamps = 0  # tlog record times not plausible (``plausible_record_times``): not used, counted
         self.truncated = False  # a file that ends inside a frame (that frame is one of the bad ones)
         self.senders: dict[tuple[int, int], SenderSeq] = {}
 
@@ -485,6 +494,56 @@ def tlog_messages(path: str, stats: LinkStats, chunk: int = 1 << 20, fast: bool 
             i = end
             if m is not None:
                 yield m
+
+
+T = TypeVar("T")
+
+
+def plausible_record_times(items: Iterable[tuple[T, float | None]],
+                           stats: LinkStats) -> Iterator[tuple[T, float | None]]:  # fmt: skip
+    """(item, record time s) of a tlog's records in their order, with a time that is not plausible against its
+    neighbours replaced by None and counted (``stats.bad_stamps``): a record's 8-byte time has no CRC, and one
+    damaged byte puts it 36 000 years ahead (or behind) while its frame is whole. A time further than
+    ``RECORD_JUMP_S`` from the last plausible one (or the first time of all) is held until the records after it
+    decide (``RECORD_CONFIRM``, ``RECORD_LOOKAHEAD``); the items keep their order. A time of None passes as it is."""
+    last: float | None = None
+    held: deque[tuple[T, float | None]] = deque()
+
+    def decide(final: bool) -> Iterator[tuple[T, float | None]]:
+        nonlocal last
+        while held:
+            item, t = held[0]
+            if t is None or (last is not None and abs(t - last) <= RECORD_JUMP_S):
+                held.popleft()
+                last = last if t is None else t
+                yield item, t
+                continue
+            confirm, refuted, followers = 0, False, 0
+            for _, tf in itertools.islice(held, 1, None):
+                if tf is None:
+                    continue
+                followers += 1
+                if last is not None and abs(tf - last) <= RECORD_JUMP_S:
+                    refuted = True  # the clock runs on as it was: this one record's time is damaged
+                    break
+                if abs(tf - t) <= RECORD_JUMP_S:
+                    confirm += 1
+                    if confirm >= RECORD_CONFIRM:
+                        break
+            if not (refuted or confirm >= RECORD_CONFIRM or final or len(held) > RECORD_LOOKAHEAD):
+                return  # not known yet: more records decide
+            held.popleft()
+            if refuted or (confirm == 0 and (followers or last is not None)):
+                stats.bad_stamps += 1
+                yield item, None
+            else:  # confirmed (or the first time of a file with no other to judge it by)
+                last = t
+                yield item, t
+
+    for pair in items:
+        held.append(pair)
+        yield from decide(False)
+    yield from decide(True)
 
 
 def _chained_magic(buf: bytes, k: int, stop: int) -> int:

@@ -44,6 +44,7 @@ from balloon_core.wire import (
     message_time_us,
     open_link,
     pack,
+    plausible_record_times,
 )
 from ground_station.wind import CSV_COLUMNS, WindRecord
 
@@ -237,6 +238,7 @@ class GroundStation:
         self._tlog = TlogSink(tlog_path) if tlog_path else None
         self.winch: Winch | None = None  # the last WINCH_STATUS (any system: the site has one winch)
         self.duplicates = 0  # frames received twice (a relay or a radio repeating), dropped
+        self.unknown_not_logged = 0  # frames of a message id the dialect lacks, not copied into the tlog log
         self._recent: dict[tuple[int, int], tuple[deque[bytes], set[bytes]]] = {}  # per sender: its last frames
 
     # ------------------------------------------------------------ input
@@ -268,12 +270,14 @@ class GroundStation:
         frame = bytes(m.get_msgbuf())
         if self._duplicate((m.get_srcSystem(), m.get_srcComponent()), frame):
             return False
-        if self._tlog:
+        t = m.get_type()
+        if self._tlog and t.startswith("UNKNOWN"):
+            self.unknown_not_logged += 1  # an id the dialect lacks: its CRC unchecked, pymavlink could not read it back
+        elif self._tlog:
             if stamp_us is None:
                 self._tlog.send(frame)
             else:
                 self._tlog.record(stamp_us, frame)
-        t = m.get_type()
         if t == "WIND_COV":
             rec = WindRecord.from_msg(m)
             v = self.vehicle(rec.sysid)
@@ -497,9 +501,13 @@ class GroundStation:
         said = "; ".join(f"sys {v.sysid} reported its sensor input {v.input_loss()}"
                          for v in sorted(self.vehicles.values(), key=lambda v: v.sysid) if v.input_loss())  # fmt: skip
         n = len(self.vehicles)
+        stamps = (f", {s.bad_stamps} record time{'' if s.bad_stamps == 1 else 's'} damaged (not used)"
+                  if s.bad_stamps else "")  # fmt: skip
+        u = self.unknown_not_logged
+        unknown = f", {u} frame{'' if u == 1 else 's'} of an unknown message id not logged to the tlog" if u else ""
         return (f"balloon-gs: {self.wind_count} WIND_COV from {n} system{'' if n == 1 else 's'}, {s.frames} frames, "
                 f"{s.lost} lost, {s.bad_frames} CRC errors, {s.garbage_bytes} garbage bytes, "
-                f"{self.duplicates} duplicates dropped" + (f"; {said}" if said else ""))  # fmt: skip
+                f"{self.duplicates} duplicates dropped{stamps}{unknown}" + (f"; {said}" if said else ""))  # fmt: skip
 
 
 def sparkline(values: list[float]) -> str:
@@ -629,14 +637,18 @@ def listen(endpoint: str, gs: GroundStation, stop, duration_s: float | None = No
 
 def recording(path: str, stats: LinkStats):
     """(message, time s) of a recorded link (a .tlog or a raw capture, ``wire.capture_messages``) in its order: the
-    record's time where the file has one (a tlog's); in a raw capture the senders' own clocks
-    (``wire.message_time_us``), each sender's set where it is first heard against the time then (two balloons booted
-    an hour apart are heard on one clock), never going back; None before the first message that tells one."""
+    record's time where the file has one (a tlog's; one not plausible against its neighbours, a damaged record
+    header, is counted in ``stats.bad_stamps`` and does not move the clock: ``wire.plausible_record_times``); in a raw
+    capture the senders' own clocks (``wire.message_time_us``), each sender's set where it is first heard against the
+    time then (two balloons booted an hour apart are heard on one clock), never going back; None before the first
+    message that tells one."""
     now = None
     offset: dict[int, float] = {}  # a raw capture's sender: its clock's offset from the recording's
-    for m in capture_messages(path, stats):
-        t = getattr(m, "_timestamp", None)
-        if t is None:
+    msgs = capture_messages(path, stats)
+    tlog = path.endswith(".tlog")
+    pairs = plausible_record_times(((m, m._timestamp) for m in msgs), stats) if tlog else ((m, None) for m in msgs)
+    for m, t in pairs:
+        if not tlog:
             us = message_time_us(m)
             if us is not None:
                 sysid = m.get_srcSystem()
@@ -648,21 +660,40 @@ def recording(path: str, stats: LinkStats):
         yield m, now
 
 
+def no_wind_refusal(path: str, stats: LinkStats, wind_count: int) -> str | None:
+    """Why a recording read whole is not one for the ground station (as ``balloon-fw`` and ``balloon-replay`` refuse
+    what holds nothing for them): no MAVLink frame at all (an empty file, a picture, noise), or frames but no WIND_COV
+    (a sensor capture: ``balloon-fw --in`` makes its wind); None if it holds WIND_COV."""
+    if stats.frames == 0:
+        return f"{path}: no MAVLink frame in this file (not a recording of a MAVLink link?)"
+    if wind_count == 0:
+        return (f"{path}: {stats.frames} MAVLink frames but no WIND_COV: nothing for the ground station to show (a "
+                "sensor capture? balloon-fw --in makes its wind)")  # fmt: skip
+    return None
+
+
 def read_file(path: str, gs: GroundStation, stop, duration_s: float | None = None) -> None:
     """A recorded link through the station as it came (``recording``): the CSV and the tlog logged as a live run
     logs them, then the view at the recording's end, on the recording's clock; ``duration_s``: only its first
-    seconds; the tlog log stamped with the recording's times. Nothing is sent: a file has no one to send to."""
+    seconds; the tlog log stamped with the recording's times. Nothing is sent: a file has no one to send to.
+    ValueError (nothing shown) for a file that holds no WIND_COV (``no_wind_refusal``)."""
     gs.endpoint = path
     now = start = None
+    whole = True  # read to its end (not stopped, not cut by ``duration_s``)
     epoch_us = 0 if path.endswith(".tlog") else TLOG_EPOCH_US  # the tlog log's stamps: the record's, or as simulated
     for m, now in recording(path, gs.stats):
         if stop():
+            whole = False
             break
         start = now if start is None else start
         if duration_s is not None and now is not None and now - start > duration_s:
+            whole = False
             break
         stamp = None if now is None else epoch_us + round(now * 1e6)
         gs.handle(m, 0.0 if now is None else now, stamp)
+    refusal = no_wind_refusal(path, gs.stats, gs.wind_count)
+    if refusal is not None and (whole or gs.stats.frames == 0) and not stop():
+        raise ValueError(refusal)
     now = 0.0 if now is None else now
     if stream_is_terminal(gs.out):
         console = Console(file=gs.out)

@@ -38,11 +38,13 @@ from balloon_core.wire import (
     message_time_us,
     next_magic,
     open_link,
+    plausible_record_times,
 )
 from sim_hil.link import Lockstep
 
 IMU_MSG_IDS = {105, 107}  # HIGHRES_IMU, HIL_SENSOR: time_usec (uint64) is the first payload field
 IMU_MS_MSG_IDS = {26}  # SCALED_IMU: time_boot_ms (uint32) is the first payload field
+SLEEP_SLICE_S = 0.1  # a wait for a record's time is cut into sleeps this long: Ctrl-C and SIGTERM stop it at once
 
 
 def imu_time_us(frame: bytes) -> int | None:
@@ -57,6 +59,24 @@ def imu_time_us(frame: bytes) -> int | None:
     if msgid in IMU_MS_MSG_IDS:
         return struct.unpack("<I", (bytes(payload[:4]) + bytes(4))[:4])[0] * 1000
     return None
+
+
+def paced_tlog_records(path: str, stats: LinkStats):
+    """``tlog_records`` with a record time that is not plausible against its neighbours (a damaged 8-byte header: no
+    CRC covers it) as None, counted in ``stats.bad_stamps`` (``wire.plausible_record_times``): not paced on."""
+    pairs = plausible_record_times(((rec, rec[0] * 1e-6) for rec in tlog_records(path)), stats)
+    for (ts, t_imu, frame), t in pairs:
+        yield (None if t is None else ts), t_imu, frame
+
+
+def wait_until(deadline: float, stop) -> None:
+    """Sleep until ``time.monotonic()`` reaches ``deadline`` or ``stop()`` says so, in slices of ``SLEEP_SLICE_S``:
+    however far ahead a record's time lies, a signal stops the wait within a slice."""
+    while not stop():
+        ahead = deadline - time.monotonic()
+        if ahead <= 0.001:
+            return
+        time.sleep(min(ahead, SLEEP_SLICE_S))
 
 
 def tlog_records(path: str):
@@ -128,6 +148,12 @@ class ReplayResult:
     sent_time_s: float = -1.0  # the newest sample time sent
     interrupted: bool = False
     records_sent: int = 0  # tlog records, or a raw capture's frames and runs of bytes between them, sent
+    bad_stamps: int = 0  # tlog records whose time is not plausible (a damaged header): sent, not paced on
+
+    def stamps_note(self) -> str:
+        """``, 1 record time damaged (sent, not paced on)``, or nothing."""
+        n = self.bad_stamps
+        return f", {n} record time{'' if n == 1 else 's'} damaged (sent, not paced on)" if n else ""
 
     def final_line(self, out: str, speed: float) -> str:
         head = f"balloon-replay: {self.imu_sent} IMU samples ({self.bytes_sent} bytes) sent to {out}"
@@ -139,6 +165,7 @@ class ReplayResult:
             head += " flat out" if speed == 0 else f" at {speed:g}x"
         if self.interrupted:
             head += ", interrupted"
+        head += self.stamps_note()
         if self.fw_lost is None:
             if self.lockstep or speed == 0:
                 return head + "; nothing came back to say what arrived: losses unknown"
@@ -157,7 +184,8 @@ def replay(path: str, out: str, speed: float, stop=lambda: False, lockstep: bool
            timeout_s: float = 2.0, progress: Progress | None = None) -> ReplayResult:  # fmt: skip
     link = open_link(out)
     ls = Lockstep(link, window_s, timeout_s)
-    items = tlog_records(path) if path.endswith(".tlog") else raw_chunks(path)
+    stamps = LinkStats()
+    items = paced_tlog_records(path, stamps) if path.endswith(".tlog") else raw_chunks(path)
     res = ReplayResult(lockstep=lockstep)
     t_first = None
     wall0 = time.monotonic()
@@ -169,9 +197,10 @@ def replay(path: str, out: str, speed: float, stop=lambda: False, lockstep: bool
             if t is not None and speed > 0:
                 if t_first is None:
                     t_first = t
-                ahead = wall0 + (t - t_first) * 1e-6 / speed - time.monotonic()
-                if ahead > 0.001:
-                    time.sleep(ahead)
+                wait_until(wall0 + (t - t_first) * 1e-6 / speed, stop)
+                if stop():
+                    res.interrupted = True
+                    break
             if t_imu is not None:
                 if lockstep:
                     ls.wait_for(t_imu)
@@ -189,6 +218,7 @@ def replay(path: str, out: str, speed: float, stop=lambda: False, lockstep: bool
             res.acknowledged = ls.finish(timeout_s + 1.5)
     finally:
         link.close()
+    res.bad_stamps = stamps.bad_stamps
     res.timeouts = ls.timeouts
     res.fw_lost = ls.firmware_lost()
     res.fw_time_s, res.sent_time_s = ls.fw_time_us * 1e-6, ls.sent_us * 1e-6
@@ -269,7 +299,7 @@ def main(argv: list[str] | None = None) -> int:
     if recorded_wind:
         pace = "flat out" if args.speed == 0 else f"at {args.speed:g}x"
         print(f"{prog}: a recorded wind, {res.records_sent} records ({res.bytes_sent} bytes) sent to {args.out} {pace}"
-              + (", interrupted" if res.interrupted else ""), file=sys.stderr)  # fmt: skip
+              + (", interrupted" if res.interrupted else "") + res.stamps_note(), file=sys.stderr)  # fmt: skip
     else:
         print(res.final_line(args.out, args.speed), file=sys.stderr)
     return 130 if res.interrupted else 0

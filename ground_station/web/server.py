@@ -31,7 +31,7 @@ from aiohttp import WSMsgType, web
 from aiohttp.http_exceptions import HttpProcessingError
 
 from balloon_core.wire import LinkStats
-from ground_station.listen import STALE_S, GroundStation, Receiver, recording
+from ground_station.listen import STALE_S, GroundStation, Receiver, no_wind_refusal, recording
 from ground_station.web.aggregate import PUSH_HZ
 from ground_station.web.live import LiveModel
 
@@ -117,10 +117,15 @@ class WebStation:
 
     def load_recording(self, path: str) -> None:
         """A recorded link (a .tlog or a raw capture: ``listen.recording``) taken at once, as if it had just come,
-        its end now: the page shows its last state and charts, which then turn stale as a quiet link does."""
-        end = None
-        for _, t in recording(path, LinkStats()):  # the first pass finds the end (a day's log is not held)
+        its end now: the page shows its last state and charts, which then turn stale as a quiet link does. ValueError
+        for a file that holds no WIND_COV (``listen.no_wind_refusal``)."""
+        end, first, winds = None, LinkStats(), 0
+        for m, t in recording(path, first):  # the first pass finds the end (a day's log is not held)
             end = t if t is not None else end
+            winds += m.get_type() == "WIND_COV"
+        refusal = no_wind_refusal(path, first, winds)
+        if refusal is not None:
+            raise ValueError(refusal)
         now = time.monotonic()
         with self.model.lock:
             for m, t in recording(path, self.gs.stats):

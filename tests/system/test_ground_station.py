@@ -283,3 +283,104 @@ def test_a_recording_of_two_balloons_is_heard_on_one_clock_and_logged_with_its_t
     assert r.returncode == 0, r.stderr
     t_in, t_out = ([m._timestamp for m in tlog_messages(str(p), LinkStats())] for p in (tlog, out))
     assert t_out == t_in and t_out[-1] - t_out[0] == pytest.approx(19.9)
+
+
+def _damage_stamp(tlog, k: int) -> bytes:
+    """The tlog with the top byte of record ``k``'s 8-byte time set to 0x10 (1.15e12 s ahead; its frame whole), and
+    a frame of a message id the dialect lacks (a CRC no one can check) after it; the original bytes."""
+    from balloon_core.wire import frame_length
+
+    data = bytearray(tlog.read_bytes())
+    i = n = 0
+    while n < k:
+        i += 8 + frame_length(data, i + 8)
+        n += 1
+    data[i] = 0x10
+    frame = bytearray(data[i + 8 : i + 8 + frame_length(data, i + 8)])
+    frame[7:10] = (12345).to_bytes(3, "little")  # WIND_COV's bytes under an id no dialect has
+    end = i + 8 + len(frame)
+    data[end:end] = bytes(1) + data[i + 1 : i + 8] + bytes(frame)  # the damaged record's time as it was (top byte 0)
+    return bytes(data)
+
+
+def test_plausible_record_times_judges_a_time_by_the_records_around_it():
+    """A tlog record's time has no CRC: one far from the clock is damaged unless the records after it run on from it
+    (a recording resumed after a pause); the first of a file is judged by those after it too."""
+    from balloon_core.wire import LinkStats, plausible_record_times
+
+    def judged(times):
+        stats = LinkStats()
+        out = [t for _, t in plausible_record_times(((k, t) for k, t in enumerate(times)), stats)]
+        return out, stats.bad_stamps
+
+    run = [0.1 * k for k in range(30)]
+    assert judged(run) == (run, 0)
+    assert judged(run[:10] + [1.15e12] + run[10:]) == (run[:10] + [None] + run[10:], 1)  # ahead, then back
+    assert judged(run[:10] + [-5e8] + run[10:]) == (run[:10] + [None] + run[10:], 1)  # far behind
+    assert judged([1.15e12] + run) == ([None] + run, 1)  # the first one
+    assert judged(run + [1.15e12]) == (run + [None], 1)  # the last one, with nothing after it to confirm it
+    resumed = run + [7200.0 + t for t in run]  # two hours' pause: confirmed by what follows
+    assert judged(resumed) == (resumed, 0)
+    assert judged([5.0]) == ([5.0], 0)
+
+
+def test_listen_a_damaged_record_time_is_counted_and_does_not_move_the_clock(tmp_path):
+    """One tlog record whose 8-byte time was damaged (1.15e12 s ahead, its frame whole) moved the recording's clock
+    for good: ``--duration 10`` cut the rest silently after 6 s, the --tlog log was stamped in the year 38000, the
+    view said STALE for 1e12 s. Now it is counted in the summary and does not move the clock; a frame of an unknown
+    message id (its CRC unchecked) is not copied into the --tlog log (pymavlink could not read it back)."""
+    import subprocess
+    import sys
+
+    from balloon_core.wire import LinkStats, tlog_messages
+    from ground_station import cli
+
+    tlog, _ = _recording(tmp_path)
+    ok_csv, csv, out = tmp_path / "ok.csv", tmp_path / "w.csv", tmp_path / "o.tlog"
+    assert cli.main(["listen", str(tlog), "--duration", "10", "--csv", str(ok_csv)]) == 0
+    damaged = tmp_path / "damaged.tlog"
+    damaged.write_bytes(_damage_stamp(tlog, 60))  # the record at 5.9 s
+    before = damaged.read_bytes()
+    r = subprocess.run([sys.executable, "-m", "ground_station", "listen", str(damaged), "--duration", "10", "--csv",
+                        str(csv), "--tlog", str(out)], capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert "1 record time damaged (not used)" in r.stderr, r.stderr
+    assert "1 frame of an unknown message id not logged" in r.stderr, r.stderr
+    assert "STALE" not in r.stdout and "t=   10.0s" in r.stdout, r.stdout
+    assert [r.time_usec for r in read_records(str(csv))] == [r.time_usec for r in read_records(str(ok_csv))]
+    logged = list(tlog_messages(str(out), LinkStats()))
+    assert not any(m.get_type().startswith("UNKNOWN") for m in logged)
+    stamps = [m._timestamp for m in logged]
+    assert max(stamps) - min(stamps) == pytest.approx(10.0)  # the recording's 0-10 s, none in the far future
+    assert damaged.read_bytes() == before
+
+
+@pytest.mark.parametrize("what", ["empty", "noise", "png", "no wind"])
+def test_listen_and_web_refuse_a_file_that_is_no_recording_of_wind(tmp_path, capfd, what):
+    """``listen FILE`` took an empty file, random bytes or a picture with exit 0 ("0 WIND_COV") and left a
+    header-only --csv; ``balloon-fw`` and ``balloon-replay`` refuse them. Now listen and web refuse them alike: exit
+    2, one line, no output file, the file untouched."""
+    import random
+
+    from ground_station import cli
+
+    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    data = {"empty": b"", "noise": random.Random(1).randbytes(20_000),
+            "png": b"\x89PNG\r\n\x1a\n" + random.Random(2).randbytes(5_000),
+            "no wind": b"".join(pack(mav, mav.heartbeat_encode(mavlink.MAV_TYPE_FREE_BALLOON,
+                                                               mavlink.MAV_AUTOPILOT_GENERIC, 0, 2, 4))
+                                for _ in range(20))}[what]  # fmt: skip
+    path = tmp_path / "input.raw"
+    path.write_bytes(data)
+    capfd.readouterr()
+    code = cli.main(["listen", str(path), "--csv", str(tmp_path / "w.csv"), "--tlog", str(tmp_path / "g.tlog")])
+    got = capfd.readouterr()
+    assert code == 2 and len(got.err.strip().splitlines()) == 1 and got.out == "", got
+    assert str(path) in got.err and ("no MAVLink frame" in got.err or "no WIND_COV" in got.err), got.err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["input.raw"]  # no log, no temporary file
+    if what in ("empty", "no wind"):
+        pytest.importorskip("aiohttp")
+        assert cli.main(["web", str(path), "--bind", "127.0.0.1:0"]) == 2
+        err = capfd.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and str(path) in err, err
+    assert path.read_bytes() == data
