@@ -32,6 +32,7 @@ class Score:
     true_speed_mps: float
     est_speed_mps: float
     duration_s: float
+    accuracy_not_finite: int = 0  # estimates scored whose accuracy is not a finite number: left out of its statistics
 
     def as_row(self) -> dict:
         return {k: round(v, 3) if isinstance(v, float) else v for k, v in self.__dict__.items()}
@@ -55,7 +56,8 @@ MIN_BAND_STD_MPS = 0.02  # below this the truth does not fluctuate in the band: 
 
 
 def on_grid(t_est, est_n, est_e, acc, t_true, true_n, true_e, start_s):
-    """Both series on a common 10 Hz grid from ``start_s`` on (estimate samples that are not finite dropped)."""
+    """Both series on a common 10 Hz grid from ``start_s`` on (estimate samples that are not finite dropped; an
+    accuracy that is not finite is left out of the accuracy's series alone, NaN throughout where none is)."""
     t_est, est_n, est_e, acc = (np.asarray(x, dtype=float) for x in (t_est, est_n, est_e, acc))
     ok = np.isfinite(t_est) & np.isfinite(est_n) & np.isfinite(est_e)
     t_est, est_n, est_e, acc = t_est[ok], est_n[ok], est_e[ok], acc[ok]
@@ -73,7 +75,9 @@ def on_grid(t_est, est_n, est_e, acc, t_true, true_n, true_e, start_s):
         )
     grid = np.arange(t0, t1, 1.0 / GRID_HZ)
     ip = lambda t, y: np.interp(grid, t, y)  # noqa: E731
-    return grid, ip(t_est, est_n), ip(t_est, est_e), ip(t_est, acc), ip(t_true, true_n), ip(t_true, true_e)
+    fa = np.isfinite(acc) & (t_est >= t0) & (t_est <= t1)
+    ac = ip(t_est[np.isfinite(acc)], acc[np.isfinite(acc)]) if fa.any() else np.full(len(grid), np.nan)
+    return grid, ip(t_est, est_n), ip(t_est, est_e), ac, ip(t_true, true_n), ip(t_true, true_e)
 
 
 def score(t_est, est_n, est_e, acc, t_true, true_n, true_e, start_s: float = 120.0, band_hz: float = 0.05) -> Score:
@@ -90,17 +94,20 @@ def score(t_est, est_n, est_e, acc, t_true, true_n, true_e, start_s: float = 120
     d_est = math.degrees(math.atan2(ee.mean(), en.mean()))
     ddir = (d_est - d_true + 180.0) % 360.0 - 180.0
     mean_acc = float(np.sqrt(np.mean(ac**2)))
+    t_est, acc = np.asarray(t_est, float), np.asarray(acc, float)
+    scored = np.isfinite(t_est) & np.isfinite(est_n) & np.isfinite(est_e) & (t_est >= grid[0]) & (t_est <= grid[-1])
     return Score(
         band_rmse_mps=float(band),
         raw_rmse_mps=float(raw),
         speed_error_pct=100.0 * (ms_est - ms_true) / max(ms_true, 1e-6),
         direction_error_deg=ddir,
         mean_accuracy_mps=mean_acc,
-        error_ratio=float(raw) / mean_acc if mean_acc > 0.0 else math.inf,
+        error_ratio=float(raw) / mean_acc if mean_acc > 0.0 else math.inf if mean_acc == 0.0 else math.nan,
         band_skill=float(skill),
         true_speed_mps=ms_true,
         est_speed_mps=ms_est,
         duration_s=float(grid[-1] - grid[0]),
+        accuracy_not_finite=int(np.count_nonzero(scored & ~np.isfinite(acc))),
     )
 
 

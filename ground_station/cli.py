@@ -102,12 +102,15 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     from ground_station.report import format_score, report
 
+    notes: list[str] = []  # what of the log was left out (the earlier boots of a log of several)
     try:
         with Products() as products:
-            s = report(args.file, args.truth, args.plot and products.path(args.plot), args.start, args.sysid)
+            s = report(args.file, args.truth, args.plot and products.path(args.plot), args.start, args.sysid, notes)
             products.commit()
     except (ValueError, OSError, userargs.UserError) as exc:
         return userargs.fail(f"{PROG} report", exc)
+    for note in notes:
+        print(f"{PROG} report: note: {note}", file=sys.stderr)
     print(format_score(s))
     if args.plot:
         print(f"plot: {args.plot}")

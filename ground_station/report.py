@@ -61,9 +61,46 @@ def read_truth_csv(path: str, columns: tuple[str, ...] | None = None) -> dict[st
     return {name: np.ascontiguousarray(data[:, j]) for j, name in enumerate(names)}
 
 
-def read_estimate(wind_path: str, sysid: int | None = None) -> dict[str, np.ndarray]:
+CLOCK_BACK_S = 1.0  # a sender's time since boot going back further than this restarted (wire.CLOCK_BACK_US)
+BOOT_CONFIRM = 3  # ... when the samples after it run on from there, below where the old boot had got
+
+
+def boot_starts(t_s: np.ndarray) -> list[int]:
+    """Where each boot of a sender's clock starts in a log in the file's order: index 0, and each sample whose time
+    since boot is more than ``CLOCK_BACK_S`` behind the newest of its boot so far while the ``BOOT_CONFIRM`` after it
+    run on from it, still behind that newest (the firmware booted again, or two flights' logs end to end). A late
+    packet (the next sample is back where the clock was) and a log in reverse order (it never runs on) are no boot."""
+    starts, a = [0], 0
+    while len(t_s) - a >= 3:
+        seg = t_s[a:]
+        top = np.maximum.accumulate(seg)[:-1]  # the newest before each sample from the second on
+        found = None
+        for j in (np.flatnonzero(seg[1:] < top - CLOCK_BACK_S) + 1).tolist():
+            after = seg[j + 1 : j + 1 + BOOT_CONFIRM]
+            if len(after) and np.all((after >= seg[j]) & (after < top[j - 1] - CLOCK_BACK_S)):
+                found = j
+                break
+        if found is None:
+            break
+        a += found
+        starts.append(a)
+    return starts
+
+
+def _boots_note(path: str, t_s: np.ndarray, starts: list[int], clock: str, one: str, many: str) -> str:
+    """The one line that says a log of several boots was cut to its last: where the clock went back, what is used
+    and what is left out (``one``, ``many``: what a sample is called)."""
+    k, earlier = starts[-1], len(starts) - 1
+    return (f"{path} holds {len(starts)} boots ({clock} goes back from {float(np.max(t_s[starts[-2]:k])):.1f} s to "
+            f"{float(t_s[k]):.1f} s at {one} {k + 1}): only the last boot's {len(t_s) - k} {many} are used; {k} "
+            f"{many} of {earlier} earlier boot{'' if earlier == 1 else 's'} left out")  # fmt: skip
+
+
+def read_estimate(wind_path: str, sysid: int | None = None, notes: list[str] | None = None) -> dict[str, np.ndarray]:
     """One balloon's WIND_COV in time order (``as_arrays``) from a ground-station CSV, a .tlog, a raw capture or a
-    reprocess .nc; ``sysid`` picks the balloon where the log holds more than one (else it is an error)."""
+    reprocess .nc; ``sysid`` picks the balloon where the log holds more than one (else it is an error). A log of
+    more than one boot (``boot_starts``: the time since boot starts again) gives its last boot's, and says so in
+    ``notes``; a product whose time goes back otherwise, or that holds no finite wind, is an error."""
     if wind_path.endswith(".nc"):  # a balloon-gs reprocess product: its smoothed wind and accuracy
         from balloon_core.userargs import require_extra
 
@@ -71,30 +108,55 @@ def read_estimate(wind_path: str, sysid: int | None = None) -> dict[str, np.ndar
         from postflight.netcdf import read_netcdf_wind
 
         est = read_netcdf_wind(wind_path)
-    else:
-        records = read_records(wind_path)
-        systems = sorted({r.sysid for r in records})
-        counts = ", ".join(f"sys {s}: {sum(1 for r in records if r.sysid == s)}" for s in systems)
-        if sysid is not None:
-            if sysid not in systems:
-                raise ValueError(f"{wind_path}: no WIND_COV from system {sysid} (it holds {counts or 'none'})")
-            records = [r for r in records if r.sysid == sysid]
-        elif len(systems) > 1:  # one truth scores one balloon: mixed by time, two systems' winds would score neither
-            raise ValueError(
-                f"{wind_path}: WIND_COV from {len(systems)} systems ({counts}); a report scores one "
-                "balloon against its truth: pick it with --sysid"
-            )
-        est = as_arrays(records)
+        t = est["time_s"]
+        starts = boot_starts(t)
+        if len(starts) > 1:
+            if notes is not None:
+                notes.append(_boots_note(wind_path, t, starts, "time_since_boot", "estimate", "estimates"))
+            est = {k: v[starts[-1] :] for k, v in est.items()}
+        back = np.flatnonzero(np.diff(est["time_s"]) < 0)
+        if len(back):  # a product's time runs forward: out of order, its series would be scored against the wrong time
+            i = int(back[0]) + 1
+            raise ValueError(f"{wind_path}: the product's time goes back (estimate {starts[-1] + i + 1}: "
+                             f"{est['time_s'][i]:.1f} s after {est['time_s'][i - 1]:.1f} s); a product runs forward "
+                             "in time")  # fmt: skip
+        finite = np.isfinite(est["wind_n"]) & np.isfinite(est["wind_e"])
+        if len(finite) and not finite.any():
+            raise ValueError(f"{wind_path}: no finite wind in the product (its {len(finite)} estimates are all NaN)")
+        est = {k: v[finite] for k, v in est.items()}
+        if len(est["time_s"]) < 10:
+            raise ValueError(f"{wind_path}: fewer than 10 estimates with a finite wind")
+        return est
+    records = read_records(wind_path)
+    systems = sorted({r.sysid for r in records})
+    counts = ", ".join(f"sys {s}: {sum(1 for r in records if r.sysid == s)}" for s in systems)
+    if sysid is not None:
+        if sysid not in systems:
+            raise ValueError(f"{wind_path}: no WIND_COV from system {sysid} (it holds {counts or 'none'})")
+        records = [r for r in records if r.sysid == sysid]
+    elif len(systems) > 1:  # one truth scores one balloon: mixed by time, two systems' winds would score neither
+        raise ValueError(
+            f"{wind_path}: WIND_COV from {len(systems)} systems ({counts}); a report scores one "
+            "balloon against its truth: pick it with --sysid"
+        )
+    t = np.array([r.time_usec for r in records], float) * 1e-6
+    starts = boot_starts(t)
+    if len(starts) > 1:  # keyed by time since boot, two boots' records would overwrite each other
+        if notes is not None:
+            notes.append(_boots_note(wind_path, t, starts, "time_usec", "WIND_COV", "WIND_COV"))
+        records = records[starts[-1] :]
+    est = as_arrays(records)
     if len(est["time_s"]) < 10:
         raise ValueError(f"{wind_path}: fewer than 10 WIND_COV messages")
     return est
 
 
 def report(wind_path: str, truth_path: str | None, plot_path: str | None = None, start_s: float = 120.0,
-           sysid: int | None = None) -> Score | Summary:  # fmt: skip
+           sysid: int | None = None, notes: list[str] | None = None) -> Score | Summary:  # fmt: skip
     """The estimate scored against the simulator's truth (a ``Score``) and drawn; without a truth (a real flight)
-    what the estimate says of itself (a ``Summary``), drawn the same way."""
-    est = read_estimate(wind_path, sysid)
+    what the estimate says of itself (a ``Summary``), drawn the same way. ``notes`` gets a line for what of the log
+    was left out (``read_estimate``)."""
+    est = read_estimate(wind_path, sysid, notes)
     if truth_path is None:
         summ = summarise(est, start_s, wind_path)
         if plot_path:
@@ -114,6 +176,9 @@ def report(wind_path: str, truth_path: str | None, plot_path: str | None = None,
         )
     s = score(est["time_s"], est["wind_n"], est["wind_e"], est["accuracy"],
               truth["time_s"], truth["wind_n"], truth["wind_e"], start_s=start_s)  # fmt: skip
+    if not math.isfinite(s.mean_accuracy_mps):  # the error is scored; the stated accuracy cannot be judged
+        raise ValueError(f"{wind_path}: no finite horiz_accuracy among the estimates scored from --start {start_s:g} s "
+                         f"({s.accuracy_not_finite} not a finite number)")  # fmt: skip
     if plot_path:
         plot(est, truth, score_title(s), plot_path, start_s)
     return s
@@ -241,5 +306,10 @@ def format_score(s: Score | Summary) -> str:
         f"raw RMSE {s.raw_rmse_mps:.3f} m/s | "
         f"mean speed {s.est_speed_mps:.2f} vs {s.true_speed_mps:.2f} m/s ({s.speed_error_pct:+.1f} %) | "
         f"direction error {s.direction_error_deg:+.2f} deg | horiz_accuracy {s.mean_accuracy_mps:.2f} m/s "
-        f"(actual error / accuracy {s.error_ratio:.2f}) | {s.duration_s:.0f} s scored"
+        f"(actual error / accuracy {s.error_ratio:.2f}{_left_out(s.accuracy_not_finite)}) | {s.duration_s:.0f} s scored"
     )
+
+
+def _left_out(n: int) -> str:
+    """``; 3 accuracies not finite, left out`` (of the accuracy's statistics), or nothing."""
+    return f"; {n} {'accuracy' if n == 1 else 'accuracies'} not finite, left out" if n else ""

@@ -55,21 +55,42 @@ class WindRecord:
 
 
 def read_records(path: str) -> list[WindRecord]:
-    """WIND_COV records from a ground-station CSV, a .tlog or a raw MAVLink capture."""
+    """WIND_COV records from a ground-station CSV, a .tlog or a raw MAVLink capture, in the file's order. A CSV may
+    start with a UTF-8 byte-order mark (a spreadsheet's export); one that is not text, or whose row is cut short, is
+    a ValueError naming the file (and the line)."""
     if path.endswith(".csv"):
-        with open(path, newline="") as fh:
-            reader = csv.DictReader(fh)
-            missing = [c for c in CSV_COLUMNS[:11] if c not in (reader.fieldnames or ())]
-            if missing:
-                raise ValueError(f"{path}: not a ground-station WIND_COV CSV (no column {', '.join(missing[:3])})")
-            try:
-                return [WindRecord(int(r["time_usec"]), int(r["sysid"]), int(r["compid"]),
-                                   *(float(r[k]) for k in CSV_COLUMNS[3:11])) for r in reader]  # fmt: skip
-            except (TypeError, ValueError) as exc:
-                raise ValueError(f"{path} line {reader.line_num}: {exc}") from None
+        return _read_csv(path)
     from balloon_core.wire import LinkStats, capture_messages
 
     return [WindRecord.from_msg(m) for m in capture_messages(path, LinkStats()) if m.get_type() == "WIND_COV"]
+
+
+def _read_csv(path: str) -> list[WindRecord]:
+    with open(path, newline="", encoding="utf-8-sig") as fh:
+        reader = csv.DictReader(fh)
+        try:
+            names = reader.fieldnames or ()
+            missing = [c for c in CSV_COLUMNS[:11] if c not in names]
+            if missing:
+                raise ValueError(f"{path}: not a ground-station WIND_COV CSV (no column {', '.join(missing[:3])})")
+            return [_csv_record(r, f"{path} line {reader.line_num}", len(names)) for r in reader]
+        except UnicodeDecodeError:
+            raise ValueError(f"{path}: not a text CSV (it holds bytes that are not UTF-8 text): a ground-station "
+                             "WIND_COV CSV is text") from None  # fmt: skip
+        except csv.Error as exc:
+            raise ValueError(f"{path} line {reader.line_num}: not a text CSV ({exc})") from None
+
+
+def _csv_record(r: dict, where: str, n_columns: int) -> WindRecord:
+    """One row of a ground-station CSV; ValueError naming ``where`` for a row cut short or a value that is no number."""
+    if any(r[k] is None for k in CSV_COLUMNS[:11]):  # fewer values than the header names
+        given = sum(v is not None for v in r.values())
+        raise ValueError(f"{where} is incomplete ({given} of {n_columns} values): is the file cut off?")
+    try:
+        return WindRecord(int(r["time_usec"]), int(r["sysid"]), int(r["compid"]),
+                          *(float(r[k]) for k in CSV_COLUMNS[3:11]))  # fmt: skip
+    except ValueError as exc:
+        raise ValueError(f"{where}: {exc}") from None
 
 
 def as_arrays(records: list[WindRecord]) -> dict[str, np.ndarray]:

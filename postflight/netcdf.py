@@ -356,7 +356,9 @@ def write_products(product: WindProduct, nc_path: str, plot_path: str | None = N
 
 def read_netcdf_wind(path: str) -> dict[str, np.ndarray]:
     """The smoothed wind of a product file in the form ``wind.as_arrays`` gives (time since boot,
-    wind_n, wind_e, accuracy = sqrt(sigma_n^2 + sigma_e^2) like WIND_COV's horiz_accuracy)."""
+    wind_n, wind_e, accuracy = sqrt(sigma_n^2 + sigma_e^2) like WIND_COV's horiz_accuracy), in the file's order
+    (a product of two boots: the second's time since boot starts again), the samples without a finite time left out
+    and a wind that is not a number kept as it is (the reader judges both)."""
     import xarray as xr
 
     try:
@@ -378,5 +380,5 @@ def read_netcdf_wind(path: str) -> dict[str, np.ndarray]:
             "variability": np.full(ds.sizes["time"], np.nan),
             "alt": ds["height"].values.astype(float) if "height" in ds else np.full(ds.sizes["time"], np.nan),
         }  # fmt: skip
-    keep = np.isfinite(out["time_s"]) & np.isfinite(out["wind_n"]) & np.isfinite(out["wind_e"])
+    keep = np.isfinite(out["time_s"])
     return {k: v[keep] for k, v in out.items()}

@@ -3,12 +3,15 @@ its fix."""
 
 from __future__ import annotations
 
+import math
 import re
 import subprocess
 import sys
 
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from balloon_core.wire import pack
 
 PY = sys.executable
 
@@ -238,3 +241,134 @@ def test_reprocess_of_a_cut_dataflash_log_says_so_in_the_product(tmp_path):
         assert ds.attrs["source_log_truncated"] == "yes"
         assert "truncated" in ds.attrs["source_log_losses"]
         assert bool((ds["time"].diff("time") > 0).all())
+
+
+# ---------------------------------------------------------------- report: logs of two boots, damaged values, messages
+
+
+def wind_csv(records, path) -> str:
+    """A ground-station CSV of these WIND_COV records (as listen --csv writes it, without the loss columns)."""
+    from ground_station.wind import CSV_COLUMNS
+
+    path.write_text(",".join(CSV_COLUMNS) + "\n" + "".join(",".join(map(str, r.csv_row())) + "\n" for r in records))
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def products(scored_flight):
+    """The flight reprocessed (``one.nc``), and the same log twice end to end (``two.nc``: a second boot)."""
+    pytest.importorskip("netCDF4")
+    d, _, _ = scored_flight
+    sensors = (d / "sensors.tlog").read_bytes()
+    (d / "twice.tlog").write_bytes(sensors + sensors)
+    for src, out in (("sensors.tlog", "one.nc"), ("twice.tlog", "two.nc")):
+        subprocess.run([PY, "-m", "ground_station", "reprocess", str(d / src), "--out", str(d / out), "--quiet"],
+                       check=True, capture_output=True)  # fmt: skip
+    return d / "one.nc", d / "two.nc"
+
+
+def test_report_of_two_boots_scores_the_last_and_says_what_it_left_out(scored_flight, products, capsys, tmp_path):
+    """A log of two firmware boots (time since boot starting again): keyed by time_usec, the second boot's records
+    silently replaced the first's (a tlog, a CSV); a product of both was read unsorted. Now each scores the last boot
+    (the same as that flight alone) and says in one line how much of how many earlier boots it left out."""
+    import dataclasses
+
+    from ground_station.wind import read_records
+
+    _, wind, truth = scored_flight
+    recs = read_records(str(wind))
+    first = [dataclasses.replace(r, wind_x=r.wind_x + 5.0) for r in recs]  # another flight's wind
+    two_csv = wind_csv(first + recs, tmp_path / "two.csv")
+    two_tlog = tmp_path / "two.tlog"
+    body = wind.read_bytes()
+    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    shifted = b"".join(bytes(8) + pack(mav, mavlink.MAVLink_wind_cov_message(r.time_usec, r.wind_x, r.wind_y,
+                       r.wind_z, r.var_horiz, r.var_vert, r.wind_alt, r.horiz_accuracy, r.vert_accuracy))
+                       for r in first)  # fmt: skip
+    two_tlog.write_bytes(shifted + body)
+    for two, one, n, what in ((two_tlog, wind, len(recs), "WIND_COV"), (two_csv, wind, len(recs), "WIND_COV"),
+                              (products[1], products[0], None, "estimates")):  # fmt: skip
+        for extra in ((), ("--truth", truth)):
+            code, ref, _ = report_run(capsys, one, *extra, "--start", "5")
+            assert code == 0
+            code, out, err = report_run(capsys, two, *extra, "--start", "5")
+            assert code == 0 and out == ref, (two, err)
+            note = err.strip().splitlines()
+            assert len(note) == 1 and "holds 2 boots" in note[0] and "earlier boot left out" in note[0], err
+            if n is not None:
+                assert f"only the last boot's {n} WIND_COV are used; {n} WIND_COV of 1 earlier" in note[0], err
+            assert what in note[0]
+
+
+def test_report_leaves_accuracies_that_are_not_numbers_out_and_counts_them(scored_flight, products, capsys, tmp_path):
+    """One NaN horiz_accuracy made the score say "horiz_accuracy nan m/s (actual error / accuracy inf)" with exit 0;
+    all of them inf said "inf m/s ... 0.00". Now a non-finite accuracy is left out of the accuracy's statistics and
+    counted; with none finite the accuracy cannot be judged: exit 2, one line."""
+    import dataclasses
+
+    import netCDF4
+    import numpy as np
+
+    from ground_station.wind import read_records
+
+    _, wind, truth = scored_flight
+    recs = read_records(str(wind))
+    k = next(i for i, r in enumerate(recs) if r.time_usec > 20_000_000)
+    one_nan = wind_csv([dataclasses.replace(r, horiz_accuracy=math.nan) if i == k else r for i, r in enumerate(recs)],
+                       tmp_path / "nan.csv")  # fmt: skip
+    all_inf = wind_csv([dataclasses.replace(r, horiz_accuracy=math.inf) for r in recs], tmp_path / "inf.csv")
+    nc = tmp_path / "nan.nc"
+    nc.write_bytes(products[0].read_bytes())
+    with netCDF4.Dataset(nc, "a") as ds:
+        t = ds["time_since_boot"][:]
+        u = ds["eastward_wind_uncertainty"][:]
+        u[int(np.argmax(t > 20.0))] = np.nan
+        ds["eastward_wind_uncertainty"][:] = u
+    for path in (one_nan, nc):
+        code, out, err = report_run(capsys, path, "--truth", truth, "--start", "5")
+        assert code == 0, err
+        assert "1 accuracy not finite, left out" in out and "nan" not in out and "inf" not in out, out
+    code, out, err = report_run(capsys, all_inf, "--truth", truth, "--start", "5")
+    assert code == 2 and out == "" and len(err.strip().splitlines()) == 1, err
+    assert "no finite horiz_accuracy" in err and "Traceback" not in err, err
+
+
+def test_report_says_what_is_wrong_with_a_damaged_csv_or_product(scored_flight, products, capsys, tmp_path):
+    """A spreadsheet's BOM read "no column time_usec"; binary garbage gave a codec error without the file's name; a
+    CSV cut mid-row "int() argument must be ... not 'NoneType'"; a product whose time runs backward "do not overlap";
+    one with no finite wind "fewer than 10 WIND_COV messages". A BOM is now read; the rest say what is wrong."""
+    import random
+
+    import netCDF4
+    import numpy as np
+
+    from ground_station.wind import read_records
+
+    _, wind, truth = scored_flight
+    plain = wind_csv(read_records(str(wind)), tmp_path / "plain.csv")
+    text = open(plain, "rb").read()
+    code, ref, _ = report_run(capsys, plain, "--truth", truth, "--start", "5")
+    assert code == 0
+    bom = tmp_path / "bom.csv"
+    bom.write_bytes(b"\xef\xbb\xbf" + text)
+    code, out, err = report_run(capsys, bom, "--truth", truth, "--start", "5")
+    assert code == 0 and out == ref, err
+    garbage = tmp_path / "garbage.csv"
+    garbage.write_bytes(random.Random(1).randbytes(5000))
+    cut = tmp_path / "cut.csv"
+    cut.write_bytes(text[: text.index(b"\n", 20_000) + 20])  # 20 bytes into a row
+    line = text[: len(cut.read_bytes())].count(b"\n") + 1
+    reversed_nc, nan_nc = tmp_path / "reversed.nc", tmp_path / "nan.nc"
+    for path in (reversed_nc, nan_nc):
+        path.write_bytes(products[0].read_bytes())
+    with netCDF4.Dataset(reversed_nc, "a") as ds:
+        ds["time_since_boot"][:] = ds["time_since_boot"][:][::-1]
+    with netCDF4.Dataset(nan_nc, "a") as ds:
+        ds["eastward_wind"][:] = np.nan
+    for path, says in ((garbage, "not a text CSV"), (cut, f"line {line} is incomplete"),
+                       (reversed_nc, "time goes back"), (nan_nc, "no finite wind")):  # fmt: skip
+        before = path.read_bytes()
+        code, out, err = report_run(capsys, path, "--truth", truth, "--start", "5")
+        assert code == 2 and out == "" and len(err.strip().splitlines()) == 1, err
+        assert str(path) in err and says in err and "Traceback" not in err, err
+        assert path.read_bytes() == before
