@@ -102,9 +102,18 @@ def ground_rows(path: str) -> tuple[str, Iterator[tuple[float, float, float]]]:
 
 def scan_ground_csv(path: str) -> tuple[str, int]:
     """(the time column, the number of readings): the whole file checked, a row at a time, before any
-    work; ValueError (one line) if it is not a ground-pressure CSV or holds no reading."""
+    work; ValueError (one line) if it is not a ground-pressure CSV, holds no reading, or its time goes back
+    (a logger appends in time order; the readings are merged into the flight by time, as ``balloon-gs report``
+    refuses a truth CSV out of order)."""
     tcol, rows = ground_rows(path)
-    n = sum(1 for _ in rows)
+    n, before = 0, -math.inf
+    for t, _, _ in rows:
+        n += 1
+        if t < before:
+            rows.close()
+            raise ValueError(f"{path}: the ground-pressure CSV's {tcol} goes back (reading {n}: {t:g} s after "
+                             f"{before:g} s); a logger writes its readings in time order")  # fmt: skip
+        before = t
     if n == 0:
         raise ValueError(f"{path}: no readings")
     return tcol, n

@@ -53,6 +53,7 @@ class FlightMeta:
     imu_missing: int = 0  # IMU samples missing by their time stamps (at the measured rate)
     gaps: int = 0  # holes in the IMU stream (two or more steps without a sample)
     clock_breaks: int = 0  # the sensor clock going back (a reboot) or jumping: where a new segment starts
+    imu_rejected: int = 0  # IMU samples the estimator rejected (not numbers, out of range), once reprocessed
     unread: str | None = None  # why and where a reader stopped before the file's end (the rest unread), if it did
 
     def describe(self) -> str:
@@ -312,6 +313,9 @@ def loss_notes(meta: FlightMeta) -> list[str]:
         out.append(meta.unread)
     if meta.imu_missing:
         out.append(f"{meta.imu_missing} IMU samples missing by their time stamps, in {meta.gaps} gaps")
+    if meta.imu_rejected:
+        out.append(f"{meta.imu_rejected} IMU samples rejected by the estimator (values not numbers or out of range, "
+                   "as balloon-fw rejects them)")  # fmt: skip
     return out
 
 

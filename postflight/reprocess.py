@@ -170,6 +170,7 @@ def reprocess(
     product.attrs["design_toml"] = design_toml(design, seg.pipe.cfg)
     product.attrs["north_reference"] = north_reference(design.site.mag_declination_deg)
     product.attrs.update(tally.attrs())
+    product.attrs["source_log_imu_samples_rejected"] = tally.imu_rejected  # as loss_attrs names what the log lost
     product.attrs["samples_off_clock"] = clock.glitches
     return product
 
@@ -181,10 +182,12 @@ class _SourceTally:
     def __init__(self) -> None:
         self.winch = [0, 0, 0]  # used, rejected, the last reason
         self.ground = [0, 0, 0]
+        self.imu_rejected = 0  # IMU samples the estimator rejected (not numbers, out of range: balloon-fw's count)
 
     def add(self, est: Estimator | None) -> None:
         if est is None:
             return
+        self.imu_rejected += int(est.counters.rejected)
         for acc, (used, rejected, reason) in ((self.winch, (est.winch_samples, est.winch_rejected,
                                                             est.winch_reject_reason)),
                                               (self.ground, (est.ground_samples, est.ground_rejected,
@@ -636,8 +639,8 @@ def run_reprocess(args, argv: list[str] | None) -> int:
         flight = read_flight(args.flight)
         meta = flight.meta
         if getattr(args, "ground_pressure", None):
-            flight = _with_ground_csv(flight, args.ground_pressure)
-            meta.notes.append(f"ground reference from {os.path.basename(args.ground_pressure)}")
+            flight, note = _with_ground_csv(flight, args.ground_pressure)
+            meta.notes.append(note)
         bar.log(f"{prog}: {meta.describe()}")
         for note in meta.notes:
             bar.log(f"{prog}: note: {note}")
@@ -651,6 +654,7 @@ def run_reprocess(args, argv: list[str] | None) -> int:
         if len(product.time_s) == 0:
             raise ValueError(f"{args.flight}: the estimator never started (no IMU + magnetometer sample with zacc < 0)")
         product.utc_start_s = meta.utc_start_s
+        meta.imu_rejected = int(product.attrs.get("source_log_imu_samples_rejected", 0))
         meta.notes.append(product.attrs["optional_sources"])
         bar.log(f"{prog}: {product.attrs['optional_sources']}")
         product.attrs.update({
@@ -683,6 +687,7 @@ def loss_attrs(meta, product: WindProduct) -> dict[str, int | str]:
         "source_log_bad_frames": int(meta.bad_frames),
         "source_log_truncated": "yes" if meta.truncated else "no",
         "source_log_imu_samples_missing": int(meta.imu_missing),
+        "source_log_imu_samples_rejected": int(meta.imu_rejected),
         "source_log_gaps": int(meta.gaps),
         "source_log_segments": segments,
         "source_log_losses": loss_line(meta),
@@ -699,13 +704,15 @@ def loss_line(meta) -> str:
 
 
 def _with_ground_csv(flight, path: str):
-    """The flight with the ground reference of a ``--ground-pressure`` CSV (balloon_core/groundref.py)
-    merged in by time: on the sensor clock (``time_s``) as it is, UNIX time (``time_unix_s``) through the
-    log's UTC. The file is checked whole first, then read again as the flight is (a stream: memory flat in
-    its length); it is only read, never written."""
+    """(the flight with the ground reference of a ``--ground-pressure`` CSV (balloon_core/groundref.py)
+    merged in by time, the note that says so): on the sensor clock (``time_s``) as it is, UNIX time
+    (``time_unix_s``) through the log's UTC. The file is checked whole first (its time in order), then read again
+    as the flight is (a stream: memory flat in its length); it is only read, never written. Readings that miss the
+    flight's time altogether are an error (as ``balloon-gs report`` refuses a truth that does not overlap the
+    estimates)."""
     from balloon_core.groundref import ground_rows, scan_ground_csv
 
-    tcol, _ = scan_ground_csv(path)
+    tcol, n = scan_ground_csv(path)
     shift = 0.0
     if tcol == "time_unix_s":
         if flight.meta.utc_start_s is None:
@@ -717,7 +724,17 @@ def _with_ground_csv(flight, path: str):
         for t, p, temp in ground_rows(path)[1]:
             yield round((t - shift) * 1e6), p, temp
 
-    return flight.with_ground_rows(rows)
+    if flight.t_us is not None and len(flight.t_us):
+        lo, hi = int(flight.t_us.min()), int(flight.t_us.max())
+        first = last = None
+        for t, _, _ in rows():
+            first = t if first is None else first
+            last = t
+        if last < lo or first > hi:  # in time order (scan_ground_csv): all before the flight, or all after it
+            raise ValueError(f"{path}: the ground readings ({first * 1e-6:.1f}-{last * 1e-6:.1f} s on the sensor "
+                             f"clock) do not overlap the flight ({lo * 1e-6:.1f}-{hi * 1e-6:.1f} s): is it this "
+                             "flight's ground reference?")  # fmt: skip
+    return flight.with_ground_rows(rows), f"ground reference from {os.path.basename(path)} ({n} readings)"
 
 
 def _write_profile(product: WindProduct, out: str, plot: str | None, history: str, products) -> list[str]:

@@ -531,6 +531,31 @@ def test_readings_that_are_not_numbers_are_counted_not_dropped_silently(capture,
     assert counts["c"] == counts["py"] and mag > 0 and temp > 0 and mag + temp == n
 
 
+def test_imu_samples_the_estimator_rejected_are_counted_by_reprocess_as_by_the_firmware(capture, capsys, tmp_path):
+    """HIGHRES_IMU with a NaN accelerometer reading: balloon-fw said "N rejected", reprocess "nothing lost (0 bad
+    frames, 0 IMU samples missing)" and the product held no count. Now its loss line and the product say it."""
+    import xarray as xr
+
+    _, tlog, _ = capture
+    bad = tmp_path / "nan_acc.tlog"
+
+    def change(k, m) -> bool:
+        if k % 97:
+            return False
+        m.xacc = float("nan")
+        return True
+
+    n = rewritten(tlog, bad, change)
+    rc, err = fw_on(bad, tmp_path / "fw.tlog", capsys)
+    assert rc == 0 and n > 5 and summary_count(err, "rejected") == n, err
+    rc, _, err = reprocess(bad, tmp_path / "w.nc", capsys, "--quiet")
+    assert rc == 0, err
+    assert f"DATA LOST: {n} IMU samples rejected by the estimator" in err, err
+    with xr.open_dataset(tmp_path / "w.nc", decode_times=False) as ds:
+        assert int(ds.attrs["source_log_imu_samples_rejected"]) == n
+        assert f"{n} IMU samples rejected" in ds.attrs["source_log_losses"]
+
+
 @pytest.mark.parametrize("sensor", ["accelerometer", "magnetometer"])
 def test_a_stuck_sensor_is_not_used_and_counted(capture, sensor, capsys, tmp_path):
     """A sensor whose reading repeats bit for bit (a hung bus, a frozen driver; a live sensor's noise never repeats

@@ -227,3 +227,48 @@ def test_a_flight_the_design_does_not_explain_makes_the_summary_doubt_the_design
     assert share > 50
     r = gs("reprocess", tlog, "--out", d / "right.nc", "--quiet")
     assert r.returncode == 0 and doubt not in r.stdout, r.stdout + r.stderr
+
+
+@pytest.fixture(scope="module")
+def short_flight(tmp_path_factory):
+    """A 30 s simulated flight's sensor log."""
+    d = tmp_path_factory.mktemp("short")
+    tlog = d / "flight.tlog"
+    subprocess.run([PY, "-m", "sim_hil", "--duration", "30", "--seed", "3", "--out", str(tlog), "--quiet"],
+                   check=True, capture_output=True)  # fmt: skip
+    return tlog
+
+
+def reprocess_run(capsys, *argv) -> tuple[int, str]:
+    from ground_station.cli import main
+
+    capsys.readouterr()
+    try:
+        code = main(["reprocess", *map(str, argv)])
+    except SystemExit as exc:
+        code = exc.code
+    return code, capsys.readouterr().err
+
+
+def test_a_ground_csv_out_of_time_order_or_off_the_flight_is_refused(short_flight, tmp_path, capsys):
+    """A --ground-pressure CSV in reverse time order, or one whose times miss the flight, was merged after the last
+    sample: 1 (or 0) of 31 readings used, "0 rejected", the rest gone without a word. Now refused as a truth CSV is
+    (exit 2, one line, nothing written); one in order that overlaps the flight is used."""
+    rows = [(t, 1013.25 - 0.001 * t) for t in range(31)]
+    cases = (("back.csv", rows[::-1], "goes back"), ("off.csv", [(t + 5000, p) for t, p in rows], "do not overlap"),
+             ("good.csv", rows, None))  # fmt: skip
+    for name, readings, says in cases:
+        csv = tmp_path / name
+        csv.write_text("time_s,pressure_hpa,temperature_c\n" + "".join(f"{t},{p:.3f},15\n" for t, p in readings))
+        before = csv.read_bytes()
+        out = tmp_path / f"{name}.nc"
+        code, err = reprocess_run(capsys, short_flight, "--out", out, "--ground-pressure", csv, "--quiet")
+        assert csv.read_bytes() == before
+        if says is None:
+            assert code == 0, err
+            with xr.open_dataset(out, decode_times=False) as ds:
+                assert int(ds.attrs["ground_reference_used"]) >= 30 and int(ds.attrs["ground_reference_rejected"]) == 0
+            continue
+        assert code == 2 and len(err.strip().splitlines()) == 1 and says in err and str(csv) in err, err
+        assert not [p for p in tmp_path.iterdir() if p.name.startswith(name) and p.suffix != ".csv"]
+
