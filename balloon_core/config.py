@@ -181,6 +181,7 @@ SCHEMA: dict[str, dict[str, Rule]] = {
         "rope_drag": BOOL,
         "rope_normal_cd": num(0.0, 5.0),
         "rot_damping_nms": num(0.0, 50.0),
+        "yaw_moment_coefficient": num(0.0, 0.5),
         "release_s": num(0.0, 3600.0),
         "initial_yaw_deg": num(-360.0, 360.0),
         "physics_hz": num(100.0, 10000.0),

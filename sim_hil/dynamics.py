@@ -59,6 +59,10 @@ class TruthConfig:
     ground_baro_hpa: float = 0.01  # 1-sigma white noise of the ground barometer
     ground_thermometer_k: float = 0.1
     rot_damping_nms: float = 0.5  # rotational air damping torque per rad/s
+    # the sphere's asymmetry (a seam, the valve, avionics on the skin) as a weak vane: the air turns the balloon
+    # about its body z by C q A D sin(beta), beta the relative air's azimuth in the body (0: a perfect sphere, which
+    # never turns: yaw_moment_nm)
+    yaw_moment_coefficient: float = 0.0
     release_s: float = 5.0  # boot resting on the ground station, released after this time
     initial_yaw_deg: float = 30.0
     physics_hz: float = 200.0
@@ -162,6 +166,7 @@ class BalloonPhysics:
     shear_exponent: float = 0.0
     shear_reference_m: float = 100.0  # the height of the reference wind
     veer_rad_m: float = 0.0
+    yaw_moment_m3: float = 0.0  # 1/2 C pi r^2 2r: the yaw moment over rho |u|^2 at sin(beta) = 1
     tether_ea_n: float = 20000.0
 
     @classmethod
@@ -220,6 +225,7 @@ class BalloonPhysics:
             shear_exponent=truth.shear_exponent,
             shear_reference_m=z_ref,
             veer_rad_m=veer,
+            yaw_moment_m3=0.5 * truth.yaw_moment_coefficient * math.pi * r * r * 2.0 * r,
             tether_ea_n=truth.tether_ea_n,
         )  # fmt: skip
 
@@ -396,9 +402,10 @@ def derivative(
     ca_rho_v = ph.added_mass_coefficient * rho_v
     fk = (rho_v + ca_rho_v) * ph.fluid_acceleration  # Froude-Krylov + added-mass force of the accelerating air
     if ph.static_moment_kgm != 0.0:
+        tz = yaw_moment_nm(ph, rho, un, ue, ud, speed, r00, r10, r20, r01, r11, r21) if ph.yaw_moment_m3 else 0.0
         acc = _offset_accelerations(
             ph, fk * dwn + fan + ftn, fk * dwe + fae + fte, fk * dwd + fad + ftd + (ph.mass_kg - rho_v) * G0,
-            ftn, fte, ftd, ph.mass_kg + ca_rho_v, q0, q1, q2, q3, p, q, r,
+            ftn, fte, ftd, ph.mass_kg + ca_rho_v, q0, q1, q2, q3, p, q, r, tz,
         )  # fmt: skip
         return [vn, ve, vd, *acc, *nodes_dot], tension
     inv_m = 1.0 / (ph.mass_kg + ca_rho_v)
@@ -413,6 +420,8 @@ def derivative(
     dp = (-rad * fby - c * p) * inv_i
     dq = (rad * fbx - c * q) * inv_i
     dr = (-c * r) * inv_i
+    if ph.yaw_moment_m3:
+        dr += yaw_moment_nm(ph, rho, un, ue, ud, speed, r00, r10, r20, r01, r11, r21) * inv_i
     dq0 = 0.5 * (-q1 * p - q2 * q - q3 * r)
     dq1 = 0.5 * (q0 * p + q2 * r - q3 * q)
     dq2 = 0.5 * (q0 * q - q1 * r + q3 * p)
@@ -422,7 +431,7 @@ def derivative(
 
 def _offset_accelerations(
     ph: BalloonPhysics, fn: float, fe: float, fd: float, ftn: float, fte: float, ftd: float, m_eff: float,
-    q0: float, q1: float, q2: float, q3: float, p: float, q: float, r: float,
+    q0: float, q1: float, q2: float, q3: float, p: float, q: float, r: float, tz: float = 0.0,
 ) -> list[float]:  # fmt: skip
     """Derivatives (a_NED, dq/dt, dw/dt) when the centre of mass is s/m below the centre.
 
@@ -440,7 +449,7 @@ def _offset_accelerations(
 
         M Ax + s dq = bx - s p r          I_x dq + s Ax = My - p r (I_x - I_z)
         M Ay - s dp = by - s q r          I_x dp - s Ay = Mx - q r (I_z - I_x)
-        M Az = bz + s (p^2 + q^2)         I_z dr = -c_rot r
+        M Az = bz + s (p^2 + q^2)         I_z dr = -c_rot r + tz
 
     with determinant M I_x - s^2 > 0. The total energy 1/2 M |v|^2 + s v.R(w x e_z) + 1/2 w.I_C w
     - (m - rho V) g p_d - s g (e_z . down) + rope and spring terms is conserved without drag and
@@ -469,6 +478,8 @@ def _offset_accelerations(
     dp = (m_eff * mx + sm * by) / det
     az = (bz + sm * (p * p + q * q)) / m_eff
     dr = -c * r / iz
+    if tz:
+        dr += tz / iz
     return [
         r00 * ax + r01 * ay + r02 * az,
         r10 * ax + r11 * ay + r12 * az,
@@ -481,6 +492,20 @@ def _offset_accelerations(
         dq,
         dr,
     ]
+
+
+def yaw_moment_nm(ph: BalloonPhysics, rho: float, un: float, ue: float, ud: float, speed: float,
+                  r00: float, r10: float, r20: float, r01: float, r11: float, r21: float) -> float:
+    """The asymmetric sphere's yaw moment about its body z, N m: 1/2 rho |u|^2 C A D sin(beta), ``beta`` the azimuth
+    in the body of the air relative to the balloon ``u`` (NED), from body x towards body y; it turns the body's x
+    axis downwind, as a weak vane (``TruthConfig.yaw_moment_coefficient``). (r00, r10, r20) and (r01, r11, r21) are
+    the body's x and y axes in NED."""
+    ubx = r00 * un + r10 * ue + r20 * ud
+    uby = r01 * un + r11 * ue + r21 * ud
+    uh = math.sqrt(ubx * ubx + uby * uby)
+    if uh <= 0.0:
+        return 0.0
+    return rho * ph.yaw_moment_m3 * speed * speed * uby / uh
 
 
 def rk4_step(

@@ -37,7 +37,7 @@ PHYSICS_FIELDS = (
     "rope_kg_m", "tether_k_n_m", "tether_c_ns_m", "rope_drag_factor", "rot_damping_nms", "fluid_acceleration",
     "ground_pressure_pa", "ground_temperature_k", "isa_density", "reynolds_drag", "frontal_area_m2",
     "air_viscosity_pas", "drag_crisis_reynolds", "drag_crisis_exponent", "static_moment_kgm", "inertia_z_kgm2",
-    "shear_exponent", "shear_reference_m", "veer_rad_m",
+    "shear_exponent", "shear_reference_m", "veer_rad_m", "yaw_moment_m3",
 )  # fmt: skip
 ROPE_FIELDS = (  # (C name, LumpedRope attribute)
     ("segments", "segments"), ("seg_length_m", "seg_length_m"), ("node_mass_kg", "node_mass_kg"),

@@ -198,6 +198,18 @@ _FIELD_SCENARIOS = (
         "everything at once: real rope, shear, weather, wandering biases, vertical wind (run 1 h)",
         truth=TruthConfig(shear_exponent=0.14, **_WEATHER, **_BIASES),
     ),
+    Scenario(
+        "field-turning",
+        "the real rope, wandering biases; the balloon turns: its asymmetry a weak vane (yaw moment 0.01), 60 deg "
+        "from its boot heading once blown downwind",
+        truth=TruthConfig(yaw_moment_coefficient=0.01, **_BIASES),
+    ),
+    Scenario(
+        "field-turning-hard-iron",
+        "the real rope; the balloon turns (yaw moment 0.01) with a magnetometer hard-iron offset (0.03, -0.02, 0.015) "
+        "gauss, body axes",
+        truth=TruthConfig(yaw_moment_coefficient=0.01, mag_hard_iron_gauss=(0.03, -0.02, 0.015)),
+    ),
 )
 
 

@@ -19,7 +19,7 @@ typedef struct {
     double rope_kg_m, tether_k_n_m, tether_c_ns_m, rope_drag_factor, rot_damping_nms, fluid_acceleration;
     double ground_pressure_pa, ground_temperature_k, isa_density, reynolds_drag, frontal_area_m2;
     double air_viscosity_pas, drag_crisis_reynolds, drag_crisis_exponent, static_moment_kgm, inertia_z_kgm2;
-    double shear_exponent, shear_reference_m, veer_rad_m;
+    double shear_exponent, shear_reference_m, veer_rad_m, yaw_moment_m3;
     /* LumpedRope (has_rope 0: the paper's rope) */
     double has_rope, segments, seg_length_m, node_mass_kg, seg_k_n_m, seg_c_ns_m, rope_drag_factor_m2;
     double rope_shear_exponent, rope_shear_reference_m, ground_c_ns_m, seg_rate_mps, rope_veer_rad_m;
@@ -194,7 +194,7 @@ static double rope_derivative(const sim_params *ph, const double *nodes, const d
 /* dynamics.py _offset_accelerations: the 10 values after the velocity */
 static void offset_accelerations(const sim_params *ph, double fn, double fe, double fd, double ftn, double fte,
                                  double ftd, double m_eff, double q0, double q1, double q2, double q3, double p,
-                                 double q, double r, double *out) {
+                                 double q, double r, double tz, double *out) {
     double rad = ph->radius_m, sm = ph->static_moment_kgm;
     double ix = ph->inertia_kgm2, iz = ph->inertia_z_kgm2, c = ph->rot_damping_nms;
     double R[9];
@@ -217,6 +217,7 @@ static void offset_accelerations(const sim_params *ph, double fn, double fe, dou
     double dp = (m_eff * mx + sm * by) / det;
     double az = (bz + sm * (p * p + q * q)) / m_eff;
     double dr = -c * r / iz;
+    if (tz != 0.0) dr += tz / iz;
     out[0] = r00 * ax + r01 * ay + r02 * az;
     out[1] = r10 * ax + r11 * ay + r12 * az;
     out[2] = r20 * ax + r21 * ay + r22 * az;
@@ -227,6 +228,16 @@ static void offset_accelerations(const sim_params *ph, double fn, double fe, dou
     out[7] = dp;
     out[8] = dq;
     out[9] = dr;
+}
+
+/* dynamics.py yaw_moment_nm: the asymmetric sphere's yaw moment about its body z, N m */
+static double yaw_moment(const sim_params *ph, double rho, double un, double ue, double ud, double speed, double r00,
+                         double r10, double r20, double r01, double r11, double r21) {
+    double ubx = r00 * un + r10 * ue + r20 * ud;
+    double uby = r01 * un + r11 * ue + r21 * ud;
+    double uh = sqrt(ubx * ubx + uby * uby);
+    if (uh <= 0.0) return 0.0;
+    return rho * ph->yaw_moment_m3 * speed * speed * uby / uh;
 }
 
 /* dynamics.py derivative: d(state)/dt into out; returns the tether tension at the balloon.
@@ -305,9 +316,11 @@ double bw_sim_derivative(const sim_params *ph, const double *s, const double *w,
     out[1] = ve;
     out[2] = vd;
     if (ph->static_moment_kgm != 0.0) {
+        double tz = ph->yaw_moment_m3 != 0.0
+                        ? yaw_moment(ph, rho, un, ue, ud, speed, r00, r10, r20, r01, r11, r21) : 0.0;
         offset_accelerations(ph, fk * dwn + fan + ftn, fk * dwe + fae + fte,
                              fk * dwd + fad + ftd + (ph->mass_kg - rho_v) * ph->g0, ftn, fte, ftd,
-                             ph->mass_kg + ca_rho_v, q0, q1, q2, q3, p, q, r, out + 3);
+                             ph->mass_kg + ca_rho_v, q0, q1, q2, q3, p, q, r, tz, out + 3);
         return tension;
     }
     double inv_m = 1.0 / (ph->mass_kg + ca_rho_v);
@@ -321,6 +334,8 @@ double bw_sim_derivative(const sim_params *ph, const double *s, const double *w,
     out[10] = (-rad * fby - c * p) * inv_i;
     out[11] = (rad * fbx - c * q) * inv_i;
     out[12] = (-c * r) * inv_i;
+    if (ph->yaw_moment_m3 != 0.0)
+        out[12] += yaw_moment(ph, rho, un, ue, ud, speed, r00, r10, r20, r01, r11, r21) * inv_i;
     out[6] = 0.5 * (-q1 * p - q2 * q - q3 * r);
     out[7] = 0.5 * (q0 * p + q2 * r - q3 * q);
     out[8] = 0.5 * (q0 * q - q1 * r + q3 * p);

@@ -22,7 +22,7 @@ from sim_hil.dynamics import (
     sphere_drag_coefficient,
     steady_blowdown_deg,
 )
-from sim_hil.simulator import Simulation
+from sim_hil.simulator import TRUTH_COLUMNS, Simulation
 from sim_hil.wind import WindConfig
 
 
@@ -330,3 +330,31 @@ def test_lever_arm_term_is_zero_at_the_centre_and_matches_the_imu_point_motion()
     a_model = np.array(k1[3:6]) + rotation(*mid[6:10]) @ lever
     assert np.linalg.norm(lever) > 0.2  # the term matters here
     np.testing.assert_allclose(a_model, a_fd, atol=2e-4)
+
+
+def test_an_asymmetric_sphere_turns_its_x_axis_downwind():
+    """The yaw moment (``yaw_moment_coefficient``): 1/2 rho |u|^2 C A D sin(beta) about body z, zero for a perfect
+    sphere. Level at rest, body x north, in a 3 m/s wind to the east (beta = 90 deg): the closed form; body x east
+    (beta = 0): none. Flown in a steady wind from the west it weathervanes from its boot heading of 30 deg to 90 deg,
+    and without the moment it keeps its heading."""
+    c = 0.02
+    ph = BalloonPhysics.from_design(Design(), PaperTruth(yaw_moment_coefficient=c))
+    r = ph.radius_m
+    s = [0.0, 0.0, -20.0, 0.0, 0.0, 0.0, *quat_from_euler(0.0, 0.0, 0.0), 0.0, 0.0, 0.0]
+    wind = (0.0, 3.0, 0.0, 0.0, 0.0, 0.0)
+    k, _ = derivative(s, *wind, ph)
+    rho = density_at(ph, 20.0)
+    assert math.isclose(k[12] * ph.inertia_kgm2, 0.5 * rho * 9.0 * c * math.pi * r * r * 2.0 * r, rel_tol=1e-12)
+    s_east = s[:6] + list(quat_from_euler(0.0, 0.0, math.pi / 2)) + [0.0, 0.0, 0.0]
+    k, _ = derivative(s_east, *wind, ph)
+    assert abs(k[12]) < 1e-12
+    k, _ = derivative(s, *wind, BalloonPhysics.from_design(Design(), PaperTruth()))
+    assert k[12] == 0.0
+    steady = WindConfig(kind="steady", from_deg=270.0)
+    turned = run(wind=steady, truth=PaperTruth(yaw_moment_coefficient=c), duration=150.0)
+    still = run(wind=steady, truth=PaperTruth(), duration=150.0)
+    late = turned.truth[:, 0] > 100.0
+    yaw = TRUTH_COLUMNS.index("yaw_deg")
+    heading = turned.truth[late, yaw]
+    assert np.all(np.abs(heading - 90.0) < 3.0), (heading.min(), heading.max())
+    assert np.all(np.abs(still.truth[late, yaw] - 30.0) < 1.0)

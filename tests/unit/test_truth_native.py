@@ -38,6 +38,8 @@ VARIANTS = {
     "lumped-shear": TruthConfig(shear_exponent=0.14),
     "lumped-veer": TruthConfig(shear_exponent=0.14, veer_deg_per_100m=20.0),
     "lumped-reynolds-offset": TruthConfig(drag_model="reynolds", avionics_offset_m=0.3),
+    "lumped-yaw-moment": TruthConfig(yaw_moment_coefficient=0.05),
+    "paper-yaw-moment-offset": TruthConfig(rope_model="paper", yaw_moment_coefficient=0.05, avionics_offset_m=0.3),
     "lumped-20-segments": TruthConfig(rope_segments=20),
     "paper": TruthConfig(rope_model="paper"),
     "paper-shear-no-fk": TruthConfig(rope_model="paper", shear_exponent=0.2, froude_krylov=False, isa_density=False),
