@@ -106,6 +106,9 @@ LEARN_DRAG_AFTER_S = 0.5
 # "A held-out sample")
 ASCENT_AIRFLOW_RATIO = 1.0
 FIELD_FLIGHT_S = 60.0  # magnetometer averaged this long in flight when there was no rest on the ground
+# the earth field learnt again on the taut tether from this long after its entry (the entry's transient over), over
+# FIELD_FLIGHT_S (aid_sources/magnetometer.learn_field_in_flight): the boot's holds at the boot's heading and tilt only
+FIELD_FOLLOW_FROM_S = 30.0
 ACCEL_INNOV_S = 2.0  # averaging time of the accelerometer's innovations that set its noise floor
 # the specific force's model error (the rope's waves, the drag's lag behind a gust) is correlated over about this
 # long, and the accelerometer is fused every sample as if it were white: for the tilt, which the gyro holds and the
@@ -139,6 +142,10 @@ LIGHT_AIR_SIGMA_U_MPS = 0.5
 WIND_NOISE_PERIOD_S = 1.0  # time between updates of that noise
 FIELD_LEARN_S = 1.0  # at least this much magnetometer on the ground (all of the ground time is used)
 MAG_MODEL_GAUSS = 0.004  # field direction model error (~0.5 deg of a 0.5 G field: soft iron, anomalies)
+# the field learnt again on the tether replaces the boot's only this far from it (twice the field's model error):
+# a hard-iron offset turned with the balloon, 0.014-0.016 G in field-turning-hard-iron; the means' own scatter in
+# class B gusts and an accelerometer's bias read at the lean, 0.002-0.004 G
+FIELD_CHANGE_GAUSS = 2.0 * MAG_MODEL_GAUSS
 
 # the winch (aid_sources/winch.py) and the ground reference (aid_sources/ground_ref.py)
 # a WINCH_STATUS is rejected (and counted) when its line length is not finite, below WINCH_LENGTH_MIN_M or

@@ -587,3 +587,25 @@ def test_a_long_tether_blown_towards_magnetic_north_does_not_swing_across_its_ro
 
     assert good(m["estimate"]), m["estimate"]
     assert not good(m["constant"]), m["constant"]
+
+
+
+@pytest.mark.parametrize("seed", [1, 3])
+def test_a_balloon_that_turns_once_released_with_a_hard_iron_offset(seed):
+    """A sphere with a seam, a valve or its avionics on the skin is a weak vane ([truth] yaw_moment_coefficient
+    0.01): released at its boot heading of 30 deg into a wind towards 90 deg, it turns 60 deg once blown over. A
+    hard-iron offset (0.04 G, fixed in the body) then adds another part to the field along gravity than at the boot,
+    and the field vector fused against the boot's tilted the attitude: 1.4-2.1 m/s RMS, 25-35 deg off at
+    error/accuracy 1.6-2.2 (seeds 1-3). The field learnt again on the tether (magnetometer.learn_field_in_flight,
+    0.014-0.016 G from the boot's, beyond FIELD_CHANGE_GAUSS): 0.37-0.65 m/s, 5-11 deg. What stays is the hard
+    iron's part across the field, which turns the heading as the balloon follows the wind's direction and which no
+    invariant of the field sees (error/accuracy 1.2-1.9: not yet honest). A regression guard on the failure, not a
+    target: the references (the constant true mean, the truth 4 s late) are no filters that learn a field."""
+    design, wind, truth_cfg, filt = build(scenario_sections(SCENARIOS["field-turning-hard-iron"]))
+    rows, truth, _ = fly(design, wind, truth_cfg, filt, 300.0, seed)
+    late = truth["time_s"] > 120.0
+    yaw = truth["yaw_deg"][late]
+    assert abs(np.median(yaw) - 90.0) < 10.0, (yaw.min(), yaw.max())  # it turned
+    sc = score(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], truth["time_s"], truth["wind_n"], truth["wind_e"], 120.0)
+    assert sc.raw_rmse_mps <= 0.7 and abs(sc.direction_error_deg) <= 12.0 and abs(sc.speed_error_pct) <= 4.0, sc
+    assert sc.error_ratio <= 2.0, sc

@@ -1,17 +1,20 @@
-"""The magnetometer: the earth field learnt on the ground, the field-vector and heading rows."""
+"""The magnetometer: the earth field learnt on the ground and again on the tether, the field-vector and heading rows."""
 
 from __future__ import annotations
 
 import math
 from typing import TYPE_CHECKING
 
+from balloon_core.atmosphere import G0
 from balloon_core.rotation import rotation
 from firmware_py.estimator.ekf import FusionStatus, WindEkf
+from firmware_py.estimator.params import FIELD_CHANGE_GAUSS, FIELD_FOLLOW_FROM_S
 from firmware_py.estimator.state import (
     ATT_D,
     ATT_E,
     ATT_N,
     MODE_GROUND,
+    MODE_TAUT,
 )
 
 if TYPE_CHECKING:
@@ -85,14 +88,73 @@ def learn_field(est: Estimator, ax: float, ay: float, az: float, mx: float, my: 
     est.field_ned = (horiz * math.cos(est.declination), horiz * math.sin(est.declination), down)
 
 
+def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: float, my: float, mz: float,
+                          k: int, n: int) -> None:
+    """The earth field learnt again on the taut tether, at its rate: the ``k``-th of the ``n`` samples of its window
+    (FIELD_FLIGHT_S from FIELD_FOLLOW_FROM_S after the entry) into the means in ``_field_sum``: the specific force in
+    NED through the filter's attitude ([0:3]), ``m . f`` ([3]) and ``|m|^2`` ([4]); at the last, the field. On a
+    tether that does not accelerate on average the mean specific force is gravity's, so the field's down component
+    is ``-mean(m . f) / |mean(R f)|``: ``m . f`` does not change as the balloon turns or rocks, and the attitude's
+    error turns the mean in NED without shortening it (a body-frame mean is shortened by the rocking, a per-sample
+    ``f / |f|`` by the balloon's own accelerations: each put the inclination a few hundredths of a degree off, which
+    turned the wind by a degree). Its magnitude from ``mean(|m|^2)`` less the magnetometer's noise; the horizontal
+    part along the declination, as learnt.
+
+    The field learnt at the boot (``learn_field``) holds at the boot's heading and tilt only. A balloon turns once
+    released (a sphere is a weak vane: a seam, the valve, the avionics; the rope twists) and leans on its tether: a
+    hard-iron offset (the avionics' own field, fixed in the body) then adds another part to the field's component
+    along gravity, and an accelerometer's bias another part to the specific force's direction. The field vector
+    fused against the boot's then disagrees with what the balloon measures, and the filter tilts its attitude to
+    fit, which turns the lean and the wind (`field-turning-hard-iron`: 25-35 deg off, error/accuracy 1.6-2.2; 5-11 deg
+    learnt again). Only a field beyond FIELD_CHANGE_GAUSS of the boot's replaces it: at rest and level the boot's is
+    the better measurement, where in flight the accelerometer's bias reads differently at the lean and gusts shake
+    the means (a turned balloon's accelerometer bias alone moves it 0.002 G, within that: `field-turning` is not
+    helped). Once a spell, not followed: an accelerometer bias that walks after it must stay the tilt the field
+    contradicts, which the bias's own loop follows (accel.follow_horizontal_bias); a field that followed it would
+    take it as a tilt (a continuous mean over FIELD_FLIGHT_S held a 0.2 m/s^2 step to a fifth of it)."""
+    s = est._field_sum
+    a = 1.0 / k
+    r = rotation(*est.ekf.q.tolist())
+    s[0] += a * (r[0] * ax + r[1] * ay + r[2] * az - s[0])
+    s[1] += a * (r[3] * ax + r[4] * ay + r[5] * az - s[1])
+    s[2] += a * (r[6] * ax + r[7] * ay + r[8] * az - s[2])
+    s[3] += a * (ax * mx + ay * my + az * mz - s[3])
+    s[4] += a * (mx * mx + my * my + mz * mz - s[4])
+    if k < n:
+        return
+    f = math.sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2])
+    if not f > 0.5 * G0:  # no gravity to read the field's down component against
+        return
+    down = -s[3] / f  # at rest the specific force points up
+    bn, be, bd = est.field_ned
+    h = h_old = math.sqrt(bn * bn + be * be)
+    h_new = math.sqrt(max(0.0, s[4] - 3.0 * est.mag_sigma * est.mag_sigma - down * down))
+    if h_old > 0.0 and (h_new - h_old) ** 2 + (down - bd) ** 2 > FIELD_CHANGE_GAUSS * FIELD_CHANGE_GAUSS:
+        est.field_ned = (bn * h_new / h_old, be * h_new / h_old, down)
+        h, bd = h_new, down
+    # the sums learn_field would have taken of the field at rest, level, from as many samples as it had: a balloon
+    # back on the ground station adds its own to them
+    n = float(est._field_n)
+    s[0], s[1], s[2], s[3], s[4], s[5] = 0.0, 0.0, -G0 * n, h * n, 0.0, bd * n
+
+
 def control_mag(est: Estimator, ax: float, ay: float, az: float, mx: float, my: float, mz: float) -> None:
     """Every sample with a valid field: learn the earth field from rotation-invariant averages (|m| and
     m . f: at rest on the ground, or after a restart in flight on the quasi-static balloon, whose mean
-    acceleration is 0), then fuse the whole field vector once it is known in flight, else the heading."""
+    acceleration is 0), then fuse the whole field vector once it is known in flight, else the heading; on the taut
+    tether learn it again once a spell, from FIELD_FOLLOW_FROM_S after the entry (``learn_field_in_flight``; a
+    sender joined in flight learnt it there already)."""
     ekf = est.ekf
     sched = est.schedule
     if ekf.mode == MODE_GROUND or (est._joined and est._field_n < sched.field_flight):
         learn_field(est, ax, ay, az, mx, my, mz)
+    elif (ekf.mode == MODE_TAUT and not est._joined and est._field_n >= sched.field_learn
+          and est.step % sched.taut_every == 0):
+        start = int(FIELD_FOLLOW_FROM_S * est.cfg.imu_rate_hz)
+        if est._dwell >= start:
+            k, n = (est._dwell - start) // sched.taut_every + 1, sched.field_flight // sched.taut_every
+            if k <= n:
+                learn_field_in_flight(est, ax, ay, az, mx, my, mz, k, n)
     if est._field_n >= sched.field_learn and ekf.mode != MODE_GROUND:
         fuse_mag_field(ekf, mx, my, mz, est.field_ned, est.mag_var, est.mag_status)
     else:
