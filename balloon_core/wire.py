@@ -27,8 +27,9 @@ MAX_FRAME = 280  # the longest MAVLink 2 frame: 10 header + 255 payload + 2 CRC 
 # a tlog record's time (its 8-byte header: no CRC covers it) further than this from the last plausible one is held
 # until the records after it decide (``plausible_record_times``): RECORD_CONFIRM of them near it confirm it (a
 # recording resumed after a pause, two logs end to end); one near the old clock, or none near it among the next
-# RECORD_LOOKAHEAD records (or before the file ends), says it is damaged
-RECORD_JUMP_S = 3600.0
+# RECORD_LOOKAHEAD records (or before the file ends), says it is damaged. 10 s: one damaged byte of the time's
+# upper four (big-endian microseconds) moves it at least 2^24 us (16.8 s); a real pause is confirmed by what follows
+RECORD_JUMP_S = 10.0
 RECORD_CONFIRM = 2
 RECORD_LOOKAHEAD = 16
 

@@ -317,10 +317,14 @@ def test_plausible_record_times_judges_a_time_by_the_records_around_it():
     assert judged(run) == (run, 0)
     assert judged(run[:10] + [1.15e12] + run[10:]) == (run[:10] + [None] + run[10:], 1)  # ahead, then back
     assert judged(run[:10] + [-5e8] + run[10:]) == (run[:10] + [None] + run[10:], 1)  # far behind
+    for jump in (2147.48, 16.78, -2147.48):  # bit 7 of byte 4 or bit 0 of byte 4 of its 8: under an hour off
+        assert judged(run[:10] + [run[10] + jump] + run[11:]) == (run[:10] + [None] + run[11:], 1), jump
     assert judged([1.15e12] + run) == ([None] + run, 1)  # the first one
     assert judged(run + [1.15e12]) == (run + [None], 1)  # the last one, with nothing after it to confirm it
     resumed = run + [7200.0 + t for t in run]  # two hours' pause: confirmed by what follows
     assert judged(resumed) == (resumed, 0)
+    paused = run + [60.0 + t for t in run]  # a minute's pause: the same
+    assert judged(paused) == (paused, 0)
     assert judged([5.0]) == ([5.0], 0)
 
 
@@ -332,7 +336,7 @@ def test_listen_a_damaged_record_time_is_counted_and_does_not_move_the_clock(tmp
     import subprocess
     import sys
 
-    from balloon_core.wire import LinkStats, tlog_messages
+    from balloon_core.wire import LinkStats, frame_length, tlog_messages
     from ground_station import cli
 
     tlog, _ = _recording(tmp_path)
@@ -353,6 +357,16 @@ def test_listen_a_damaged_record_time_is_counted_and_does_not_move_the_clock(tmp
     stamps = [m._timestamp for m in logged]
     assert max(stamps) - min(stamps) == pytest.approx(10.0)  # the recording's 0-10 s, none in the far future
     assert damaged.read_bytes() == before
+    near, at = bytearray(tlog.read_bytes()), 0  # bit 7 of byte 4 of the record at 5.9 s: 2147 s ahead, under an hour
+    for _ in range(60):
+        at += 8 + frame_length(near, at + 8)
+    near[at + 4] ^= 0x80
+    damaged.write_bytes(bytes(near))
+    r = subprocess.run([sys.executable, "-m", "ground_station", "listen", str(damaged), "--duration", "10", "--csv",
+                        str(csv)], capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 0 and "1 record time damaged (not used)" in r.stderr, r.stderr
+    assert "STALE" not in r.stdout and "t=   10.0s" in r.stdout, r.stdout
+    assert [r.time_usec for r in read_records(str(csv))] == [r.time_usec for r in read_records(str(ok_csv))]
 
 
 @pytest.mark.parametrize("what", ["empty", "noise", "png", "no wind"])
