@@ -63,23 +63,30 @@ def read_truth_csv(path: str, columns: tuple[str, ...] | None = None) -> dict[st
 
 CLOCK_BACK_S = 1.0  # a sender's time since boot going back further than this restarted (wire.CLOCK_BACK_US)
 BOOT_CONFIRM = 3  # ... when the samples after it run on from there, below where the old boot had got
+BOOT_MIN = 10  # a boot with fewer samples than this is not the one scored: the longest is (a report needs 10)
 
 
 def boot_starts(t_s: np.ndarray) -> list[int]:
     """Where each boot of a sender's clock starts in a log in the file's order: index 0, and each sample whose time
-    since boot is more than ``CLOCK_BACK_S`` behind the newest of its boot so far while the ``BOOT_CONFIRM`` after it
-    run on from it, still behind that newest (the firmware booted again, or two flights' logs end to end). A late
-    packet (the next sample is back where the clock was) and a log in reverse order (it never runs on) are no boot."""
+    since boot is more than ``CLOCK_BACK_S`` behind the newest of its boot so far while all ``BOOT_CONFIRM`` after it
+    run on from it, still behind that newest (the firmware booted again, or two flights' logs end to end), and no
+    later sample jumps forward again to where the old clock had got. Late packets (a few at the log's end, or a
+    burst after which the clock runs on as it was) and a log in reverse order (it never runs on) are no boot."""
     starts, a = [0], 0
-    while len(t_s) - a >= 3:
+    while len(t_s) - a >= 1 + BOOT_CONFIRM:
         seg = t_s[a:]
         top = np.maximum.accumulate(seg)[:-1]  # the newest before each sample from the second on
         found = None
         for j in (np.flatnonzero(seg[1:] < top - CLOCK_BACK_S) + 1).tolist():
+            old = top[j - 1] - CLOCK_BACK_S  # where the old boot's clock had got
             after = seg[j + 1 : j + 1 + BOOT_CONFIRM]
-            if len(after) and np.all((after >= seg[j]) & (after < top[j - 1] - CLOCK_BACK_S)):
-                found = j
-                break
+            if len(after) < BOOT_CONFIRM or not np.all((after >= seg[j]) & (after < old)):
+                continue
+            rest = seg[j:]
+            if np.any((np.diff(rest) > CLOCK_BACK_S) & (rest[1:] >= old)):
+                continue  # the clock jumps forward again to the old one's: a burst of late packets
+            found = j
+            break
         if found is None:
             break
         a += found
@@ -87,13 +94,29 @@ def boot_starts(t_s: np.ndarray) -> list[int]:
     return starts
 
 
-def _boots_note(path: str, t_s: np.ndarray, starts: list[int], clock: str, one: str, many: str) -> str:
-    """The one line that says a log of several boots was cut to its last: where the clock went back, what is used
-    and what is left out (``one``, ``many``: what a sample is called)."""
-    k, earlier = starts[-1], len(starts) - 1
-    return (f"{path} holds {len(starts)} boots ({clock} goes back from {float(np.max(t_s[starts[-2]:k])):.1f} s to "
-            f"{float(t_s[k]):.1f} s at {one} {k + 1}): only the last boot's {len(t_s) - k} {many} are used; {k} "
-            f"{many} of {earlier} earlier boot{'' if earlier == 1 else 's'} left out")  # fmt: skip
+def chosen_boot(starts: list[int], n: int) -> int:
+    """Which boot of a log of ``n`` samples (``boot_starts``) a report reads: the last, unless it holds fewer than
+    ``BOOT_MIN`` samples (a reboot just before the log ended): then the longest (the latest of equals)."""
+    lengths = [b - a for a, b in zip(starts, starts[1:] + [n], strict=True)]
+    if lengths[-1] >= BOOT_MIN:
+        return len(starts) - 1
+    return max(range(len(lengths)), key=lambda i: (lengths[i], i))
+
+
+def _boots_note(path: str, t_s: np.ndarray, starts: list[int], used: int, clock: str, one: str, many: str) -> str:
+    """The one line that says a log of several boots was cut to one (``used``, ``chosen_boot``): where the clock went
+    back, what is used and what is left out (``one``, ``many``: what a sample is called)."""
+    k, n = starts[-1], len(t_s)
+    back = (f"{path} holds {len(starts)} boots ({clock} goes back from {float(np.max(t_s[starts[-2]:k])):.1f} s to "
+            f"{float(t_s[k]):.1f} s at {one} {k + 1})")  # fmt: skip
+    if used == len(starts) - 1:
+        earlier = len(starts) - 1
+        return (f"{back}: only the last boot's {n - k} {many} are used; {k} {many} of {earlier} earlier "
+                f"boot{'' if earlier == 1 else 's'} left out")  # fmt: skip
+    a, b = starts[used], (starts + [n])[used + 1]
+    return (f"{back}: the last boot holds only {n - k} {many} (fewer than {BOOT_MIN}): the longest, boot {used + 1}'s "
+            f"{b - a} {many} ({one} {a + 1}-{b}) are used; {n - (b - a)} {many} of the other "
+            f"{len(starts) - 1} boot{'' if len(starts) == 2 else 's'} left out")  # fmt: skip
 
 
 def read_estimate(wind_path: str, sysid: int | None = None, notes: list[str] | None = None) -> dict[str, np.ndarray]:
@@ -110,14 +133,16 @@ def read_estimate(wind_path: str, sysid: int | None = None, notes: list[str] | N
         est = read_netcdf_wind(wind_path)
         t = est["time_s"]
         starts = boot_starts(t)
+        used = chosen_boot(starts, len(t))
+        first = starts[used]
         if len(starts) > 1:
             if notes is not None:
-                notes.append(_boots_note(wind_path, t, starts, "time_since_boot", "estimate", "estimates"))
-            est = {k: v[starts[-1] :] for k, v in est.items()}
+                notes.append(_boots_note(wind_path, t, starts, used, "time_since_boot", "estimate", "estimates"))
+            est = {k: v[first : (starts + [len(t)])[used + 1]] for k, v in est.items()}
         back = np.flatnonzero(np.diff(est["time_s"]) < 0)
         if len(back):  # a product's time runs forward: out of order, its series would be scored against the wrong time
             i = int(back[0]) + 1
-            raise ValueError(f"{wind_path}: the product's time goes back (estimate {starts[-1] + i + 1}: "
+            raise ValueError(f"{wind_path}: the product's time goes back (estimate {first + i + 1}: "
                              f"{est['time_s'][i]:.1f} s after {est['time_s'][i - 1]:.1f} s); a product runs forward "
                              "in time")  # fmt: skip
         finite = np.isfinite(est["wind_n"]) & np.isfinite(est["wind_e"])
@@ -142,9 +167,10 @@ def read_estimate(wind_path: str, sysid: int | None = None, notes: list[str] | N
     t = np.array([r.time_usec for r in records], float) * 1e-6
     starts = boot_starts(t)
     if len(starts) > 1:  # keyed by time since boot, two boots' records would overwrite each other
+        used = chosen_boot(starts, len(t))
         if notes is not None:
-            notes.append(_boots_note(wind_path, t, starts, "time_usec", "WIND_COV", "WIND_COV"))
-        records = records[starts[-1] :]
+            notes.append(_boots_note(wind_path, t, starts, used, "time_usec", "WIND_COV", "WIND_COV"))
+        records = records[starts[used] : (starts + [len(t)])[used + 1]]
     est = as_arrays(records)
     if len(est["time_s"]) < 10:
         raise ValueError(f"{wind_path}: fewer than 10 WIND_COV messages")

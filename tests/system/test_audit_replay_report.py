@@ -300,6 +300,40 @@ def test_report_of_two_boots_scores_the_last_and_says_what_it_left_out(scored_fl
             assert what in note[0]
 
 
+def test_late_packets_are_no_boot_and_a_short_last_boot_gives_way_to_the_longest(capsys, tmp_path):
+    """Two late packets at a log's end (50.0, 50.1 s after 99.9 s), or a burst of four (30.0-30.3 s) after which the
+    clock runs on from 50.0 s, were taken for a second boot: the flight was dropped for them, or the log refused. Now
+    a boot needs all BOOT_CONFIRM samples after it and no jump back to the old clock; a last boot of fewer than 10
+    samples (a reboot as the log ended) gives way to the longest, and the note says so."""
+    import numpy as np
+
+    from ground_station.report import boot_starts, read_estimate
+    from ground_station.wind import WindRecord
+
+    run = np.round(np.arange(0.0, 100.0, 0.1), 1)
+    tail = np.concatenate([run, [50.0, 50.1]])
+    burst = np.concatenate([run[:500], [30.0, 30.1, 30.2, 30.3], run[500:]])
+    short = np.concatenate([run, run[:5]])
+    assert boot_starts(tail) == [0] and boot_starts(burst) == [0]
+    assert boot_starts(short) == [0, 1000] and boot_starts(np.concatenate([run, run])) == [0, 1000]
+
+    def log(times, name):
+        return wind_csv([WindRecord(round(t * 1e6), 1, 1, 1.0, 2.0, 0.0, 0.25, 0.1, 100.0, 0.5, 0.3) for t in times],
+                        tmp_path / name)  # fmt: skip
+
+    for times, name in ((tail, "tail.csv"), (burst, "burst.csv")):
+        notes: list[str] = []
+        est = read_estimate(log(times, name), None, notes)
+        assert notes == [] and est["time_s"][0] == 0.0 and est["time_s"][-1] == pytest.approx(99.9), name
+    notes = []
+    est = read_estimate(log(short, "short.csv"), None, notes)
+    assert len(est["time_s"]) == 1000 and est["time_s"][-1] == pytest.approx(99.9)
+    assert len(notes) == 1 and "the last boot holds only 5 WIND_COV (fewer than 10)" in notes[0], notes
+    assert "the longest, boot 1's 1000 WIND_COV (WIND_COV 1-1000) are used; 5 WIND_COV" in notes[0], notes
+    code, out, err = report_run(capsys, str(tmp_path / "short.csv"), "--start", "5")
+    assert code == 0 and "the longest, boot 1's" in err, err
+
+
 def test_report_leaves_accuracies_that_are_not_numbers_out_and_counts_them(scored_flight, products, capsys, tmp_path):
     """One NaN horiz_accuracy made the score say "horiz_accuracy nan m/s (actual error / accuracy inf)" with exit 0;
     all of them inf said "inf m/s ... 0.00". Now a non-finite accuracy is left out of the accuracy's statistics and
