@@ -506,9 +506,13 @@ def plausible_record_times(items: Iterable[tuple[T, float | None]],
     neighbours replaced by None and counted (``stats.bad_stamps``): a record's 8-byte time has no CRC, and one
     damaged byte puts it 36 000 years ahead (or behind) while its frame is whole. A time further than
     ``RECORD_JUMP_S`` from the last plausible one (or the first time of all) is held until the records after it
-    decide (``RECORD_CONFIRM``, ``RECORD_LOOKAHEAD``); the items keep their order. A time of None passes as it is."""
+    decide (``RECORD_CONFIRM``, ``RECORD_LOOKAHEAD``); the items keep their order. A time of None passes as it is.
+    Damaged times before the first plausible one (a file's first records) take that one's time, counted all the same
+    (a record with no time would be stamped with the reading's clock, or put at the recording's end); None if the
+    file has no plausible time at all."""
     last: float | None = None
     held: deque[tuple[T, float | None]] = deque()
+    leading: list[T] = []  # damaged before any plausible time: waiting for the first one
 
     def decide(final: bool) -> Iterator[tuple[T, float | None]]:
         nonlocal last
@@ -516,6 +520,9 @@ def plausible_record_times(items: Iterable[tuple[T, float | None]],
             item, t = held[0]
             if t is None or (last is not None and abs(t - last) <= RECORD_JUMP_S):
                 held.popleft()
+                if t is None and leading:  # behind the waiting ones, in its order
+                    leading.append(item)
+                    continue
                 last = last if t is None else t
                 yield item, t
                 continue
@@ -536,15 +543,26 @@ def plausible_record_times(items: Iterable[tuple[T, float | None]],
             held.popleft()
             if refuted or (confirm == 0 and (followers or last is not None)):
                 stats.bad_stamps += 1
+                if last is None:
+                    leading.append(item)
+                    continue
                 yield item, None
             else:  # confirmed (or the first time of a file with no other to judge it by)
                 last = t
+                yield from flush(t)
                 yield item, t
+
+    def flush(t: float | None) -> Iterator[tuple[T, float | None]]:
+        """The damaged records before the first plausible time, with ``t`` (the first, or None at the file's end)."""
+        for item in leading:
+            yield item, t
+        leading.clear()
 
     for pair in items:
         held.append(pair)
         yield from decide(False)
     yield from decide(True)
+    yield from flush(None)
 
 
 def _chained_magic(buf: bytes, k: int, stop: int) -> int:

@@ -319,7 +319,9 @@ def test_plausible_record_times_judges_a_time_by_the_records_around_it():
     assert judged(run[:10] + [-5e8] + run[10:]) == (run[:10] + [None] + run[10:], 1)  # far behind
     for jump in (2147.48, 16.78, -2147.48):  # bit 7 of byte 4 or bit 0 of byte 4 of its 8: under an hour off
         assert judged(run[:10] + [run[10] + jump] + run[11:]) == (run[:10] + [None] + run[11:], 1), jump
-    assert judged([1.15e12] + run) == ([None] + run, 1)  # the first one
+    assert judged([1.15e12] + run) == ([run[0]] + run, 1)  # the first one: the first plausible time, counted
+    assert judged([1.15e12, -5e8] + run) == ([run[0]] * 2 + run, 2)
+    assert judged([1.15e12]) == ([1.15e12], 0)  # alone: nothing to judge it by
     assert judged(run + [1.15e12]) == (run + [None], 1)  # the last one, with nothing after it to confirm it
     resumed = run + [7200.0 + t for t in run]  # two hours' pause: confirmed by what follows
     assert judged(resumed) == (resumed, 0)
@@ -367,6 +369,30 @@ def test_listen_a_damaged_record_time_is_counted_and_does_not_move_the_clock(tmp
     assert r.returncode == 0 and "1 record time damaged (not used)" in r.stderr, r.stderr
     assert "STALE" not in r.stdout and "t=   10.0s" in r.stdout, r.stdout
     assert [r.time_usec for r in read_records(str(csv))] == [r.time_usec for r in read_records(str(ok_csv))]
+
+
+def test_listen_a_damaged_time_on_the_first_record_takes_the_first_plausible_one(tmp_path):
+    """A damaged time on a tlog's first record was read as None: the --tlog log stamped it with the reading's wall
+    clock (now, the recording's other records a year before) and ``web`` put it at the recording's end. Now it takes
+    the first plausible time (the records after it tell it) and is counted."""
+    import subprocess
+    import sys
+
+    from balloon_core.wire import LinkStats, tlog_messages
+    from ground_station.listen import recording
+
+    tlog, _ = _recording(tmp_path)
+    damaged, out = tmp_path / "damaged.tlog", tmp_path / "o.tlog"
+    damaged.write_bytes(b"\x10" + tlog.read_bytes()[1:])  # the first record's top byte: 1.15e12 s ahead
+    stats = LinkStats()
+    times = [t for _, t in recording(str(damaged), stats)]
+    assert stats.bad_stamps == 1 and None not in times and times[0] == times[1] == min(times)
+    assert max(times) - min(times) == pytest.approx(19.9)
+    r = subprocess.run([sys.executable, "-m", "ground_station", "listen", str(damaged), "--tlog", str(out)],
+                       capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 0 and "1 record time damaged (not used)" in r.stderr, r.stderr
+    stamps = [m._timestamp for m in tlog_messages(str(out), LinkStats())]
+    assert min(stamps) == times[0] and max(stamps) - min(stamps) == pytest.approx(19.9), stamps[:3]
 
 
 @pytest.mark.parametrize("what", ["empty", "noise", "png", "no wind"])
