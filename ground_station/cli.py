@@ -107,8 +107,8 @@ def main(argv: list[str] | None = None) -> int:
         with Products() as products:
             s = report(args.file, args.truth, args.plot and products.path(args.plot), args.start, args.sysid, notes)
             products.commit()
-    except (ValueError, OSError, userargs.UserError) as exc:
-        return userargs.fail(f"{PROG} report", exc)
+    except (ValueError, OSError, userargs.UserError) as exc:  # the notes say what of the log it was about
+        return userargs.fail(f"{PROG} report", f"{exc} (note: {'; '.join(notes)})" if notes else exc)
     for note in notes:
         print(f"{PROG} report: note: {note}", file=sys.stderr)
     print(format_score(s))

@@ -332,6 +332,9 @@ def test_late_packets_are_no_boot_and_a_short_last_boot_gives_way_to_the_longest
     assert "the longest, boot 1's 1000 WIND_COV (WIND_COV 1-1000) are used; 5 WIND_COV" in notes[0], notes
     code, out, err = report_run(capsys, str(tmp_path / "short.csv"), "--start", "5")
     assert code == 0 and "the longest, boot 1's" in err, err
+    code, out, err = report_run(capsys, log(np.concatenate([run, run[:20]]), "two.csv"))  # its 2 s before --start
+    assert code == 2 and len(err.strip().splitlines()) == 1 and out == "", err
+    assert "fewer than 2 known winds" in err and "(note: " in err and "holds 2 boots" in err, err
 
 
 def test_report_leaves_accuracies_that_are_not_numbers_out_and_counts_them(scored_flight, products, capsys, tmp_path):
