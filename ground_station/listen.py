@@ -676,7 +676,8 @@ def read_file(path: str, gs: GroundStation, stop, duration_s: float | None = Non
     """A recorded link through the station as it came (``recording``): the CSV and the tlog logged as a live run
     logs them, then the view at the recording's end, on the recording's clock; ``duration_s``: only its first
     seconds; the tlog log stamped with the recording's times. Nothing is sent: a file has no one to send to.
-    ValueError (nothing shown) for a file that holds no WIND_COV (``no_wind_refusal``)."""
+    ValueError (nothing shown) for a file that holds no WIND_COV (``no_wind_refusal``), also where ``duration_s`` cut
+    it before any: the rest is read for one."""
     gs.endpoint = path
     now = start = None
     whole = True  # read to its end (not stopped, not cut by ``duration_s``)
@@ -692,6 +693,12 @@ def read_file(path: str, gs: GroundStation, stop, duration_s: float | None = Non
         stamp = None if now is None else epoch_us + round(now * 1e6)
         gs.handle(m, 0.0 if now is None else now, stamp)
     refusal = no_wind_refusal(path, gs.stats, gs.wind_count)
+    if refusal is not None and not whole and gs.stats.frames and not stop():  # cut by --duration: is the rest alike?
+        rest = LinkStats()
+        if any(m.get_type() == "WIND_COV" for m, _ in recording(path, rest)):
+            refusal = None  # a recording of wind whose first seconds hold none
+        else:
+            refusal, whole = no_wind_refusal(path, rest, 0), True
     if refusal is not None and (whole or gs.stats.frames == 0) and not stop():
         raise ValueError(refusal)
     now = 0.0 if now is None else now

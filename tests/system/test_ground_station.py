@@ -395,6 +395,39 @@ def test_listen_a_damaged_time_on_the_first_record_takes_the_first_plausible_one
     assert min(stamps) == times[0] and max(stamps) - min(stamps) == pytest.approx(19.9), stamps[:3]
 
 
+def test_listen_duration_on_a_recording_without_wind_refuses_it(tmp_path, capfd):
+    """``listen FILE --duration 10`` on a heartbeat-only tlog exited 0 with a header-only --csv (the refusal was left
+    to a file read whole). Now a cut with no WIND_COV reads the rest for one: none, exit 2, one line, no log; a
+    recording whose WIND_COV start after the cut is still taken."""
+    from balloon_core.wire import TlogWriter
+    from ground_station import cli
+
+    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+
+    def tlog(name: str, wind_from_s: float | None):
+        path = tmp_path / name
+        with open(path, "wb") as fh:
+            w = TlogWriter(fh)
+            for k in range(30):  # 30 s at 1 Hz
+                w.write(1_000_000 * k, pack(mav, mav.heartbeat_encode(mavlink.MAV_TYPE_FREE_BALLOON,
+                                                                      mavlink.MAV_AUTOPILOT_GENERIC, 0, 2, 4)))
+                if wind_from_s is not None and k >= wind_from_s:
+                    w.write(1_000_000 * k, pack(mav, mav.wind_cov_encode(1_000_000 * k, 1.0, 2.0, 0.0, 0.5, 0.1,
+                                                                         100.0, 0.4, 0.0)))  # fmt: skip
+        return path
+
+    hb = tlog("hb.tlog", None)
+    capfd.readouterr()
+    code = cli.main(["listen", str(hb), "--duration", "10", "--csv", str(tmp_path / "w.csv")])
+    got = capfd.readouterr()
+    assert code == 2 and len(got.err.strip().splitlines()) == 1 and got.out == "", got
+    assert "30 MAVLink frames but no WIND_COV" in got.err, got.err
+    assert not (tmp_path / "w.csv").exists()
+    late = tlog("late.tlog", 20.0)
+    assert cli.main(["listen", str(late), "--duration", "10", "--csv", str(tmp_path / "w.csv")]) == 0
+    assert read_records(str(tmp_path / "w.csv")) == []
+
+
 @pytest.mark.parametrize("what", ["empty", "noise", "png", "no wind"])
 def test_listen_and_web_refuse_a_file_that_is_no_recording_of_wind(tmp_path, capfd, what):
     """``listen FILE`` took an empty file, random bytes or a picture with exit 0 ("0 WIND_COV") and left a
