@@ -111,8 +111,8 @@ def scan_ground_csv(path: str) -> tuple[str, int]:
         n += 1
         if t < before:
             rows.close()
-            raise ValueError(f"{path}: the ground-pressure CSV's {tcol} goes back (reading {n}: {t:g} s after "
-                             f"{before:g} s); a logger writes its readings in time order")  # fmt: skip
+            raise ValueError(f"{path}: the ground-pressure CSV's {tcol} goes back (reading {n}: {t:.1f} s after "
+                             f"{before:.1f} s); a logger writes its readings in time order")  # fmt: skip
         before = t
     if n == 0:
         raise ValueError(f"{path}: no readings")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from balloon_core.config import Design
-from balloon_core.groundref import read_ground_csv, write_ground_csv
+from balloon_core.groundref import read_ground_csv, scan_ground_csv, write_ground_csv
 from balloon_core.samples import GroundBaroSample, MavlinkSampler
 from balloon_core.wire import Decoder, LinkStats
 from firmware_py.estimator.control import Estimator
@@ -33,6 +33,9 @@ def test_csv_round_trip_and_errors(tmp_path):
     (tmp_path / "bad2.csv").write_text("time_s,pressure_hpa\n1,ten\n")
     with pytest.raises(ValueError, match="line 2"):
         read_ground_csv(str(tmp_path / "bad2.csv"))
+    (tmp_path / "back.csv").write_text("time_unix_s,pressure_hpa\n1767225600.5,990.0\n1767225599.2,990.0\n")
+    with pytest.raises(ValueError, match=r"\(reading 2: 1767225599\.2 s after 1767225600\.5 s\)"):
+        scan_ground_csv(str(tmp_path / "back.csv"))
 
 
 def test_listen_sends_the_newest_reading_once_from_its_system(tmp_path):
