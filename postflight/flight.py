@@ -53,7 +53,9 @@ class FlightMeta:
     imu_missing: int = 0  # IMU samples missing by their time stamps (at the measured rate)
     gaps: int = 0  # holes in the IMU stream (two or more steps without a sample)
     clock_breaks: int = 0  # the sensor clock going back (a reboot) or jumping: where a new segment starts
-    imu_rejected: int = 0  # IMU samples the estimator rejected (not numbers, out of range), once reprocessed
+    # samples the estimator rejected (IMU or barometer values not numbers or out of range, IMU samples before its
+    # first magnetometer reading: its one counter), once reprocessed
+    samples_rejected: int = 0
     unread: str | None = None  # why and where a reader stopped before the file's end (the rest unread), if it did
 
     def describe(self) -> str:
@@ -313,10 +315,16 @@ def loss_notes(meta: FlightMeta) -> list[str]:
         out.append(meta.unread)
     if meta.imu_missing:
         out.append(f"{meta.imu_missing} IMU samples missing by their time stamps, in {meta.gaps} gaps")
-    if meta.imu_rejected:
-        out.append(f"{meta.imu_rejected} IMU samples rejected by the estimator (values not numbers or out of range, "
-                   "as balloon-fw rejects them)")  # fmt: skip
     return out
+
+
+def rejected_note(meta: FlightMeta) -> str | None:
+    """What the estimator rejected of the flight's samples (``FlightMeta.samples_rejected``), None if none: a note, not
+    a loss (its count cannot tell a damaged value from a sample before the first magnetometer reading)."""
+    if not meta.samples_rejected:
+        return None
+    return (f"{meta.samples_rejected} samples rejected by the estimator (values not numbers or out of range, or before "
+            "its first magnetometer reading)")  # fmt: skip
 
 
 def segment_note(meta: FlightMeta) -> str | None:

@@ -33,7 +33,7 @@ from firmware_py.estimator.state import (
     FilterConfig,
 )
 from firmware_py.streams import InputPipeline, feed, feed_ground
-from postflight.flight import CLOCK_BACK_US, CLOCK_JUMP_US, loss_notes, segment_note
+from postflight.flight import CLOCK_BACK_US, CLOCK_JUMP_US, loss_notes, rejected_note, segment_note
 from postflight.mavlink_log import SampleRows
 from postflight.product import (
     FLAG_AFTER_GAP,
@@ -170,7 +170,7 @@ def reprocess(
     product.attrs["design_toml"] = design_toml(design, seg.pipe.cfg)
     product.attrs["north_reference"] = north_reference(design.site.mag_declination_deg)
     product.attrs.update(tally.attrs())
-    product.attrs["source_log_imu_samples_rejected"] = tally.imu_rejected  # as loss_attrs names what the log lost
+    product.attrs["source_log_samples_rejected"] = tally.rejected  # as loss_attrs names what the log holds
     product.attrs["samples_off_clock"] = clock.glitches
     return product
 
@@ -182,12 +182,12 @@ class _SourceTally:
     def __init__(self) -> None:
         self.winch = [0, 0, 0]  # used, rejected, the last reason
         self.ground = [0, 0, 0]
-        self.imu_rejected = 0  # IMU samples the estimator rejected (not numbers, out of range: balloon-fw's count)
+        self.rejected = 0  # samples the estimator rejected (``FlightMeta.samples_rejected``: balloon-fw's count)
 
     def add(self, est: Estimator | None) -> None:
         if est is None:
             return
-        self.imu_rejected += int(est.counters.rejected)
+        self.rejected += int(est.counters.rejected)
         for acc, (used, rejected, reason) in ((self.winch, (est.winch_samples, est.winch_rejected,
                                                             est.winch_reject_reason)),
                                               (self.ground, (est.ground_samples, est.ground_rejected,
@@ -654,7 +654,10 @@ def run_reprocess(args, argv: list[str] | None) -> int:
         if len(product.time_s) == 0:
             raise ValueError(f"{args.flight}: the estimator never started (no IMU + magnetometer sample with zacc < 0)")
         product.utc_start_s = meta.utc_start_s
-        meta.imu_rejected = int(product.attrs.get("source_log_imu_samples_rejected", 0))
+        meta.samples_rejected = int(product.attrs.get("source_log_samples_rejected", 0))
+        rejected = rejected_note(meta)
+        if rejected:
+            meta.notes.append(rejected)
         meta.notes.append(product.attrs["optional_sources"])
         bar.log(f"{prog}: {product.attrs['optional_sources']}")
         product.attrs.update({
@@ -675,6 +678,8 @@ def run_reprocess(args, argv: list[str] | None) -> int:
         bar.close()
     if loss_notes(meta) or segment_note(meta) or not args.quiet:  # a loss is told under --quiet too
         print(f"{prog}: {loss_line(meta)}", file=sys.stderr)
+    if rejected_note(meta):  # under --quiet too, as a note: it counts more than damaged values
+        print(f"{prog}: note: {meta.source}: {rejected_note(meta)}", file=sys.stderr)
     print(_summary(product, meta, time.perf_counter() - t0))
     print("wrote " + ", ".join(paths))
     return 0
@@ -687,7 +692,7 @@ def loss_attrs(meta, product: WindProduct) -> dict[str, int | str]:
         "source_log_bad_frames": int(meta.bad_frames),
         "source_log_truncated": "yes" if meta.truncated else "no",
         "source_log_imu_samples_missing": int(meta.imu_missing),
-        "source_log_imu_samples_rejected": int(meta.imu_rejected),
+        "source_log_samples_rejected": int(meta.samples_rejected),
         "source_log_gaps": int(meta.gaps),
         "source_log_segments": segments,
         "source_log_losses": loss_line(meta),
