@@ -4,6 +4,7 @@ short real flight through the envelope's case function. Light: a few seconds."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -65,6 +66,21 @@ def test_a_measured_drag_coefficient_is_drawn_and_told_with_its_own_sigma(capsys
     assert be.main(["--cd-sigma", "0", "--out", "/nonexistent/never-written"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--cd-sigma must be between" in err
+
+
+def test_a_balloon_that_turns_is_the_same_points_in_a_world_where_it_turns(capsys):
+    """--yaw-moment: the same points, the truth's balloon a weak vane ([truth] yaw_moment_coefficient) and nothing
+    told to the filter; out of its range (or not a number) one line and exit 2."""
+    for p, q in zip(be.sample(64, yaw_moment=0.01), be.sample(64)):
+        assert {k: v for k, v in p.items() if k != "yaw_moment"} == q and p["yaw_moment"] == 0.01
+        d1, w1, t1, f1 = build(be.sections_of(p))
+        d0, w0, t0, f0 = build(be.sections_of(q))
+        assert (d1, w1, f1) == (d0, w0, f0) and t0.yaw_moment_coefficient == 0.0
+        assert t1 == dataclasses.replace(t0, yaw_moment_coefficient=0.01)
+    for bad in ("-0.01", "0.6", "nan"):
+        assert be.main(["--yaw-moment", bad, "--out", "/nonexistent/never-written"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "--yaw-moment must be between" in err, err
 
 
 def test_a_stress_beyond_the_envelope_moves_only_the_mean_wind(capsys):
