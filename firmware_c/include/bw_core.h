@@ -106,6 +106,7 @@ typedef struct {
     bw_real rope_chord_m, rope_weight_n;      /* catenary.py RopeShape */
     bw_real rope_rate_mps;       /* the chord's rate while a winch reels (0: none) */
     uint8_t mode, learn_drag, drag_correlated; /* one byte each: the RAM (docs/porting.md) */
+    uint8_t field_window;        /* the estimator's (aid_mag.c learn_field_in_flight), in this struct's hole */
     int32_t recover_after;
     int64_t time_us;
     int32_t taut_phase, noise_phase;   /* step % taut_every, step % wind_noise_every */

@@ -72,29 +72,44 @@ static void learn_field(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az,
     est->field_ned[2] = down;
 }
 
-/* magnetometer.py learn_field_in_flight: the earth field learnt again on the taut tether, the k-th of the n samples of
- * its window into the means of the specific force in NED, m . f and |m|^2 (field_sum[0:5]); at the last, the field */
+/* magnetometer.py learn_field_in_flight: the earth field learnt again on the taut tether once a spell (ekf.field_window:
+ * 0 armed, 1 summing the specific force in NED, m . f, |m|^2 and the samples into field_sum, 2 done); at the first
+ * sample past the window, the field (beyond BW_FIELD_CHANGE_GAUSS of the boot's), the sums then the kept field's */
 static void learn_field_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az, bw_real mx, bw_real my,
-                                  bw_real mz, int32_t k, int32_t n)
+                                  bw_real mz)
 {
-    bw_real *s = est->field_sum, r[9], f, down, h, h_old, h_new, bn = est->field_ned[0], be = est->field_ned[1],
+    bw_ekf_t *e = &est->ekf;
+    bw_real *s = est->field_sum, r[9], f, c, down, h, h_old, h_new, bn = est->field_ned[0], be = est->field_ned[1],
             bd = est->field_ned[2];
-    const bw_real a = BW_R(1.0) / (bw_real)k;
-    bw_rotation(est->ekf.q, r);
-    s[0] += a * (r[0] * ax + r[1] * ay + r[2] * az - s[0]);
-    s[1] += a * (r[3] * ax + r[4] * ay + r[5] * az - s[1]);
-    s[2] += a * (r[6] * ax + r[7] * ay + r[8] * az - s[2]);
-    s[3] += a * (ax * mx + ay * my + az * mz - s[3]);
-    s[4] += a * (mx * mx + my * my + mz * mz - s[4]);
-    if (k < n)
+    const int32_t start = (int32_t)((bw_real)BW_FIELD_FOLLOW_FROM_S * e->m.imu_rate_hz);
+    if (est->dwell < start) {
+        e->field_window = 0;
         return;
+    }
+    if (e->field_window == 0) {
+        s[0] = s[1] = s[2] = s[3] = s[4] = s[5] = BW_R(0.0);
+        e->field_window = 1;
+    }
+    if (e->field_window != 1)
+        return;
+    if (est->dwell < start + est->sched.field_flight) {
+        bw_rotation(e->q, r);
+        s[0] += r[0] * ax + r[1] * ay + r[2] * az;
+        s[1] += r[3] * ax + r[4] * ay + r[5] * az;
+        s[2] += r[6] * ax + r[7] * ay + r[8] * az;
+        s[3] += ax * mx + ay * my + az * mz;
+        s[4] += mx * mx + my * my + mz * mz;
+        s[5] += BW_R(1.0);
+        return;
+    }
+    e->field_window = 2;
+    c = s[5];
     f = BW_SQRT(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]);
-    if (!(f > BW_R(0.5) * (bw_real)BW_G0)) /* no gravity to read the field's down component against */
+    if (!(f > BW_R(0.5) * (bw_real)BW_G0 * c)) /* no gravity to read the field's down component against */
         return;
     down = -s[3] / f; /* at rest the specific force points up */
     h = h_old = BW_SQRT(bn * bn + be * be);
-    h_new = BW_SQRT(BW_MAX(BW_R(0.0), s[4] - BW_R(3.0) * est->mag_sigma * est->mag_sigma - down * down));
-    /* only a field beyond BW_FIELD_CHANGE_GAUSS of the boot's replaces it */
+    h_new = BW_SQRT(BW_MAX(BW_R(0.0), s[4] / c - BW_R(3.0) * est->mag_sigma * est->mag_sigma - down * down));
     if (h_old > BW_R(0.0) && (h_new - h_old) * (h_new - h_old) + (down - bd) * (down - bd) >
                                  (bw_real)BW_FIELD_CHANGE_GAUSS * (bw_real)BW_FIELD_CHANGE_GAUSS) {
         est->field_ned[0] = bn * h_new / h_old;
@@ -112,15 +127,8 @@ void bw_control_mag(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az, bw_
     const bw_ekf_t *e = &est->ekf;
     if (e->mode == BW_MODE_GROUND || (est->joined && est->field_n < est->sched.field_flight))
         learn_field(est, ax, ay, az, mx, my, mz);
-    else if (e->mode == BW_MODE_TAUT && !est->joined && est->field_n >= est->sched.field_learn && e->taut_phase == 0) {
-        const int32_t start = (int32_t)((bw_real)BW_FIELD_FOLLOW_FROM_S * e->m.imu_rate_hz);
-        if (est->dwell >= start) {
-            const int32_t k = (est->dwell - start) / est->sched.taut_every + 1;
-            const int32_t n = est->sched.field_flight / est->sched.taut_every;
-            if (k <= n)
-                learn_field_in_flight(est, ax, ay, az, mx, my, mz, k, n);
-        }
-    }
+    else if (e->mode == BW_MODE_TAUT && !est->joined && est->field_n >= est->sched.field_learn && e->taut_phase == 0)
+        learn_field_in_flight(est, ax, ay, az, mx, my, mz);
     if (est->field_n >= est->sched.field_learn && e->mode != BW_MODE_GROUND)
         fuse_mag_field(est, mx, my, mz);
     else

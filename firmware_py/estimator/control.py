@@ -190,6 +190,7 @@ class Estimator:
         self._last_gyro = (0.0, 0.0, 0.0)
         self._release_count = 0
         self._field_n = 0
+        self._field_window = 0  # the field learnt again on the tether: 0 armed, 1 summing, 2 done (magnetometer.py)
         self._field_sum = [0.0] * 6
         self._joined = False
         self.unconfirmed = False  # joined in flight and not yet confirmed by the motion (see CONFIRM_*)

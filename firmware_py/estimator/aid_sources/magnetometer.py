@@ -88,11 +88,11 @@ def learn_field(est: Estimator, ax: float, ay: float, az: float, mx: float, my: 
     est.field_ned = (horiz * math.cos(est.declination), horiz * math.sin(est.declination), down)
 
 
-def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: float, my: float, mz: float,
-                          k: int, n: int) -> None:
-    """The earth field learnt again on the taut tether, at its rate: the ``k``-th of the ``n`` samples of its window
-    (FIELD_FLIGHT_S from FIELD_FOLLOW_FROM_S after the entry) into the means in ``_field_sum``: the specific force in
-    NED through the filter's attitude ([0:3]), ``m . f`` ([3]) and ``|m|^2`` ([4]); at the last, the field. On a
+def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: float, my: float, mz: float) -> None:
+    """The earth field learnt again on the taut tether, at its rate, once a spell (``_field_window``: 0 armed while
+    the entry settles, 1 while its window of FIELD_FLIGHT_S from FIELD_FOLLOW_FROM_S after the entry sums, 2 done):
+    into ``_field_sum`` the specific force in NED through the filter's attitude ([0:3]), ``m . f`` ([3]), ``|m|^2``
+    ([4]) and the samples ([5]: the link may lose any of them); at the first sample past the window, the field. On a
     tether that does not accelerate on average the mean specific force is gravity's, so the field's down component
     is ``-mean(m . f) / |mean(R f)|``: ``m . f`` does not change as the balloon turns or rocks, and the attitude's
     error turns the mean in NED without shortening it (a body-frame mean is shortened by the rocking, a per-sample
@@ -112,23 +112,35 @@ def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: f
     helped). Once a spell, not followed: an accelerometer bias that walks after it must stay the tilt the field
     contradicts, which the bias's own loop follows (accel.follow_horizontal_bias); a field that followed it would
     take it as a tilt (a continuous mean over FIELD_FLIGHT_S held a 0.2 m/s^2 step to a fifth of it)."""
+    sched = est.schedule
+    start = int(FIELD_FOLLOW_FROM_S * est.cfg.imu_rate_hz)
     s = est._field_sum
-    a = 1.0 / k
-    r = rotation(*est.ekf.q.tolist())
-    s[0] += a * (r[0] * ax + r[1] * ay + r[2] * az - s[0])
-    s[1] += a * (r[3] * ax + r[4] * ay + r[5] * az - s[1])
-    s[2] += a * (r[6] * ax + r[7] * ay + r[8] * az - s[2])
-    s[3] += a * (ax * mx + ay * my + az * mz - s[3])
-    s[4] += a * (mx * mx + my * my + mz * mz - s[4])
-    if k < n:
+    if est._dwell < start:
+        est._field_window = 0
         return
+    if est._field_window == 0:
+        s[0] = s[1] = s[2] = s[3] = s[4] = s[5] = 0.0
+        est._field_window = 1
+    if est._field_window != 1:
+        return
+    if est._dwell < start + sched.field_flight:
+        r = rotation(*est.ekf.q.tolist())
+        s[0] += r[0] * ax + r[1] * ay + r[2] * az
+        s[1] += r[3] * ax + r[4] * ay + r[5] * az
+        s[2] += r[6] * ax + r[7] * ay + r[8] * az
+        s[3] += ax * mx + ay * my + az * mz
+        s[4] += mx * mx + my * my + mz * mz
+        s[5] += 1.0
+        return
+    est._field_window = 2
+    c = s[5]
     f = math.sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2])
-    if not f > 0.5 * G0:  # no gravity to read the field's down component against
+    if not f > 0.5 * G0 * c:  # no gravity to read the field's down component against (nor any sample)
         return
     down = -s[3] / f  # at rest the specific force points up
     bn, be, bd = est.field_ned
     h = h_old = math.sqrt(bn * bn + be * be)
-    h_new = math.sqrt(max(0.0, s[4] - 3.0 * est.mag_sigma * est.mag_sigma - down * down))
+    h_new = math.sqrt(max(0.0, s[4] / c - 3.0 * est.mag_sigma * est.mag_sigma - down * down))
     if h_old > 0.0 and (h_new - h_old) ** 2 + (down - bd) ** 2 > FIELD_CHANGE_GAUSS * FIELD_CHANGE_GAUSS:
         est.field_ned = (bn * h_new / h_old, be * h_new / h_old, down)
         h, bd = h_new, down
@@ -150,11 +162,7 @@ def control_mag(est: Estimator, ax: float, ay: float, az: float, mx: float, my: 
         learn_field(est, ax, ay, az, mx, my, mz)
     elif (ekf.mode == MODE_TAUT and not est._joined and est._field_n >= sched.field_learn
           and est.step % sched.taut_every == 0):
-        start = int(FIELD_FOLLOW_FROM_S * est.cfg.imu_rate_hz)
-        if est._dwell >= start:
-            k, n = (est._dwell - start) // sched.taut_every + 1, sched.field_flight // sched.taut_every
-            if k <= n:
-                learn_field_in_flight(est, ax, ay, az, mx, my, mz, k, n)
+        learn_field_in_flight(est, ax, ay, az, mx, my, mz)
     if est._field_n >= sched.field_learn and ekf.mode != MODE_GROUND:
         fuse_mag_field(ekf, mx, my, mz, est.field_ned, est.mag_var, est.mag_status)
     else:

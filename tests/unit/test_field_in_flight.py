@@ -1,0 +1,61 @@
+"""The earth field learnt again on the taut tether (magnetometer.learn_field_in_flight): a balloon with a hard-iron
+offset that turned once released has a field the boot's is not (it replaces it, and it is the one the balloon
+measures in flight); a link that loses a tenth of the samples, and every sample of the window's first half second,
+learns the same field; a balloon whose field is the boot's keeps the boot's."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from firmware_py.estimator.control import Estimator
+from firmware_py.estimator.params import FIELD_CHANGE_GAUSS
+from sim_hil.scenarios import SCENARIOS
+from sim_hil.simulator import Simulation
+
+
+def flown(name: str, drop: frozenset[int] = frozenset()) -> dict:
+    """A flight of 130 s on the Python core, the IMU samples numbered in ``drop`` left out: the field after the boot
+    and at the end, the sample that opened the window, the magnetometer's mean |m| over the last 20 s."""
+    sc = SCENARIOS[name]
+    sim = Simulation(sc.design, sc.wind, sc.truth, 130.0, 3)
+    est = Estimator(sc.design, dataclasses.replace(sc.filter, core="py"))
+    out: dict = {"boot": None, "opened": None, "m": []}
+    for i, s in enumerate(sim.samples()):
+        if s.baro:
+            est.on_baro(s.time_usec, *s.baro)
+        if i not in drop:
+            est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
+        if out["boot"] is None and est.ekf.mode != 0:
+            out["boot"] = tuple(est.field_ned)
+        if out["opened"] is None and est._field_window == 1:
+            out["opened"] = i
+        if i >= 11_000:
+            out["m"].append(math.hypot(*s.mag))
+    assert est._field_window == 2  # the window has closed
+    out["after"] = tuple(est.field_ned)
+    return out
+
+
+def inclination(f) -> float:
+    return math.degrees(math.atan2(f[2], math.hypot(f[0], f[1])))
+
+
+def test_a_turned_hard_iron_has_its_field_learnt_again_even_through_a_lossy_link():
+    clean = flown("field-turning-hard-iron")
+    assert math.dist(clean["boot"], clean["after"]) > FIELD_CHANGE_GAUSS  # replaced
+    assert abs(math.hypot(*clean["after"]) - np.mean(clean["m"])) < 0.002  # the field of the balloon's heading
+    rng = np.random.default_rng(7)
+    first = clean["opened"]
+    drop = frozenset(rng.choice(13_000, 1_300, replace=False).tolist()) | frozenset(range(first - 10, first + 50))
+    lossy = flown("field-turning-hard-iron", drop)
+    assert lossy["opened"] > first  # the window's first samples were lost
+    assert math.dist(clean["after"], lossy["after"]) < 0.002  # a lost first sample once kept the boot's sums
+    assert abs(inclination(clean["after"]) - inclination(lossy["after"])) < 0.3
+
+
+def test_a_field_the_boots_can_be_is_kept():
+    out = flown("field-rope")
+    assert out["after"] == out["boot"]
