@@ -81,7 +81,7 @@ static void learn_field_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, b
     bw_ekf_t *e = &est->ekf;
     bw_real *s = est->field_sum, r[9], f, c, down, h, h_old, h_new, bn = est->field_ned[0], be = est->field_ned[1],
             bd = est->field_ned[2];
-    const int32_t start = (int32_t)((bw_real)BW_FIELD_FOLLOW_FROM_S * e->m.imu_rate_hz);
+    const int32_t start = (int32_t)((bw_real)BW_FIELD_RELEARN_FROM_S * e->m.imu_rate_hz);
     if (est->dwell < start) {
         e->field_window = 0;
         return;

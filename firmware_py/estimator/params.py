@@ -105,10 +105,10 @@ LEARN_DRAG_AFTER_S = 0.5
 # to learn: in Kaimal turbulence a 2 s spell there read the drag scale 24 % low, claimed to 4 % (docs/estimator.md,
 # "A held-out sample")
 ASCENT_AIRFLOW_RATIO = 1.0
-FIELD_FLIGHT_S = 60.0  # magnetometer averaged this long in flight when there was no rest on the ground
+FIELD_FLIGHT_S = 60.0  # magnetometer averaged this long in flight: no rest on the ground, and again on the tether
 # the earth field learnt again on the taut tether from this long after its entry (the entry's transient over), over
 # FIELD_FLIGHT_S (aid_sources/magnetometer.learn_field_in_flight): the boot's holds at the boot's heading and tilt only
-FIELD_FOLLOW_FROM_S = 30.0
+FIELD_RELEARN_FROM_S = 30.0
 ACCEL_INNOV_S = 2.0  # averaging time of the accelerometer's innovations that set its noise floor
 # the specific force's model error (the rope's waves, the drag's lag behind a gust) is correlated over about this
 # long, and the accelerometer is fused every sample as if it were white: for the tilt, which the gyro holds and the

@@ -76,8 +76,8 @@ def test_the_ascent_weighed_again_double():
     assert rep.reset_counts[RESET_DRAG] == 2  # the ascent's cap and its weighing again, both compared
 
 
-def test_the_field_followed_in_flight_double():
-    """A balloon that turns with a hard-iron offset, past FIELD_FOLLOW_FROM_S after the taut entry: the earth field
+def test_the_field_learnt_again_in_flight_double():
+    """A balloon that turns with a hard-iron offset, past FIELD_RELEARN_FROM_S after the taut entry: the earth field
     followed on the tether (magnetometer.follow_field) in both cores."""
     sc = SCENARIOS["field-turning-hard-iron"]
     sim = Simulation(sc.design, sc.wind, sc.truth, 90.0, 3)

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 from balloon_core.atmosphere import G0
 from balloon_core.rotation import rotation
 from firmware_py.estimator.ekf import FusionStatus, WindEkf
-from firmware_py.estimator.params import FIELD_CHANGE_GAUSS, FIELD_FOLLOW_FROM_S
+from firmware_py.estimator.params import FIELD_CHANGE_GAUSS, FIELD_RELEARN_FROM_S
 from firmware_py.estimator.state import (
     ATT_D,
     ATT_E,
@@ -90,7 +90,7 @@ def learn_field(est: Estimator, ax: float, ay: float, az: float, mx: float, my: 
 
 def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: float, my: float, mz: float) -> None:
     """The earth field learnt again on the taut tether, at its rate, once a spell (``_field_window``: 0 armed while
-    the entry settles, 1 while its window of FIELD_FLIGHT_S from FIELD_FOLLOW_FROM_S after the entry sums, 2 done):
+    the entry settles, 1 while its window of FIELD_FLIGHT_S from FIELD_RELEARN_FROM_S after the entry sums, 2 done):
     into ``_field_sum`` the specific force in NED through the filter's attitude ([0:3]), ``m . f`` ([3]), ``|m|^2``
     ([4]) and the samples ([5]: the link may lose any of them); at the first sample past the window, the field. On a
     tether that does not accelerate on average the mean specific force is gravity's, so the field's down component
@@ -113,7 +113,7 @@ def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: f
     contradicts, which the bias's own loop follows (accel.follow_horizontal_bias); a field that followed it would
     take it as a tilt (a continuous mean over FIELD_FLIGHT_S held a 0.2 m/s^2 step to a fifth of it)."""
     sched = est.schedule
-    start = int(FIELD_FOLLOW_FROM_S * est.cfg.imu_rate_hz)
+    start = int(FIELD_RELEARN_FROM_S * est.cfg.imu_rate_hz)
     s = est._field_sum
     if est._dwell < start:
         est._field_window = 0
@@ -154,7 +154,7 @@ def control_mag(est: Estimator, ax: float, ay: float, az: float, mx: float, my: 
     """Every sample with a valid field: learn the earth field from rotation-invariant averages (|m| and
     m . f: at rest on the ground, or after a restart in flight on the quasi-static balloon, whose mean
     acceleration is 0), then fuse the whole field vector once it is known in flight, else the heading; on the taut
-    tether learn it again once a spell, from FIELD_FOLLOW_FROM_S after the entry (``learn_field_in_flight``; a
+    tether learn it again once a spell, from FIELD_RELEARN_FROM_S after the entry (``learn_field_in_flight``; a
     sender joined in flight learnt it there already)."""
     ekf = est.ekf
     sched = est.schedule
