@@ -169,6 +169,9 @@ SCHEMA: dict[str, dict[str, Rule]] = {
         "multisine_amplitude_mps": num(0.0, 20.0),
         "multisine_axes": one_of("along", "both"),
         "sample_hz": num(1.0, 1000.0),
+        "turn_deg": num(-3600.0, 3600.0),
+        "turn_start_s": num(0.0, 1e7),
+        "turn_duration_s": num(1.0, 1e7),
     },
     "truth": {
         "rope_model": one_of("lumped", "paper"),

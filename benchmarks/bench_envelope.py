@@ -76,6 +76,8 @@ CD_SIGMA = 0.10
 MAX_WIND_MPS = 8.0  # the mean wind's upper end, the envelope's (--max-wind takes another: a stress beyond it)
 MAX_WIND_RANGE = (2.0, 25.0)
 YAW_MOMENT_RANGE = (0.0, 0.5)  # [truth] yaw_moment_coefficient: 0 a perfect sphere, 0.01 a weak vane
+TURN_RANGE_DEG = (-360.0, 360.0)  # --turn-deg: a front turns the wind by this much ([wind] turn_deg)
+TURN_DURATION_S = 60.0  # ... in a minute, halfway through the scored part
 CD_SIGMA_RANGE = (0.005, 0.3)  # at 0.3 the 2.5-sigma draw keeps the C_d at 0.25 of the design's (the floor: 0.1)
 ROPE_CD_SIGMA = 0.30
 WINDOW_S = 60.0
@@ -154,13 +156,15 @@ def pick(u: float, choices: tuple[str, ...]) -> str:
 
 
 def sample(
-    n: int, seed: int = SEED, cd_sigma: float = CD_SIGMA, max_wind_mps: float = MAX_WIND_MPS, yaw_moment: float = 0.0
+    n: int, seed: int = SEED, cd_sigma: float = CD_SIGMA, max_wind_mps: float = MAX_WIND_MPS, yaw_moment: float = 0.0,
+    turn: tuple[float, float] | None = None,
 ) -> list[dict[str, Any]]:
     """The n flights' parameters (a dict per flight, in the order of ``PARAMS``); the balloon's C_d drawn with
     1-sigma ``cd_sigma`` (any other than CD_SIGMA is also what the filter is told: ``cd_sigma`` in each dict); the
     mean wind from 1 m/s to ``max_wind_mps`` (the same points: only that dimension's scale moves); a balloon that turns
     as a weak vane where ``yaw_moment`` (its [truth] yaw_moment_coefficient, in each dict) is not 0 (the same
-    points)."""
+    points); a front where ``turn`` is (degrees, start s): the wind turns by that much in TURN_DURATION_S from the
+    start (``turn_deg`` and ``turn_start_s`` in each dict; the same points)."""
     u = halton(n, len(DIMS), seed)
     out = []
     for row in u:
@@ -185,6 +189,8 @@ def sample(
             out[-1]["cd_sigma"] = cd_sigma
         if yaw_moment:
             out[-1]["yaw_moment"] = yaw_moment
+        if turn is not None:
+            out[-1]["turn_deg"], out[-1]["turn_start_s"] = turn
     return out
 
 
@@ -222,6 +228,8 @@ def sections_of(p: dict[str, Any]) -> dict[str, dict[str, Any]]:
         secs["filter"]["init_drag"] = p["cd_sigma"]
     if "yaw_moment" in p:  # the balloon turns (the world's, not the design's)
         t["yaw_moment_coefficient"] = p["yaw_moment"]
+    if "turn_deg" in p:  # a front turns the wind
+        w.update({"turn_deg": p["turn_deg"], "turn_start_s": p["turn_start_s"], "turn_duration_s": TURN_DURATION_S})
     return secs
 
 
@@ -629,6 +637,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="the balloon's yaw moment coefficient ([truth] yaw_moment_coefficient, "
                          f"{YAW_MOMENT_RANGE[0]:g}-{YAW_MOMENT_RANGE[1]:g}; default 0: a perfect sphere that keeps its "
                          "heading; 0.01: a weak vane that turns downwind once released)")  # fmt: skip
+    ap.add_argument("--turn-deg", type=float, default=0.0,
+                    help="a front: the wind turns by this much (deg, positive clockwise: veering) in "
+                         f"{TURN_DURATION_S:g} s halfway through each flight's scored part, {TURN_RANGE_DEG[0]:g} to "
+                         f"{TURN_RANGE_DEG[1]:g} (default 0: no front)")  # fmt: skip
     ap.add_argument("--sample-seed", type=userargs.seed, default=SEED,
                     help=f"the sample's seed (default {SEED}: the fixed sample every run compares on; any other draws "
                          "a fresh set of points, flights no tuning has seen)")  # fmt: skip
@@ -646,6 +658,9 @@ def main(argv: list[str] | None = None) -> int:
     if not lo <= args.yaw_moment <= hi:  # NaN too
         return userargs.fail("bench_envelope", f"--yaw-moment must be between {lo:g} and {hi:g}, got "
                              f"{args.yaw_moment:g}")  # fmt: skip
+    lo, hi = TURN_RANGE_DEG
+    if not lo <= args.turn_deg <= hi:  # NaN too
+        return userargs.fail("bench_envelope", f"--turn-deg must be between {lo:g} and {hi:g}, got {args.turn_deg:g}")
     n = args.flights or (64 if args.quick else 200)
     duration = args.duration or (QUICK_DURATION_S if args.quick else FULL_DURATION_S)
     if args.start >= duration:
@@ -678,8 +693,11 @@ def _run(args, out: Path, n: int, duration: float) -> int:
     import pandas as pd
 
     out.mkdir(parents=True, exist_ok=True)
+    turn = None
+    if args.turn_deg:  # halfway through the scored part
+        turn = (args.turn_deg, round(0.5 * (args.start + duration - TURN_DURATION_S), 3))
     params = sample(n, seed=args.sample_seed, cd_sigma=args.cd_sigma, max_wind_mps=args.max_wind,
-                    yaw_moment=args.yaw_moment)
+                    yaw_moment=args.yaw_moment, turn=turn)
     cs = cases(params, duration, args.start)
     store = engine.Store(out / "parts")
     t0 = time.perf_counter()
@@ -731,6 +749,7 @@ def write_products(df, part: Path, out: Path, n: int, duration: float, args, st,
         f"{'' if args.cd_sigma == CD_SIGMA else f', the C_d known to {100 * args.cd_sigma:g} %'}"
         f"{'' if args.max_wind == MAX_WIND_MPS else f', mean wind 1-{args.max_wind:g} m/s'}"
         f"{f', the balloon turns (yaw moment {args.yaw_moment:g})' if args.yaw_moment else ''}"
+        f"{f', a front turns the wind {args.turn_deg:g} deg in {TURN_DURATION_S:g} s' if args.turn_deg else ''}"
         f"{'' if args.sample_seed == SEED else f', sample seed {args.sample_seed}'}, "
         f"{'serial' if args.serial else f'{st.workers} Dask workers'}; {st.computed} computed, {st.reused} "
         f"reused, {st.failed} failed; wall {wall:.0f} s (mean flight {st.case_s / max(st.computed, 1):.1f} s)"

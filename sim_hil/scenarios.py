@@ -199,6 +199,12 @@ _FIELD_SCENARIOS = (
         truth=TruthConfig(shear_exponent=0.14, **_WEATHER, **_BIASES),
     ),
     Scenario(
+        "field-front",
+        "the real rope, wandering biases; a front: at 300 s the wind veers 90 deg in a minute (3 m/s VdH + Kaimal)",
+        wind=WindConfig(turn_deg=90.0, turn_start_s=300.0, turn_duration_s=60.0),
+        truth=TruthConfig(**_BIASES),
+    ),
+    Scenario(
         "field-turning",
         "the real rope, wandering biases; the balloon turns: its asymmetry a weak vane (yaw moment 0.01), 60 deg "
         "from its boot heading once blown downwind",

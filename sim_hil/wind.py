@@ -41,6 +41,12 @@ class WindConfig:
     multisine_amplitude_mps: float = 0.3
     multisine_axes: str = "along"  # along: u only; both: also the cross-wind v, same lines, own phases
     sample_hz: float = 20.0
+    # the wind turns: a front, a sea breeze setting in, the day's veer. From turn_start_s the direction it comes from
+    # moves by turn_deg (positive clockwise: veering) over turn_duration_s, smoothly (a half cosine: at most
+    # pi / 2 turn_deg / turn_duration_s), the fluctuations turning with it (``wind_direction_deg``)
+    turn_deg: float = 0.0
+    turn_start_s: float = 0.0
+    turn_duration_s: float = 600.0
 
     def __post_init__(self) -> None:
         if self.kind not in ("vdh", "multisine", "steady"):
@@ -57,6 +63,8 @@ class WindConfig:
             raise ConfigError("wind.mean_mps >= 0, sample_hz > 0 and gap_cph > 0 are required")
         if self.sample_hz / 2 <= max(self.multisine_hz, default=0.0):
             raise ConfigError("wind.multisine_hz must lie below the Nyquist frequency of sample_hz")
+        if not (math.isfinite(self.turn_deg) and self.turn_start_s >= 0.0 and self.turn_duration_s >= 1.0):
+            raise ConfigError("wind.turn_deg must be finite, turn_start_s >= 0 and turn_duration_s >= 1 s")
 
     @property
     def sigma_u_mps(self) -> float:
@@ -247,7 +255,8 @@ def wind_components(
 def generate_wind(cfg: WindConfig, duration_s: float, seed: int, averaging_length_m: float = 0.0) -> WindSeries:
     """The wind for one flight: along-wind u, cross-wind v, vertical w (``wind_components``), rotated
     into NED, optionally as felt by a body of the given size (``spatial_average``)."""
-    ned = to_ned(cfg, *wind_components(cfg, duration_s, seed, averaging_length_m))
+    u, v, w = wind_components(cfg, duration_s, seed, averaging_length_m)
+    ned = to_ned(cfg, u, v, w, np.arange(u.size) / cfg.sample_hz)
     rate = np.gradient(ned, 1.0 / cfg.sample_hz, axis=0)
     return WindSeries(1.0 / cfg.sample_hz, ned, rate)
 
@@ -368,15 +377,26 @@ class WindStream:
         """NED wind and its rate, (i1 - i0 + 1, 3) each, at samples i0 .. i1 (as ``WindSeries.window``)."""
         i0, i1 = max(0, i0), min(self.n - 1, i1)
         lo, hi = max(0, i0 - 1), min(self.n - 1, i1 + 1)
-        ned = to_ned(self.cfg, *self.components(lo, hi))
+        ned = to_ned(self.cfg, *self.components(lo, hi), np.arange(lo, hi + 1) * self.dt_s)
         rate = np.gradient(ned, self.dt_s, axis=0)
         return ned[i0 - lo : i1 - lo + 1], rate[i0 - lo : i1 - lo + 1]
 
 
-def to_ned(cfg: WindConfig, u: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Along-wind, cross-wind and down fluctuations plus the mean wind, in NED, (n, 3)."""
-    to_rad = math.radians(cfg.from_deg + 180.0)
-    c, s = math.cos(to_rad), math.sin(to_rad)
+def wind_direction_deg(cfg: WindConfig, t_s: np.ndarray) -> np.ndarray:
+    """Where the mean wind comes from at times ``t_s``, deg (meteorological): ``from_deg``, and from ``turn_start_s``
+    on ``turn_deg`` more over ``turn_duration_s`` along a half cosine (no step in the direction nor in its rate)."""
+    x = np.clip((np.asarray(t_s, float) - cfg.turn_start_s) / cfg.turn_duration_s, 0.0, 1.0)
+    return cfg.from_deg + cfg.turn_deg * 0.5 * (1.0 - np.cos(math.pi * x))
+
+
+def to_ned(cfg: WindConfig, u: np.ndarray, v: np.ndarray, w: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+    """Along-wind, cross-wind and down fluctuations plus the mean wind, in NED, (n, 3), at times ``t_s`` (the wind
+    axes turn with the mean direction: ``wind_direction_deg``)."""
+    if cfg.turn_deg:
+        to_rad = np.radians(wind_direction_deg(cfg, t_s) + 180.0)
+        c, s = np.cos(to_rad), np.sin(to_rad)
+    else:  # one direction (math's cos and sin: the same bits as before the wind could turn)
+        c, s = math.cos(math.radians(cfg.from_deg + 180.0)), math.sin(math.radians(cfg.from_deg + 180.0))
     speed = cfg.mean_mps + u
     return np.column_stack([speed * c - v * s, speed * s + v * c, w])
 

@@ -1,4 +1,4 @@
-"""Wind generator: variance = integral of S, spectrum shape, determinism, mean, multisine."""
+"""Wind generator: variance = integral of S, spectrum shape, determinism, mean, multisine, a front that turns it."""
 
 import math
 
@@ -9,6 +9,7 @@ from firmware_py.estimator.tuning import KAIMAL_LENGTH_M, kaimal_window_share
 from sim_hil.wind import (
     SECONDS_PER_HOUR,
     WindConfig,
+    WindStream,
     component_kaimal_psd,
     fft_grid,
     generate_wind,
@@ -17,6 +18,7 @@ from sim_hil.wind import (
     longitudinal_psd,
     paper_line_amplitudes,
     wind_components,
+    wind_direction_deg,
 )
 
 SEEDS = range(6)
@@ -198,6 +200,9 @@ def test_bad_wind_config_is_rejected():
     assert WindConfig.from_dict({"multisine_axes": "both"}).multisine_axes == "both"
     with pytest.raises(ConfigError):
         WindConfig.from_dict({"mean_mps": 3.0, "colour": "blue"})
+    for bad in ({"turn_duration_s": 0.0}, {"turn_start_s": -1.0}, {"turn_deg": math.nan}):
+        with pytest.raises(ConfigError):
+            WindConfig.from_dict(bad)
 
 
 @pytest.mark.parametrize("mean_mps", [0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0])
@@ -213,3 +218,31 @@ def test_the_filter_s_window_share_is_the_kaimal_spectrum_s(mean_mps):
     share = kaimal_window_share(window_s, mean_mps)
     assert seen - 0.006 <= share <= seen + 1e-4
     assert kaimal_window_share(window_s, 1.01 * mean_mps) > share
+
+
+def test_a_front_turns_the_wind_and_its_fluctuations_with_it():
+    """[wind] turn_deg: before the front the wind of no turn, bit for bit; through it the direction follows a half
+    cosine (no step in it nor in its rate), the speed and the fluctuations' share along and across the turning mean
+    what they were; after it the turned wind; the long-flight stream the same series."""
+    calm = WindConfig(kind="multisine", multisine_axes="both", from_deg=300.0)
+    front = WindConfig(kind="multisine", multisine_axes="both", from_deg=300.0, turn_deg=-120.0, turn_start_s=100.0,
+                       turn_duration_s=60.0)  # fmt: skip
+    a, b = generate_wind(calm, 300.0, 3), generate_wind(front, 300.0, 3)
+    t = np.arange(len(b.ned)) / front.sample_hz
+    before = t < 100.0
+    assert np.array_equal(a.ned[before], b.ned[before])
+    d = wind_direction_deg(front, t)
+    assert d[0] == 300.0 and d[-1] == pytest.approx(180.0) and wind_direction_deg(front, 130.0) == pytest.approx(240.0)
+    assert np.all(np.diff(d) <= 0.0) and np.max(np.abs(np.diff(d))) * front.sample_hz <= 0.5 * math.pi * 120.0 / 60.0
+    # along and across the turning mean: the calm wind's own components, at every instant
+    to = np.radians(d + 180.0)
+    along = b.ned[:, 0] * np.cos(to) + b.ned[:, 1] * np.sin(to)
+    cross = -b.ned[:, 0] * np.sin(to) + b.ned[:, 1] * np.cos(to)
+    to0 = math.radians(300.0 + 180.0)
+    np.testing.assert_allclose(along, a.ned[:, 0] * math.cos(to0) + a.ned[:, 1] * math.sin(to0), atol=1e-12)
+    np.testing.assert_allclose(cross, -a.ned[:, 0] * math.sin(to0) + a.ned[:, 1] * math.cos(to0), atol=1e-12)
+    # after the front it blows from the south
+    steady = generate_wind(WindConfig(kind="steady", from_deg=300.0, turn_deg=-120.0, turn_start_s=100.0), 800.0, 3)
+    np.testing.assert_allclose(steady.ned[-1], (3.0, 0.0, 0.0), atol=1e-12)
+    stream, _ = WindStream(front, 300.0, 3).window(0, len(b.ned) - 1)
+    np.testing.assert_allclose(stream, b.ned, atol=1e-12)
