@@ -76,7 +76,7 @@ def _structs(real):
                 "rope_weight_n",
             )
         ]
-        _fields_ += [("rope_drag", i32)] + [(n, real) for n in (
+        _fields_ += [(n, real) for n in (
             "turbulence_intensity", "release_height_m", "release_accel_mps2", "taut_margin_m", "imu_rate_hz",
             "gate_sigma", "gate2", "radial_var", "radial_rate_var")]  # fmt: skip
 
@@ -89,7 +89,7 @@ def _structs(real):
             ("wp_tau_s", real), ("wp_q_rate", real), ("wp_q_walk", real), ("sigma_rate", real), ("forces", Forces),
             ("rope_chord_m", real), ("rope_weight_n", real), ("rope_rate_mps", real), ("mode", u8),
             ("learn_drag", u8), ("drag_correlated", u8), ("field_window", u8),
-            ("recover_after", i32), ("time_us", i64), ("taut_phase", i32),
+            ("recover_after", i32), ("field_heading_var", real), ("time_us", i64), ("taut_phase", i32),
             ("noise_phase", i32), ("reset_counts", i32 * len(RESET_NAMES)),
             ("reset_count", i32), ("field_att_extra", real),
         ]  # fmt: skip

@@ -83,7 +83,6 @@ typedef struct {
     bw_real radius_m, volume_m3, mass_kg, half_cd_area_m2, tether_length_m, rope_kg_m, rope_drag_m2, rope_cn_d_m;
     bw_real lam_g;               /* rope weight per metre, N/m */
     bw_real rope_weight_n;       /* the whole rope's weight, N */
-    int32_t rope_drag;           /* rope_drag_m2 > 0: the paper's rod carries rope drag */
     bw_real turbulence_intensity, release_height_m, release_accel_mps2, taut_margin_m, imu_rate_hz;
     bw_real gate_sigma, gate2, radial_var, radial_rate_var;
 } bw_model_t;
@@ -108,6 +107,8 @@ typedef struct {
     uint8_t mode, learn_drag, drag_correlated; /* one byte each: the RAM (docs/porting.md) */
     uint8_t field_window;        /* the estimator's (aid_mag.c learn_field_in_flight), in this struct's hole */
     int32_t recover_after;
+    bw_real field_heading_var;   /* the estimator's (aid_mag.c, control.c: the heading's variance a body-fixed
+                                  * magnetometer offset may hold unseen, rad^2), in this struct's hole */
     int64_t time_us;
     int32_t taut_phase, noise_phase;   /* step % taut_every, step % wind_noise_every */
     int32_t reset_counts[4];

@@ -115,6 +115,8 @@ static void learn_field_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, b
         est->field_ned[0] = bn * h_new / h_old;
         est->field_ned[1] = be * h_new / h_old;
         est->field_ned[2] = down;
+        /* its unseen part across the field's horizontal direction, as large as the part seen (magnetometer.py) */
+        e->field_heading_var = ((h_new - h_old) * (h_new - h_old) + (down - bd) * (down - bd)) / (h_new * h_new);
         h = h_new, bd = down;
     }
     /* the sums learn_field would have taken of the field at rest, level, from as many samples as it had */

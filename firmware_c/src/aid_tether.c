@@ -102,7 +102,7 @@ static void fuse_taut(bw_estimator_t *est, bw_real along_var, bw_real cross_var)
     {
         const bw_real s[BW_NCOL] = {pn, pe, pd, vn, ve, vd, x[12], x[13], x[14], x[15], x[16]};
         bw_real n[BW_ROPE_DIRECTION_SIZE], r[9], zn, ze, zd, horiz, lean, an, ae, c[2][3], var[2], share, n_d;
-        if (e->m.rope_drag)
+        if (e->m.rope_drag_m2 > BW_R(0.0)) /* the paper's rod carries rope drag */
             bw_rope_direction(s, f->params, n);
         else
             bw_rope_direction_plain(s, f->params, n);

@@ -97,6 +97,7 @@ static void init_clock(bw_estimator_t *est)
     est->acc_var = BW_R(0.0);
     est->confirm_count = 0;
     est->field_ned[0] = est->field_ned[1] = est->field_ned[2] = BW_R(NAN);
+    est->ekf.field_heading_var = BW_R(0.0);
     est->dwell = 0;
     est->accel_innov2 = BW_R(0.0);
     est->innov_alpha = (bw_real)(1.0 / (BW_ACCEL_INNOV_S * est->cfg->imu_rate_hz));
@@ -721,5 +722,7 @@ bw_real bw_wind_accuracy(const bw_estimator_t *est)
             acc = BW_HYPOT(acc, bw_gyro_heading_wind(speed, (bw_real)est->cfg->init_gyro_bias_dps *
                                                                 (BW_PI / BW_R(180.0)), seconds));
     }
+    if (e->field_heading_var > BW_R(0.0)) /* a magnetometer offset turned with the balloon (aid_mag.c) */
+        acc = BW_HYPOT(acc, speed * BW_SQRT(e->field_heading_var));
     return acc;
 }

@@ -33,7 +33,7 @@ void bw_ekf_init(bw_ekf_t *e, const bw_config_t *c)
     e->m.half_cd_area_m2 = (bw_real)c->half_cd_area_m2, e->m.tether_length_m = (bw_real)c->tether_length_m;
     e->m.rope_kg_m = (bw_real)c->rope_kg_m, e->m.rope_drag_m2 = (bw_real)c->rope_drag_m2;
     e->m.rope_cn_d_m = (bw_real)c->rope_cn_d_m, e->m.lam_g = (bw_real)(c->rope_kg_m * BW_G0);
-    e->m.rope_weight_n = (bw_real)(c->rope_kg_m * BW_G0 * c->tether_length_m), e->m.rope_drag = c->rope_drag_m2 > 0.0;
+    e->m.rope_weight_n = (bw_real)(c->rope_kg_m * BW_G0 * c->tether_length_m);
     e->m.turbulence_intensity = (bw_real)c->turbulence_intensity, e->m.release_height_m = (bw_real)c->release_height_m;
     e->m.release_accel_mps2 = (bw_real)c->release_accel_mps2, e->m.taut_margin_m = (bw_real)c->taut_margin_m;
     e->m.imu_rate_hz = (bw_real)c->imu_rate_hz, e->m.gate_sigma = (bw_real)c->gate_sigma;

@@ -54,7 +54,7 @@ void bw_accelerations(const bw_model_t *m, bw_real rho, const bw_real s[BW_NCOL]
     out->m_eff_kg = out->params[0];
     if (taut) {
         bw_real r[BW_TAUT_MODEL_SIZE];
-        if (m->rope_drag)
+        if (m->rope_drag_m2 > BW_R(0.0)) /* the paper's rod carries rope drag */
             bw_taut_model(s, out->params, r);
         else
             bw_taut_model_plain(s, out->params, r);

@@ -198,6 +198,9 @@ class Estimator:
         self._acc_var = 0.0
         self._confirm_count = 0
         self.field_ned = (math.nan, math.nan, math.nan)
+        # the heading's variance a body-fixed magnetometer offset may hold unseen, rad^2: set where the field learnt
+        # again on the tether replaced the boot's (magnetometer.learn_field_in_flight); 0 while none did
+        self.field_heading_var = 0.0
         self._dwell = 0
         self._accel_innov2 = 0.0
         self._accel_radial_innov2 = 0.0  # on the tether, along its radius (accel.radial_noise)
@@ -706,7 +709,8 @@ class Estimator:
         P_NN + P_EE with what P does not hold (consistency.systematic_variance), times the consistency
         monitor's factor (>= 1: the model does not explain the data); taut, with the wind of the lean the body and
         the model disagree on (consistency.lean_misfit_wind) in quadrature; while a join in flight is
-        unconfirmed at least sqrt(|w|^2 + 1)."""
+        unconfirmed at least sqrt(|w|^2 + 1); with the gyro's heading alone (consistency.gyro_heading_wind) and the
+        heading a magnetometer offset may turn unseen (``field_heading_var``) in quadrature."""
         ekf = self.ekf
         wn, we = self.wind()
         speed = math.sqrt(wn * wn + we * we)
@@ -725,6 +729,8 @@ class Estimator:
             seconds = (ekf.time_us - last) * 1e-6
             if seconds > HEADING_LOST_S:
                 acc = math.hypot(acc, gyro_heading_wind(speed, math.radians(self.cfg.init_gyro_bias_dps), seconds))
+        if self.field_heading_var > 0.0:  # a magnetometer offset turned with the balloon: its unseen part turns it
+            acc = math.hypot(acc, speed * math.sqrt(self.field_heading_var))
         return acc
 
     def _field_variance(self) -> float:

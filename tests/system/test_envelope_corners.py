@@ -606,8 +606,9 @@ def test_a_balloon_that_turns_once_released_with_a_hard_iron_offset(seed):
     error/accuracy 1.6-2.2 (seeds 1-3). The field learnt again on the tether (magnetometer.learn_field_in_flight,
     0.014-0.016 G from the boot's, beyond FIELD_CHANGE_GAUSS): 0.37-0.65 m/s, 5-11 deg. What stays is the hard
     iron's part across the field, which turns the heading as the balloon follows the wind's direction and which no
-    invariant of the field sees (error/accuracy 1.2-1.9: not yet honest). A regression guard on the failure, not a
-    target: the references (the constant true mean, the truth 4 s late) are no filters that learn a field."""
+    invariant of the field sees: stated as large as the part the window saw (Estimator.field_heading_var, 3.6-4.2
+    deg), error/accuracy 1.2-1.9 -> 1.0-1.5 (seeds 1-5). A regression guard on the failure, not a target: the
+    references (the constant true mean, the truth 4 s late) are no filters that learn a field."""
     design, wind, truth_cfg, filt = build(scenario_sections(SCENARIOS["field-turning-hard-iron"]))
     rows, truth, _ = fly(design, wind, truth_cfg, filt, 300.0, seed)
     late = truth["time_s"] > 120.0
@@ -615,7 +616,7 @@ def test_a_balloon_that_turns_once_released_with_a_hard_iron_offset(seed):
     assert abs(np.median(yaw) - 90.0) < 10.0, (yaw.min(), yaw.max())  # it turned
     sc = score(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], truth["time_s"], truth["wind_n"], truth["wind_e"], 120.0)
     assert sc.raw_rmse_mps <= 0.7 and abs(sc.direction_error_deg) <= 12.0 and abs(sc.speed_error_pct) <= 4.0, sc
-    assert sc.error_ratio <= 2.0, sc
+    assert sc.error_ratio <= 1.6, sc
 
 
 FRONT_SMOOTH_S = 10.0  # the direction judged through a front is the 10 s mean wind's (the turbulence's own turns out)

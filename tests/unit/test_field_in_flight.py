@@ -1,7 +1,8 @@
 """The earth field learnt again on the taut tether (magnetometer.learn_field_in_flight): a balloon with a hard-iron
 offset that turned once released has a field the boot's is not (it replaces it, and it is the one the balloon
 measures in flight); a link that loses a tenth of the samples, and every sample of the window's first half second,
-learns the same field; a balloon whose field is the boot's keeps the boot's."""
+learns the same field; a balloon whose field is the boot's keeps the boot's; a field replaced states the heading it
+cannot see."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import dataclasses
 import math
 
 import numpy as np
+from pytest import approx
 
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.params import FIELD_CHANGE_GAUSS
@@ -36,6 +38,11 @@ def flown(name: str, drop: frozenset[int] = frozenset()) -> dict:
             out["m"].append(math.hypot(*s.mag))
     assert est._field_window == 2  # the window has closed
     out["after"] = tuple(est.field_ned)
+    out["heading_var"] = est.field_heading_var
+    wn, we = est.wind()
+    out["speed"], out["accuracy"] = math.hypot(wn, we), est.wind_accuracy()
+    est.field_heading_var = 0.0
+    out["accuracy_without"] = est.wind_accuracy()
     return out
 
 
@@ -59,3 +66,17 @@ def test_a_turned_hard_iron_has_its_field_learnt_again_even_through_a_lossy_link
 def test_a_field_the_boots_can_be_is_kept():
     out = flown("field-rope")
     assert out["after"] == out["boot"]
+    assert out["heading_var"] == 0.0 and out["accuracy"] == out["accuracy_without"]
+
+
+def test_a_replaced_field_states_the_heading_it_cannot_see():
+    """The window sees the change of the field's horizontal magnitude and of its down component; an offset fixed in
+    the body that turned with the balloon changed it as much across the field's horizontal direction, unseen, which
+    turns the heading by |change| / B_h: that, in the stated accuracy, as a wind across it."""
+    out = flown("field-turning-hard-iron")
+    b, a = out["boot"], out["after"]
+    change = math.hypot(math.hypot(a[0], a[1]) - math.hypot(b[0], b[1]), a[2] - b[2])
+    assert math.sqrt(out["heading_var"]) == approx(change / math.hypot(a[0], a[1]))
+    assert math.degrees(math.sqrt(out["heading_var"])) > 2.0  # the 0.04 G offset turned 60 deg
+    across = out["speed"] * math.sqrt(out["heading_var"])
+    assert out["accuracy"] == approx(math.hypot(out["accuracy_without"], across))

@@ -111,7 +111,15 @@ def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: f
     the means (a turned balloon's accelerometer bias alone moves it 0.002 G, within that: `field-turning` is not
     helped). Once a spell, not followed: an accelerometer bias that walks after it must stay the tilt the field
     contradicts, which the bias's own loop follows (accel.follow_horizontal_bias); a field that followed it would
-    take it as a tilt (a continuous mean over FIELD_FLIGHT_S held a 0.2 m/s^2 step to a fifth of it)."""
+    take it as a tilt (a continuous mean over FIELD_FLIGHT_S held a 0.2 m/s^2 step to a fifth of it).
+
+    What the window cannot see is the field's horizontal direction: it is the heading's reference. An offset fixed in
+    the body that turned with the balloon moved the field it measures along the field's horizontal direction and
+    down, which the window sees (the change ``|Δ|``), and across it (east of magnetic north), which turns the heading
+    unseen. A balloon turns about the vertical, and the change is then horizontal: as likely across as along, so the
+    heading takes ``(|Δ| / B_h)²`` of variance (``field_heading_var``, in the stated accuracy: its share across the
+    wind, ``|w| |Δ| / B_h``). A field replaced because the boot's was disturbed (a steel vehicle beside the ground
+    station) costs the same, cautiously: the window cannot tell the two apart."""
     sched = est.schedule
     start = int(FIELD_RELEARN_FROM_S * est.cfg.imu_rate_hz)
     s = est._field_sum
@@ -143,6 +151,7 @@ def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: f
     h_new = math.sqrt(max(0.0, s[4] / c - 3.0 * est.mag_sigma * est.mag_sigma - down * down))
     if h_old > 0.0 and (h_new - h_old) ** 2 + (down - bd) ** 2 > FIELD_CHANGE_GAUSS * FIELD_CHANGE_GAUSS:
         est.field_ned = (bn * h_new / h_old, be * h_new / h_old, down)
+        est.field_heading_var = ((h_new - h_old) ** 2 + (down - bd) ** 2) / (h_new * h_new)
         h, bd = h_new, down
     # the sums learn_field would have taken of the field at rest, level, from as many samples as it had: a balloon
     # back on the ground station adds its own to them
