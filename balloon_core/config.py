@@ -76,6 +76,13 @@ class SensorsConfig:
     gyro_dps: float = 1.0
     mag_gauss: float = 0.005
     thermometer_k: float = 0.2
+    # how well the IMU's axes are known against the balloon's tether axis (the rope's pull through the centre), deg:
+    # a board mounted askew reads the lean that far off, which no sensor on the balloon can tell (docs/estimator.md)
+    imu_alignment_deg: float = 0.0
+    # the IMU's axes against the balloon's, as measured (the payload hung from its tether attachment, still: the
+    # accelerometer's tilt), deg: the firmware turns every reading into the balloon's axes (rotation.imu_mount)
+    imu_roll_deg: float = 0.0
+    imu_pitch_deg: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -154,6 +161,9 @@ SCHEMA: dict[str, dict[str, Rule]] = {
         "gyro_dps": num(1e-4, 100.0),
         "mag_gauss": num(1e-6, 1.0),
         "thermometer_k": num(1e-3, 50.0),
+        "imu_alignment_deg": num(0.0, 10.0),
+        "imu_roll_deg": num(-10.0, 10.0),
+        "imu_pitch_deg": num(-10.0, 10.0),
     },
     "wind": {
         "kind": one_of("vdh", "multisine", "steady"),
@@ -199,6 +209,8 @@ SCHEMA: dict[str, dict[str, Rule]] = {
         "baro_offset_m": num(0.0, 1000.0),
         "mag_bias_gauss": num(0.0, 1.0),
         "mag_hard_iron_gauss": Rule("numbers", -10.0, 10.0, length=3),
+        "imu_roll_deg": num(-10.0, 10.0),
+        "imu_pitch_deg": num(-10.0, 10.0),
         "quantize": BOOL,
         "mag_field_h_gauss": num(0.0, 2.0),
         "mag_field_z_gauss": num(-2.0, 2.0),

@@ -43,3 +43,26 @@ def rotation_error(q_true: tuple[float, ...], q_est: tuple[float, ...]) -> tuple
     t, e = rotation(*q_true), rotation(*q_est)
     m = [[sum(t[3 * i + k] * e[3 * j + k] for k in range(3)) for j in range(3)] for i in range(3)]
     return 0.5 * (m[2][1] - m[1][2]), 0.5 * (m[0][2] - m[2][0]), 0.5 * (m[1][0] - m[0][1])
+
+
+def imu_mount(roll_deg: float, pitch_deg: float) -> tuple[float, ...] | None:
+    """The body-to-IMU matrix (row-major, ``v_imu = M v_body``) of an IMU whose axes are the body's turned by
+    ``roll_deg`` about x, then ``pitch_deg`` about the new y: ``M = (Rx(roll) Ry(pitch))^T``. None for an IMU on the
+    body's axes. The simulator's truth ([truth] imu_roll_deg, imu_pitch_deg) reads through it; the firmware turns
+    the readings back with its transpose (``imu_to_body``) by what the design declares ([sensors] the same keys)."""
+    if not (roll_deg or pitch_deg):
+        return None
+    r, p = math.radians(roll_deg), math.radians(pitch_deg)
+    cr, sr, cp, sp = math.cos(r), math.sin(r), math.cos(p), math.sin(p)
+    # Rx Ry = [[cp, 0, sp], [sr sp, cr, -sr cp], [-cr sp, sr, cr cp]]; M is its transpose
+    return (cp, sr * sp, -cr * sp, 0.0, cr, sr, sp, -sr * cp, cr * cp)
+
+
+def body_to_imu(m: tuple[float, ...], x: float, y: float, z: float) -> tuple[float, float, float]:
+    """``M v``: a body-frame vector in the IMU's axes (``imu_mount``)."""
+    return m[0] * x + m[1] * y + m[2] * z, m[3] * x + m[4] * y + m[5] * z, m[6] * x + m[7] * y + m[8] * z
+
+
+def imu_to_body(m: tuple[float, ...], x: float, y: float, z: float) -> tuple[float, float, float]:
+    """``M^T v``: an IMU reading in the body's axes (``imu_mount``)."""
+    return m[0] * x + m[3] * y + m[6] * z, m[1] * x + m[4] * y + m[7] * z, m[2] * x + m[5] * y + m[8] * z

@@ -103,6 +103,9 @@ PARAMETERS = (
     ("SNS_BARO_SD", "sensors", "baro_m"),
     ("SNS_GYRO_SD", "sensors", "gyro_dps"),
     ("SNS_MAG_SD", "sensors", "mag_gauss"),
+    ("SNS_IMU_ROLL", "sensors", "imu_roll_deg"),
+    ("SNS_IMU_PITCH", "sensors", "imu_pitch_deg"),
+    ("SNS_IMU_ALIGN", "sensors", "imu_alignment_deg"),
 )
 WIND_COV_RATE_PARAM = "WIND_COV_HZ"
 

@@ -28,7 +28,8 @@ COUNTER_NAMES = (
 )  # fmt: skip
 CONFIG_FIELDS = (
     "radius_m", "volume_m3", "mass_kg", "half_cd_area_m2", "tether_length_m", "rope_kg_m", "rope_drag_m2",
-    "rope_cn_d_m", "accel_mps2", "baro_m", "gyro_dps", "mag_gauss", "mag_declination_deg", "ground_pressure_hpa",
+    "rope_cn_d_m", "accel_mps2", "baro_m", "gyro_dps", "mag_gauss", "imu_alignment_deg", "imu_roll_deg",
+    "imu_pitch_deg", "mag_declination_deg", "ground_pressure_hpa",
     "altitude_amsl_m", "imu_rate_hz", "accel_process_mps2", "expected_wind_mps", "turbulence_intensity",
     "drag_walk_rt_s", "baro_walk_m_rt_s", "accel_bias_walk_mps2_rt_s", "gyro_bias_walk_dps_rt_s",
     "accel_model_mps2", "accel_taut_mps2", "accel_static_mps2", "align_rad", "radial_m", "radial_rate_mps",
@@ -146,7 +147,7 @@ def _structs(real):
     rest = [
         ("accel_var", real), ("accel_static_var", real), ("accel_confirm_var", real), ("accel_taut_var", real),
         ("vertical_gust_var", real), ("align_var", real), ("baro_var", real), ("mag_sigma", real), ("mag_var", real),
-        ("declination", real), ("catenary", i32),
+        ("declination", real), ("catenary", u8), ("mount", u8),
         ("n_dwell", i32), ("n_learn_drag", i32), ("n_false_release", i32), ("n_taut_pull", i32), ("n_confirm", i32),
         ("a_accel", real), ("a_taut", real), ("a_baro", real), ("a_confirm", real),
         ("dt_us", i64), ("max_gap_steps", i32),
@@ -231,10 +232,11 @@ def config_struct(design: Design, cfg: FilterConfig, Config):
         setattr(c, name, getattr(m, name))
     c.rope_kg_m = m.rope_kg_m
     c.accel_mps2, c.baro_m, c.gyro_dps, c.mag_gauss = s.accel_mps2, s.baro_m, s.gyro_dps, s.mag_gauss
+    c.imu_alignment_deg, c.imu_roll_deg, c.imu_pitch_deg = s.imu_alignment_deg, s.imu_roll_deg, s.imu_pitch_deg
     c.mag_declination_deg = site.mag_declination_deg
     c.ground_pressure_hpa = math.nan if site.ground_pressure_hpa is None else site.ground_pressure_hpa
     c.altitude_amsl_m = site.altitude_amsl_m
-    for name in CONFIG_FIELDS[15:] + CONFIG_FIELDS_2:
+    for name in CONFIG_FIELDS[CONFIG_FIELDS.index("imu_rate_hz") :] + CONFIG_FIELDS_2:
         setattr(c, name, getattr(cfg, name))
     c.rope_catenary = float(catenary)
     return c

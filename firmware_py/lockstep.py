@@ -169,7 +169,7 @@ OUT_DTYPE = np.dtype([("time_usec", "<i8"), ("advanced", "<i4"), ("mode", "<i4")
 
 
 def write_stream(path: str, design: Design, cfg: FilterConfig, samples: Iterable[Sample]) -> int:
-    """The design as bw_config_t (43 doubles) and the samples as 88-byte records, for firmware_c/replay.
+    """The design as bw_config_t (46 doubles) and the samples as 88-byte records, for firmware_c/replay.
     Returns the number of records."""
     _, Config, _, _ = load("float")
     n = 0

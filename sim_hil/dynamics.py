@@ -78,6 +78,10 @@ class TruthConfig:
     baro_offset_m: float = 0.0  # 1-sigma constant barometer offset
     mag_bias_gauss: float = 0.0  # 1-sigma hard-iron offset per axis (drawn from the seed)
     mag_hard_iron_gauss: tuple[float, float, float] = (0.0, 0.0, 0.0)  # fixed hard-iron offset, body FRD
+    # the IMU board mounted askew on the balloon: its axes the body's (the tether's axis z) turned by roll about x,
+    # then pitch about the new y; every inertial and magnetic reading in its own axes (sensors.py)
+    imu_roll_deg: float = 0.0
+    imu_pitch_deg: float = 0.0
     quantize: bool = False  # 16-bit LSBs: +-8 g, +-2000 deg/s, +-8 gauss; 0.01 hPa; 0.01 C
     mag_field_h_gauss: float = 0.20  # horizontal earth field
     mag_field_z_gauss: float = 0.45  # vertical earth field (down)

@@ -1,8 +1,8 @@
 """Sensor models at the avionics: accelerometer (specific force, FRD), gyroscope, magnetometer,
 barometer and thermometer. Table 2's figures as 1-sigma white noise by default; turn-on biases, bias
-random walks (gyro, accelerometer), a fixed hard-iron offset, quantisation and weather (the ground
-pressure and temperature drifting from boot, ``atmosphere.ground_conditions``) as options
-(``TruthConfig``). The avionics sit at the sphere's centre unless ``TruthConfig.avionics_offset_m``
+random walks (gyro, accelerometer), a fixed hard-iron offset, an IMU mounted askew (``rotation.imu_mount``),
+quantisation and weather (the ground pressure and temperature drifting from boot, ``atmosphere.ground_conditions``)
+as options (``TruthConfig``). The avionics sit at the sphere's centre unless ``TruthConfig.avionics_offset_m``
 hangs them below it; the caller passes the accelerometer's lever-arm term then
 (``dynamics.lever_arm_accel_b``).
 
@@ -20,7 +20,7 @@ import numpy as np
 
 from balloon_core.atmosphere import G0, ground_conditions, isa_pressure_pa, isa_temperature_k
 from balloon_core.config import Design
-from balloon_core.rotation import rotation
+from balloon_core.rotation import body_to_imu, imu_mount, rotation
 from sim_hil.dynamics import TruthConfig
 
 BLOCK = 4096
@@ -58,6 +58,7 @@ class SensorSuite:
         if any(truth.mag_hard_iron_gauss):  # fixed hard iron (body frame) on top of the seeded draw
             self.mag_bias = [b + h for b, h in zip(self.mag_bias, truth.mag_hard_iron_gauss)]
         self.baro_offset_m = float(r.normal(0.0, truth.baro_offset_m)) if truth.baro_offset_m else 0.0
+        self._mount = imu_mount(truth.imu_roll_deg, truth.imu_pitch_deg)
         self._walk = math.radians(truth.gyro_bias_walk_dps_rt_s) * math.sqrt(1.0 / imu_hz)
         self._accel_walk = truth.accel_bias_walk_mps2_rt_s * math.sqrt(1.0 / imu_hz)
         self._columns = 17 if self._accel_walk else 14
@@ -91,6 +92,8 @@ class SensorSuite:
         fn, fe, fd = f_ned
         sa, sg, sm = self._sig
         ab, gb, mb = self.accel_bias, self.gyro_bias, self.mag_bias
+        if self._mount is not None:  # an IMU askew: the readings of its own axes, then its errors
+            return self._imu_askew(n, (r00, r10, r20, r01, r11, r21, r02, r12, r22), f_ned, omega_b, lever_b)
         acc = (
             r00 * fn + r01 * fe + r02 * fd + ab[0] + sa * n[0],
             r10 * fn + r11 * fe + r12 * fd + ab[1] + sa * n[1],
@@ -115,6 +118,35 @@ class SensorSuite:
             acc = (_quant(acc[0], ACC_LSB), _quant(acc[1], ACC_LSB), _quant(acc[2], ACC_LSB))
             gyro = (_quant(gyro[0], GYRO_LSB), _quant(gyro[1], GYRO_LSB), _quant(gyro[2], GYRO_LSB))
             mag = (_quant(mag[0], MAG_LSB), _quant(mag[1], MAG_LSB), _quant(mag[2], MAG_LSB))
+        return acc, gyro, mag
+
+    def _imu_askew(self, n: list[float], rt: tuple[float, ...], f_ned, omega_b, lever_b):
+        """``imu`` for an IMU mounted askew (``rotation.imu_mount``): the body's specific force (with the lever arm's),
+        rate and field turned into the IMU's axes, then its biases, noise, walks and quantisation."""
+        r00, r10, r20, r01, r11, r21, r02, r12, r22 = rt
+        fn, fe, fd = f_ned
+        bn, be, bd = self.field_ned
+        f_b = (r00 * fn + r01 * fe + r02 * fd, r10 * fn + r11 * fe + r12 * fd, r20 * fn + r21 * fe + r22 * fd)
+        if lever_b is not None:
+            f_b = (f_b[0] + lever_b[0], f_b[1] + lever_b[1], f_b[2] + lever_b[2])
+        m_b = (r00 * bn + r01 * be + r02 * bd, r10 * bn + r11 * be + r12 * bd, r20 * bn + r21 * be + r22 * bd)
+        m = self._mount
+        f_i, w_i, m_i = body_to_imu(m, *f_b), body_to_imu(m, *omega_b), body_to_imu(m, *m_b)
+        sa, sg, sm = self._sig
+        ab, gb, mb = self.accel_bias, self.gyro_bias, self.mag_bias
+        acc = tuple(f_i[k] + ab[k] + sa * n[k] for k in range(3))
+        gyro = tuple(w_i[k] + gb[k] + sg * n[3 + k] for k in range(3))
+        mag = tuple(m_i[k] + mb[k] + sm * n[6 + k] for k in range(3))
+        if self._walk:
+            w = self._walk
+            self.gyro_bias = [gb[0] + w * n[9], gb[1] + w * n[10], gb[2] + w * n[11]]
+        if self._accel_walk:
+            w = self._accel_walk
+            self.accel_bias = [ab[0] + w * n[14], ab[1] + w * n[15], ab[2] + w * n[16]]
+        if self._quantize:
+            acc = tuple(_quant(x, ACC_LSB) for x in acc)
+            gyro = tuple(_quant(x, GYRO_LSB) for x in gyro)
+            mag = tuple(_quant(x, MAG_LSB) for x in mag)
         return acc, gyro, mag
 
     def ground(self, time_s: float) -> tuple[float, float]:

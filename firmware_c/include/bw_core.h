@@ -37,6 +37,8 @@ typedef struct {
     double rope_cn_d_m;          /* Cn d of the rope */
     /* [sensors], 1-sigma */
     double accel_mps2, baro_m, gyro_dps, mag_gauss;
+    double imu_alignment_deg;    /* how well the IMU's axes are known against the tether's axis, deg */
+    double imu_roll_deg, imu_pitch_deg; /* the IMU's axes against the balloon's, measured: readings turned back */
     /* [site] */
     double mag_declination_deg;
     double ground_pressure_hpa;  /* NAN: the barometer is zeroed at boot */
@@ -46,7 +48,7 @@ typedef struct {
     double accel_process_mps2, expected_wind_mps, turbulence_intensity, drag_walk_rt_s, baro_walk_m_rt_s;
     double accel_bias_walk_mps2_rt_s, gyro_bias_walk_dps_rt_s;
     double accel_model_mps2, accel_taut_mps2, accel_static_mps2, align_rad, radial_m, radial_rate_mps;
-    double rope_catenary;        /* 1: rope_model "catenary" (the rope's real shape); 0: "paper" (Eq. 5); a double: the config is 43 doubles */
+    double rope_catenary;        /* 1: rope_model "catenary" (the rope's real shape); 0: "paper" (Eq. 5); a double: the config is 46 doubles */
     double gate_sigma, recover_after_s;
     double init_wind_mps, init_drag, init_accel_bias_mps2, init_gyro_bias_dps, init_tilt_deg, init_yaw_deg;
     double taut_margin_m, mode_dwell_s, release_accel_mps2, release_height_m, max_gap_s;
@@ -159,7 +161,7 @@ typedef struct {
     /* noise */
     bw_real accel_var, accel_static_var, accel_confirm_var, accel_taut_var, vertical_gust_var, align_var, baro_var,
         mag_sigma, mag_var, declination;
-    int32_t catenary;
+    uint8_t catenary, mount;     /* the rope's real shape; an IMU mounting declared (cfg imu_roll/pitch_deg) */
     /* the times of control.py as step counts (n >= ceil(t * rate)) and the monitor's weights, set at init */
     int32_t n_dwell, n_learn_drag, n_false_release, n_taut_pull, n_confirm;
     bw_real a_accel, a_taut, a_baro, a_confirm;

@@ -5,7 +5,7 @@
  *
  *   replay STREAM.bin OUT.bin [STATS.txt]
  *
- * STREAM.bin: 43 little-endian doubles (bw_config_t), then records of 88 bytes: int64 t_us, int32 kind
+ * STREAM.bin: 46 little-endian doubles (bw_config_t), then records of 88 bytes: int64 t_us, int32 kind
  * (0 IMU: ax ay az gx gy gz mx my mz; 1 baro: pressure_hpa temperature_c; 2 coast: seconds; 3 winch:
  * line_length_m speed_mps tension_n; 4 ground reference: pressure_hpa temperature_c), int32 0,
  * 9 doubles. OUT.bin: per IMU record, int64 time_usec, int32 advanced, mode, reset_count, flags, then

@@ -179,7 +179,7 @@ bw_real bw_lean_bias_rad(bw_real walk_mps2_rt_s, bw_real seconds)
  * (the rotation about the field's axis that only the accelerometer holds turns the lean's azimuth) */
 bw_real bw_lean_bias_wind(bw_real wind_n, bw_real wind_e, bw_real lift_n, bw_real drag_per_speed2,
                           bw_real lean_bias_rad, const bw_real field_ned[3], bw_real cross_tilt_var,
-                          bw_real held_bias_rad)
+                          bw_real held_bias_rad, bw_real mount_rad)
 {
     bw_real speed = BW_SQRT(wind_n * wind_n + wind_e * wind_e), about = BW_R(1.0), across = BW_R(0.0), bh, t, cos_a, v;
     if (!(drag_per_speed2 > BW_R(0.0) && lift_n > BW_R(0.0)))
@@ -192,7 +192,7 @@ bw_real bw_lean_bias_wind(bw_real wind_n, bw_real wind_e, bw_real lift_n, bw_rea
     }
     v = lift_n *
         BW_SQRT(lean_bias_rad * lean_bias_rad * (about + BW_R(0.25)) + held_bias_rad * held_bias_rad * across +
-                cross_tilt_var) /
+                cross_tilt_var + BW_R(1.25) * mount_rad * mount_rad) /
         (drag_per_speed2 * BW_MAX(speed, BW_R(1e-3)));
     return BW_MIN(v, BW_MAX(speed, BW_R(0.5)));
 }

@@ -155,7 +155,8 @@ void bw_config_default(bw_config_t *c)
     c->rope_kg_m = 0.02;
     c->rope_drag_m2 = 0.0;
     c->rope_cn_d_m = 1.1 * 0.004726260241728836; /* Cn d: a solid nylon rope of 0.02 kg/m is 4.7 mm thick */
-    c->accel_mps2 = 0.01, c->baro_m = 1.0, c->gyro_dps = 1.0, c->mag_gauss = 0.005;
+    c->accel_mps2 = 0.01, c->baro_m = 1.0, c->gyro_dps = 1.0, c->mag_gauss = 0.005, c->imu_alignment_deg = 0.0;
+    c->imu_roll_deg = 0.0, c->imu_pitch_deg = 0.0;
     c->mag_declination_deg = 0.0, c->ground_pressure_hpa = NAN, c->altitude_amsl_m = 0.0;
     c->imu_rate_hz = 100.0, c->accel_process_mps2 = 0.05, c->expected_wind_mps = 3.0, c->turbulence_intensity = 0.2;
     c->drag_walk_rt_s = 0.0005, c->baro_walk_m_rt_s = 0.1, c->accel_bias_walk_mps2_rt_s = 0.001;
@@ -178,6 +179,7 @@ int bw_init(bw_estimator_t *est, const bw_config_t *cfg)
     memset(est, 0, sizeof *est);
     est->cfg = cfg;
     est->catenary = cfg->rope_catenary != 0.0;
+    est->mount = cfg->imu_roll_deg != 0.0 || cfg->imu_pitch_deg != 0.0;
     bw_ekf_init(&est->ekf, cfg);
     s_acc = cfg->accel_mps2 * cfg->accel_mps2;
     est->accel_var = (bw_real)(s_acc + cfg->accel_model_mps2 * cfg->accel_model_mps2);
@@ -533,8 +535,37 @@ int bw_on_baro(bw_estimator_t *est, int64_t t_us, bw_real pressure_hpa, bw_real 
     return bw_baro_sample(est, t_us, pressure_hpa, temperature_c);
 }
 
+static int on_imu_body(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real az, bw_real gx,
+                       bw_real gy, bw_real gz, bw_real mx, bw_real my, bw_real mz);
+
+/* An IMU mounted askew, as the design declares it (cfg imu_roll_deg, imu_pitch_deg): its readings turned into the
+ * balloon's axes, M^T v with M the body -> IMU matrix of rotation.py imu_mount, then the filter's step (a call of
+ * its own, so that its frame is not on the step's deepest stack). */
+static __attribute__((noinline)) int on_imu_mounted(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay,
+                                                    bw_real az, bw_real gx, bw_real gy, bw_real gz, bw_real mx,
+                                                    bw_real my, bw_real mz)
+{
+    bw_real roll = (bw_real)est->cfg->imu_roll_deg * (BW_PI / BW_R(180.0));
+    bw_real pitch = (bw_real)est->cfg->imu_pitch_deg * (BW_PI / BW_R(180.0));
+    bw_real cr = BW_COS(roll), sr = BW_SIN(roll), cp = BW_COS(pitch), sp = BW_SIN(pitch);
+    const bw_real m[9] = {cp, sr * sp, -cr * sp, BW_R(0.0), cr, sr, sp, -sr * cp, cr * cp};
+    return on_imu_body(est, t_us, m[0] * ax + m[3] * ay + m[6] * az, m[1] * ax + m[4] * ay + m[7] * az,
+                       m[2] * ax + m[5] * ay + m[8] * az, m[0] * gx + m[3] * gy + m[6] * gz,
+                       m[1] * gx + m[4] * gy + m[7] * gz, m[2] * gx + m[5] * gy + m[8] * gz,
+                       m[0] * mx + m[3] * my + m[6] * mz, m[1] * mx + m[4] * my + m[7] * mz,
+                       m[2] * mx + m[5] * my + m[8] * mz);
+}
+
 int bw_on_imu(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real az, bw_real gx, bw_real gy,
               bw_real gz, bw_real mx, bw_real my, bw_real mz)
+{
+    if (est->mount)
+        return on_imu_mounted(est, t_us, ax, ay, az, gx, gy, gz, mx, my, mz);
+    return on_imu_body(est, t_us, ax, ay, az, gx, gy, gz, mx, my, mz);
+}
+
+static int on_imu_body(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay, bw_real az, bw_real gx,
+                       bw_real gy, bw_real gz, bw_real mx, bw_real my, bw_real mz)
 {
     bw_counters_t *c = &est->counters;
     bw_ekf_t *e = &est->ekf;
@@ -704,7 +735,8 @@ bw_real bw_wind_accuracy(const bw_estimator_t *est)
             lean = bw_lean_bias_wind(wn, we, bw_lift_n(m, est->rho), e->x[BW_DRAG] * est->rho * m->half_cd_area_m2,
                                      bw_lean_bias_rad((bw_real)est->cfg->accel_bias_walk_mps2_rt_s,
                                                       (bw_real)(e->time_us - est->t_boot_us) * BW_R(1e-6)),
-                                     est->field_ned, cross_var, bw_bias_tilt_rad(est->accel_hbias_var));
+                                     est->field_ned, cross_var, bw_bias_tilt_rad(est->accel_hbias_var),
+                                     (bw_real)est->cfg->imu_alignment_deg * (BW_PI / BW_R(180.0)));
         }
         sys_var = bw_systematic_variance(speed, e->x[BW_DRAG], e->P[BW_DRAG][BW_DRAG], lean);
     }

@@ -92,7 +92,7 @@ bw_real bw_bias_tilt_rad(bw_real hbias_var);
 bw_real bw_lean_bias_rad(bw_real walk_mps2_rt_s, bw_real seconds);
 bw_real bw_lean_bias_wind(bw_real wind_n, bw_real wind_e, bw_real lift_n, bw_real drag_per_speed2,
                           bw_real lean_bias_rad, const bw_real field_ned[3], bw_real cross_tilt_var,
-                          bw_real held_bias_rad);
+                          bw_real held_bias_rad, bw_real mount_rad);
 /* inline: on the step's path */
 /* consistency.py accel_misfit: the accelerometer's windowed NIS from BW_FLAG_NIS (0) to twice that (1) */
 static inline bw_real bw_accel_misfit(bw_real nis)

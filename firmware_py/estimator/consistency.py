@@ -392,6 +392,7 @@ def bias_tilt_rad(hbias_var: float) -> float:
 def lean_bias_wind(
     wind_n: float, wind_e: float, lift_n: float, drag_per_speed2: float, lean_bias_rad: float,
     field_ned: tuple[float, float, float], cross_tilt_var: float = 0.0, held_bias_rad: float | None = None,
+    mount_rad: float = 0.0,
 ) -> float:  # fmt: skip
     """The wind error (m/s, horizontal) of a tilt error ``lean_bias_rad`` on the taut balloon: its lean is the
     pull, tan(lean) = D / N_b with D = c |w|^2, so a tilt d across the lean turns its azimuth by d / tan(lean),
@@ -417,7 +418,11 @@ def lean_bias_wind(
     ``held_bias_rad``: the tilt about the horizontal across the field has its own systematic error where the horizontal
     bias is followed along the field (``bias_tilt_rad``; None: ``lean_bias_rad``). F^2 is (t + cos a)^2 from the
     tilt about the field's horizontal direction and sin^2 a from the one across it, so each takes its own: the
-    quarter along the lean and an unknown field take ``lean_bias_rad``, the larger."""
+    quarter along the lean and an unknown field take ``lean_bias_rad``, the larger.
+
+    ``mount_rad``: the IMU's mounting against the tether's axis, 1-sigma per axis ([sensors] imu_alignment_deg). The
+    body's axis the alignment reads is then that far off the rope, across the lean and along it, with no attitude
+    error behind it (the field's geometry plays no part): its whole across, a quarter along."""
     speed = math.sqrt(wind_n * wind_n + wind_e * wind_e)
     if not (drag_per_speed2 > 0.0 and lift_n > 0.0):
         return 0.0
@@ -430,6 +435,6 @@ def lean_bias_wind(
         cos_a = (wind_n * bn + wind_e * be) / (speed * bh)
         about, across = (t + cos_a) * (t + cos_a), max(0.0, 1.0 - cos_a * cos_a)
     d2 = lean_bias_rad * lean_bias_rad
-    v2 = d2 * (about + 0.25) + held * held * across + cross_tilt_var
+    v2 = d2 * (about + 0.25) + held * held * across + cross_tilt_var + 1.25 * mount_rad * mount_rad
     v = lift_n * math.sqrt(v2) / (drag_per_speed2 * max(speed, 1e-3))
     return min(v, max(speed, 0.5))

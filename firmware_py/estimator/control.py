@@ -8,7 +8,7 @@ import math
 
 from balloon_core.atmosphere import G0, air_density
 from balloon_core.config import Design
-from balloon_core.rotation import quat_from_euler, rotation
+from balloon_core.rotation import imu_mount, imu_to_body, quat_from_euler, rotation
 from firmware_py.estimator.aid_sources.accel import accel_nominal_var, control_accel
 from firmware_py.estimator.aid_sources.baro import baro_sample, control_baro, reset_height
 from firmware_py.estimator.aid_sources.ground_ref import ground_baro_sample, init_ground_ref
@@ -139,6 +139,7 @@ class Estimator:
 
     def __init__(self, design: Design, cfg: FilterConfig | None = None) -> None:
         self.design = design
+        self._mount = imu_mount(design.sensors.imu_roll_deg, design.sensors.imu_pitch_deg)  # None: on the body's axes
         self.cfg = cfg or FilterConfig()
         self.catenary = self.cfg.rope_model == "catenary"
         # a flexible rope carries its own drag to the anchor along its tension: none of it acts at the
@@ -276,6 +277,10 @@ class Estimator:
         """One IMU sample: specific force (FRD, m/s^2), rates (rad/s), field (gauss, NaN if none).
         Returns True when the filter advanced."""
         c = self.counters
+        if self._mount is not None:  # the IMU's declared mounting: its readings in the balloon's axes (then judged)
+            ax, ay, az = imu_to_body(self._mount, ax, ay, az)
+            gx, gy, gz = imu_to_body(self._mount, gx, gy, gz)
+            mx, my, mz = imu_to_body(self._mount, mx, my, mz)
         if not valid_imu(ax, ay, az, gx, gy, gz):
             c.rejected += 1
             return False
@@ -763,7 +768,8 @@ class Estimator:
         tilt_var = lean_tilt_variance(cross_var, extra, self.field_ned, zn, ze, zd)
         bias = lean_bias_rad(self.cfg.accel_bias_walk_mps2_rt_s, 1e-6 * (ekf.time_us - self.t_boot_us))
         return lean_bias_wind(wn, we, m.lift_n(self.rho), float(ekf.x[DRAG]) * self.rho * m.half_cd_area_m2, bias,
-                              self.field_ned, tilt_var, bias_tilt_rad(self.accel_hbias_var))  # fmt: skip
+                              self.field_ned, tilt_var, bias_tilt_rad(self.accel_hbias_var),
+                              math.radians(self.design.sensors.imu_alignment_deg))  # fmt: skip
 
     def wind(self) -> tuple[float, float]:
         return float(self.ekf.x[WIND_N]), float(self.ekf.x[WIND_E])

@@ -28,7 +28,8 @@ DESIGN = Design(
     BalloonConfig(radius_m=1.3, skin_and_avionics_kg=1.15, gas_density_kg_m3=0.17, drag_coefficient=0.42),
     TetherConfig(length_m=75.0, linear_density_kg_m=0.013),
     SiteConfig(altitude_amsl_m=412.5, mag_declination_deg=-3.25, ground_pressure_hpa=968.4),
-    SensorsConfig(accel_mps2=0.03, baro_m=0.7, gyro_dps=0.35, mag_gauss=0.004, thermometer_k=0.3),
+    SensorsConfig(accel_mps2=0.03, baro_m=0.7, gyro_dps=0.35, mag_gauss=0.004, thermometer_k=0.3,
+                  imu_alignment_deg=0.4, imu_roll_deg=-1.25, imu_pitch_deg=0.75),
 )
 
 
@@ -39,7 +40,8 @@ def design_values(d: Design) -> dict[str, float]:
               "BAL_CD": b.drag_coefficient, "TETH_LEN": t.length_m, "TETH_RHO_L": t.linear_density_kg_m,
               "SITE_ALT": site.altitude_amsl_m, "SITE_DECL": site.mag_declination_deg,
               "SITE_GND_P": site.ground_pressure_hpa, "SNS_ACC_SD": s.accel_mps2, "SNS_BARO_SD": s.baro_m,
-              "SNS_GYRO_SD": s.gyro_dps, "SNS_MAG_SD": s.mag_gauss, "WIND_COV_HZ": 10.0}  # fmt: skip
+              "SNS_GYRO_SD": s.gyro_dps, "SNS_MAG_SD": s.mag_gauss, "SNS_IMU_ROLL": s.imu_roll_deg,
+              "SNS_IMU_PITCH": s.imu_pitch_deg, "SNS_IMU_ALIGN": s.imu_alignment_deg, "WIND_COV_HZ": 10.0}  # fmt: skip
     return {k: float(np.float32(v)) for k, v in values.items() if v is not None}
 
 

@@ -14,7 +14,7 @@ import pytest
 
 from balloon_core import atmosphere
 from balloon_core.config import SCHEMA, ConfigError, Design, SensorsConfig
-from balloon_core.rotation import rotation
+from balloon_core.rotation import imu_mount, imu_to_body, rotation
 from sim_hil import cli as sim_cli
 from sim_hil.dynamics import TruthConfig
 from sim_hil.sensors import SensorSuite
@@ -180,6 +180,27 @@ def test_the_accelerometer_reads_the_wandering_bias():
         assert np.allclose(np.array(acc) - truth_b, bias, rtol=0.0, atol=1e-12)
         moved = max(moved, max(abs(b) for b in s.accel_bias))
     assert moved > 1e-3  # it did wander (1-sigma after 10 s: 0.03 m/s^2)
+
+
+def test_an_imu_mounted_askew_reads_in_its_own_axes():
+    """[truth] imu_roll_deg, imu_pitch_deg: noiseless readings are the body's turned into the IMU's axes (its z then
+    sees gravity tilted by the mounting), the same rotation for the rate and the field; the firmware's turn back
+    (rotation.imu_to_body) gives the body's readings again; and its errors are the IMU's own (added after)."""
+    f, omega, q = (0.3, -0.2, -GRAVITY), (0.01, 0.02, -0.03), [1.0, 0.0, 0.0, 0.0]
+    body = SensorSuite(NOISELESS, TruthConfig(), IMU_HZ, seed=3).imu(f, omega, q)
+    askew = SensorSuite(NOISELESS, TruthConfig(imu_roll_deg=2.0, imu_pitch_deg=-1.0), IMU_HZ, seed=3)
+    acc, gyro, mag = askew.imu(f, omega, q)
+    m = imu_mount(2.0, -1.0)
+    for read, true in zip((acc, gyro, mag), body, strict=True):
+        assert np.linalg.norm(read) == pytest.approx(np.linalg.norm(true), rel=1e-12)  # a rotation
+        assert imu_to_body(m, *read) == pytest.approx(true, abs=1e-12)
+    level = SensorSuite(NOISELESS, TruthConfig(imu_pitch_deg=3.0), IMU_HZ, seed=3).imu((0.0, 0.0, -GRAVITY), omega, q)
+    assert math.degrees(math.atan2(level[0][0], -level[0][2])) == pytest.approx(3.0, abs=1e-9)  # pitched up 3 deg
+    bias = SensorSuite(NOISELESS, TruthConfig(imu_roll_deg=2.0, accel_bias_mps2=0.05), IMU_HZ, seed=4)
+    b = list(bias.accel_bias)
+    acc_b, _, _ = bias.imu(f, omega, q)
+    clean = SensorSuite(NOISELESS, TruthConfig(imu_roll_deg=2.0), IMU_HZ, seed=4).imu(f, omega, q)[0]
+    assert np.allclose(np.array(acc_b) - np.array(clean), b, atol=1e-12)  # the bias in the IMU's axes
 
 
 # ---------------------------------------------------------------- defaults
