@@ -1,8 +1,9 @@
-"""``balloon-gs``: listen (live view + logs), web (the same in a browser), report (score + plot) and reprocess
-(post-flight products)."""
+"""``balloon-gs``: listen (live view + logs), web (the same in a browser), report (score + plot), reprocess
+(post-flight products) and level (the IMU's mounting from the payload hung still)."""
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 
@@ -56,6 +57,12 @@ def main(argv: list[str] | None = None) -> int:
     rr.add_argument("--ground-pressure", type=userargs.input_file, metavar="CSV",
                     help="the ground reference's readings (time_s or time_unix_s, pressure_hpa, temperature_c): "
                          "height as a difference of two barometers")  # fmt: skip
+    lv = sub.add_parser("level", help="the IMU's mounting against the balloon's axis from a recording of the payload "
+                        "hung still from its tether attachment: the design's [sensors] imu_roll_deg, imu_pitch_deg")
+    lv.add_argument("flight", type=userargs.input_file, help="a .tlog, raw capture, PX4 .ulg or ArduPilot .bin")
+    lv.add_argument("--from", dest="start", type=userargs.start_time, default=0.0,
+                    help="from this time since the recording's first IMU sample [s]")  # fmt: skip
+    lv.add_argument("--to", dest="stop", type=userargs.duration, help="to this time since its first IMU sample [s]")
     args = ap.parse_args(argv)
     prog = f"{PROG} {args.cmd}"
     try:  # the one rule for output options (an input, another output, unwritable), before any work
@@ -74,6 +81,16 @@ def main(argv: list[str] | None = None) -> int:
             return 130
     if args.cmd == "web":
         return _web(args)
+    if args.cmd == "level":
+        from postflight.level import format_level, level_of
+        from postflight.logs import read_flight
+
+        try:
+            print(format_level(level_of(read_flight(args.flight).samples(), args.start, args.stop or math.inf),
+                               args.flight))  # fmt: skip
+        except (ValueError, OSError) as exc:
+            return userargs.fail(prog, exc)
+        return 0
     if args.cmd == "listen":
         from ground_station.listen import GroundStation, listen, read_file
 
@@ -150,6 +167,8 @@ def _files(args) -> tuple[dict[str, str | None], dict[str, str | None]]:
         return ins, {"--csv": args.csv, "--tlog": args.tlog}
     if args.cmd == "report":
         return {"file": args.file, "--truth": args.truth}, {"--plot": args.plot}
+    if args.cmd == "level":  # read-only: it prints
+        return {"FLIGHT": args.flight}, {}
     from postflight.netcdf import product_paths
 
     ins = {"FLIGHT": args.flight, "--config": args.config, "--ground-pressure": args.ground_pressure}
