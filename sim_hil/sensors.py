@@ -108,17 +108,7 @@ class SensorSuite:
         )
         if lever_b is not None:
             acc = (acc[0] + lever_b[0], acc[1] + lever_b[1], acc[2] + lever_b[2])
-        if self._walk:
-            w = self._walk
-            self.gyro_bias = [gb[0] + w * n[9], gb[1] + w * n[10], gb[2] + w * n[11]]
-        if self._accel_walk:
-            w = self._accel_walk
-            self.accel_bias = [ab[0] + w * n[14], ab[1] + w * n[15], ab[2] + w * n[16]]
-        if self._quantize:
-            acc = (_quant(acc[0], ACC_LSB), _quant(acc[1], ACC_LSB), _quant(acc[2], ACC_LSB))
-            gyro = (_quant(gyro[0], GYRO_LSB), _quant(gyro[1], GYRO_LSB), _quant(gyro[2], GYRO_LSB))
-            mag = (_quant(mag[0], MAG_LSB), _quant(mag[1], MAG_LSB), _quant(mag[2], MAG_LSB))
-        return acc, gyro, mag
+        return self._finish(n, acc, gyro, mag)
 
     def _imu_askew(self, n: list[float], rt: tuple[float, ...], f_ned, omega_b, lever_b):
         """``imu`` for an IMU mounted askew (``rotation.imu_mount``): the body's specific force (with the lever arm's),
@@ -137,6 +127,11 @@ class SensorSuite:
         acc = tuple(f_i[k] + ab[k] + sa * n[k] for k in range(3))
         gyro = tuple(w_i[k] + gb[k] + sg * n[3 + k] for k in range(3))
         mag = tuple(m_i[k] + mb[k] + sm * n[6 + k] for k in range(3))
+        return self._finish(n, acc, gyro, mag)
+
+    def _finish(self, n: list[float], acc, gyro, mag):
+        """The step's readings as the sensor gives them (quantised, when asked), its biases' walks one step on."""
+        ab, gb = self.accel_bias, self.gyro_bias
         if self._walk:
             w = self._walk
             self.gyro_bias = [gb[0] + w * n[9], gb[1] + w * n[10], gb[2] + w * n[11]]
@@ -144,9 +139,9 @@ class SensorSuite:
             w = self._accel_walk
             self.accel_bias = [ab[0] + w * n[14], ab[1] + w * n[15], ab[2] + w * n[16]]
         if self._quantize:
-            acc = tuple(_quant(x, ACC_LSB) for x in acc)
-            gyro = tuple(_quant(x, GYRO_LSB) for x in gyro)
-            mag = tuple(_quant(x, MAG_LSB) for x in mag)
+            acc = (_quant(acc[0], ACC_LSB), _quant(acc[1], ACC_LSB), _quant(acc[2], ACC_LSB))
+            gyro = (_quant(gyro[0], GYRO_LSB), _quant(gyro[1], GYRO_LSB), _quant(gyro[2], GYRO_LSB))
+            mag = (_quant(mag[0], MAG_LSB), _quant(mag[1], MAG_LSB), _quant(mag[2], MAG_LSB))
         return acc, gyro, mag
 
     def ground(self, time_s: float) -> tuple[float, float]:
