@@ -28,8 +28,7 @@ COUNTER_NAMES = (
 )  # fmt: skip
 CONFIG_FIELDS = (
     "radius_m", "volume_m3", "mass_kg", "half_cd_area_m2", "tether_length_m", "rope_kg_m", "rope_drag_m2",
-    "rope_cn_d_m", "accel_mps2", "baro_m", "gyro_dps", "mag_gauss", "imu_alignment_deg", "imu_roll_deg",
-    "imu_pitch_deg", "mag_declination_deg", "ground_pressure_hpa",
+    "rope_cn_d_m", "accel_mps2", "baro_m", "gyro_dps", "mag_gauss", "mag_declination_deg", "ground_pressure_hpa",
     "altitude_amsl_m", "imu_rate_hz", "accel_process_mps2", "expected_wind_mps", "turbulence_intensity",
     "drag_walk_rt_s", "baro_walk_m_rt_s", "accel_bias_walk_mps2_rt_s", "gyro_bias_walk_dps_rt_s",
     "accel_model_mps2", "accel_taut_mps2", "accel_static_mps2", "align_rad", "radial_m", "radial_rate_mps",
@@ -39,6 +38,7 @@ CONFIG_FIELDS_2 = (
     "init_tilt_deg", "init_yaw_deg", "taut_margin_m", "mode_dwell_s", "release_accel_mps2", "release_height_m",
     "max_gap_s",
 )  # fmt: skip
+CONFIG_MOUNT = ("imu_alignment_deg", "imu_roll_deg", "imu_pitch_deg")  # [sensors], the IMU's mounting: last
 
 
 def _structs(real):
@@ -46,7 +46,8 @@ def _structs(real):
     i32, i64, f32, d, u8 = C.c_int32, C.c_int64, C.c_float, C.c_double, C.c_uint8
 
     class Config(C.Structure):
-        _fields_ = [(n, d) for n in CONFIG_FIELDS] + [("rope_catenary", d)] + [(n, d) for n in CONFIG_FIELDS_2]
+        _fields_ = ([(n, d) for n in CONFIG_FIELDS] + [("rope_catenary", d)] + [(n, d) for n in CONFIG_FIELDS_2]
+                    + [(n, d) for n in CONFIG_MOUNT])
 
     class Status(C.Structure):
         _fields_ = [("innov", real), ("innov_var", real), ("test_ratio", real), ("fused", i32), ("rejected", i32),
@@ -232,7 +233,8 @@ def config_struct(design: Design, cfg: FilterConfig, Config):
         setattr(c, name, getattr(m, name))
     c.rope_kg_m = m.rope_kg_m
     c.accel_mps2, c.baro_m, c.gyro_dps, c.mag_gauss = s.accel_mps2, s.baro_m, s.gyro_dps, s.mag_gauss
-    c.imu_alignment_deg, c.imu_roll_deg, c.imu_pitch_deg = s.imu_alignment_deg, s.imu_roll_deg, s.imu_pitch_deg
+    for name in CONFIG_MOUNT:
+        setattr(c, name, getattr(s, name))
     c.mag_declination_deg = site.mag_declination_deg
     c.ground_pressure_hpa = math.nan if site.ground_pressure_hpa is None else site.ground_pressure_hpa
     c.altitude_amsl_m = site.altitude_amsl_m

@@ -17,11 +17,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from balloon_core.atmosphere import G0
+from balloon_core.config import SCHEMA
 from balloon_core.samples import ImuSample
 
 LEVEL_MIN_SAMPLES = 100  # a second of a 100 Hz IMU at least
 LEVEL_STILL_DEG = 0.5  # the samples' tilt may spread this much (1-sigma) about its mean: more is a payload that swings
 LEVEL_GRAVITY_SHARE = 0.05  # the mean specific force within this share of g: more is a payload accelerating
+LEVEL_MAX_DEG = SCHEMA["sensors"]["imu_roll_deg"].hi  # what the design's keys take
 
 
 @dataclass(frozen=True)
@@ -62,8 +64,12 @@ def level_of(samples: Iterable[ImuSample], start_s: float = 0.0, stop_s: float =
     if spread > LEVEL_STILL_DEG:
         raise ValueError(f"the tilt spread {spread:.2f} deg (1-sigma) about its mean, over {LEVEL_STILL_DEG:g}: the "
                          "payload was not hanging still (it swung or turned; give --from/--to around a still stretch)")
-    pitch_deg = math.degrees(math.atan2(f[0], -f[2]))
-    roll_deg = math.degrees(math.atan2(-f[1], math.hypot(f[0], f[2])))
+    pitch_deg = math.degrees(math.atan2(f[0], -f[2])) + 0.0  # (no -0.0)
+    roll_deg = math.degrees(math.atan2(-f[1], math.hypot(f[0], f[2]))) + 0.0
+    if max(abs(roll_deg), abs(pitch_deg)) > LEVEL_MAX_DEG:
+        raise ValueError(f"the IMU is rolled {roll_deg:.1f} and pitched {pitch_deg:.1f} deg against the hung axis, "
+                         f"beyond the design's +-{LEVEL_MAX_DEG:g}: a board that far askew is mounted wrong, or "
+                         "the payload did not hang from its tether attachment")  # fmt: skip
     return Level(roll_deg, pitch_deg, spread / math.sqrt(len(a)), spread, len(a), float(a[-1, 0] - a[0, 0]))
 
 

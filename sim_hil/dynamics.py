@@ -77,7 +77,7 @@ class TruthConfig:
     accel_bias_walk_mps2_rt_s: float = 0.0  # bias random walk, m/s^2 per sqrt(s)
     baro_offset_m: float = 0.0  # 1-sigma constant barometer offset
     mag_bias_gauss: float = 0.0  # 1-sigma hard-iron offset per axis (drawn from the seed)
-    mag_hard_iron_gauss: tuple[float, float, float] = (0.0, 0.0, 0.0)  # fixed hard-iron offset, body FRD
+    mag_hard_iron_gauss: tuple[float, float, float] = (0.0, 0.0, 0.0)  # fixed hard-iron offset, the IMU's FRD axes
     # the IMU board mounted askew on the balloon: its axes the body's (the tether's axis z) turned by roll about x,
     # then pitch about the new y; every inertial and magnetic reading in its own axes (sensors.py)
     imu_roll_deg: float = 0.0

@@ -37,8 +37,6 @@ typedef struct {
     double rope_cn_d_m;          /* Cn d of the rope */
     /* [sensors], 1-sigma */
     double accel_mps2, baro_m, gyro_dps, mag_gauss;
-    double imu_alignment_deg;    /* how well the IMU's axes are known against the tether's axis, deg */
-    double imu_roll_deg, imu_pitch_deg; /* the IMU's axes against the balloon's, measured: readings turned back */
     /* [site] */
     double mag_declination_deg;
     double ground_pressure_hpa;  /* NAN: the barometer is zeroed at boot */
@@ -52,6 +50,9 @@ typedef struct {
     double gate_sigma, recover_after_s;
     double init_wind_mps, init_drag, init_accel_bias_mps2, init_gyro_bias_dps, init_tilt_deg, init_yaw_deg;
     double taut_margin_m, mode_dwell_s, release_accel_mps2, release_height_m, max_gap_s;
+    /* [sensors], the IMU's mounting (last: a positional initialiser of the fields before them stays as it was) */
+    double imu_alignment_deg;    /* how well the IMU's axes are known against the tether's axis, deg */
+    double imu_roll_deg, imu_pitch_deg; /* the IMU's axes against the balloon's, measured: readings turned back */
 } bw_config_t;
 
 /* One aid source's last test (PX4's estimator_aid_source status). */

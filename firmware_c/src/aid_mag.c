@@ -79,8 +79,8 @@ static void learn_field_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, b
                                   bw_real mz)
 {
     bw_ekf_t *e = &est->ekf;
-    bw_real *s = est->field_sum, r[9], f, c, down, h, h_old, h_new, bn = est->field_ned[0], be = est->field_ned[1],
-            bd = est->field_ned[2];
+    bw_real *s = est->field_sum, r[9], f, c, down, h, h_old, h_new, change2, bn = est->field_ned[0],
+            be = est->field_ned[1], bd = est->field_ned[2];
     const int32_t start = (int32_t)((bw_real)BW_FIELD_RELEARN_FROM_S * e->m.imu_rate_hz);
     if (est->dwell < start) {
         e->field_window = 0;
@@ -110,13 +110,15 @@ static void learn_field_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, b
     down = -s[3] / f; /* at rest the specific force points up */
     h = h_old = BW_SQRT(bn * bn + be * be);
     h_new = BW_SQRT(BW_MAX(BW_R(0.0), s[4] / c - BW_R(3.0) * est->mag_sigma * est->mag_sigma - down * down));
-    if (h_old > BW_R(0.0) && (h_new - h_old) * (h_new - h_old) + (down - bd) * (down - bd) >
-                                 (bw_real)BW_FIELD_CHANGE_GAUSS * (bw_real)BW_FIELD_CHANGE_GAUSS) {
+    change2 = (h_new - h_old) * (h_new - h_old) + (down - bd) * (down - bd);
+    if (h_old > BW_R(0.0) && h_new > (bw_real)BW_FIELD_CHANGE_GAUSS &&
+        change2 > (bw_real)BW_FIELD_CHANGE_GAUSS * (bw_real)BW_FIELD_CHANGE_GAUSS) {
         est->field_ned[0] = bn * h_new / h_old;
         est->field_ned[1] = be * h_new / h_old;
         est->field_ned[2] = down;
         /* its unseen part across the field's horizontal direction, as large as the part seen (magnetometer.py) */
-        e->field_heading_var = ((h_new - h_old) * (h_new - h_old) + (down - bd) * (down - bd)) / (h_new * h_new);
+        e->field_heading_var = BW_MIN(e->field_heading_var + change2 / (h_new * h_new),
+                                      (bw_real)BW_FIELD_HEADING_VAR_MAX); /* each replacement adds (magnetometer.py) */
         h = h_new, bd = down;
     }
     /* the sums learn_field would have taken of the field at rest, level, from as many samples as it had */

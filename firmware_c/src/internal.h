@@ -11,6 +11,12 @@
 #define BW_MAX(a, b) ((b) > (a) ? (b) : (a))
 #define BW_MIN(a, b) ((b) < (a) ? (b) : (a))
 #define BW_PI BW_R(3.14159265358979323846)
+/* a function kept out of its caller (its frame off the caller's stack; GCC and Clang, elsewhere a hint lost) */
+#if defined(__GNUC__)
+#define BW_NOINLINE __attribute__((noinline))
+#else
+#define BW_NOINLINE
+#endif
 #define BW_DEG BW_R(0.017453292519943295)
 #define BW_G0 9.80665
 #define BW_R_AIR 287.05

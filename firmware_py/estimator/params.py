@@ -146,6 +146,9 @@ MAG_MODEL_GAUSS = 0.004  # field direction model error (~0.5 deg of a 0.5 G fiel
 # a hard-iron offset turned with the balloon, 0.014-0.016 G in field-turning-hard-iron; the means' own scatter in
 # class B gusts and an accelerometer's bias read at the lean, 0.002-0.004 G
 FIELD_CHANGE_GAUSS = 2.0 * MAG_MODEL_GAUSS
+# the heading's variance the replaced fields' unseen parts may add up to, rad^2: a heading known to a radian is not
+# known (magnetometer.learn_field_in_flight)
+FIELD_HEADING_VAR_MAX = 1.0
 
 # the winch (aid_sources/winch.py) and the ground reference (aid_sources/ground_ref.py)
 # a WINCH_STATUS is rejected (and counted) when its line length is not finite, below WINCH_LENGTH_MIN_M or

@@ -66,7 +66,7 @@ def test_a_turned_hard_iron_has_its_field_learnt_again_even_through_a_lossy_link
 def test_a_field_the_boots_can_be_is_kept():
     out = flown("field-rope")
     assert out["after"] == out["boot"]
-    assert out["heading_var"] == 0.0 and out["accuracy"] == out["accuracy_without"]
+    assert out["heading_var"] == 0.0
 
 
 def test_a_replaced_field_states_the_heading_it_cannot_see():

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 from balloon_core.atmosphere import G0
 from balloon_core.rotation import rotation
 from firmware_py.estimator.ekf import FusionStatus, WindEkf
-from firmware_py.estimator.params import FIELD_CHANGE_GAUSS, FIELD_RELEARN_FROM_S
+from firmware_py.estimator.params import FIELD_CHANGE_GAUSS, FIELD_HEADING_VAR_MAX, FIELD_RELEARN_FROM_S
 from firmware_py.estimator.state import (
     ATT_D,
     ATT_E,
@@ -118,8 +118,10 @@ def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: f
     down, which the window sees (the change ``|Δ|``), and across it (east of magnetic north), which turns the heading
     unseen. A balloon turns about the vertical, and the change is then horizontal: as likely across as along, so the
     heading takes ``(|Δ| / B_h)²`` of variance (``field_heading_var``, in the stated accuracy: its share across the
-    wind, ``|w| |Δ| / B_h``). A field replaced because the boot's was disturbed (a steel vehicle beside the ground
-    station) costs the same, cautiously: the window cannot tell the two apart."""
+    wind, ``|w| |Δ| / B_h``; a second replacement's adds to it; at most FIELD_HEADING_VAR_MAX). A field whose
+    horizontal part is gone (within FIELD_CHANGE_GAUSS of none: a design whose magnetometer noise leaves none of it
+    after the noise's share) replaces nothing. A field replaced because the boot's was disturbed (a steel vehicle
+    beside the ground station) costs the same, cautiously: the window cannot tell the two apart."""
     sched = est.schedule
     start = int(FIELD_RELEARN_FROM_S * est.cfg.imu_rate_hz)
     s = est._field_sum
@@ -149,9 +151,11 @@ def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: f
     bn, be, bd = est.field_ned
     h = h_old = math.sqrt(bn * bn + be * be)
     h_new = math.sqrt(max(0.0, s[4] / c - 3.0 * est.mag_sigma * est.mag_sigma - down * down))
-    if h_old > 0.0 and (h_new - h_old) ** 2 + (down - bd) ** 2 > FIELD_CHANGE_GAUSS * FIELD_CHANGE_GAUSS:
+    change2 = (h_new - h_old) ** 2 + (down - bd) ** 2
+    if h_old > 0.0 and h_new > FIELD_CHANGE_GAUSS and change2 > FIELD_CHANGE_GAUSS * FIELD_CHANGE_GAUSS:
         est.field_ned = (bn * h_new / h_old, be * h_new / h_old, down)
-        est.field_heading_var = ((h_new - h_old) ** 2 + (down - bd) ** 2) / (h_new * h_new)
+        # each replacement's unseen part adds to the last's (each against the field before it), to a radian's at most
+        est.field_heading_var = min(est.field_heading_var + change2 / (h_new * h_new), FIELD_HEADING_VAR_MAX)
         h, bd = h_new, down
     # the sums learn_field would have taken of the field at rest, level, from as many samples as it had: a balloon
     # back on the ground station adds its own to them
