@@ -211,6 +211,8 @@ SCHEMA: dict[str, dict[str, Rule]] = {
         "mag_hard_iron_gauss": Rule("numbers", -10.0, 10.0, length=3),
         "imu_roll_deg": num(-10.0, 10.0),
         "imu_pitch_deg": num(-10.0, 10.0),
+        "ground_field_gauss": Rule("numbers", -2.0, 2.0, length=3),
+        "ground_field_scale_m": num(0.1, 1000.0),
         "quantize": BOOL,
         "mag_field_h_gauss": num(0.0, 2.0),
         "mag_field_z_gauss": num(-2.0, 2.0),

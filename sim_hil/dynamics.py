@@ -82,6 +82,10 @@ class TruthConfig:
     # then pitch about the new y; every inertial and magnetic reading in its own axes (sensors.py)
     imu_roll_deg: float = 0.0
     imu_pitch_deg: float = 0.0
+    # the steel of the ground station (a winch, a vehicle, the anchor) adds to the earth's field near it, NED gauss at
+    # the ground, falling off as a dipole's, (1 + h / ground_field_scale_m)^-3 of it at the magnetometer's height h
+    ground_field_gauss: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    ground_field_scale_m: float = 3.0
     quantize: bool = False  # 16-bit LSBs: +-8 g, +-2000 deg/s, +-8 gauss; 0.01 hPa; 0.01 C
     mag_field_h_gauss: float = 0.20  # horizontal earth field
     mag_field_z_gauss: float = 0.45  # vertical earth field (down)
@@ -117,21 +121,25 @@ class TruthConfig:
             raise ConfigError("truth.drag_crisis_reynolds and truth.drag_crisis_exponent must be > 0")
         if self.avionics_offset_m < 0.0 or self.avionics_kg < 0.0:
             raise ConfigError("truth.avionics_offset_m and truth.avionics_kg must be >= 0")
-        hi = self.mag_hard_iron_gauss
-        if (
-            not isinstance(hi, tuple)
-            or len(hi) != 3
-            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in hi)
-        ):
-            raise ConfigError(f"truth.mag_hard_iron_gauss must be three finite numbers, got {hi!r}")
+        for name in ("mag_hard_iron_gauss", "ground_field_gauss"):
+            hi = getattr(self, name)
+            if (
+                not isinstance(hi, tuple)
+                or len(hi) != 3
+                or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in hi)
+            ):
+                raise ConfigError(f"truth.{name} must be three finite numbers, got {hi!r}")
+        if not self.ground_field_scale_m > 0.0:
+            raise ConfigError("truth.ground_field_scale_m must be > 0")
 
     @classmethod
     def from_dict(cls, values: dict) -> TruthConfig:
-        hi = values.get("mag_hard_iron_gauss")
-        if isinstance(hi, (list, tuple)):
-            if not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in hi):
-                raise ConfigError(f"[truth] mag_hard_iron_gauss must be numbers, got {hi!r}")
-            values = dict(values, mag_hard_iron_gauss=tuple(float(x) for x in hi))
+        for name in ("mag_hard_iron_gauss", "ground_field_gauss"):
+            hi = values.get(name)
+            if isinstance(hi, (list, tuple)):
+                if not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in hi):
+                    raise ConfigError(f"[truth] {name} must be numbers, got {hi!r}")
+                values = dict(values, **{name: tuple(float(x) for x in hi)})
         return build_section(cls, "truth", values)
 
 

@@ -59,6 +59,8 @@ class SensorSuite:
             self.mag_bias = [b + h for b, h in zip(self.mag_bias, truth.mag_hard_iron_gauss)]
         self.baro_offset_m = float(r.normal(0.0, truth.baro_offset_m)) if truth.baro_offset_m else 0.0
         self._mount = imu_mount(truth.imu_roll_deg, truth.imu_pitch_deg)
+        self._ground_field = truth.ground_field_gauss if any(truth.ground_field_gauss) else None
+        self._ground_field_m = truth.ground_field_scale_m
         self._walk = math.radians(truth.gyro_bias_walk_dps_rt_s) * math.sqrt(1.0 / imu_hz)
         self._accel_walk = truth.accel_bias_walk_mps2_rt_s * math.sqrt(1.0 / imu_hz)
         self._columns = 17 if self._accel_walk else 14
@@ -81,10 +83,12 @@ class SensorSuite:
         omega_b: tuple[float, float, float],
         q: list[float],
         lever_b: tuple[float, float, float] | None = None,
+        height_m: float = 0.0,
     ) -> tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]:
         """Accelerometer (specific force f = a - g, FRD, m/s^2), gyro (rad/s), magnetometer (gauss).
         ``f_ned`` is the centre's specific force; ``lever_b`` the sensor's acceleration relative to the
-        centre in body axes (dw/dt x rho + w x (w x rho)), when it is not at the centre."""
+        centre in body axes (dw/dt x rho + w x (w x rho)), when it is not at the centre; ``height_m`` the
+        magnetometer's above the ground (the ground station's own field, ``field_at``)."""
         n = self._draw()
         q0, q1, q2, q3 = q
         # R^T (NED -> body) rows: the rotation's columns
@@ -93,14 +97,14 @@ class SensorSuite:
         sa, sg, sm = self._sig
         ab, gb, mb = self.accel_bias, self.gyro_bias, self.mag_bias
         if self._mount is not None:  # an IMU askew: the readings of its own axes, then its errors
-            return self._imu_askew(n, (r00, r10, r20, r01, r11, r21, r02, r12, r22), f_ned, omega_b, lever_b)
+            return self._imu_askew(n, (r00, r10, r20, r01, r11, r21, r02, r12, r22), f_ned, omega_b, lever_b, height_m)
         acc = (
             r00 * fn + r01 * fe + r02 * fd + ab[0] + sa * n[0],
             r10 * fn + r11 * fe + r12 * fd + ab[1] + sa * n[1],
             r20 * fn + r21 * fe + r22 * fd + ab[2] + sa * n[2],
         )
         gyro = (omega_b[0] + gb[0] + sg * n[3], omega_b[1] + gb[1] + sg * n[4], omega_b[2] + gb[2] + sg * n[5])
-        bn, be, bd = self.field_ned
+        bn, be, bd = self.field_at(height_m)
         mag = (
             r00 * bn + r01 * be + r02 * bd + mb[0] + sm * n[6],
             r10 * bn + r11 * be + r12 * bd + mb[1] + sm * n[7],
@@ -110,12 +114,20 @@ class SensorSuite:
             acc = (acc[0] + lever_b[0], acc[1] + lever_b[1], acc[2] + lever_b[2])
         return self._finish(n, acc, gyro, mag)
 
-    def _imu_askew(self, n: list[float], rt: tuple[float, ...], f_ned, omega_b, lever_b):
+    def field_at(self, height_m: float) -> tuple[float, float, float]:
+        """The field at the magnetometer, NED gauss: the earth's, and near the ground the ground station's own (its
+        steel: [truth] ground_field_gauss at the ground, a dipole's fall, (1 + h / ground_field_scale_m)^-3)."""
+        if self._ground_field is None:
+            return self.field_ned
+        k = (1.0 + max(height_m, 0.0) / self._ground_field_m) ** -3
+        return tuple(b + k * g for b, g in zip(self.field_ned, self._ground_field, strict=True))
+
+    def _imu_askew(self, n: list[float], rt: tuple[float, ...], f_ned, omega_b, lever_b, height_m: float = 0.0):
         """``imu`` for an IMU mounted askew (``rotation.imu_mount``): the body's specific force (with the lever arm's),
         rate and field turned into the IMU's axes, then its biases, noise, walks and quantisation."""
         r00, r10, r20, r01, r11, r21, r02, r12, r22 = rt
         fn, fe, fd = f_ned
-        bn, be, bd = self.field_ned
+        bn, be, bd = self.field_at(height_m)
         f_b = (r00 * fn + r01 * fe + r02 * fd, r10 * fn + r11 * fe + r12 * fd, r20 * fn + r21 * fe + r22 * fd)
         if lever_b is not None:
             f_b = (f_b[0] + lever_b[0], f_b[1] + lever_b[1], f_b[2] + lever_b[2])

@@ -203,6 +203,21 @@ def test_an_imu_mounted_askew_reads_in_its_own_axes():
     assert np.allclose(np.array(acc_b) - np.array(clean), b, atol=1e-12)  # the bias in the IMU's axes
 
 
+def test_the_ground_stations_steel_falls_off_as_a_dipole():
+    """[truth] ground_field_gauss: the field at the magnetometer is the earth's and the ground station's, the latter
+    (1 + h / scale)^-3 of its value at the ground; a noiseless magnetometer at rest and level reads that sum."""
+    truth = TruthConfig(ground_field_gauss=(0.08, -0.06, 0.04), ground_field_scale_m=3.0)
+    s = SensorSuite(NOISELESS, truth, IMU_HZ, seed=3)
+    earth = SensorSuite(NOISELESS, TruthConfig(), IMU_HZ, seed=3).field_ned
+    assert s.field_at(0.0) == pytest.approx(tuple(e + g for e, g in zip(earth, (0.08, -0.06, 0.04))), abs=1e-15)
+    assert s.field_at(3.0) == pytest.approx(tuple(e + g / 8.0 for e, g in zip(earth, (0.08, -0.06, 0.04))), abs=1e-15)
+    assert math.dist(s.field_at(100.0), earth) < 1e-5  # a hundred metres up: the earth's alone
+    _, _, mag = s.imu((0.0, 0.0, -GRAVITY), (0.0, 0.0, 0.0), [1.0, 0.0, 0.0, 0.0], None, 6.0)
+    assert mag == pytest.approx(s.field_at(6.0), abs=1e-15)
+    with pytest.raises(ConfigError):
+        TruthConfig(ground_field_scale_m=0.0)
+
+
 # ---------------------------------------------------------------- defaults
 
 
