@@ -64,8 +64,9 @@ def level_of(samples: Iterable[ImuSample], start_s: float = 0.0, stop_s: float =
     if spread > LEVEL_STILL_DEG:
         raise ValueError(f"the tilt spread {spread:.2f} deg (1-sigma) about its mean, over {LEVEL_STILL_DEG:g}: the "
                          "payload was not hanging still (it swung or turned; give --from/--to around a still stretch)")
-    pitch_deg = math.degrees(math.atan2(f[0], -f[2])) + 0.0  # (no -0.0)
-    roll_deg = math.degrees(math.atan2(-f[1], math.hypot(f[0], f[2]))) + 0.0
+    # as printed, to a thousandth of a degree (+ 0.0: no "-0.000")
+    pitch_deg = round(math.degrees(math.atan2(f[0], -f[2])), 3) + 0.0
+    roll_deg = round(math.degrees(math.atan2(-f[1], math.hypot(f[0], f[2]))), 3) + 0.0
     if max(abs(roll_deg), abs(pitch_deg)) > LEVEL_MAX_DEG:
         raise ValueError(f"the IMU is rolled {roll_deg:.1f} and pitched {pitch_deg:.1f} deg against the hung axis, "
                          f"beyond the design's +-{LEVEL_MAX_DEG:g}: a board that far askew is mounted wrong, or "

@@ -118,7 +118,8 @@ def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: f
     down, which the window sees (the change ``|Δ|``), and across it (east of magnetic north), which turns the heading
     unseen. A balloon turns about the vertical, and the change is then horizontal: as likely across as along, so the
     heading takes ``(|Δ| / B_h)²`` of variance (``field_heading_var``, in the stated accuracy: its share across the
-    wind, ``|w| |Δ| / B_h``; a second replacement's adds to it; at most FIELD_HEADING_VAR_MAX). A field whose
+    wind, ``|w| |Δ| / B_h``; a second replacement's adds to it, cautiously where the balloon turned back between
+    spells; at most FIELD_HEADING_VAR_MAX). A field whose
     horizontal part is gone (within FIELD_CHANGE_GAUSS of none: a design whose magnetometer noise leaves none of it
     after the noise's share) replaces nothing. A field replaced because the boot's was disturbed (a steel vehicle
     beside the ground station) costs the same, cautiously: the window cannot tell the two apart."""
