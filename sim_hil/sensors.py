@@ -94,23 +94,21 @@ class SensorSuite:
         # R^T (NED -> body) rows: the rotation's columns
         r00, r10, r20, r01, r11, r21, r02, r12, r22 = rotation(q0, q1, q2, q3)
         fn, fe, fd = f_ned
+        bn, be, bd = self.field_at(height_m)
+        f = (r00 * fn + r01 * fe + r02 * fd, r10 * fn + r11 * fe + r12 * fd, r20 * fn + r21 * fe + r22 * fd)
+        w = omega_b
+        m = (r00 * bn + r01 * be + r02 * bd, r10 * bn + r11 * be + r12 * bd, r20 * bn + r21 * be + r22 * bd)
+        mount = self._mount
+        if mount is not None:  # an IMU askew: the body's readings (the lever arm's with them) in its own axes
+            if lever_b is not None:
+                f = (f[0] + lever_b[0], f[1] + lever_b[1], f[2] + lever_b[2])
+            f, w, m = body_to_imu(mount, *f), body_to_imu(mount, *w), body_to_imu(mount, *m)
         sa, sg, sm = self._sig
         ab, gb, mb = self.accel_bias, self.gyro_bias, self.mag_bias
-        if self._mount is not None:  # an IMU askew: the readings of its own axes, then its errors
-            return self._imu_askew(n, (r00, r10, r20, r01, r11, r21, r02, r12, r22), f_ned, omega_b, lever_b, height_m)
-        acc = (
-            r00 * fn + r01 * fe + r02 * fd + ab[0] + sa * n[0],
-            r10 * fn + r11 * fe + r12 * fd + ab[1] + sa * n[1],
-            r20 * fn + r21 * fe + r22 * fd + ab[2] + sa * n[2],
-        )
-        gyro = (omega_b[0] + gb[0] + sg * n[3], omega_b[1] + gb[1] + sg * n[4], omega_b[2] + gb[2] + sg * n[5])
-        bn, be, bd = self.field_at(height_m)
-        mag = (
-            r00 * bn + r01 * be + r02 * bd + mb[0] + sm * n[6],
-            r10 * bn + r11 * be + r12 * bd + mb[1] + sm * n[7],
-            r20 * bn + r21 * be + r22 * bd + mb[2] + sm * n[8],
-        )
-        if lever_b is not None:
+        acc = (f[0] + ab[0] + sa * n[0], f[1] + ab[1] + sa * n[1], f[2] + ab[2] + sa * n[2])
+        gyro = (w[0] + gb[0] + sg * n[3], w[1] + gb[1] + sg * n[4], w[2] + gb[2] + sg * n[5])
+        mag = (m[0] + mb[0] + sm * n[6], m[1] + mb[1] + sm * n[7], m[2] + mb[2] + sm * n[8])
+        if lever_b is not None and mount is None:
             acc = (acc[0] + lever_b[0], acc[1] + lever_b[1], acc[2] + lever_b[2])
         return self._finish(n, acc, gyro, mag)
 
@@ -121,25 +119,6 @@ class SensorSuite:
             return self.field_ned
         k = (1.0 + max(height_m, 0.0) / self._ground_field_m) ** -3
         return tuple(b + k * g for b, g in zip(self.field_ned, self._ground_field, strict=True))
-
-    def _imu_askew(self, n: list[float], rt: tuple[float, ...], f_ned, omega_b, lever_b, height_m: float = 0.0):
-        """``imu`` for an IMU mounted askew (``rotation.imu_mount``): the body's specific force (with the lever arm's),
-        rate and field turned into the IMU's axes, then its biases, noise, walks and quantisation."""
-        r00, r10, r20, r01, r11, r21, r02, r12, r22 = rt
-        fn, fe, fd = f_ned
-        bn, be, bd = self.field_at(height_m)
-        f_b = (r00 * fn + r01 * fe + r02 * fd, r10 * fn + r11 * fe + r12 * fd, r20 * fn + r21 * fe + r22 * fd)
-        if lever_b is not None:
-            f_b = (f_b[0] + lever_b[0], f_b[1] + lever_b[1], f_b[2] + lever_b[2])
-        m_b = (r00 * bn + r01 * be + r02 * bd, r10 * bn + r11 * be + r12 * bd, r20 * bn + r21 * be + r22 * bd)
-        m = self._mount
-        f_i, w_i, m_i = body_to_imu(m, *f_b), body_to_imu(m, *omega_b), body_to_imu(m, *m_b)
-        sa, sg, sm = self._sig
-        ab, gb, mb = self.accel_bias, self.gyro_bias, self.mag_bias
-        acc = tuple(f_i[k] + ab[k] + sa * n[k] for k in range(3))
-        gyro = tuple(w_i[k] + gb[k] + sg * n[3 + k] for k in range(3))
-        mag = tuple(m_i[k] + mb[k] + sm * n[6 + k] for k in range(3))
-        return self._finish(n, acc, gyro, mag)
 
     def _finish(self, n: list[float], acc, gyro, mag):
         """The step's readings as the sensor gives them (quantised, when asked), its biases' walks one step on."""
