@@ -55,7 +55,7 @@ def _structs(real):
                     ("time_test_us", i64)]  # fmt: skip
 
     class Counters(C.Structure):
-        _fields_ = [(n, i64) for n in COUNTER_NAMES]
+        _fields_ = [(n, i32) for n in COUNTER_NAMES]
 
     class Forces(C.Structure):
         _fields_ = [("an", real), ("ae", real), ("ad", real), ("ja", real * (3 * NCOL)), ("jpull", real * NCOL),
@@ -169,7 +169,7 @@ def _structs(real):
         ("winch_samples", i64),
         ("winch_t_us", i64), ("accel_hbias", real * 2),
         ("ground_samples", i64), ("ground_t_us", i64), ("ground_p_pa", real), ("ground_p0_pa", real),
-        ("p_ref0_pa", real), ("accel_hbias_var", real),
+        ("p_ref0_pa", real), ("accel_hbias_var", real), ("level_mean", real * 2), ("level_var", real),
         ("winch_rejected", i64), ("ground_rejected", i64), ("winch_reject_reason", i32),
         ("ground_reject_reason", i32),
     ]  # fmt: skip

@@ -65,7 +65,8 @@ typedef struct {
 } bw_status_t;
 
 typedef struct {
-    int64_t imu_samples, baro_samples, rejected, duplicates, reordered, jitter, gaps, long_gaps, time_resets,
+    /* 32 bits: 248 days of samples at 100 Hz (the RAM's budget, docs/porting.md) */
+    int32_t imu_samples, baro_samples, rejected, duplicates, reordered, jitter, gaps, long_gaps, time_resets,
         numeric_resets, taut_resets, mode_switches, baro_resets, false_releases;
 } bw_counters_t;
 
@@ -205,6 +206,8 @@ typedef struct {
     int64_t ground_samples, ground_t_us;
     bw_real ground_p_pa, ground_p0_pa, p_ref0_pa;
     bw_real accel_hbias_var;     /* the followed horizontal bias's error variance (aid_accel.c) */
+    bw_real level_mean[2], level_var; /* the specific force in NED, north and east: its mean, its variance about it
+                                       * per axis (aid_accel.c level rows) */
     /* implausible WINCH_STATUS and ground references, rejected and counted; why the last one was */
     int64_t winch_rejected, ground_rejected;
     int32_t winch_reject_reason, ground_reject_reason;

@@ -31,6 +31,21 @@ static void fuse_bias_magnitude(bw_ekf_t *e, bw_real fx, bw_real fy, bw_real fz,
     bw_ekf_fuse(e, (nx * px + ny * py + nz * pz) * inv, var, &bias, BW_R(0.0), 0);
 }
 
+/* accel.py fuse_level: a tethered balloon does not accelerate on average, so the horizontal specific force in NED
+ * (fn, fe) is gravity's tilt alone, g d_E and -g d_N (d the attitude's error); no force model enters. Its status is
+ * the call's own (Python keeps one for diagnosis) */
+static void fuse_level(bw_ekf_t *e, bw_real fn, bw_real fe, bw_real var)
+{
+    bw_status_t level;
+    memset(&level, 0, sizeof level);
+    memset(e->h, 0, sizeof e->h);
+    e->h[BW_ATT_E] = (bw_real)BW_G0;
+    bw_ekf_fuse(e, fn, var, &level, (bw_real)BW_UNGATED, 0);
+    memset(e->h, 0, sizeof e->h);
+    e->h[BW_ATT_N] = -(bw_real)BW_G0;
+    bw_ekf_fuse(e, fe, var, &level, (bw_real)BW_UNGATED, 0);
+}
+
 /* accel.py follow_horizontal_bias: the body x, y biases walked since the field was learnt, from the horizontal
  * innovation (NED) the accelerometer's fusion left, its share along the field's horizontal direction, back in the body
  * frame (r: R), weight w (interval / BW_ACCEL_HBIAS_S x the share that counts); nothing while the field is unknown or
@@ -105,9 +120,21 @@ static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, 
             bw_real in = r[0] * st[0].innov + r[1] * st[1].innov + r[2] * st[2].innov;
             bw_real ie = r[3] * st[0].innov + r[4] * st[1].innov + r[5] * st[2].innov;
             bw_real share = (BW_R(1.0) - misfit) * BW_SQRT(nominal / var);
+            /* accel.py level_noise: the specific force in NED (its biases out), its mean and its variance about it
+             * over BW_LEVEL_MEAN_S, per axis; the level rows' noise from it (fuse_level, on the tether) */
+            const bw_real fzb = fz - e->x[BW_ABIAS_Z], a = step_s / (bw_real)BW_LEVEL_MEAN_S;
+            const bw_real fn = r[0] * fx + r[1] * fy + r[2] * fzb, fe = r[3] * fx + r[4] * fy + r[5] * fzb;
+            bw_real dn, de;
+            est->level_mean[0] += a * (fn - est->level_mean[0]);
+            est->level_mean[1] += a * (fe - est->level_mean[1]);
+            dn = fn - est->level_mean[0], de = fe - est->level_mean[1];
+            est->level_var += a * (BW_R(0.5) * (dn * dn + de * de) - est->level_var);
             bw_consistency_add_slow_tilt(&est->consistency, share * bw_field_tilt_reading(in, ie, est->field_ned),
                                          est->a_taut);
             if (e->mode == BW_MODE_TAUT) {
+                fuse_level(e, fn, fe,
+                           BW_MAX(est->level_var, (bw_real)(est->cfg->accel_mps2 * est->cfg->accel_mps2)) * BW_R(2.0) * (bw_real)BW_LEVEL_CORR_S /
+                               step_s);
                 bw_real w = isfinite(share) ? share * step_s / (bw_real)BW_ACCEL_HBIAS_S : BW_R(0.0);
                 fuse_bias_magnitude(e, fx, fy, fz, st,
                                     var + var_z_extra * vertical_air_samples(step_s, est->mean_speed));

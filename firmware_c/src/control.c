@@ -111,6 +111,7 @@ static void init_clock(bw_estimator_t *est)
     est->height_above = 0;
     est->accel_var_excess = BW_R(0.0);
     est->accel_radial_innov2 = BW_R(0.0);
+    est->level_mean[0] = est->level_mean[1] = est->level_var = BW_R(0.0);
     est->accel_hbias[0] = est->accel_hbias[1] = BW_R(0.0);
     est->accel_hbias_var = BW_R(0.0);
     est->align_innov2[0] = est->align_innov2[1] = est->align_mean = BW_R(0.0);

@@ -168,6 +168,7 @@ class Estimator:
         self._probe = Forces()  # scratch for the taut-entry check
         self.accel_status = [FusionStatus(f"accel_{a}") for a in "xyz"]
         self.accel_bias_status = FusionStatus("accel_bias_z")  # the bias in flight (accel.fuse_bias_magnitude)
+        self.level_status = FusionStatus("level")  # a tethered balloon does not accelerate (accel.fuse_level)
         self.schedule = sched = Schedule.at(self.cfg.imu_rate_hz, self.cfg.recover_after_s)
         self.baro_status = FusionStatus("baro", sched.baro_recover)
         self.heading_status = FusionStatus("heading", sched.mag_recover)
@@ -205,6 +206,9 @@ class Estimator:
         self._dwell = 0
         self._accel_innov2 = 0.0
         self._accel_radial_innov2 = 0.0  # on the tether, along its radius (accel.radial_noise)
+        # the specific force in NED, north and east: its mean, and its variance about it per axis (accel.level_noise)
+        self.level_mean = [0.0, 0.0]
+        self.level_var = 0.0
         self._accel_axis_nis = [0.0, 0.0, 0.0]  # the last flying step's NIS per axis (accel.control_accel)
         self._innov_alpha = 1.0 / (ACCEL_INNOV_S * self.cfg.imu_rate_hz)
         self._mean_speed = self.cfg.expected_wind_mps  # the filter's own mean wind (60 s), for its noise

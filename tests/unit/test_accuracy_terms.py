@@ -39,9 +39,10 @@ def test_the_terms_add_up_to_the_reported_accuracy():
     assert t["direction_error_deg"] == pytest.approx(sc.direction_error_deg, abs=0.05)
     assert t["speed_error_pct"] == pytest.approx(sc.speed_error_pct, abs=0.05)
     # the same flight with a horizontal accelerometer bias of 10 mg the filter does not know of (a tilt of 0.6 deg):
-    # the change reaches the flight, and the lean's azimuth turns with it
+    # the change reaches the flight, and the lean's azimuth turns with it (0.56 deg; 0.8 and more before the level
+    # rows, which take the tilt from the mean specific force, the bias in it)
     biased = terms(p, 150.0, ("truth.accel_bias_mps2=0.1", "truth.accel_bias_walk_mps2_rt_s=0"))
-    assert abs(biased["direction_error_deg"] - t["direction_error_deg"]) > 0.8
+    assert abs(biased["direction_error_deg"] - t["direction_error_deg"]) > 0.3
 
 
 def test_one_thing_of_the_flight_changed():

@@ -17,6 +17,9 @@ from firmware_py.estimator.params import (
     ACCEL_HBIAS_S,
     ACCEL_HEADING_GAIN_MIN,
     ACCEL_MODEL_CORR_S,
+    LEVEL_CORR_S,
+    LEVEL_MEAN_S,
+    UNGATED,
 )
 from firmware_py.estimator.state import (
     ABIAS_Z,
@@ -89,6 +92,41 @@ def fuse_accel(
     ekf.fuse3(fx - pred[0], fy - pred[1], fz - pred[2], var, status, var_z_extra, tilt_gain, heading_gain,
               (radial[0], radial[1], radial[2]), radial_var)  # fmt: skip
     return radial[0], radial[1], radial[2]
+
+
+def fuse_level(ekf: WindEkf, fn: float, fe: float, var: float, status: FusionStatus) -> None:
+    """A tethered balloon does not accelerate on average: the horizontal specific force in NED (``fn``, ``fe``: the
+    body's turned by the attitude, m/s^2) is then gravity's tilt alone, R f = (I - [d x]) (a - g) with a ~ 0, whose
+    north and east parts are g d_E and -g d_N (d the attitude's error). No force model enters: where the model's
+    forces do not balance (a wind across the lean held with the attitude about the magnetic field's axis, which the
+    magnetometer cannot see and the accelerometer's model rows share with the wind: docs/estimator.md, "The wind
+    held across the lean by the unseen rotation") these rows still level the attitude. ``var`` the noise of each
+    (params.LEVEL_CORR_S); one ``status`` for both (the east row's innovation last)."""
+    h = ekf.h
+    h.fill(0.0)
+    h[ATT_E] = G0
+    ekf.fuse(fn, var, status, UNGATED)
+    h.fill(0.0)
+    h[ATT_N] = -G0
+    ekf.fuse(fe, var, status, UNGATED)
+
+
+def level_noise(est: Estimator, fx: float, fy: float, fz: float, step_s: float) -> tuple[float, float, float]:
+    """The specific force (FRD, its biases taken out) turned into NED, north and east, and the level rows' noise
+    (fuse_level): its variance about its mean over LEVEL_MEAN_S (per axis, at least the accelerometer's own noise,
+    [sensors] accel_mps2) times 2 LEVEL_CORR_S / ``step_s``; the mean and the variance followed here (in flight, at
+    the tether's rate: the free ascent's accelerations are what the taut entry starts from)."""
+    r = est.ekf.rt  # R^T, as the accelerometer's rows left it this step (aid_sources/accel.py fuse_accel)
+    fn = float(r[0, 0]) * fx + float(r[1, 0]) * fy + float(r[2, 0]) * fz
+    fe = float(r[0, 1]) * fx + float(r[1, 1]) * fy + float(r[2, 1]) * fz
+    m = est.level_mean
+    a = step_s / LEVEL_MEAN_S
+    m[0] += a * (fn - m[0])
+    m[1] += a * (fe - m[1])
+    dn, de = fn - m[0], fe - m[1]
+    est.level_var += a * (0.5 * (dn * dn + de * de) - est.level_var)
+    sensor = est.design.sensors.accel_mps2
+    return fn, fe, max(est.level_var, sensor * sensor) * 2.0 * LEVEL_CORR_S / step_s
 
 
 def radial_noise(innov2_radial: float, var: float) -> float:
@@ -241,7 +279,9 @@ def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
         innov_e = rt[0, 1] * st[0].innov + rt[1, 1] * st[1].innov + rt[2, 1] * st[2].innov
         share = slow_innovation_share(misfit, nominal, var)
         est.consistency.add_slow_tilt(share * field_tilt_reading(innov_n, innov_e, est.field_ned), est._taut_alpha)
+        fn, fe, level_var = level_noise(est, ax, ay, az - float(ekf.x[ABIAS_Z]), step_s)
         if ekf.mode == MODE_TAUT:  # on the tether (the free ascent is a minute: the ground's value holds)
+            fuse_level(ekf, fn, fe, level_var, est.level_status)
             fuse_bias_magnitude(ekf, ax, ay, az, st, var + est.vertical_gust_var * vertical_air_samples(
                 step_s, est._mean_speed), est.accel_bias_status)  # fmt: skip
             w = share * step_s / ACCEL_HBIAS_S if math.isfinite(share) else 0.0
