@@ -55,7 +55,7 @@ def _structs(real):
                     ("time_test_us", i64)]  # fmt: skip
 
     class Counters(C.Structure):
-        _fields_ = [(n, i32) for n in COUNTER_NAMES]
+        _fields_ = [(n, C.c_uint32) for n in COUNTER_NAMES]
 
     class Forces(C.Structure):
         _fields_ = [("an", real), ("ae", real), ("ad", real), ("ja", real * (3 * NCOL)), ("jpull", real * NCOL),
@@ -417,6 +417,16 @@ class CEstimator:
     def accel_hbias_var(self) -> float:
         """Its error variance, (m/s^2)^2 (accel.horizontal_bias_variance)."""
         return float(self._s.accel_hbias_var)
+
+    @property
+    def level_mean(self) -> list[float]:
+        """The horizontal specific force in NED, north and east, its mean over LEVEL_MEAN_S (accel.level_noise)."""
+        return [float(v) for v in self._s.level_mean]
+
+    @property
+    def level_var(self) -> float:
+        """Its variance about that mean, per axis, (m/s^2)^2 (accel.level_noise)."""
+        return float(self._s.level_var)
 
     @property
     def _accel_radial_innov2(self) -> float:

@@ -65,8 +65,8 @@ typedef struct {
 } bw_status_t;
 
 typedef struct {
-    /* 32 bits: 248 days of samples at 100 Hz (the RAM's budget, docs/porting.md) */
-    int32_t imu_samples, baro_samples, rejected, duplicates, reordered, jitter, gaps, long_gaps, time_resets,
+    /* 32 bits, unsigned (they wrap, never overflow): 497 days of samples at 100 Hz (the RAM's budget, docs/porting.md) */
+    uint32_t imu_samples, baro_samples, rejected, duplicates, reordered, jitter, gaps, long_gaps, time_resets,
         numeric_resets, taut_resets, mode_switches, baro_resets, false_releases;
 } bw_counters_t;
 

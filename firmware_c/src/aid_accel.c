@@ -132,10 +132,11 @@ static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, 
             bw_consistency_add_slow_tilt(&est->consistency, share * bw_field_tilt_reading(in, ie, est->field_ned),
                                          est->a_taut);
             if (e->mode == BW_MODE_TAUT) {
-                fuse_level(e, fn, fe,
-                           BW_MAX(est->level_var, (bw_real)(est->cfg->accel_mps2 * est->cfg->accel_mps2)) * BW_R(2.0) * (bw_real)BW_LEVEL_CORR_S /
-                               step_s);
+                const bw_real sensor = (bw_real)est->cfg->accel_mps2;
+                const bw_real level_noise =
+                    BW_MAX(est->level_var, sensor * sensor) * BW_R(2.0) * (bw_real)BW_LEVEL_CORR_S / step_s;
                 bw_real w = isfinite(share) ? share * step_s / (bw_real)BW_ACCEL_HBIAS_S : BW_R(0.0);
+                fuse_level(e, fn, fe, level_noise);
                 fuse_bias_magnitude(e, fx, fy, fz, st,
                                     var + var_z_extra * vertical_air_samples(step_s, est->mean_speed));
                 weight = follow_horizontal_bias(est->accel_hbias, in, ie, est->field_ned, r, w) ? w : BW_R(0.0);

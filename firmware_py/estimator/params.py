@@ -184,7 +184,7 @@ MAG_RECOVER_S = 0.1  # the magnetometer and heading: rejected this long, fused a
 RELEASE_CONFIRM_S = 0.03  # | |f| - g | above the release threshold this long (3 samples at 100 Hz)
 RELEASE_HEIGHT_S = 0.5  # barometric height above the release height this long
 # the placement after a taut switch (aid_sources.tether.enter_taut)
-UNGATED = 1e6  # a gate in sigmas that never rejects (the radius and radial-rate rows)
+UNGATED = 1e6  # a gate in sigmas that never rejects (the radius and radial-rate rows, the level rows)
 TAUT_AZIMUTH_MIN_M = 3.0  # horizontal offset of the ascent that fixes the azimuth at the taut switch
 TAUT_LEAN_MIN_SIN = math.sin(math.radians(3.0))  # a lean this large gives the azimuth to a few degrees
 ALIGN_PULL_DOWN_MIN = 0.05  # the rope's pull on the balloon taken at least this far down (87 deg from vertical)

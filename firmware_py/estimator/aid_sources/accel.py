@@ -105,10 +105,10 @@ def fuse_level(ekf: WindEkf, fn: float, fe: float, var: float, status: FusionSta
     h = ekf.h
     h.fill(0.0)
     h[ATT_E] = G0
-    ekf.fuse(fn, var, status, UNGATED)
+    ekf.fuse(fn, var, status, UNGATED, recover=False)
     h.fill(0.0)
     h[ATT_N] = -G0
-    ekf.fuse(fe, var, status, UNGATED)
+    ekf.fuse(fe, var, status, UNGATED, recover=False)
 
 
 def level_noise(est: Estimator, fx: float, fy: float, fz: float, step_s: float) -> tuple[float, float, float]:
