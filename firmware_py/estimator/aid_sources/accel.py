@@ -111,14 +111,18 @@ def fuse_level(ekf: WindEkf, fn: float, fe: float, var: float, status: FusionSta
     ekf.fuse(fe, var, status, UNGATED, recover=False)
 
 
-def level_noise(est: Estimator, fx: float, fy: float, fz: float, step_s: float) -> tuple[float, float, float]:
-    """The specific force (FRD, its biases taken out) turned into NED, north and east, and the level rows' noise
-    (fuse_level): its variance about its mean over LEVEL_MEAN_S (per axis, at least the accelerometer's own noise,
-    [sensors] accel_mps2) times 2 LEVEL_CORR_S / ``step_s``; the mean and the variance followed here (in flight, at
-    the tether's rate: the free ascent's accelerations are what the taut entry starts from)."""
-    r = est.ekf.rt  # R^T, as the accelerometer's rows left it this step (aid_sources/accel.py fuse_accel)
-    fn = float(r[0, 0]) * fx + float(r[1, 0]) * fy + float(r[2, 0]) * fz
-    fe = float(r[0, 1]) * fx + float(r[1, 1]) * fy + float(r[2, 1]) * fz
+def horizontal_ned(rt: np.ndarray, x: float, y: float, z: float) -> tuple[float, float]:
+    """A body-frame (FRD) vector's north and east parts; ``rt`` R^T, as the accelerometer's rows left it this step
+    (fuse_accel)."""
+    return (float(rt[0, 0]) * x + float(rt[1, 0]) * y + float(rt[2, 0]) * z,
+            float(rt[0, 1]) * x + float(rt[1, 1]) * y + float(rt[2, 1]) * z)  # fmt: skip
+
+
+def level_noise(est: Estimator, fn: float, fe: float, step_s: float) -> float:
+    """The level rows' noise (fuse_level) from the specific force's north and east parts (its biases taken out,
+    ``horizontal_ned``): their variance about their mean over LEVEL_MEAN_S (per axis, at least the accelerometer's own
+    noise, [sensors] accel_mps2) times 2 LEVEL_CORR_S / ``step_s``; the mean and the variance followed here (in flight,
+    at the tether's rate: the free ascent's accelerations are what the taut entry starts from)."""
     m = est.level_mean
     a = step_s / LEVEL_MEAN_S
     m[0] += a * (fn - m[0])
@@ -126,7 +130,7 @@ def level_noise(est: Estimator, fx: float, fy: float, fz: float, step_s: float) 
     dn, de = fn - m[0], fe - m[1]
     est.level_var += a * (0.5 * (dn * dn + de * de) - est.level_var)
     sensor = est.design.sensors.accel_mps2
-    return fn, fe, max(est.level_var, sensor * sensor) * 2.0 * LEVEL_CORR_S / step_s
+    return max(est.level_var, sensor * sensor) * 2.0 * LEVEL_CORR_S / step_s
 
 
 def radial_noise(innov2_radial: float, var: float) -> float:
@@ -275,11 +279,11 @@ def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
         # plenty for a 10 s low-pass, consistency.SLOW_INNOV_S, and off the steps that are the median's), with the
         # share that counts (consistency.slow_innovation_share)
         rt = ekf.rt
-        innov_n = rt[0, 0] * st[0].innov + rt[1, 0] * st[1].innov + rt[2, 0] * st[2].innov
-        innov_e = rt[0, 1] * st[0].innov + rt[1, 1] * st[1].innov + rt[2, 1] * st[2].innov
+        innov_n, innov_e = horizontal_ned(rt, st[0].innov, st[1].innov, st[2].innov)
         share = slow_innovation_share(misfit, nominal, var)
         est.consistency.add_slow_tilt(share * field_tilt_reading(innov_n, innov_e, est.field_ned), est._taut_alpha)
-        fn, fe, level_var = level_noise(est, ax, ay, az - float(ekf.x[ABIAS_Z]), step_s)
+        fn, fe = horizontal_ned(rt, ax, ay, az - float(ekf.x[ABIAS_Z]))
+        level_var = level_noise(est, fn, fe, step_s)
         if ekf.mode == MODE_TAUT:  # on the tether (the free ascent is a minute: the ground's value holds)
             fuse_level(ekf, fn, fe, level_var, est.level_status)
             fuse_bias_magnitude(ekf, ax, ay, az, st, var + est.vertical_gust_var * vertical_air_samples(
