@@ -13,6 +13,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from balloon_core.atmosphere import G0, P0_PA, R_AIR, T0_K, isa_pressure_pa
+
 
 class ConfigError(ValueError):
     """A configuration file or value that cannot be used."""
@@ -65,6 +67,15 @@ class SiteConfig:
     ground_pressure_hpa: float | None = None
     ground_temperature_c: float = 20.0  # project extension: ISA ground temperature (Table 1: rho = 1.2)
     ground_sysid: int = 255  # the MAVLink system whose SCALED_PRESSURE is the ground reference (not the balloon's)
+
+    @property
+    def ground_pressure_pa(self) -> float:
+        """The air pressure at the ground, Pa: ``ground_pressure_hpa`` where given, else the standard atmosphere's at
+        ``altitude_amsl_m`` (1013.25 hPa at sea level, 845.6 at 1500 m): the simulator's air and the lift check. The
+        firmware without ``ground_pressure_hpa`` measures it (the barometer zeroed at the boot)."""
+        if self.ground_pressure_hpa is not None:
+            return self.ground_pressure_hpa * 100.0
+        return isa_pressure_pa(self.altitude_amsl_m, P0_PA, T0_K)
 
 
 @dataclass(frozen=True)
@@ -406,11 +417,8 @@ def build_section(cls: type, section: str, values: dict[str, Any]) -> Any:
 
 def lift_balance(d: Design) -> tuple[float, float, float, float, float]:
     """(buoyancy, skin and avionics weight, gas weight, tether weight, net lift) in N at the ground
-    (the simulator's air: ground_pressure_hpa or 1013.25 hPa at ground_temperature_c)."""
-    from balloon_core.atmosphere import G0, R_AIR
-
-    p0 = (d.site.ground_pressure_hpa or 1013.25) * 100.0
-    rho = p0 / (R_AIR * (d.site.ground_temperature_c + 273.15))
+    (the simulator's air: SiteConfig.ground_pressure_pa at ground_temperature_c)."""
+    rho = d.site.ground_pressure_pa / (R_AIR * (d.site.ground_temperature_c + 273.15))
     b = d.balloon
     buoyancy = rho * b.volume_m3 * G0
     skin = b.skin_and_avionics_kg * G0

@@ -71,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     try:  # weather that drifts beyond any site's ground by the end of the flight: refused before it starts
         site, truth = sc.design.site, sc.truth
-        ground_conditions((site.ground_pressure_hpa or 1013.25) * 100.0, site.ground_temperature_c + 273.15,
+        ground_conditions(site.ground_pressure_pa, site.ground_temperature_c + 273.15,
                           truth.pressure_drift_hpa_h, truth.temperature_drift_k_h, args.duration)  # fmt: skip
     except ValueError as exc:
         return userargs.fail(PROG, exc)

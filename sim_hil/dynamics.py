@@ -195,7 +195,7 @@ class BalloonPhysics:
                 raise ConfigError("truth.avionics_kg must not exceed balloon.skin_and_avionics_kg")
         inertia, inertia_z = offset_inertia_kgm2(b.skin_and_avionics_kg, b.gas_mass_kg, r, truth.avionics_kg, d)
         k = truth.tether_ea_n / t.length_m
-        p0 = (design.site.ground_pressure_hpa or 1013.25) * 100.0
+        p0 = design.site.ground_pressure_pa
         t0 = design.site.ground_temperature_c + 273.15
         rho0 = p0 / (R_AIR * t0)
         m_eff = mass + truth.added_mass_coefficient * rho0 * volume

@@ -49,7 +49,7 @@ class SensorSuite:
             truth.mag_field_h_gauss * math.sin(dec),
             truth.mag_field_z_gauss,
         )
-        self.ground_pressure_pa = (design.site.ground_pressure_hpa or 1013.25) * 100.0
+        self.ground_pressure_pa = design.site.ground_pressure_pa
         self.ground_temperature_k = design.site.ground_temperature_c + 273.15
         r = self._rng
         self.gyro_bias = [float(x) for x in r.normal(0.0, math.radians(truth.gyro_bias_dps), 3)]

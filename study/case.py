@@ -9,8 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from balloon_core.atmosphere import G0, R_AIR
-from balloon_core.config import Design
+from balloon_core.config import Design, lift_balance
 from balloon_core.rotation import euler_from_quat
 from balloon_core.score import response, score
 from firmware_py.core_c import new_core
@@ -56,14 +55,10 @@ def attitude_errors(rows, truth, start_s: float = 120.0) -> tuple[float, float]:
 
 
 def lift_margin(design: Design) -> tuple[float, float]:
-    """Net free lift at the ground (N) with the whole rope aloft, and as a fraction of the buoyancy; the
-    ground air density the simulator uses (site pressure or 1013.25 hPa, site temperature)."""
-    p0 = (design.site.ground_pressure_hpa or 1013.25) * 100.0
-    rho = p0 / (R_AIR * (design.site.ground_temperature_c + 273.15))
-    b = design.balloon
-    buoyancy = rho * b.volume_m3 * G0
-    free = buoyancy - (b.mass_kg + design.tether.linear_density_kg_m * design.tether.length_m) * G0
-    return free, free / buoyancy
+    """Net free lift at the ground (N) with the whole rope aloft, and as a fraction of the buoyancy, in the air the
+    simulator flies in (config.lift_balance)."""
+    buoyancy, *_, net = lift_balance(design)
+    return net, net / buoyancy
 
 
 def wind_lines_hz(wind: WindConfig) -> tuple[float, ...]:

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from balloon_core import atmosphere
-from balloon_core.config import SCHEMA, ConfigError, Design, SensorsConfig
+from balloon_core.config import SCHEMA, ConfigError, Design, SensorsConfig, design_from_dict, lift_balance
 from balloon_core.rotation import imu_mount, imu_to_body, rotation
 from sim_hil import cli as sim_cli
 from sim_hil.dynamics import TruthConfig
@@ -97,6 +97,28 @@ def test_ground_conditions_are_linear_from_boot():
     p, t = atmosphere.ground_conditions(P_BOOT, T_BOOT, -2.0, 1.5, 5400.0)
     assert p == pytest.approx(P_BOOT - 300.0, abs=1e-9)
     assert t == pytest.approx(T_BOOT + 2.25, abs=1e-12)
+
+
+@pytest.mark.parametrize("altitude_m", [-400.0, 1500.0, 3000.0])
+def test_a_site_above_the_sea_flies_in_its_own_thinner_air(altitude_m):
+    """A site's altitude without its ground pressure: the simulator's barometer reads the standard atmosphere's
+    pressure there (1013.25 hPa and 15 C at the sea, 6.5 K/km, 845.6 hPa at 1500 m), not the sea's, and the balloon
+    carries what that air lifts: the reference balloon, with a fifth of its buoyancy to spare at the sea, carries its
+    rope at 1500 m and not at 3000 m. A ground pressure given is the site's whatever its altitude."""
+    high = dataclasses.replace(NOISELESS, site=dataclasses.replace(NOISELESS.site, altitude_amsl_m=altitude_m))
+    expected = 101325.0 * (1.0 - LAPSE * altitude_m / 288.15) ** (GRAVITY / (R_DRY * LAPSE))
+    assert SensorSuite(high, TruthConfig(), IMU_HZ, seed=3).baro(0.0, 0.0)[0] == pytest.approx(expected / 100.0)
+    assert lift_balance(high)[0] == pytest.approx(lift_balance(NOISELESS)[0] * expected / P_BOOT)
+    net_at_sea = lift_balance(NOISELESS)[-1]
+    assert net_at_sea > 0.2 * lift_balance(NOISELESS)[0]
+    if altitude_m == 1500.0:
+        assert 845.0 < expected / 100.0 < 846.0 and lift_balance(high)[-1] > 0.0
+    if altitude_m == 3000.0:
+        assert lift_balance(high)[-1] < 0.0
+        with pytest.raises(ConfigError, match="cannot lift its tether"):
+            design_from_dict({"site": {"altitude_amsl_m": altitude_m}})
+    given = dataclasses.replace(high, site=dataclasses.replace(high.site, ground_pressure_hpa=990.0))
+    assert SensorSuite(given, TruthConfig(), IMU_HZ, seed=3).baro(0.0, 0.0)[0] == pytest.approx(990.0)
 
 
 def test_weather_beyond_any_site_is_refused():
