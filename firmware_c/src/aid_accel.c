@@ -131,6 +131,10 @@ static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, 
             const bw_real a = step_s / (bw_real)BW_LEVEL_MEAN_S;
             horizontal_ned(r, st[0].innov, st[1].innov, st[2].innov, &in, &ie);
             horizontal_ned(r, fx, fy, fz - e->x[BW_ABIAS_Z], &fn, &fe);
+            if (est->level_var == BW_R(0.0)) { /* nothing followed yet: from this sample and the nominal noise */
+                est->level_mean[0] = fn, est->level_mean[1] = fe;
+                est->level_var = nominal;
+            }
             est->level_mean[0] += a * (fn - est->level_mean[0]);
             est->level_mean[1] += a * (fe - est->level_mean[1]);
             dn = fn - est->level_mean[0], de = fe - est->level_mean[1];

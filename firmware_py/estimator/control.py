@@ -208,7 +208,7 @@ class Estimator:
         self._accel_radial_innov2 = 0.0  # on the tether, along its radius (accel.radial_noise)
         # the specific force in NED, north and east: its mean, and its variance about it per axis (accel.level_noise)
         self.level_mean = [0.0, 0.0]
-        self.level_var = 0.0
+        self.level_var = 0.0  # 0: nothing followed yet (accel.level_noise starts it)
         self._accel_axis_nis = [0.0, 0.0, 0.0]  # the last flying step's NIS per axis (accel.control_accel)
         self._innov_alpha = 1.0 / (ACCEL_INNOV_S * self.cfg.imu_rate_hz)
         self._mean_speed = self.cfg.expected_wind_mps  # the filter's own mean wind (60 s), for its noise

@@ -9,6 +9,7 @@ import pytest
 
 from balloon_core.config import Design
 from balloon_core.score import score
+from firmware_py.estimator.aid_sources.accel import accel_nominal_var
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.state import MODE_TAUT, WIND_E, WIND_N, FilterConfig
 from sim_hil.scenarios import SCENARIOS
@@ -138,6 +139,10 @@ def test_duplicates_reordering_gaps_and_time_going_back(flying):
     # on its tether: the new boot joins in flight, unconfirmed
     feed(est, [replace(samples[0], time_usec=1000)])
     assert c.time_resets == 1 and est.ekf.mode == MODE_TAUT and est.unconfirmed
+    # the level rows' statistics start again with it: from the accelerometer's nominal noise on the tether, not from
+    # zero (which fused them at the sensor's noise alone, as if the balloon did not move, for seconds)
+    feed(est, [replace(s, time_usec=1000 + 10_000 * (k + 1)) for k, s in enumerate(samples[1:11])])
+    assert est.level_var > 0.5 * accel_nominal_var(est), (est.level_var, accel_nominal_var(est))
 
 
 def perturb_wind(est, dn, de):

@@ -118,12 +118,18 @@ def horizontal_ned(rt: np.ndarray, x: float, y: float, z: float) -> tuple[float,
             float(rt[0, 1]) * x + float(rt[1, 1]) * y + float(rt[2, 1]) * z)  # fmt: skip
 
 
-def level_noise(est: Estimator, fn: float, fe: float, step_s: float) -> float:
+def level_noise(est: Estimator, fn: float, fe: float, step_s: float, prior_var: float) -> float:
     """The level rows' noise (fuse_level) from the specific force's north and east parts (its biases taken out,
     ``horizontal_ned``): their variance about their mean over LEVEL_MEAN_S (per axis, at least the accelerometer's own
     noise, [sensors] accel_mps2) times 2 LEVEL_CORR_S / ``step_s``; the mean and the variance followed here (in flight,
-    at the tether's rate: the free ascent's accelerations are what the taut entry starts from)."""
+    at the tether's rate: the free ascent's accelerations are what the taut entry starts from). Nothing followed yet
+    (the first flying step since the filter started, or since it joined a balloon in flight on its tether): the mean
+    starts at this sample and the variance at ``prior_var``, the accelerometer's nominal noise in the mode, what the
+    model allows its specific force (from zero the rows were as confident as the sensor's noise for seconds)."""
     m = est.level_mean
+    if est.level_var == 0.0:
+        m[0], m[1] = fn, fe
+        est.level_var = prior_var
     a = step_s / LEVEL_MEAN_S
     m[0] += a * (fn - m[0])
     m[1] += a * (fe - m[1])
@@ -283,7 +289,7 @@ def control_accel(est: Estimator, ax: float, ay: float, az: float) -> None:
         share = slow_innovation_share(misfit, nominal, var)
         est.consistency.add_slow_tilt(share * field_tilt_reading(innov_n, innov_e, est.field_ned), est._taut_alpha)
         fn, fe = horizontal_ned(rt, ax, ay, az - float(ekf.x[ABIAS_Z]))
-        level_var = level_noise(est, fn, fe, step_s)
+        level_var = level_noise(est, fn, fe, step_s, nominal)
         if ekf.mode == MODE_TAUT:  # on the tether (the free ascent is a minute: the ground's value holds)
             fuse_level(ekf, fn, fe, level_var, est.level_status)
             fuse_bias_magnitude(ekf, ax, ay, az, st, var + est.vertical_gust_var * vertical_air_samples(
