@@ -424,6 +424,11 @@ class CEstimator:
         return [float(v) for v in self._s.level_mean]
 
     @property
+    def rho(self) -> float:
+        """The air density the filter takes, kg/m^3 (the site's until the barometer reads it)."""
+        return float(self._s.rho)
+
+    @property
     def level_var(self) -> float:
         """Its variance about that mean, per axis, (m/s^2)^2 (accel.level_noise)."""
         return float(self._s.level_var)

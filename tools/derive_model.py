@@ -233,7 +233,7 @@ def generate_params() -> str:
     put("BW_", ekf, {"RESET_INITIALISE", "RESET_TAUT", "RESET_HEIGHT", "RESET_DRAG"})
     lines[-1:-1] = [f"#define BW_N_RESET_KINDS {len(ekf.RESET_NAMES)}"]
     put("BW_", tuning)
-    put("BW_", model, {"ADDED_MASS_COEFFICIENT"})
+    put("BW_", model, {"ADDED_MASS_COEFFICIENT", "SITE_AIR_K"})
     put("BW_", catenary, {"SHAPE_STEPS", "ANCHORED_NEWTON_STEPS"})
     put("BW_WINDCOV_", outputs, {"WINDOW_S"})
     lines += ["#endif", ""]

@@ -132,7 +132,7 @@ static void init_baro(bw_estimator_t *est)
     est->zero_sum = BW_R(0.0);
     est->zero_n = 0;
     est->join_height = BW_R(NAN);
-    est->rho = (bw_real)(101325.0 / (BW_R_AIR * 293.15));
+    est->rho = (bw_real)bw_site_air_density(est->cfg); /* the site's air until the barometer reads it (aid_baro.c) */
     est->height_baro = BW_R(NAN);
     est->baro_pending = 0;
     est->baro_outside = 0;
@@ -189,7 +189,7 @@ int bw_init(bw_estimator_t *est, const bw_config_t *cfg)
     share = est->catenary ? cfg->rope_kg_m * cfg->tether_length_m / (cfg->mass_kg + 1e-9) : 0.0;
     est->accel_confirm_var = (bw_real)(s_acc + cfg->accel_taut_mps2 * cfg->accel_taut_mps2);
     est->accel_taut_var = (bw_real)((double)est->accel_confirm_var + (BW_ROPE_WAVE_ACCEL_MPS2 * share) * (BW_ROPE_WAVE_ACCEL_MPS2 * share));
-    est->vertical_gust_var = vertical_gust_var(est, cfg->expected_wind_mps, (bw_real)(101325.0 / (BW_R_AIR * 293.15)));
+    est->vertical_gust_var = vertical_gust_var(est, cfg->expected_wind_mps, (bw_real)bw_site_air_density(cfg));
     est->align_var = (bw_real)(cfg->align_rad * cfg->align_rad + (BW_ROPE_WAVE_ALIGN_RAD * share) * (BW_ROPE_WAVE_ALIGN_RAD * share));
     est->baro_var = (bw_real)(cfg->baro_m * cfg->baro_m + BW_BARO_MODEL_M * BW_BARO_MODEL_M);
     est->mag_sigma = cfg->mag_gauss;

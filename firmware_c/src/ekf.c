@@ -50,7 +50,7 @@ void bw_ekf_init(bw_ekf_t *e, const bw_config_t *c)
     }
     e->forces.rope_weight_n = BW_R(NAN);
     e->forces.m_eff_kg = BW_R(1.0);
-    rho0 = 101325.0 / (BW_R_AIR * 293.15);
+    rho0 = bw_site_air_density(c);
     lift0 = (rho0 * c->volume_m3 - c->mass_kg) * BW_G0;
     rope_w = c->rope_kg_m * BW_G0 * c->tether_length_m;
     e->rope_chord_m = (bw_real)c->tether_length_m;

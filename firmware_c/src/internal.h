@@ -28,6 +28,7 @@ extern const int BW_MODEL_COLS[BW_NCOL];
 /* balloon_core: rotation.py, atmosphere.py */
 void bw_rotation(const bw_real q[4], bw_real r[9]);
 bw_real bw_air_density(bw_real pressure_pa, bw_real temperature_k);
+double bw_site_air_density(const bw_config_t *c);
 double bw_round_half_even(double v);
 
 /* tuning.py */

@@ -19,6 +19,17 @@ bw_real bw_air_density(bw_real pressure_pa, bw_real temperature_k)
     return pressure_pa / ((bw_real)BW_R_AIR * temperature_k);
 }
 
+/* model.py BalloonModel.site_rho_kg_m3: the site's air before the barometer and the thermometer read it, the
+ * design's ground pressure, else the standard atmosphere's at the site's altitude (config.py
+ * SiteConfig.ground_pressure_pa), at BW_SITE_AIR_K */
+double bw_site_air_density(const bw_config_t *c)
+{
+    double p = c->ground_pressure_hpa == c->ground_pressure_hpa
+                   ? c->ground_pressure_hpa * 100.0
+                   : 101325.0 * pow(1.0 - BW_LAPSE_K_M * c->altitude_amsl_m / 288.15, BW_G0 / (BW_R_AIR * BW_LAPSE_K_M));
+    return p / (BW_R_AIR * BW_SITE_AIR_K);
+}
+
 double bw_round_half_even(double v)
 {
     double f = floor(v), d = v - f;

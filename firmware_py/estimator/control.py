@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 
-from balloon_core.atmosphere import G0, air_density
+from balloon_core.atmosphere import G0
 from balloon_core.config import Design
 from balloon_core.rotation import imu_mount, imu_to_body, quat_from_euler, rotation
 from firmware_py.estimator.aid_sources.accel import accel_nominal_var, control_accel
@@ -157,7 +157,7 @@ class Estimator:
         # what a join in flight must explain to be confirmed: the rod's own allowance, not the rope's motion
         self.accel_confirm_var = s.accel_mps2**2 + self.cfg.accel_taut_mps2**2
         self.accel_taut_var = self.accel_confirm_var + (ROPE_WAVE_ACCEL_MPS2 * rope_share) ** 2
-        self.vertical_gust_var = self._vertical_gust_var(self.cfg.expected_wind_mps, air_density(101325.0, 293.15))
+        self.vertical_gust_var = self._vertical_gust_var(self.cfg.expected_wind_mps, self.model.site_rho_kg_m3)
         self.align_var = self.cfg.align_rad**2 + (ROPE_WAVE_ALIGN_RAD * rope_share) ** 2
         self.baro_var = s.baro_m**2 + BARO_MODEL_M**2
         self.mag_sigma = s.mag_gauss
@@ -245,7 +245,7 @@ class Estimator:
         self._zero_sum = 0.0
         self._zero_n = 0
         self._join_height = math.nan
-        self.rho = air_density(101325.0, 293.15)
+        self.rho = self.model.site_rho_kg_m3  # the site's air until the barometer reads it (aid_sources/baro.py)
         self.height_baro = math.nan
         self._baro_pending = False
         self.baro_outside = 0  # barometer samples in a row outside the gate (aid_sources.baro.control_baro)

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from balloon_core.atmosphere import G0, air_density
+from balloon_core.atmosphere import G0
 from balloon_core.rotation import rotation
 from firmware_py.estimator.catenary import RopeShape, calm_weight_share
 from firmware_py.estimator.model import BalloonModel, Forces, accelerations
@@ -127,7 +127,7 @@ class WindEkf:
             + [DRAG_VAR_MAX] + [POS_VAR_MAX_M2] + [ABIAS_VAR_MAX_M2S4], z
         )  # fmt: skip
         self.forces = Forces()
-        rho0 = air_density(101325.0, 293.15)
+        rho0 = model.site_rho_kg_m3
         lift0 = (rho0 * model.volume_m3 - model.mass_kg) * G0
         self.rope = RopeShape(  # the paper's rope: the whole weight on a rod of the rope's length
             model.tether_length_m,

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from balloon_core.atmosphere import G0
+from balloon_core.atmosphere import G0, P0_PA, air_density
 from balloon_core.config import Design
 from firmware_py.estimator.generated import COLUMNS, free_model, taut_model, taut_model_plain
 
@@ -28,6 +28,7 @@ JA_DOWN_VD = 2 * N_COLUMNS + COLUMNS.index("vel_d")  # d a_d / d v_d in the row-
 ROPE_JAC = 2  # rope_direction: n_N, n_E, then d n_N / d x (n), d n_E / d x (n)
 
 ADDED_MASS_COEFFICIENT = 0.5
+SITE_AIR_K = 293.15  # the air's temperature taken before the thermometer reads it (20 C: config.SiteConfig's default)
 
 
 @dataclass(frozen=True)
@@ -40,6 +41,9 @@ class BalloonModel:
     rope_kg_m: float
     rope_drag_m2: float = 0.0  # the balloon's share of the taut rope's cross-flow drag: 1/4 Cn d L
     rope_cn_d_m: float = 0.0  # Cn d: the rope's cross-flow drag per metre is 1/2 rho Cn d |u_n| u_n
+    # the site's air before the barometer and the thermometer read it: the design's ground pressure, else the standard
+    # atmosphere's at the site's altitude (config.SiteConfig.ground_pressure_pa), at SITE_AIR_K
+    site_rho_kg_m3: float = air_density(P0_PA, SITE_AIR_K)
 
     @classmethod
     def from_design(cls, d: Design, rope_normal_cd: float = 0.0, rope_drag_at_balloon: bool = True) -> BalloonModel:
@@ -53,6 +57,7 @@ class BalloonModel:
             rope_kg_m=d.tether.linear_density_kg_m,
             rope_drag_m2=0.25 * rope_normal_cd * d.tether.diameter_m * d.tether.length_m * rope_drag_at_balloon,
             rope_cn_d_m=rope_normal_cd * d.tether.diameter_m,
+            site_rho_kg_m3=air_density(d.site.ground_pressure_pa, SITE_AIR_K),
         )
 
     def lift_n(self, rho: float) -> float:

@@ -191,6 +191,28 @@ def test_configured_ground_pressure_replaces_zeroing():
     assert est.height_m() == pytest.approx(truth["height_m"][-1], abs=2.0)
 
 
+@pytest.mark.parametrize("core", ["py", "c"])
+def test_before_the_barometer_reads_the_air_is_the_sites(core):
+    """Until its first barometer sample the filter takes the site's air: the design's ground pressure, else the
+    standard atmosphere's at the site's altitude (845.6 hPa at 1500 m), at 20 C; not the sea's. A join in flight
+    places the balloon with the lift of that air (at 1500 m the sea's overstated it by 20 %), and the rope's weight
+    share and the vertical air's noise start from it (both cores)."""
+    from balloon_core.config import SiteConfig
+    from firmware_py.core_c import new_core
+
+    def rho_of(site: SiteConfig) -> float:
+        est, _ = new_core(replace(Design(), site=site), replace(FilterConfig(), core=core))
+        return float(est.rho)
+
+    at_sea = 101325.0 / (287.05 * 293.15)
+    assert rho_of(SiteConfig()) == pytest.approx(at_sea, rel=1e-6)
+    high = 101325.0 * (1.0 - 0.0065 * 1500.0 / 288.15) ** (9.80665 / (287.05 * 0.0065))
+    assert rho_of(SiteConfig(altitude_amsl_m=1500.0)) == pytest.approx(high / (287.05 * 293.15), rel=1e-6)
+    assert rho_of(SiteConfig(altitude_amsl_m=1500.0, ground_pressure_hpa=900.0)) == pytest.approx(
+        90000.0 / (287.05 * 293.15), rel=1e-6
+    )
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [11, 12])
 def test_firmware_restarted_in_flight_finds_the_wind(seed):

@@ -16,7 +16,7 @@ from balloon_core import atmosphere
 from balloon_core.config import SCHEMA, ConfigError, Design, SensorsConfig, design_from_dict, lift_balance
 from balloon_core.rotation import imu_mount, imu_to_body, rotation
 from sim_hil import cli as sim_cli
-from sim_hil.dynamics import TruthConfig
+from sim_hil.dynamics import BalloonPhysics, TruthConfig, density_at
 from sim_hil.sensors import SensorSuite
 
 R_DRY = 287.05  # J/(kg K)
@@ -109,6 +109,8 @@ def test_a_site_above_the_sea_flies_in_its_own_thinner_air(altitude_m):
     expected = 101325.0 * (1.0 - LAPSE * altitude_m / 288.15) ** (GRAVITY / (R_DRY * LAPSE))
     assert SensorSuite(high, TruthConfig(), IMU_HZ, seed=3).baro(0.0, 0.0)[0] == pytest.approx(expected / 100.0)
     assert lift_balance(high)[0] == pytest.approx(lift_balance(NOISELESS)[0] * expected / P_BOOT)
+    air = density_at(BalloonPhysics.from_design(high, TruthConfig()), 0.0)  # what the truth's balloon flies in
+    assert air == pytest.approx(expected / (R_DRY * T_BOOT))
     net_at_sea = lift_balance(NOISELESS)[-1]
     assert net_at_sea > 0.2 * lift_balance(NOISELESS)[0]
     if altitude_m == 1500.0:
