@@ -379,6 +379,8 @@ def summary(df) -> tuple[str, list[tuple[str, bool]]]:
             lines += ["", note]
     if "from_deg" in ok:
         lines += ["", by_direction(ok)]
+    if "mean_mps" in ok:
+        lines += ["", *by_wind(ok)]
     return "\n".join(lines), targets
 
 
@@ -418,6 +420,39 @@ def by_direction(ok) -> str:
                      f"|dir| <= {DIR_TARGET_DEG:g} deg {dir_pct}, "
                      f"err/acc p50 {_pct(ratio[m], 50):.2f}")  # fmt: skip
     return "by where the wind comes from (not a target): " + "; ".join(parts)
+
+
+WIND_BANDS_MPS = (1.0, 2.0, 4.0, math.inf)  # light air, moderate, fresh: the lean is a degree, a few, tens
+
+
+def by_wind(ok) -> list[str]:
+    """Not a target: what a user can expect, by the mean wind. In light air the balloon leans a degree or two, and a
+    tenth of a degree of tilt (an accelerometer's bias) turns the lean's azimuth by degrees; in a fresh wind the C_d
+    the flight could not learn is most of the speed's error. |error| percentiles per band, the RMS error, the
+    err/acc median, the share of flights that stated their error (err/acc at most 1.33: the error within its stated
+    1-sigma, or a third more) and the most of a flight's estimates beyond 3 sigma."""
+    mean = ok["mean_mps"].to_numpy(float)
+    fluct = (ok["wind_kind"] != "steady").to_numpy()
+    lines = ["what to expect by the mean wind (not a target): |error| p50 / p95 / worst", "",
+             "| mean wind | flights | direction, deg | speed, % | RMS error, m/s (p50) | err/acc p50 "
+             f"| err/acc <= {RATIO_BAND[1]:g} | beyond 3 sigma, worst flight | band skill p50 (fluctuating) |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+    for lo, hi in zip(WIND_BANDS_MPS[:-1], WIND_BANDS_MPS[1:]):
+        m = (mean >= lo) & (mean < hi)
+        if not m.any():
+            continue
+        d = ok["dir_err_deg"].abs().to_numpy(float)[m]
+        sp = ok["speed_err_pct"].abs().to_numpy(float)[m]
+        r = ok["err_acc"].to_numpy(float)[m]
+        rms = ok["raw_rmse_mps"].to_numpy(float)[m] if "raw_rmse_mps" in ok else np.full(int(m.sum()), math.nan)
+        skill = ok["band_skill"].to_numpy(float)[m & fluct]
+        beyond = ok["beyond_3sigma"].to_numpy(float)[m]
+        band = f"{lo:g}-{hi:g} m/s" if math.isfinite(hi) else f"{lo:g} m/s and more"
+        trio = lambda x: f"{_pct(x, 50):.2g} / {_pct(x, 95):.2g} / {np.nanmax(x):.2g}"  # noqa: E731
+        lines.append(f"| {band} | {int(m.sum())} | {trio(d)} | {trio(sp)} | {_pct(rms, 50):.2g} | {_pct(r, 50):.2f} | "
+                     f"{100 * np.mean(r <= RATIO_BAND[1]):.0f} % | {100 * np.nanmax(beyond):.2g} % | "
+                     f"{_pct(skill, 50):.2f} |")  # fmt: skip
+    return lines
 
 
 def drag_share_pct(cd_scale, drag_scale):

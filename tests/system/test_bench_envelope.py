@@ -229,6 +229,26 @@ def test_the_summary_splits_the_flights_by_where_the_wind_comes_from():
     assert "from S (4): band skill at its bar 0 %, |dir| <= 3 deg 50 %, err/acc p50 1.60" in line
 
 
+def test_the_summary_says_what_to_expect_by_the_mean_wind():
+    """Two flights in light air (1-2 m/s), one of them 10 deg off and 5 % beyond 3 sigma at err/acc 1.5, and three in
+    a fresh wind (6 m/s): each band's row has its own flights' errors, and a band without flights has no row."""
+    n = 5
+    df = pd.DataFrame({
+        "status": ["ok"] * n, "mean_mps": [1.2, 1.8, 6.0, 6.0, 7.9], "speed_err_pct": [-3.0, 1.0, 2.0, -4.0, 6.0],
+        "dir_err_deg": [-10.0, 2.0, 0.1, 0.2, -0.3], "worst_60s_dir_err_deg": [12.0, 3.0, 1.0, 1.0, 1.0],
+        "err_acc": [1.5, 0.5, 0.6, 0.7, 0.8], "beyond_3sigma": [0.05, 0.0, 0.0, 0.0, 0.01],
+        "raw_rmse_mps": [0.4, 0.2, 0.1, 0.3, 0.2], "replacements_per_h": [0.0] * n, "taut_resets": [0.0] * n,
+        "band_skill": [0.1, float("nan"), 0.9, 0.7, 0.8], "wind_kind": ["gusts", "steady", "kaimal", "kaimal", "gusts"],
+    })  # fmt: skip
+    df.attrs["duration_s"] = 600.0
+    lines = be.summary(df)[0].splitlines()
+    light = next(ln for ln in lines if ln.startswith("| 1-2 m/s |"))
+    fresh = next(ln for ln in lines if ln.startswith("| 4 m/s and more |"))
+    assert not any(ln.startswith("| 2-4 m/s |") for ln in lines)
+    assert light == "| 1-2 m/s | 2 | 6 / 9.6 / 10 | 2 / 2.9 / 3 | 0.3 | 1.00 | 50 % | 5 % | 0.10 |", light
+    assert fresh == "| 4 m/s and more | 3 | 0.2 / 0.29 / 0.3 | 4 / 5.8 / 6 | 0.2 | 0.70 | 100 % | 1 % | 0.80 |", fresh
+
+
 def test_a_balloon_near_its_lift_limit_is_held_to_the_lower_skill_bar():
     """The issue's bar: band skill >= 0.6 on fluctuating winds, >= 0.4 for a balloon within 30 % of its lift limit
     (buoyancy < 1.3 x what it carries). Balloons sized by the lift balance for 20 %, 29 %, 31 % and 100 % spare on a
