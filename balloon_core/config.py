@@ -437,7 +437,8 @@ def _check_design(d: Design) -> None:
         raise LiftError(
             f"the balloon cannot lift its tether: buoyancy {buoyancy:.2f} N - skin and avionics {skin:.2f} N "
             f"- gas {gas:.2f} N - tether {rope:.2f} N = net lift {net:.2f} N (needs > 0: a larger radius_m, "
-            f"a lighter skin, gas or tether)"
+            f"a lighter skin, gas or tether; the air: {d.site.ground_pressure_pa / 100.0:.1f} hPa at "
+            f"{d.site.ground_temperature_c:g} C)"
         )
 
 
