@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import ctypes as C
 import math
+from typing import Any
 
 import numpy as np
 
@@ -335,6 +336,27 @@ class _Ekf:
         return math.sqrt(max(0.0, float(self.P[12, 12]) + float(self.P[13, 13])))
 
 
+class _Field:
+    """One field of the C estimator's struct as the Python core's attribute of the same name (read-only, its leading
+    underscore dropped), through ``convert`` (``_floats`` for an array); ``doc`` says what it is."""
+
+    def __init__(self, convert: Any = None, doc: str = "") -> None:
+        self.convert, self.__doc__ = convert, doc or None
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.field = name.lstrip("_")
+
+    def __get__(self, obj: Any, owner: type | None = None) -> Any:
+        if obj is None:
+            return self
+        v = getattr(obj._s, self.field)
+        return v if self.convert is None else self.convert(v)
+
+
+def _floats(values: Any) -> list[float]:
+    return [float(v) for v in values]
+
+
 class CEstimator:
     """The C core with the interface of ``estimator.control.Estimator`` (what the firmware, the input
     pipeline and the studies use of it)."""
@@ -380,67 +402,24 @@ class CEstimator:
     def on_ground_baro(self, t_us: int, pressure_hpa: float, temperature_c: float) -> bool:
         return self._lib.bw_on_ground_baro(self._p, t_us, pressure_hpa, temperature_c) == 1
 
-    @property
-    def winch_samples(self) -> int:
-        return self._s.winch_samples
-
-    @property
-    def ground_samples(self) -> int:
-        return self._s.ground_samples
-
-    @property
-    def winch_rejected(self) -> int:
-        return self._s.winch_rejected
-
-    @property
-    def ground_rejected(self) -> int:
-        return self._s.ground_rejected
-
-    @property
-    def winch_reject_reason(self) -> int:
-        return self._s.winch_reject_reason
-
-    @property
-    def ground_reject_reason(self) -> int:
-        return self._s.ground_reject_reason
-
-    @property
-    def winch_tension_n(self) -> float:
-        return self._s.winch_tension_n
-
-    @property
-    def accel_hbias(self) -> list[float]:
-        """The accelerometer's body x, y biases walked since the field was learnt (accel.follow_horizontal_bias)."""
-        return [float(v) for v in self._s.accel_hbias]
-
-    @property
-    def accel_hbias_var(self) -> float:
-        """Its error variance, (m/s^2)^2 (accel.horizontal_bias_variance)."""
-        return float(self._s.accel_hbias_var)
-
-    @property
-    def level_mean(self) -> list[float]:
-        """The horizontal specific force in NED, north and east, its mean over LEVEL_MEAN_S (accel.level_noise)."""
-        return [float(v) for v in self._s.level_mean]
-
-    @property
-    def rho(self) -> float:
-        """The air density the filter takes, kg/m^3 (the site's until the barometer reads it)."""
-        return float(self._s.rho)
-
-    @property
-    def level_var(self) -> float:
-        """Its variance about that mean, per axis, (m/s^2)^2 (accel.level_noise)."""
-        return float(self._s.level_var)
-
-    @property
-    def _accel_radial_innov2(self) -> float:
-        """The accelerometer's innovations along the tether's radius, their mean square (accel.radial_noise)."""
-        return float(self._s.accel_radial_innov2)
-
-    @property
-    def p_ref_pa(self) -> float:
-        return self._s.p_ref_pa
+    # the estimator's own fields, read as the Python core's attributes of the same names (_Field)
+    winch_samples = _Field()
+    ground_samples = _Field()
+    winch_rejected = _Field()
+    ground_rejected = _Field()
+    winch_reject_reason = _Field()
+    ground_reject_reason = _Field()
+    winch_tension_n = _Field()
+    accel_hbias = _Field(_floats, "The accelerometer's body x, y biases walked since the field was learnt "
+                         "(accel.follow_horizontal_bias).")
+    accel_hbias_var = _Field(float, "Its error variance, (m/s^2)^2 (accel.horizontal_bias_variance).")
+    level_mean = _Field(_floats, "The horizontal specific force in NED, north and east, its mean over LEVEL_MEAN_S "
+                        "(accel.level_noise).")
+    level_var = _Field(float, "Its variance about that mean, per axis, (m/s^2)^2 (accel.level_noise).")
+    rho = _Field(float, "The air density the filter takes, kg/m^3 (the site's until the barometer reads it).")
+    _accel_radial_innov2 = _Field(float, "The accelerometer's innovations along the tether's radius, their mean "
+                                  "square (accel.radial_noise).")
+    p_ref_pa = _Field()
 
     def coast(self, seconds: float) -> None:
         self._lib.bw_coast(self._p, seconds)
@@ -449,33 +428,17 @@ class CEstimator:
         self._lib.bw_reset(self._p)
 
     # the state the firmware reads
-    @property
-    def initialised(self) -> bool:
-        return bool(self._s.initialised)
-
-    @property
-    def t_last_us(self) -> int:
-        return self._s.t_last_us
-
-    @property
-    def step(self) -> int:
-        return self._s.step
-
-    @property
-    def dt_us(self) -> int:
-        return self._s.dt_us
-
-    @property
-    def unconfirmed(self) -> bool:
-        return bool(self._s.unconfirmed)
+    initialised = _Field(bool)
+    t_last_us = _Field()
+    step = _Field()
+    dt_us = _Field()
+    unconfirmed = _Field(bool)
 
     @property
     def mode_name(self) -> str:
         return MODE_NAMES[self._s.ekf.mode]
 
-    @property
-    def height_baro(self) -> float:
-        return self._s.height_baro
+    height_baro = _Field()
 
     def wind(self) -> tuple[float, float]:
         x = self._s.ekf.x
