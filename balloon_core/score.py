@@ -33,6 +33,7 @@ class Score:
     est_speed_mps: float
     duration_s: float
     accuracy_not_finite: int = 0  # estimates scored whose accuracy is not a finite number: left out of its statistics
+    beyond_3sigma: float = math.nan  # the share of estimates (on the grid) whose error is beyond 3 x their accuracy
 
     def as_row(self) -> dict:
         return {k: round(v, 3) if isinstance(v, float) else v for k, v in self.__dict__.items()}
@@ -94,6 +95,8 @@ def score(t_est, est_n, est_e, acc, t_true, true_n, true_e, start_s: float = 120
     d_est = math.degrees(math.atan2(ee.mean(), en.mean()))
     ddir = (d_est - d_true + 180.0) % 360.0 - 180.0
     mean_acc = float(np.sqrt(np.mean(ac**2)))
+    stated = np.isfinite(ac)
+    beyond = float(np.mean(np.hypot(en - tn, ee - te)[stated] > 3.0 * ac[stated])) if stated.any() else math.nan
     t_est, acc = np.asarray(t_est, float), np.asarray(acc, float)
     scored = np.isfinite(t_est) & np.isfinite(est_n) & np.isfinite(est_e) & (t_est >= grid[0]) & (t_est <= grid[-1])
     return Score(
@@ -108,6 +111,7 @@ def score(t_est, est_n, est_e, acc, t_true, true_n, true_e, start_s: float = 120
         est_speed_mps=ms_est,
         duration_s=float(grid[-1] - grid[0]),
         accuracy_not_finite=int(np.count_nonzero(scored & ~np.isfinite(acc))),
+        beyond_3sigma=beyond,
     )
 
 

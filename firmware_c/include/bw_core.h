@@ -126,7 +126,7 @@ typedef struct {
     bw_real inflation;
     int32_t flag_changes;
     bw_real slow_tilt, slow_tilt_var;  /* the accelerometer's slow innovation as a tilt about the field, its mean square */
-    bw_real balance_n, balance_e, balance_var; /* the velocity's updates, their mean; the variance they take, its mean */
+    bw_real balance_n, balance_e, balance_var; /* the velocity's updates, their mean; that mean's variance if consistent */
     bw_real lean_tilt, lean_misfit; /* the body's taut tilt and the alignment's along innovation, their means */
 } bw_consistency_t;
 

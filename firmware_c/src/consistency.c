@@ -26,14 +26,13 @@ void bw_consistency_add(bw_consistency_t *m, int source, bw_real nis, bw_real al
         m->nis[source] += alpha * (BW_MIN(nis, (bw_real)BW_NIS_CLIP) - m->nis[source]);
 }
 
-/* consistency.py balance_nis: the window's mean update of the velocity over what a consistent filter's would be
- * (Consistency.add_balance's means, weight alpha a step) */
-bw_real bw_balance_nis(const bw_consistency_t *m, bw_real alpha)
+/* consistency.py balance_nis: the window's mean update of the velocity over the variance a consistent filter's
+ * would have (Consistency.add_balance) */
+bw_real bw_balance_nis(const bw_consistency_t *m)
 {
-    const bw_real expected = m->balance_var * alpha / (BW_R(2.0) - alpha);
-    if (!(expected > BW_R(0.0)))
+    if (!(m->balance_var > BW_R(0.0)))
         return BW_R(0.0);
-    return (m->balance_n * m->balance_n + m->balance_e * m->balance_e) / expected;
+    return (m->balance_n * m->balance_n + m->balance_e * m->balance_e) / m->balance_var;
 }
 
 /* consistency.py Consistency.add_lean: the body's taut tilt and the alignment's along innovation, their means over

@@ -107,7 +107,7 @@ class Consistency:
         self.slow_tilt = 0.0  # the accelerometer's innovation as a tilt about the field (field_tilt_reading), rad
         self.slow_tilt_var = 0.0  # its square's mean over CONSISTENCY_S, rad^2
         self.balance_n = self.balance_e = 0.0  # the velocity's measurement updates, N and E, their mean (m/s per step)
-        self.balance_var = 0.0  # what they take from the velocity's variance, its mean ((m/s)^2 per step)
+        self.balance_var = 0.0  # the variance of that mean in a consistent filter ((m/s)^2)
         self.lean_tilt = 0.0  # the body's tilt on the taut tether, its mean over the window (rad; 0: none yet)
         self.lean_misfit = 0.0  # the alignment's along innovation (the tilt less the model pull's lean), its mean (rad)
 
@@ -134,18 +134,21 @@ class Consistency:
     def add_balance(self, dv_n: float, dv_e: float, var_taken: float, alpha: float, judge_alpha: float) -> None:
         """One step's measurement update of the horizontal velocity (``dv_n``, ``dv_e``, m/s: after the step's fusions
         less after its prediction) and what the fusions took from its variance (``var_taken``, P_NN + P_EE's fall,
-        (m/s)^2), weight ``alpha`` (the step over CONSISTENCY_S): the window's means (the variance's from its first
-        value: the updates' means start from zero and their square reaches its share of the variance over the window,
-        so the NIS starts low, 0.86 of itself after one window, never high: from zero the variance's mean read it
-        twice at the start); where ``judge_alpha`` > 0 (the tether's rate, its weight) the force balance's NIS of the
-        means (``balance_nis``) joins the source's window as any innovation's does: one such NIS is a chi-square of two
-        degrees of freedom halved, above FLAG_NIS in one draw of seven in a consistent filter."""
+        (m/s)^2), weight ``alpha`` (the step over CONSISTENCY_S): the updates' mean over the window, and the variance
+        that mean has where each update is white with what it took, ``sum alpha^2 (1 - alpha)^(2k) taken_k``: both
+        from zero, so the NIS is a consistent filter's from the first step on, whatever the variance did. After the taut
+        entry P's fall shrinks a hundredfold over minutes as the state settles; a mean of the variance lagged it (tens
+        of seconds old, several times today's), and a state unbalanced from the entry went unflagged for a minute or
+        two (docs/estimator.md, "Honest accuracy"). Where ``judge_alpha`` > 0 (the tether's rate, its weight)
+        the force balance's NIS of the mean (``balance_nis``) joins the source's window as any innovation's does: one
+        such NIS is a chi-square of two degrees of freedom halved, above FLAG_NIS in one draw of seven in a consistent
+        filter."""
         self.balance_n += alpha * (dv_n - self.balance_n)
         self.balance_e += alpha * (dv_e - self.balance_e)
-        taken = max(var_taken, 0.0)
-        self.balance_var = taken if self.balance_var == 0.0 else self.balance_var + alpha * (taken - self.balance_var)
+        keep = 1.0 - alpha
+        self.balance_var = keep * keep * self.balance_var + alpha * alpha * max(var_taken, 0.0)
         if judge_alpha > 0.0:
-            self.add(FORCE, balance_nis(self.balance_n, self.balance_e, self.balance_var, alpha), judge_alpha)
+            self.add(FORCE, balance_nis(self.balance_n, self.balance_e, self.balance_var), judge_alpha)
 
     def add_lean(self, tilt_rad: float, misfit_rad: float, alpha: float) -> None:
         """One taut alignment: the body's tilt from the vertical and the along innovation (the tilt less the lean of
@@ -179,19 +182,18 @@ class Consistency:
         return [name for i, name in enumerate(SOURCES) if self.flags >> i & 1]
 
 
-def balance_nis(mean_n: float, mean_e: float, mean_var: float, alpha: float) -> float:
+def balance_nis(mean_n: float, mean_e: float, mean_var: float) -> float:
     """The force balance's NIS: a tethered balloon does not accelerate on average, so over the window the
     measurements take out of the velocity what the model's forces put in and the swing did not (paper Eq. 8: the
     drag of the wind, the lift, the rope). In a consistent filter the velocity's updates are white with the
-    covariance they take from P (K S K^T = P- - P+), so their mean over the window (weight ``alpha`` a step) has
-    ``alpha / (2 - alpha)`` of it; a model whose forces do not balance where the state says (a wind across the lean
-    with the attitude about the magnetic field's axis, which the accelerometer alone cannot tell apart) has the
+    covariance they take from P (K S K^T = P- - P+), and their mean over the window has the variance ``mean_var``
+    (Consistency.add_balance); a model whose forces do not balance where the state says (a wind across the lean with
+    the attitude about the magnetic field's axis, which the accelerometer alone cannot tell apart) has the
     measurements pull the balloon back every step, and the mean is far from zero. Its square over that variance
     (both horizontal axes, so 1 in a consistent filter); 0 before any update."""
-    expected = mean_var * alpha / (2.0 - alpha)
-    if not expected > 0.0:
+    if not mean_var > 0.0:
         return 0.0
-    return (mean_n * mean_n + mean_e * mean_e) / expected
+    return (mean_n * mean_n + mean_e * mean_e) / mean_var
 
 
 def gyro_heading_wind(speed_mps: float, gyro_bias_rad_s: float, seconds: float) -> float:

@@ -360,12 +360,15 @@ class Estimator:
             self._reinitialise_in_flight(ax, ay, az, mx, my, mz, mag_ok)
             return True
         if ekf.mode == MODE_TAUT and ekf.reset_count == resets:  # the force balance's monitor (consistency.py)
+            # judged once the taut entry's settling is over (as the turbulence is measured): the placement's own
+            # convergence pulls the velocity too
+            settled = self._dwell >= self.schedule.turbulence_from
             self.consistency.add_balance(
                 float(ekf.x[VEL_N]) - vn,
                 float(ekf.x[VEL_E]) - ve,
                 pv - float(ekf.P[VEL_N, VEL_N] + ekf.P[VEL_E, VEL_E]),
                 self._step_alpha,
-                0.0 if self.step % self.schedule.taut_every else self._taut_alpha,
+                self._taut_alpha if settled and self.step % self.schedule.taut_every == 0 else 0.0,
             )
         if ekf.mode != MODE_GROUND:
             # each source's windowed NIS against (about) the noise it was fused with (the accelerometer's is kept

@@ -234,14 +234,16 @@ def test_a_multisine_in_light_air(name):
     accelerometer's slow innovation shows of it (consistency.HEADING_MISFIT_RATIO), and in the paper's 1.39 m/s the
     error is 1.5 times it (0.32 deg, 0.51 stated): 0.47 where it was 0.51 (the lumped 1.13 m/s: 0.52 either way); and
     the tilt's systematic error carries the accelerometer's horizontal bias wandering since the boot
-    (consistency.lean_bias_rad: 0.22 deg after these 240 s where it was 0.20): 0.45. The floor is now 0.38: in light
+    (consistency.lean_bias_rad: 0.22 deg after these 240 s where it was 0.20): 0.45. The floor is now 0.28: in light
     air the measurements pull the balloon's velocity persistently, more than a consistent filter's would, and the
-    force balance's factor (consistency.balance_nis) states it (the lumped 1.13 m/s and the paper's 1.39 m/s:
-    0.42 and 0.46, the estimate the same), and the complex error in the band (|H - 1| at 0.02 and 0.05 Hz) is what
-    the delayed truth fails."""
+    force balance's factor (consistency.balance_nis) states it. Over ten minutes from 120 s the lumped 1.13 m/s and
+    the paper's 1.39 m/s read 0.31 and 0.28; over these 240 s they read 0.40 and 0.43 while the force balance's mean
+    was judged against a mean of the variance the updates took, which lags the entry's settling by minutes, and 0.37
+    and 0.31 since it is judged against the variance a consistent filter's mean has (the estimate the same). The
+    complex error in the band (|H - 1| at 0.02 and 0.05 Hz) is what the delayed truth fails."""
 
     def ok(x: dict[str, float]) -> bool:
-        return (x["dir"] <= 5.0 and x["speed"] <= 12.0 and x["skill"] >= 0.4 and 0.38 <= x["err_acc"] <= 1.6
+        return (x["dir"] <= 5.0 and x["speed"] <= 12.0 and x["skill"] >= 0.4 and 0.28 <= x["err_acc"] <= 1.6
                 and x["beyond_3sigma"] <= 0.03 and x["h_err"] <= H_ERR_MAX)  # fmt: skip
 
     m = flights(base(**LIGHT_AIR[name]))
@@ -454,31 +456,33 @@ UNSEEN_ROTATION = {  # name: (scenario, wind from, seed)
     "reduced-balloon from S": ("reduced-balloon", 180.0, 2),
     "hard-iron from NE": ("hard-iron", 45.0, 1),
     "reduced-multisine from N": ("reduced-multisine", 0.0, 1),
+    "reduced-multisine from S": ("reduced-multisine", 180.0, 2),
+    "hard-iron from SE": ("hard-iron", 135.0, 1),
 }
 
 
 @pytest.mark.parametrize("name", UNSEEN_ROTATION)
 def test_a_wind_held_across_the_lean_by_the_unseen_rotation_says_so(name):
-    """The paper's world, ten minutes from 120 s: the reduced balloon from the south, the hard iron from the
-    north-east, the reduced balloon's multisine from the north. The attitude turns 2-3 deg about the magnetic
-    field's axis (which the magnetometer cannot see) together with a wind 1-1.6 m/s across the lean, and the
-    accelerometer cannot tell the pair apart: every row's windowed NIS stays near 1, and the stated accuracy was 2.7,
-    2.9 and 2.6 times too small (up to 71 % beyond 3 sigma). (The reduced balloon from the south with seed 1 read 5.0
-    and 19 deg off; since the rope's breathing is noise along the radius (accel.radial_noise) it is 1.9 deg off with
-    a band skill of 0.31, no longer this corner.) The model's forces do not balance there, and the
-    measurements pull the balloon back every step; the force balance (consistency.balance_nis) states it: error /
-    accuracy 0.6-1.4, at most 3 % beyond 3 sigma. The estimate has no skill in the band (-1.4 to 0.15) and says
-    so: its stated accuracy covers the wind's whole spread about its mean, so the constant true mean's error is
-    within it (error/accuracy at most 1.33, the top of the envelope's band), and no reference can be dishonest against
-    it (were it ever skilful, they must be dishonest). The hard
-    iron from the south-east still reads 5.7 % beyond 3 sigma (error/accuracy 0.72): the window's mean lags the
-    error's onset by tens of seconds."""
+    """The paper's world, ten minutes from 120 s: the reduced balloon from the south, the hard iron from the north-east
+    and the south-east, the reduced balloon's multisine from the north and the south. The attitude turns 2-3 deg about
+    the magnetic field's axis (which the magnetometer cannot see) together with a wind 1-1.6 m/s across the lean, and
+    the accelerometer cannot tell the pair apart: every row's windowed NIS stays near 1, and the stated accuracy was
+    2.7, 2.9 and 2.6 times too small (up to 71 % beyond 3 sigma). (The reduced balloon from the south with seed 1 read
+    5.0 and 19 deg off; since the rope's breathing is noise along the radius (accel.radial_noise) it is 1.9 deg off with
+    a band skill of 0.31, no longer this corner.) The model's forces do not balance there, and the measurements pull the
+    balloon back every step; the force balance (consistency.balance_nis) states it: error / accuracy 0.6-0.8, at most
+    0.1 % beyond 3 sigma. The estimate has no skill in the band (-1.4 to 0.15) and says so: its stated accuracy covers
+    the wind's whole spread about its mean, so the constant true mean's error is within it (error/accuracy at most 1.33,
+    the top of the envelope's band), and no reference can be dishonest against it (were it ever skilful, they must be
+    dishonest). While the force balance's mean was judged against a mean of the variance the updates took, which after
+    the taut entry is tens of seconds old and several times today's, the hard iron from the south-east read 5.5 % beyond
+    3 sigma and the multisines 3.1 and 4.0 %."""
     scenario, from_deg, seed = UNSEEN_ROTATION[name]
     sections = scenario_sections(SCENARIOS[scenario])
     sections["wind"]["from_deg"] = from_deg
     m = judged(sections, seed, be.FULL_DURATION_S, 120.0)
     est = m["estimate"]
-    assert 0.5 <= est["err_acc"] <= 1.5 and est["beyond_3sigma"] <= 0.05, est
+    assert 0.5 <= est["err_acc"] <= 1.5 and est["beyond_3sigma"] <= 0.03, est
     if est["skill"] < 0.3:
         assert m["constant"]["err_acc"] <= 1.33, (est, m["constant"])
     else:
