@@ -135,13 +135,13 @@ class Consistency:
         """One step's measurement update of the horizontal velocity (``dv_n``, ``dv_e``, m/s: after the step's fusions
         less after its prediction) and what the fusions took from its variance (``var_taken``, P_NN + P_EE's fall,
         (m/s)^2), weight ``alpha`` (the step over CONSISTENCY_S): the updates' mean over the window, and the variance
-        that mean has where each update is white with what it took, ``sum alpha^2 (1 - alpha)^(2k) taken_k``: both
-        from zero, so the NIS is a consistent filter's from the first step on, whatever the variance did. After the taut
-        entry P's fall shrinks a hundredfold over minutes as the state settles; a mean of the variance lagged it (tens
-        of seconds old, several times today's), and a state unbalanced from the entry went unflagged for a minute or
-        two (docs/estimator.md, "Honest accuracy"). Where ``judge_alpha`` > 0 (the tether's rate, its weight)
-        the force balance's NIS of the mean (``balance_nis``) joins the source's window as any innovation's does: one
-        such NIS is a chi-square of two degrees of freedom halved, above FLAG_NIS in one draw of seven in a consistent
+        that mean has where each update is white with what it took, ``sum alpha^2 (1 - alpha)^(2k) taken_k``: both from
+        zero, so the NIS is a consistent filter's from the first step on, whatever the variance did. After the taut
+        entry P's fall shrinks by an order of magnitude or more as the state settles; a mean of the variance lagged it
+        (tens of seconds old, several times today's), and a state unbalanced from the entry went unflagged for a minute
+        or two (docs/estimator.md, "Honest accuracy"). Where ``judge_alpha`` > 0 (the tether's rate, its weight) the
+        force balance's NIS of the mean (``balance_nis``) joins the source's window as any innovation's does: one such
+        NIS is a chi-square of two degrees of freedom halved, above FLAG_NIS in one draw of seven in a consistent
         filter."""
         self.balance_n += alpha * (dv_n - self.balance_n)
         self.balance_e += alpha * (dv_e - self.balance_e)

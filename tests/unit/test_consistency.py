@@ -252,11 +252,11 @@ def test_the_force_balance_is_the_mean_update_against_a_consistent_filters():
 
 def test_the_force_balance_is_a_consistent_filters_while_the_variance_falls():
     """The mean update's variance is the exact one of white updates, sum alpha^2 (1 - alpha)^(2k) taken_k, from zero as
-    the mean is, so the NIS of consistent updates is 1 on average from the first step on and whatever the variance
-    does. After the taut entry P's fall shrinks a hundredfold over minutes as the state settles: here over the 30 s
-    flown, 400 flights, the NIS at their end. A mean of the variance (what the monitor followed before) reads the
-    same updates at a quarter of 1 there (0.26), and a state unbalanced since the entry went unflagged for a
-    minute and a half (`reduced-multisine` from the north and the south)."""
+    the mean is, so the NIS of consistent updates is 1 on average from the first step on and whatever the variance does.
+    After the taut entry P's fall shrinks by an order of magnitude or more as the state settles: here a hundredfold over
+    the 30 s flown, 400 flights, the NIS at their end (the closed form of the variance checked). A mean of the variance
+    (what the monitor followed before) reads the same updates at a quarter of 1 there (0.26), and a state unbalanced
+    since the entry went unflagged for a minute and a half (`reduced-multisine` from the north and the south)."""
     from firmware_py.estimator.consistency import Consistency, balance_nis
 
     rng = np.random.default_rng(5)

@@ -213,6 +213,30 @@ def test_before_the_barometer_reads_the_air_is_the_sites(core):
     )
 
 
+@pytest.mark.parametrize("core", ["py", "c"])
+def test_the_force_balance_is_judged_once_the_taut_entrys_settling_is_over(core):
+    """The force balance's NIS joins the monitor 60 s (TURBULENCE_FROM_S) after the taut entry, not before: the
+    placement's own convergence pulls the velocity too, and judged against the variance a consistent filter's mean has
+    it flagged every entry for a minute after it had settled (both cores, the same step)."""
+    from firmware_py.estimator.consistency import FORCE
+    from firmware_py.estimator.params import TURBULENCE_FROM_S
+
+    samples, _ = stream("paper-reference", 100.0, 11)
+    est = Estimator(Design(), replace(FilterConfig(), core=core))
+    entry = first = None
+    for s in samples:
+        if s.baro:
+            est.on_baro(s.time_usec, *s.baro)
+        est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
+        t = s.time_usec * 1e-6
+        if entry is None and est.ekf.mode == MODE_TAUT:
+            entry = t
+        if first is None and est.consistency.nis[FORCE] != 0.0:
+            first = t
+    assert entry is not None and first is not None, (entry, first)
+    assert TURBULENCE_FROM_S <= first - entry <= TURBULENCE_FROM_S + 0.1, (entry, first)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [11, 12])
 def test_firmware_restarted_in_flight_finds_the_wind(seed):
