@@ -61,23 +61,34 @@ def field_rope_flights():
     for seed in (2, 7):
         for label, cfg in (("catenary", sc.filter), ("paper", PAPER_ROPE)):
             rows, truth, est = fly(sc.design, sc.wind, sc.truth, cfg, 240.0, seed)
-            out[label, seed] = (judge(rows, truth), est)
+            sel = truth["time_s"] > START_S
+            rms = float(np.sqrt(np.mean((rows[sel, 0] - truth["wind_n"][sel]) ** 2
+                                        + (rows[sel, 1] - truth["wind_e"][sel]) ** 2)))  # fmt: skip
+            out[label, seed] = (judge(rows, truth), est, rms)
     return out
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [2, 7])
-def test_real_rope_is_measured_and_a_paper_rope_filter_is_not(field_rope_flights, seed):
+def test_real_rope_is_measured_and_a_paper_rope_filter_says_it_is_worse(field_rope_flights, seed):
+    """The real rope's flight through the filter's catenary is measured: within 7 % and 4 deg, honest. The same flight
+    through the paper's rope (a filter whose rope is not the truth's) reads the wind 1.3-1.4 times worse (RMS), and
+    must say so: its stated accuracy larger by as much, no more than 5 % beyond 3 sigma. It once stated the
+    catenary's accuracy (error/accuracy 1.64-1.66, 4.4-6.2 % beyond 3 sigma), until the force balance's mean was
+    judged against the variance a consistent filter's mean has (consistency.balance_nis): 1.10-1.15, none."""
+
     def measured(speed, ang, ratio, beyond, est) -> bool:
         return (abs(speed) < 0.07 and abs(ang) < 4.0 and 0.5 < ratio < 1.6 and beyond <= 0.05
                 and est.counters.taut_resets <= 1)  # fmt: skip
 
-    (speed, ang, ratio, beyond), est = field_rope_flights["catenary", seed]
+    (speed, ang, ratio, beyond), est, rms = field_rope_flights["catenary", seed]
     assert measured(speed, ang, ratio, beyond, est), (speed, ang, ratio, beyond, est.counters.taut_resets)
-    # the same flight through the paper's rope fails the same judgement: it thrashes between placements, or it
-    # is off, or its error is not what it states (seed 2: 2.0x its stated accuracy, 9 % beyond 3 sigma)
-    (p_speed, p_ang, p_ratio, p_beyond), p_est = field_rope_flights["paper", seed]
-    assert not measured(p_speed, p_ang, p_ratio, p_beyond, p_est), (p_speed, p_ang, p_ratio, p_beyond)
+    (_, _, p_ratio, p_beyond), _, p_rms = field_rope_flights["paper", seed]
+    # worse, and stated so: the error's growth over the catenary's is in the stated accuracy (the ratio's change
+    # within a fifth of it), and honest
+    assert p_rms > 1.2 * rms, (p_rms, rms)
+    assert p_ratio < 1.6 and p_beyond <= 0.05, (p_ratio, p_beyond)
+    assert p_ratio <= 1.2 * ratio, (p_ratio, ratio)
 
 
 @pytest.mark.slow
