@@ -223,17 +223,17 @@ def test_the_force_balance_is_judged_once_the_taut_entrys_settling_is_over(core)
 
     samples, _ = stream("paper-reference", 100.0, 11)
     est = Estimator(Design(), replace(FilterConfig(), core=core))
-    entry = first = None
-    for s in samples:
-        if s.baro:
-            est.on_baro(s.time_usec, *s.baro)
-        est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
-        t = s.time_usec * 1e-6
-        if entry is None and est.ekf.mode == MODE_TAUT:
-            entry = t
-        if first is None and est.consistency.nis[FORCE] != 0.0:
-            first = t
-    assert entry is not None and first is not None, (entry, first)
+    seen: dict[str, float] = {}
+
+    def watch(s) -> None:  # the taut entry, and the first force balance's NIS
+        if est.ekf.mode == MODE_TAUT:
+            seen.setdefault("entry", s.time_usec * 1e-6)
+        if est.consistency.nis[FORCE] != 0.0:
+            seen.setdefault("first", s.time_usec * 1e-6)
+
+    feed(est, samples, each=watch)
+    entry, first = seen.get("entry"), seen.get("first")
+    assert entry is not None and first is not None, seen
     assert TURBULENCE_FROM_S <= first - entry <= TURBULENCE_FROM_S + 0.1, (entry, first)
 
 
