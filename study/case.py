@@ -24,10 +24,11 @@ from study.metrics import FACTOR_SHOWN, H_BAND_HZ, h_column
 def fly(design: Design, wind: WindConfig, truth: TruthConfig, filt: FilterConfig, duration_s: float, seed: int):
     """Rows (time s, wind N, wind E, horiz accuracy, roll, pitch, yaw rad, the stated tilt's 1-sigma rad, the
     consistency monitor's factor on the accuracy, the index in ``SOURCES`` of the source whose windowed NIS set it or
-    -1 where it is 1) per IMU sample, the truth table by column, and the estimator (its counters)."""
+    -1 where it is 1, the filter's mode) per IMU sample, the truth table by column, and the estimator (its
+    counters)."""
     sim = Simulation(design, wind, truth, duration_s, seed)
     est, _ = new_core(design, filt)
-    rows = np.zeros((sim.n_imu, 10))
+    rows = np.zeros((sim.n_imu, 11))
     ekf = est.ekf  # its P is updated in place
     mon = est.consistency
     for i, s in enumerate(sim.samples()):
@@ -41,7 +42,7 @@ def fly(design: Design, wind: WindConfig, truth: TruthConfig, filt: FilterConfig
             stated = [stated_nis(k, v) for k, v in enumerate(mon.nis)]
             source = float(stated.index(max(stated)))
         rows[i] = (s.time_usec * 1e-6, wn, we, est.wind_accuracy(), *euler_from_quat(*ekf.q.tolist()),
-                   math.sqrt(ekf.P[ATT_N, ATT_N] + ekf.P[ATT_E, ATT_E]), factor, source)  # fmt: skip
+                   math.sqrt(ekf.P[ATT_N, ATT_N] + ekf.P[ATT_E, ATT_E]), factor, source, ekf.mode)  # fmt: skip
     truth_cols = {c: sim.truth[:, k] for k, c in enumerate(TRUTH_COLUMNS)}
     return rows, truth_cols, est
 

@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from balloon_core.config import lift_balance
 from benchmarks import bench_envelope as be
@@ -167,6 +168,29 @@ def test_extra_metrics_on_a_known_error():
     assert m["share_60s_dir_beyond_3sigma"] == 1.0
     assert m["replacements_per_h"] == 12.0
     assert sum(m[f"cal_n_{b}"] for b in range(len(be.CAL_EDGES) - 1)) == 1800
+
+
+def test_the_seconds_after_the_taut_entry_are_judged_apart():
+    """The ENTRY_WINDOW_S after the first taut sample (the rows' mode column), which the scored part leaves out: a wind
+    0.4 m/s off for the first 10 s there at 0.1 stated, right afterwards, reads a third of the window beyond 3 sigma;
+    a flight never taut, or taut only at its end, has nothing to judge there."""
+    from firmware_py.estimator.state import MODE_FREE, MODE_TAUT
+
+    t = np.arange(0.0, 120.0, 0.01)
+    entry = 20.0
+    off = np.where((t >= entry) & (t < entry + 10.0), 0.4, 0.0)
+    mode = np.where(t >= entry, MODE_TAUT, MODE_FREE)
+    rows = np.column_stack([t, 3.0 + off, np.zeros_like(t), np.full_like(t, 0.1), np.zeros((len(t), 6)), mode])
+    truth = {"time_s": t, "wind_n": np.full_like(t, 3.0), "wind_e": np.zeros_like(t)}
+    m = be.entry_metrics(rows, truth)
+    assert m["entry_beyond_3sigma"] == pytest.approx(10.0 / be.ENTRY_WINDOW_S, abs=0.01)
+    assert m["entry_err_acc"] == pytest.approx(math.sqrt(10.0 / be.ENTRY_WINDOW_S) * 4.0, rel=0.02)
+    never = rows.copy()
+    never[:, 10] = MODE_FREE
+    late = rows.copy()
+    late[:, 10] = np.where(t >= 115.0, MODE_TAUT, MODE_FREE)
+    for r in (never, late):
+        assert all(math.isnan(v) for v in be.entry_metrics(r, truth).values())
 
 
 def test_a_calm_minute_is_judged_by_its_vectors():
