@@ -19,7 +19,8 @@ Per flight (after ``start_s``): the study metrics (``study.case.metrics``) plus 
 direction error, the share of samples whose horizontal error exceeds 3 x the reported accuracy,
 taut re-placements (``counters.taut_resets``) per hour, and binned stated-vs-actual error for the
 calibration plot; apart from those, error / stated accuracy and the share beyond 3 sigma in the ENTRY_WINDOW_S after
-the first taut entry (before ``start_s``: the entry's settling, not a target). Writes envelope.parquet, envelope.csv, envelope_summary.md and PNG plots into ``--out``.
+the first taut entry (before ``start_s``: the entry's settling, not a target). Writes envelope.parquet,
+envelope.csv, envelope_summary.md and PNG plots into ``--out``.
 Finished flights are stored as parts (``DIR/parts``): a repeated run only computes what is missing. The products
 appear under their final names only when all are written. Exit 0 when the run is done (its targets pass or fail in
 the summary), 2 a user error (one line, before any flight is flown), as every program of the project.
