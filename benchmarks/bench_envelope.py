@@ -44,7 +44,7 @@ import numpy as np
 
 from balloon_core import userargs
 from balloon_core.config import Design, lift_balance
-from balloon_core.score import on_grid
+from balloon_core.score import on_grid, score
 from firmware_py.estimator.consistency import SOURCES
 from firmware_py.estimator.state import MODE_TAUT
 from sim_hil.scenarios import SCENARIOS
@@ -303,11 +303,8 @@ def entry_metrics(rows, truth) -> dict[str, float]:
     w = rows[(rows[:, 0] >= t0) & (rows[:, 0] < t0 + ENTRY_WINDOW_S)]
     if w[-1, 0] - t0 < 10.0:  # an entry at the flight's end: too little to judge
         return {"entry_err_acc": math.nan, "entry_beyond_3sigma": math.nan}
-    _, en, ee, ac, tn, te = on_grid(w[:, 0], w[:, 1], w[:, 2], w[:, 3], truth["time_s"], truth["wind_n"],
-                                    truth["wind_e"], t0)  # fmt: skip
-    err = np.hypot(en - tn, ee - te)
-    return {"entry_err_acc": float(np.sqrt(np.mean(err**2)) / np.sqrt(np.mean(ac**2))),
-            "entry_beyond_3sigma": float(np.mean(err > 3.0 * ac))}  # fmt: skip
+    sc = score(w[:, 0], w[:, 1], w[:, 2], w[:, 3], truth["time_s"], truth["wind_n"], truth["wind_e"], t0)
+    return {"entry_err_acc": sc.error_ratio, "entry_beyond_3sigma": sc.beyond_3sigma}
 
 
 def envelope_case(payload: dict[str, Any]) -> dict[str, Any]:

@@ -240,8 +240,7 @@ def test_a_multisine_in_light_air(name):
     the paper's 1.39 m/s read 0.31 and 0.27 (0.31 and 0.28 before); over these 240 s they read 0.40 and 0.43 while the
     force balance's mean was judged against a mean of the variance the updates took, which lags the entry's settling,
     and 0.37 and 0.31 since it is judged against the variance a consistent filter's mean has (the estimate the
-    same). The
-    complex error in the band (|H - 1| at 0.02 and 0.05 Hz) is what the delayed truth fails."""
+    same). The complex error in the band (|H - 1| at 0.02 and 0.05 Hz) is what the delayed truth fails."""
 
     def ok(x: dict[str, float]) -> bool:
         return (x["dir"] <= 5.0 and x["speed"] <= 12.0 and x["skill"] >= 0.4 and 0.28 <= x["err_acc"] <= 1.6
@@ -472,7 +471,7 @@ def test_a_wind_held_across_the_lean_by_the_unseen_rotation_says_so(name):
     5.0 and 19 deg off; since the rope's breathing is noise along the radius (accel.radial_noise) it is 1.9 deg off with
     a band skill of 0.31, no longer this corner.) The model's forces do not balance there, and the measurements pull the
     balloon back every step; the force balance (consistency.balance_nis) states it: error / accuracy 0.6-0.8, at most
-    0.1 % beyond 3 sigma. The estimate has no skill in the band (-1.4 to 0.15) and says so: its stated accuracy covers
+    0.1 % beyond 3 sigma. The estimate has no skill in the band (-1.4 to 0.17) and says so: its stated accuracy covers
     the wind's whole spread about its mean, so the constant true mean's error is within it (error/accuracy at most 1.33,
     the top of the envelope's band), and no reference can be dishonest against it (were it ever skilful, they must be
     dishonest). While the force balance's mean was judged against a mean of the variance the updates took, which after
