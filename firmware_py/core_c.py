@@ -92,7 +92,8 @@ def _structs(real):
             ("wp_tau_s", real), ("wp_q_rate", real), ("wp_q_walk", real), ("sigma_rate", real), ("forces", Forces),
             ("rope_chord_m", real), ("rope_weight_n", real), ("rope_rate_mps", real), ("mode", u8),
             ("learn_drag", u8), ("drag_correlated", u8), ("field_window", u8),
-            ("recover_after", i32), ("field_heading_var", real), ("time_us", i64), ("taut_phase", i32),
+            ("recover_after", i32), ("field_heading_var", real), ("time_us", i64), ("time_taut_us", i64),
+            ("taut_phase", i32),
             ("noise_phase", i32), ("reset_counts", i32 * len(RESET_NAMES)),
             ("reset_count", i32), ("field_att_extra", real),
         ]  # fmt: skip

@@ -114,6 +114,7 @@ typedef struct {
     bw_real field_heading_var;   /* the estimator's (aid_mag.c, control.c: the heading's variance a body-fixed
                                   * magnetometer offset may hold unseen, rad^2), in this struct's hole */
     int64_t time_us;
+    int64_t time_taut_us;        /* the filter's time of the last taut placement (RESET_TAUT), -1 never */
     int32_t taut_phase, noise_phase;   /* step % taut_every, step % wind_noise_every */
     int32_t reset_counts[4];
     int32_t reset_count;

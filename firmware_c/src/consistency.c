@@ -52,6 +52,15 @@ bw_real bw_gyro_heading_wind(bw_real speed, bw_real gyro_bias_rad_s, bw_real sec
     return BW_R(2.0) * speed * BW_SIN(BW_R(0.5) * theta);
 }
 
+/* consistency.py placement_settling_wind: the wind error still to settle seconds after a taut placement, the
+ * placement's 1-sigma falling by e every ENTRY_SETTLE_S; 0 before one */
+bw_real bw_placement_settling_wind(bw_real seconds)
+{
+    if (!(seconds >= BW_R(0.0)))
+        return BW_R(0.0);
+    return (bw_real)BW_TAUT_WIND_SIGMA_MPS * BW_EXP(-seconds / (bw_real)BW_ENTRY_SETTLE_S);
+}
+
 /* consistency.py lean_misfit_wind: the wind error of a lean the body and the taut model disagree on, persistently
  * (the two leans' tangents tell two winds, |w|^2 ~ tan), each lean at most the pull's steepest, bounded by the
  * wind's own speed or 0.5 m/s */

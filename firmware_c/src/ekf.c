@@ -83,6 +83,7 @@ void bw_ekf_init(bw_ekf_t *e, const bw_config_t *c)
     e->u0 = (bw_real)(c->expected_wind_mps > 0.5 ? c->expected_wind_mps : 0.5);
     e->q_walk_step = (bw_real)(q_walk * dt);
     e->mode = BW_MODE_GROUND;
+    e->time_taut_us = -1;
     e->drag_correlated = 1;
     e->recover_after = (int32_t)(c->recover_after_s * c->imu_rate_hz);
 }
@@ -91,6 +92,8 @@ void bw_ekf_reset(bw_ekf_t *e, int kind)
 {
     e->reset_counts[kind] += 1;
     e->reset_count += 1;
+    if (kind == BW_RESET_TAUT)
+        e->time_taut_us = e->time_us;
     if (kind == BW_RESET_INITIALISE) /* the others leave the attitude's block of P as it was */
         e->field_att_extra = BW_R(0.0);
 }

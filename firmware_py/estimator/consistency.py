@@ -48,7 +48,13 @@ from __future__ import annotations
 import math
 
 from balloon_core.atmosphere import G0
-from firmware_py.estimator.params import ALIGN_PULL_DOWN_MIN, LEAN_BIAS_RAD, LEAN_COS_MIN
+from firmware_py.estimator.params import (
+    ALIGN_PULL_DOWN_MIN,
+    ENTRY_SETTLE_S,
+    LEAN_BIAS_RAD,
+    LEAN_COS_MIN,
+    TAUT_WIND_SIGMA_MPS,
+)
 from firmware_py.estimator.state import ATT_D, ATT_E, ATT_N
 
 SOURCES = ("accel", "align", "radius", "baro", "mag", "force")
@@ -205,6 +211,20 @@ def gyro_heading_wind(speed_mps: float, gyro_bias_rad_s: float, seconds: float) 
     misfit) at an accuracy of 0.35 m/s."""
     theta = min(max(gyro_bias_rad_s * seconds, 0.0), math.pi)
     return 2.0 * speed_mps * math.sin(0.5 * theta)
+
+
+def placement_settling_wind(seconds: float) -> float:
+    """The wind error (m/s) still to settle ``seconds`` after a taut placement (``WindEkf.time_taut_us``): the
+    placement's own 1-sigma, TAUT_WIND_SIGMA_MPS, falling by e every ENTRY_SETTLE_S. The placement puts the balloon at
+    rest on the rod's sphere, but the snap is not the rod's: on a real rope the balloon climbs on for seconds as the
+    sag is taken up (its radial speed 3-7 m/s at the entry, gone in 3-8 s), on a stiff one it bounces; the rigid model
+    can climb only by swinging towards the vertical, and the wind follows the swing (docs/estimator.md, "Mode
+    switching"). Every row is taken as consistent meanwhile, and P fell from the placement's 1.5 m/s to 0.8 in five
+    seconds where the error was 0.7-1.5 (p50-p90) and 4-5 m/s in the worst entries. Before the placement (negative
+    ``seconds``, or none yet): 0."""
+    if not seconds >= 0.0:
+        return 0.0
+    return TAUT_WIND_SIGMA_MPS * math.exp(-seconds / ENTRY_SETTLE_S)
 
 
 def lean_misfit_wind(speed_mps: float, tilt_rad: float, misfit_rad: float) -> float:

@@ -34,6 +34,7 @@ from firmware_py.estimator.consistency import (
     lean_bias_wind,
     lean_misfit_wind,
     lean_tilt_variance,
+    placement_settling_wind,
     systematic_variance,
 )
 from firmware_py.estimator.ekf import RESET_DRAG, FusionStatus, WindEkf
@@ -720,7 +721,8 @@ class Estimator:
         """The horizontal wind's 1-sigma accuracy to report (WIND_COV horiz_accuracy): the filter's
         P_NN + P_EE with what P does not hold (consistency.systematic_variance), times the consistency
         monitor's factor (>= 1: the model does not explain the data); taut, with the wind of the lean the body and
-        the model disagree on (consistency.lean_misfit_wind) in quadrature; while a join in flight is
+        the model disagree on (consistency.lean_misfit_wind) and what the last taut placement has still to settle
+        (consistency.placement_settling_wind) in quadrature; while a join in flight is
         unconfirmed at least sqrt(|w|^2 + 1); with the gyro's heading alone (consistency.gyro_heading_wind) and the
         heading a magnetometer offset may turn unseen (``field_heading_var``) in quadrature."""
         ekf = self.ekf
@@ -734,6 +736,8 @@ class Estimator:
             # which measures the same misfit (consistency.lean_misfit_wind)
             c = self.consistency
             acc = math.hypot(acc, lean_misfit_wind(speed, c.lean_tilt, c.lean_misfit))
+            if ekf.time_taut_us >= 0:  # the snap still settling (consistency.placement_settling_wind)
+                acc = math.hypot(acc, placement_settling_wind((ekf.time_us - ekf.time_taut_us) * 1e-6))
         if self.unconfirmed:
             acc = max(acc, math.sqrt(wn * wn + we * we + 1.0))
         if ekf.mode != MODE_GROUND:  # no magnetometer for HEADING_LOST_S: the heading is the gyro's alone since then

@@ -167,6 +167,7 @@ class WindEkf:
         # the one reset API (``reset``): counters per kind and in all, which outputs and the smoother read
         self.reset_counts = [0] * len(RESET_NAMES)
         self.reset_count = 0
+        self.time_taut_us = -1  # the filter's time of the last taut placement (RESET_TAUT), -1 never
         # the attitude's variance about the magnetic field's axis that P does not hold, rad^2
         # (consistency.field_attitude_extra); an initialisation starts it again from P
         self.field_att_extra = 0.0
@@ -246,6 +247,8 @@ class WindEkf:
         all; the post-flight smoother cuts its chain where ``reset_count`` changes (postflight/reprocess.py)."""
         self.reset_counts[kind] += 1
         self.reset_count += 1
+        if kind == RESET_TAUT:
+            self.time_taut_us = self.time_us
         if kind == RESET_INITIALISE:  # the others leave the attitude's block of P as it was
             self.field_att_extra = 0.0
 

@@ -452,6 +452,46 @@ def test_the_taut_entrys_settling_is_not_read_as_the_headings_error(name):
     assert max(seen) < max(0.5, 2.0 * max(actual)), (max(seen), max(actual))
 
 
+SNAPS = (63, 21, 97, 0)  # the full sample's flights: steady and Kaimal on the real rope, multisines on both
+ENTRY_WINDOW_S = 30.0  # the snap and its settling: the envelope's entry window (be.ENTRY_WINDOW_S)
+
+
+@pytest.mark.parametrize("flight", SNAPS)
+def test_the_snap_says_the_wind_is_still_settling(flight):
+    """The taut entry places the balloon at rest on the rod's sphere, but the snap is not the rod's: on the real rope
+    the balloon climbs on at 3-5 m/s while the sag is taken up, on the paper's it bounces, and the rigid model can only
+    swing it towards the vertical, the wind with it (a steady 4.3 m/s read 0.2 m/s a second after the entry). For the
+    half minute after the entry the wind is 1.2-1.6 m/s RMS off, worse than the constant true mean or the truth 4 s late
+    (0.4-0.8 m/s): this judges what the filter says of it. P, taking every row as consistent, fell from the placement's
+    1.5 m/s to 0.8 in five seconds: 8.7-10.7 % of three of these flights' estimates were beyond 3 sigma there, error /
+    accuracy up to 2.1. The placement's own 1-sigma settling by e in ENTRY_SETTLE_S
+    (consistency.placement_settling_wind) states it: 0-2.7 %, error / accuracy 1.2-1.7, within at most 5 % and 0.9-2
+    (said neither much too confidently nor too cautiously: the references, with the same stated accuracy, read
+    0.4-0.8)."""
+    p = be.sample(200)[flight]
+    design, wind, truth_cfg, filt = build(be.sections_of(p))
+    rows, truth, _ = fly(design, wind, truth_cfg, filt, 80.0, p["seed"])
+    taut = np.flatnonzero(rows[:, 10] == 2)
+    assert len(taut), "never taut"
+    t0 = rows[taut[0], 0]
+    t, tn, te = truth["time_s"], truth["wind_n"], truth["wind_e"]
+    w = (t >= t0) & (t <= t0 + ENTRY_WINDOW_S)
+    candidates = {
+        "estimate": (rows[:, 0], rows[:, 1], rows[:, 2]),
+        "constant": (t, np.full_like(tn, tn[w].mean()), np.full_like(te, te[w].mean())),
+        "delayed": (t + DELAY_S, tn, te),
+    }
+    judged_ok = {}
+    for name, (tt, en, ee) in candidates.items():
+        m = tt <= t0 + ENTRY_WINDOW_S
+        acc = np.interp(tt[m], rows[:, 0], rows[:, 3])
+        sc = score(tt[m], en[m], ee[m], acc, t, tn, te, t0)
+        judged_ok[name] = (0.9 <= sc.error_ratio <= 2.0 and sc.beyond_3sigma <= 0.05, sc.error_ratio, sc.beyond_3sigma)
+    assert judged_ok["estimate"][0], judged_ok["estimate"]
+    for ref in ("constant", "delayed"):
+        assert not judged_ok[ref][0], (ref, judged_ok[ref])
+
+
 UNSEEN_ROTATION = {  # name: (scenario, wind from, seed)
     "reduced-balloon from S": ("reduced-balloon", 180.0, 2),
     "hard-iron from NE": ("hard-iron", 45.0, 1),

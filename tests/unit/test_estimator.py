@@ -237,6 +237,28 @@ def test_the_force_balance_is_judged_once_the_taut_entrys_settling_is_over(core)
     assert TURBULENCE_FROM_S <= first - entry <= TURBULENCE_FROM_S + 0.1, (entry, first)
 
 
+@pytest.mark.parametrize("core", ["py", "c"])
+def test_the_stated_accuracy_follows_the_snap_as_it_settles(core):
+    """From the taut placement on, the stated accuracy is at least what the placement has still to settle
+    (consistency.placement_settling_wind, from the filter's time of the placement): the placement's 1-sigma at the
+    entry, falling by e every ENTRY_SETTLE_S (both cores)."""
+    from firmware_py.estimator.consistency import placement_settling_wind
+
+    samples, _ = stream("paper-reference", 60.0, 11)
+    est = Estimator(Design(), replace(FilterConfig(), core=core))
+    seen: list[tuple[float, float]] = []
+
+    def watch(s) -> None:  # taut: the time, the stated accuracy
+        if est.ekf.mode == MODE_TAUT:
+            seen.append((s.time_usec * 1e-6, est.wind_accuracy()))
+
+    feed(est, samples, each=watch)
+    assert len(seen) > 1000, len(seen)
+    entry = seen[0][0]
+    for t, acc in seen:
+        assert acc >= placement_settling_wind(t - entry) * (1.0 - 1e-9), (t - entry, acc)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [11, 12])
 def test_firmware_restarted_in_flight_finds_the_wind(seed):
