@@ -45,6 +45,7 @@ from firmware_py.estimator.params import (
     ACCEL_MODEL_CORR_S,
     ALIGN_INNOV_S,
     ASCENT_AIRFLOW_RATIO,
+    BALANCE_FROM_S,
     BARO_MODEL_M,
     BARO_NOMINAL_HZ,
     CONFIRM_EXPLAINED,
@@ -104,6 +105,9 @@ class Counters:
 
     def as_dict(self) -> dict[str, int]:
         return {name: getattr(self, name) for name in self.__slots__}
+
+
+BALANCE_FROM_US = round(BALANCE_FROM_S * 1e6)  # the force balance's start after a taut placement, filter time
 
 
 def count_up(n: int) -> int:
@@ -361,16 +365,17 @@ class Estimator:
             self._reinitialise_in_flight(ax, ay, az, mx, my, mz, mag_ok)
             return True
         if ekf.mode == MODE_TAUT and ekf.reset_count == resets:  # the force balance's monitor (consistency.py)
-            # judged once the taut entry's settling is over (as the turbulence is measured): the placement's own
-            # convergence pulls the velocity too
-            settled = self._dwell >= self.schedule.turbulence_from
-            self.consistency.add_balance(
-                float(ekf.x[VEL_N]) - vn,
-                float(ekf.x[VEL_E]) - ve,
-                pv - float(ekf.P[VEL_N, VEL_N] + ekf.P[VEL_E, VEL_E]),
-                self._step_alpha,
-                self._taut_alpha if settled and self.step % self.schedule.taut_every == 0 else 0.0,
-            )
+            mon = self.consistency
+            if ekf.time_us - ekf.time_taut_us < BALANCE_FROM_US:  # the placement's own convergence pulls the velocity
+                mon.balance_n = mon.balance_e = mon.balance_var = 0.0  # from zero once it has settled (BALANCE_FROM_S)
+            else:
+                mon.add_balance(
+                    float(ekf.x[VEL_N]) - vn,
+                    float(ekf.x[VEL_E]) - ve,
+                    pv - float(ekf.P[VEL_N, VEL_N] + ekf.P[VEL_E, VEL_E]),
+                    self._step_alpha,
+                    self._taut_alpha if self.step % self.schedule.taut_every == 0 else 0.0,
+                )
         if ekf.mode != MODE_GROUND:
             # each source's windowed NIS against (about) the noise it was fused with (the accelerometer's is kept
             # against its nominal noise; here the shared excess alone is put back, not the radius's, accel.radial_noise:

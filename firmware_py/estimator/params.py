@@ -197,6 +197,10 @@ TAUT_WIND_SIGMA_MPS = 1.5  # the static balance's wind at the snap (the balloon 
 # tenfold in three. After the envelope's 200 first entries (python -m benchmarks.bench_envelope) the wind's RMS error
 # was 2.0-2.4 m/s in the first 2 s (90 % within 4.1), 0.57 at 7-10 s, 0.25 at 20-30 s: e-folding in 5-11 s
 ENTRY_SETTLE_S = 8.0
+# the force balance (consistency.balance_nis) is judged from this long after a taut placement, its mean and that mean's
+# variance from zero then: before, the placement's own convergence pulls the velocity, which the settling above states;
+# judged from the entry on, a mean that still held the settling flagged every entry for a minute after it had settled
+BALANCE_FROM_S = 3.0 * ENTRY_SETTLE_S
 # covariance hygiene (ekf.fix_covariance) and the held balloon
 VAR_MIN = 1e-9  # floor of every variance
 POS_VAR_MAX_M2 = 1e4

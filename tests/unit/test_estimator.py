@@ -215,11 +215,12 @@ def test_before_the_barometer_reads_the_air_is_the_sites(core):
 
 @pytest.mark.parametrize("core", ["py", "c"])
 def test_the_force_balance_is_judged_once_the_taut_entrys_settling_is_over(core):
-    """The force balance's NIS joins the monitor 60 s (TURBULENCE_FROM_S) after the taut entry, not before: the
-    placement's own convergence pulls the velocity too, and judged against the variance a consistent filter's mean has
-    it flagged every entry for a minute after it had settled (both cores, the same step)."""
+    """The force balance's NIS joins the monitor BALANCE_FROM_S after the taut placement, not before, its mean from
+    zero then: the placement's own convergence pulls the velocity too (which the settling states), and judged with it
+    (against the variance a consistent filter's mean has) it flagged every entry for a minute after it had settled
+    (both cores, the same step)."""
     from firmware_py.estimator.consistency import FORCE
-    from firmware_py.estimator.params import TURBULENCE_FROM_S
+    from firmware_py.estimator.params import BALANCE_FROM_S
 
     samples, _ = stream("paper-reference", 100.0, 11)
     est = Estimator(Design(), replace(FilterConfig(), core=core))
@@ -234,7 +235,7 @@ def test_the_force_balance_is_judged_once_the_taut_entrys_settling_is_over(core)
     feed(est, samples, each=watch)
     entry, first = seen.get("entry"), seen.get("first")
     assert entry is not None and first is not None, seen
-    assert TURBULENCE_FROM_S <= first - entry <= TURBULENCE_FROM_S + 0.1, (entry, first)
+    assert BALANCE_FROM_S - 1e-6 <= first - entry <= BALANCE_FROM_S + 0.1, (entry, first)
 
 
 @pytest.mark.parametrize("core", ["py", "c"])
