@@ -671,17 +671,17 @@ static int on_imu_body(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay
         /* consistency.py Consistency.add_balance: the velocity's updates, their mean, and the variance that mean
          * has where each update is white with what it took from P; the force balance's NIS at the tether's rate,
          * from BALANCE_FROM_S after the last taut placement (before, its own convergence pulls the velocity), the
-         * mean and its variance from zero then */
+         * mean and its variance from zero then (held there at the tether's rate until) */
         bw_consistency_t *m = &est->consistency;
-        if (e->time_us - e->time_taut_us < (int64_t)(BW_BALANCE_FROM_S * 1e6)) {
-            m->balance_n = m->balance_e = m->balance_var = BW_R(0.0);
-        } else {
-            const bw_real a = est->a_accel, keep = BW_R(1.0) - a,
-                          taken = BW_MAX(pv - (e->P[BW_VEL_N][BW_VEL_N] + e->P[BW_VEL_E][BW_VEL_E]), BW_R(0.0));
-            m->balance_n += a * (e->x[BW_VEL_N] - vn - m->balance_n);
-            m->balance_e += a * (e->x[BW_VEL_E] - ve - m->balance_e);
-            m->balance_var = keep * keep * m->balance_var + a * a * taken;
-            if (e->taut_phase == 0)
+        const bw_real a = est->a_accel, keep = BW_R(1.0) - a,
+                      taken = BW_MAX(pv - (e->P[BW_VEL_N][BW_VEL_N] + e->P[BW_VEL_E][BW_VEL_E]), BW_R(0.0));
+        m->balance_n += a * (e->x[BW_VEL_N] - vn - m->balance_n);
+        m->balance_e += a * (e->x[BW_VEL_E] - ve - m->balance_e);
+        m->balance_var = keep * keep * m->balance_var + a * a * taken;
+        if (e->taut_phase == 0) {
+            if (e->time_us - e->time_taut_us < (int64_t)(BW_BALANCE_FROM_S * 1e6))
+                m->balance_n = m->balance_e = m->balance_var = BW_R(0.0);
+            else
                 bw_consistency_add(m, BW_FORCE, bw_balance_nis(m), est->a_taut);
         }
     }

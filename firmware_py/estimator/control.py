@@ -365,17 +365,20 @@ class Estimator:
             self._reinitialise_in_flight(ax, ay, az, mx, my, mz, mag_ok)
             return True
         if ekf.mode == MODE_TAUT and ekf.reset_count == resets:  # the force balance's monitor (consistency.py)
+            # judged from BALANCE_FROM_S after the last taut placement, whose own convergence pulls the velocity
+            # before; its mean and that mean's variance from zero then (held there at the tether's rate until)
             mon = self.consistency
-            if ekf.time_us - ekf.time_taut_us < BALANCE_FROM_US:  # the placement's own convergence pulls the velocity
-                mon.balance_n = mon.balance_e = mon.balance_var = 0.0  # from zero once it has settled (BALANCE_FROM_S)
-            else:
-                mon.add_balance(
-                    float(ekf.x[VEL_N]) - vn,
-                    float(ekf.x[VEL_E]) - ve,
-                    pv - float(ekf.P[VEL_N, VEL_N] + ekf.P[VEL_E, VEL_E]),
-                    self._step_alpha,
-                    self._taut_alpha if self.step % self.schedule.taut_every == 0 else 0.0,
-                )
+            at_rate = self.step % self.schedule.taut_every == 0
+            settling = ekf.time_us - ekf.time_taut_us < BALANCE_FROM_US
+            mon.add_balance(
+                float(ekf.x[VEL_N]) - vn,
+                float(ekf.x[VEL_E]) - ve,
+                pv - float(ekf.P[VEL_N, VEL_N] + ekf.P[VEL_E, VEL_E]),
+                self._step_alpha,
+                self._taut_alpha if at_rate and not settling else 0.0,
+            )
+            if at_rate and settling:
+                mon.balance_n = mon.balance_e = mon.balance_var = 0.0
         if ekf.mode != MODE_GROUND:
             # each source's windowed NIS against (about) the noise it was fused with (the accelerometer's is kept
             # against its nominal noise; here the shared excess alone is put back, not the radius's, accel.radial_noise:
