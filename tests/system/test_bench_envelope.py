@@ -173,7 +173,8 @@ def test_extra_metrics_on_a_known_error():
 def test_the_seconds_after_the_taut_entry_are_judged_apart():
     """The ENTRY_WINDOW_S after the first taut sample (the rows' mode column), which the scored part leaves out: a wind
     0.4 m/s off for the first 10 s there at 0.1 stated, right afterwards, reads a third of the window beyond 3 sigma;
-    a flight never taut, or taut only at its end, has nothing to judge there."""
+    the SETTLED_WINDOW_S after it, right, none, or 6 s of it off, a tenth; a flight never taut, or taut only at its
+    end, has nothing to judge there."""
     from firmware_py.estimator.state import MODE_FREE, MODE_TAUT
 
     t = np.arange(0.0, 120.0, 0.01)
@@ -185,6 +186,11 @@ def test_the_seconds_after_the_taut_entry_are_judged_apart():
     m = be.entry_metrics(rows, truth)
     assert m["entry_beyond_3sigma"] == pytest.approx(10.0 / be.ENTRY_WINDOW_S, abs=0.01)
     assert m["entry_err_acc"] == pytest.approx(math.sqrt(10.0 / be.ENTRY_WINDOW_S) * 4.0, rel=0.02)
+    assert m["settled_beyond_3sigma"] == 0.0 and m["settled_err_acc"] == 0.0  # the minute after it: right
+    off2 = off + np.where((t >= entry + be.ENTRY_WINDOW_S) & (t < entry + be.ENTRY_WINDOW_S + 6.0), 0.4, 0.0)
+    rows2 = rows.copy()
+    rows2[:, 1] = 3.0 + off2
+    assert be.entry_metrics(rows2, truth)["settled_beyond_3sigma"] == pytest.approx(6.0 / be.SETTLED_WINDOW_S, abs=0.01)
     never = rows.copy()
     never[:, 10] = MODE_FREE
     late = rows.copy()
