@@ -48,14 +48,8 @@ def judged(
     design, wind, truth_cfg, filt = build(sections)
     rows, truth, est = fly(design, wind, truth_cfg, filt, duration_s, seed)
     t, tn, te = truth["time_s"], truth["wind_n"], truth["wind_e"]
-    late = t >= start_s
-    candidates = {
-        "estimate": (rows[:, 0], rows[:, 1], rows[:, 2]),
-        "constant": (t, np.full_like(tn, tn[late].mean()), np.full_like(te, te[late].mean())),
-        "delayed": (t + DELAY_S, tn, te),
-    }
     out = {}
-    for name, (tt, en, ee) in candidates.items():
+    for name, (tt, en, ee) in candidates(rows, truth, start_s).items():
         acc = np.interp(tt, rows[:, 0], rows[:, 3])
         sc = score(tt, en, ee, acc, t, tn, te, start_s)
         _, gn, ge, ac, gtn, gte = on_grid(tt, en, ee, acc, t, tn, te, start_s)
@@ -71,6 +65,18 @@ def judged(
         if extra is not None:
             out[name].update(extra(wind, tt, en, ee, truth))
     return out
+
+
+def candidates(rows: np.ndarray, truth: dict[str, np.ndarray], start_s: float, end_s: float = math.inf):
+    """(times, north, east) of the estimate and the two references: the constant true mean over ``start_s`` to
+    ``end_s``, the truth DELAY_S late."""
+    t, tn, te = truth["time_s"], truth["wind_n"], truth["wind_e"]
+    w = (t >= start_s) & (t <= end_s)
+    return {
+        "estimate": (rows[:, 0], rows[:, 1], rows[:, 2]),
+        "constant": (t, np.full_like(tn, tn[w].mean()), np.full_like(te, te[w].mean())),
+        "delayed": (t + DELAY_S, tn, te),
+    }
 
 
 def base(**kw: Any) -> dict[str, Any]:
@@ -476,14 +482,8 @@ def test_the_snap_says_the_wind_is_still_settling(flight):
     assert len(taut), "never taut"
     t0 = rows[taut[0], 0]
     t, tn, te = truth["time_s"], truth["wind_n"], truth["wind_e"]
-    w = (t >= t0) & (t <= t0 + ENTRY_WINDOW_S)
-    candidates = {
-        "estimate": (rows[:, 0], rows[:, 1], rows[:, 2]),
-        "constant": (t, np.full_like(tn, tn[w].mean()), np.full_like(te, te[w].mean())),
-        "delayed": (t + DELAY_S, tn, te),
-    }
     judged_ok = {}
-    for name, (tt, en, ee) in candidates.items():
+    for name, (tt, en, ee) in candidates(rows, truth, t0, t0 + ENTRY_WINDOW_S).items():
         m = tt <= t0 + ENTRY_WINDOW_S
         acc = np.interp(tt[m], rows[:, 0], rows[:, 3])
         sc = score(tt[m], en[m], ee[m], acc, t, tn, te, t0)
