@@ -330,6 +330,10 @@ class _Ekf:
         return self._e.rope_chord_m
 
     @property
+    def time_taut_us(self) -> int:
+        return self._e.time_taut_us
+
+    @property
     def field_att_extra(self) -> float:
         return self._e.field_att_extra
 

@@ -283,7 +283,7 @@ static void initialise(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay
     quat_from_accel_mag(ax, ay, az, mx, my, mz, est->declination, q);
     bw_ekf_initialise(&est->ekf, est->cfg, q, (bw_real)-est->cfg->radius_m);
     est->initialised = 1;
-    est->t_boot_us = est->t_last_us = est->t_filter_us = t_us;
+    est->t_boot_us = est->t_last_us = est->t_filter_us = est->ekf.time_us = t_us; /* a join's placement is at it */
     if (t_us > BW_JOIN_IN_FLIGHT_US)
         join_in_flight(est, q);
 }

@@ -107,7 +107,7 @@ class Counters:
         return {name: getattr(self, name) for name in self.__slots__}
 
 
-BALANCE_FROM_US = round(BALANCE_FROM_S * 1e6)  # the force balance's start after a taut placement, filter time
+BALANCE_FROM_US = int(BALANCE_FROM_S * 1e6)  # the force balance's start after a taut placement (as the C core casts)
 
 
 def count_up(n: int) -> int:
@@ -537,6 +537,7 @@ class Estimator:
         self.t_boot_us = t_us
         self.t_last_us = t_us
         self.t_filter_us = t_us
+        self.ekf.time_us = t_us  # the filter's time from this sample on: a join's placement is at it
         if in_flight or t_us > JOIN_IN_FLIGHT_US:
             self._join_in_flight(q)
 

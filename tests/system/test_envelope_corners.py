@@ -24,6 +24,7 @@ import pytest
 
 from balloon_core.score import on_grid, response, score
 from benchmarks import bench_envelope as be
+from firmware_py.estimator.state import MODE_TAUT
 from sim_hil.scenarios import SCENARIOS
 from study.case import fly
 from study.spec import build, scenario_sections
@@ -432,7 +433,6 @@ def test_the_taut_entrys_settling_is_not_read_as_the_headings_error(name):
     from balloon_core.rotation import quat_from_euler, rotation_error
     from firmware_py.estimator.consistency import heading_misfit_variance
     from firmware_py.estimator.control import Estimator
-    from firmware_py.estimator.state import MODE_TAUT
     from sim_hil.scenarios import SCENARIOS
     from sim_hil.simulator import TRUTH_COLUMNS, Simulation
 
@@ -460,7 +460,6 @@ def test_the_taut_entrys_settling_is_not_read_as_the_headings_error(name):
 
 
 SNAPS = (63, 21, 97, 0)  # the full sample's flights: steady and Kaimal on the real rope, multisines on both
-ENTRY_WINDOW_S = 30.0  # the snap and its settling: the envelope's entry window (be.ENTRY_WINDOW_S)
 
 
 @pytest.mark.parametrize("flight", SNAPS)
@@ -478,13 +477,13 @@ def test_the_snap_says_the_wind_is_still_settling(flight):
     p = be.sample(200)[flight]
     design, wind, truth_cfg, filt = build(be.sections_of(p))
     rows, truth, _ = fly(design, wind, truth_cfg, filt, 80.0, p["seed"])
-    taut = np.flatnonzero(rows[:, 10] == 2)
+    taut = np.flatnonzero(rows[:, 10] == MODE_TAUT)
     assert len(taut), "never taut"
     t0 = rows[taut[0], 0]
     t, tn, te = truth["time_s"], truth["wind_n"], truth["wind_e"]
     judged_ok = {}
-    for name, (tt, en, ee) in candidates(rows, truth, t0, t0 + ENTRY_WINDOW_S).items():
-        m = tt <= t0 + ENTRY_WINDOW_S
+    for name, (tt, en, ee) in candidates(rows, truth, t0, t0 + be.ENTRY_WINDOW_S).items():
+        m = tt <= t0 + be.ENTRY_WINDOW_S
         acc = np.interp(tt[m], rows[:, 0], rows[:, 3])
         sc = score(tt[m], en[m], ee[m], acc, t, tn, te, t0)
         judged_ok[name] = (0.9 <= sc.error_ratio <= 2.0 and sc.beyond_3sigma <= 0.05, sc.error_ratio, sc.beyond_3sigma)

@@ -260,6 +260,22 @@ def test_the_stated_accuracy_follows_the_snap_as_it_settles(core):
         assert acc >= placement_settling_wind(t - entry) * (1.0 - 1e-9), (t - entry, acc)
 
 
+@pytest.mark.parametrize("core", ["py", "c"])
+def test_a_join_in_flight_is_a_placement_at_its_first_sample(core):
+    """A filter that starts while the balloon is up (first sample 150 s after the sender's boot) places it on the
+    tether at that sample: the settling and the force balance's start count from there (both cores). Placed at the
+    filter's time before it (0), the settling was over from the first step and the force balance judged the join's own
+    convergence at once."""
+    from firmware_py.estimator.consistency import placement_settling_wind
+
+    samples, _ = stream("paper-reference", 160.0, 11)
+    est = Estimator(Design(), replace(FilterConfig(), core=core))
+    first = samples[15000]
+    feed(est, samples[15000:15100])
+    assert est.ekf.mode == MODE_TAUT and est.ekf.time_taut_us == first.time_usec, (est.ekf.time_taut_us, first)
+    assert est.wind_accuracy() >= placement_settling_wind(1.0)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [11, 12])
 def test_firmware_restarted_in_flight_finds_the_wind(seed):
