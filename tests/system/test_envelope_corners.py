@@ -492,6 +492,19 @@ def test_the_snap_says_the_wind_is_still_settling(flight):
         assert not judged_ok[ref][0], (ref, judged_ok[ref])
 
 
+def honest_or_says_it_has_no_skill(m: dict[str, dict[str, float]]) -> None:
+    """The estimate honest (error / accuracy 0.5-1.5, at most 3 % beyond 3 sigma); where it has no skill in the band,
+    its stated accuracy covers the wind's whole spread about its mean (the constant true mean's error within it, at
+    most the envelope band's 1.33: no reference can be dishonest against it); where it has, both references fail."""
+    est = m["estimate"]
+    assert 0.5 <= est["err_acc"] <= 1.5 and est["beyond_3sigma"] <= 0.03, est
+    if est["skill"] < 0.3:
+        assert m["constant"]["err_acc"] <= 1.33, (est, m["constant"])
+    else:
+        for ref in ("constant", "delayed"):
+            assert not (0.5 <= m[ref]["err_acc"] <= 1.5 and m[ref]["beyond_3sigma"] <= 0.05), (ref, m[ref])
+
+
 AFTER_THE_ENTRY = {  # name: (sample seed, flight): a sample's flights (None: the benchmark's own)
     "Kaimal 6.3 m/s on a 142 m paper rope": (51, 96),
     "a 1.1 m/s multisine on a 146 m lumped rope": (None, 52),
@@ -510,13 +523,7 @@ def test_the_first_minutes_after_the_entry_are_honest(name):
     sample_seed, flight = AFTER_THE_ENTRY[name]
     p = (be.sample(200) if sample_seed is None else be.sample(200, seed=sample_seed))[flight]
     m = judged(be.sections_of(p), p["seed"], 150.0, 60.0)
-    est = m["estimate"]
-    assert 0.5 <= est["err_acc"] <= 1.5 and est["beyond_3sigma"] <= 0.03, est
-    if est["skill"] < 0.3:
-        assert m["constant"]["err_acc"] <= 1.33, (est, m["constant"])
-    else:
-        for ref in ("constant", "delayed"):
-            assert not (0.5 <= m[ref]["err_acc"] <= 1.5 and m[ref]["beyond_3sigma"] <= 0.05), (ref, m[ref])
+    honest_or_says_it_has_no_skill(m)
 
 
 UNSEEN_ROTATION = {  # name: (scenario, wind from, seed)
@@ -548,13 +555,7 @@ def test_a_wind_held_across_the_lean_by_the_unseen_rotation_says_so(name):
     sections = scenario_sections(SCENARIOS[scenario])
     sections["wind"]["from_deg"] = from_deg
     m = judged(sections, seed, be.FULL_DURATION_S, 120.0)
-    est = m["estimate"]
-    assert 0.5 <= est["err_acc"] <= 1.5 and est["beyond_3sigma"] <= 0.03, est
-    if est["skill"] < 0.3:
-        assert m["constant"]["err_acc"] <= 1.33, (est, m["constant"])
-    else:
-        for ref in ("constant", "delayed"):
-            assert not (0.5 <= m[ref]["err_acc"] <= 1.5 and m[ref]["beyond_3sigma"] <= 0.05), (ref, m[ref])
+    honest_or_says_it_has_no_skill(m)
 
 
 def test_a_balloon_blown_down_by_a_strong_wind_says_how_little_it_knows():
