@@ -220,8 +220,8 @@ def placement_settling_wind(seconds: float) -> float:
     sag is taken up (its radial speed 3-7 m/s at the entry, gone in 3-8 s), on a stiff one it bounces; the rigid model
     can climb only by swinging towards the vertical, and the wind follows the swing (docs/estimator.md, "Mode
     switching"). Every row is taken as consistent meanwhile, and P fell from the placement's 1.5 m/s to 0.8 in five
-    seconds where the error was 0.7-1.5 (p50-p90) and 4-5 m/s in the worst entries. Before the placement (negative
-    ``seconds``, or none yet): 0."""
+    seconds where the error was 0.7-1.5 m/s (p50-p90 over the envelope's first entries, params.ENTRY_SETTLE_S) and 4-5
+    m/s in the worst. Before the placement (negative ``seconds``, or none yet): 0."""
     if not seconds >= 0.0:
         return 0.0
     return TAUT_WIND_SIGMA_MPS * math.exp(-seconds / ENTRY_SETTLE_S)

@@ -194,8 +194,9 @@ TAUT_WIND_SIGMA_MPS = 1.5  # the static balance's wind at the snap (the balloon 
 # after a taut placement the stated accuracy falls from TAUT_WIND_SIGMA_MPS no faster than by e in this long
 # (consistency.placement_settling_wind): the snap is not the rod's (the balloon climbs on as the rope's sag is taken
 # up, or bounces on a stiff one), its rows pull the state for seconds, and P, which takes them as consistent, fell
-# tenfold in three. After the envelope's 200 first entries (python -m benchmarks.bench_envelope) the wind's RMS error
-# was 2.0-2.4 m/s in the first 2 s (90 % within 4.1), 0.57 at 7-10 s, 0.25 at 20-30 s: e-folding in 5-11 s
+# from the placement's 1.5 m/s to 0.8 in five. Over the envelope's 200 first entries (a script over the flights of
+# python -m benchmarks.bench_envelope, not in a command of the repo) the wind's RMS error was 2.0-2.4 m/s in the first
+# 2 s (90 % within 4.1), 0.57 at 7-10 s, 0.25 at 20-30 s: its excess over the settled flight's falls by e in 5-11 s
 ENTRY_SETTLE_S = 8.0
 # the force balance (consistency.balance_nis) is judged from this long after a taut placement, its mean and that mean's
 # variance from zero then: before, the placement's own convergence pulls the velocity, which the settling above states;
