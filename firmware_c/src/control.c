@@ -414,7 +414,10 @@ static void weigh_ascent(bw_estimator_t *est, bw_real speed)
     /* what the scale's random walk has added since the cap (its variance then: the prior and the data at the
      * weight the cap left it) */
     capped = BW_MAX(est->ascent_var, (bw_real)(BW_DRAG_ASCENT_SIGMA * BW_DRAG_ASCENT_SIGMA));
-    walked = BW_MAX(BW_R(0.0), e->P[BW_DRAG][BW_DRAG] - BW_R(1.0) / (BW_R(1.0) / prior_var + BW_R(1.0) / capped));
+    walked = BW_MAX(BW_R(0.0), e->P[BW_DRAG][BW_DRAG] -
+                                   bw_weighed_variance(prior_var, capped, est->ascent_data - prior,
+                                                       est->ascent_var < capped ? (bw_real)BW_DRAG_CONFLICT_SIGMA
+                                                                                : BW_R(0.0))); /* as the cap weighed */
     k = e->x[BW_DRAG];
     bw_ekf_weigh_information(e, BW_DRAG, prior, prior_var, est->ascent_data, var, walked, BW_RESET_DRAG,
                              (bw_real)BW_DRAG_CONFLICT_SIGMA);
@@ -454,7 +457,8 @@ static void update_mode(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
             else
                 est->ascent_var = bw_ekf_cap_information(e, BW_DRAG, est->drag_prior[0], est->drag_prior[1],
                                                          (bw_real)(BW_DRAG_ASCENT_SIGMA * BW_DRAG_ASCENT_SIGMA),
-                                                         BW_RESET_DRAG, &est->ascent_data);
+                                                         BW_RESET_DRAG, (bw_real)BW_DRAG_CONFLICT_SIGMA,
+                                                         &est->ascent_data);
         }
         e->learn_drag = learning;
     }

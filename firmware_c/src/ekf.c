@@ -604,35 +604,46 @@ static void inhibit(bw_ekf_t *e, int i)
     e->P[i][i] = v;
 }
 
+/* ekf.py in_conflict: a prior and a datum d from it more than conflict_sigma (> 0) sigma of their difference apart */
+static int in_conflict(bw_real prior_var, bw_real data_var, bw_real d, bw_real conflict_sigma)
+{
+    return conflict_sigma > BW_R(0.0) && d * d > conflict_sigma * conflict_sigma * (prior_var + data_var);
+}
+
+/* ekf.py weighed_variance: a prior weighed with one datum d from it, their combination's variance, or in conflict
+ * their equal mixture's */
+bw_real bw_weighed_variance(bw_real prior_var, bw_real data_var, bw_real d, bw_real conflict_sigma)
+{
+    if (in_conflict(prior_var, data_var, d, conflict_sigma))
+        return BW_R(0.5) * (prior_var + data_var) + BW_R(0.25) * d * d;
+    return BW_R(1.0) / (BW_R(1.0) / prior_var + BW_R(1.0) / data_var);
+}
+
 /* ekf.py weigh_information: state i as the prior combined with one measurement data of variance data_var, plus
  * walked_var (its random walk since); correlations cut; a reset of kind. Where conflict_sigma > 0 and the two differ
  * by more than that many sigma of their difference, their equal mixture */
 void bw_ekf_weigh_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_var, bw_real data, bw_real data_var,
                               bw_real walked_var, int kind, bw_real conflict_sigma)
 {
-    bw_real w, v, d = data - prior;
-    int conflict;
+    bw_real v, d = data - prior;
     if (!(prior_var > BW_R(0.0) && data_var > BW_R(0.0)))
         return;
-    conflict = conflict_sigma > BW_R(0.0) && d * d > conflict_sigma * conflict_sigma * (prior_var + data_var);
     inhibit(e, i);
-    if (conflict) {
+    v = bw_weighed_variance(prior_var, data_var, d, conflict_sigma);
+    if (in_conflict(prior_var, data_var, d, conflict_sigma))
         e->x[i] = prior + BW_R(0.5) * d;
-        v = BW_R(0.5) * (prior_var + data_var) + BW_R(0.25) * d * d;
-    } else {
-        w = BW_R(1.0) / data_var;
-        v = BW_R(1.0) / (BW_R(1.0) / prior_var + w);
-        e->x[i] = v * (prior / prior_var + w * data);
-    }
+    else
+        e->x[i] = v * (prior / prior_var + data / data_var);
     e->P[i][i] = v + walked_var;
     bw_ekf_reset(e, kind);
 }
 
 /* ekf.py cap_information: what the data told state i since the prior is worth at most a measurement of
- * variance data_var_min (a model error taken for information is given back); the data's own estimate in *data
- * and the variance it claimed returned (0, 0: it told nothing) */
+ * variance data_var_min (a model error taken for information is given back; a capped datum that contradicts its
+ * prior beyond conflict_sigma makes their mixture at once); the data's own estimate in *data and the variance it
+ * claimed returned (0, 0: it told nothing) */
 bw_real bw_ekf_cap_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_var, bw_real data_var_min, int kind,
-                               bw_real *data)
+                               bw_real conflict_sigma, bw_real *data)
 {
     bw_real var = e->P[i][i], info;
     info = var > BW_R(0.0) && prior_var > BW_R(0.0) ? BW_R(1.0) / var - BW_R(1.0) / prior_var : BW_R(0.0);
@@ -641,7 +652,7 @@ bw_real bw_ekf_cap_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_
         return BW_R(0.0);
     *data = (e->x[i] / var - prior / prior_var) / info;
     if (info > BW_R(1.0) / data_var_min)
-        bw_ekf_weigh_information(e, i, prior, prior_var, *data, data_var_min, BW_R(0.0), kind, BW_R(0.0));
+        bw_ekf_weigh_information(e, i, prior, prior_var, *data, data_var_min, BW_R(0.0), kind, conflict_sigma);
     return BW_R(1.0) / info;
 }
 

@@ -66,7 +66,8 @@ int bw_ekf_end_update(bw_ekf_t *e);
 void bw_ekf_fix_covariance(bw_ekf_t *e);
 bw_real bw_ekf_wind_accuracy(const bw_ekf_t *e);
 bw_real bw_ekf_cap_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_var, bw_real data_var_min, int kind,
-                               bw_real *data);
+                               bw_real conflict_sigma, bw_real *data);
+bw_real bw_weighed_variance(bw_real prior_var, bw_real data_var, bw_real d, bw_real conflict_sigma);
 void bw_ekf_weigh_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_var, bw_real data, bw_real data_var,
                               bw_real walked_var, int kind, bw_real conflict_sigma);
 void bw_status_init(bw_status_t *st, int32_t recover_after);

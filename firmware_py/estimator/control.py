@@ -37,7 +37,7 @@ from firmware_py.estimator.consistency import (
     placement_settling_wind,
     systematic_variance,
 )
-from firmware_py.estimator.ekf import RESET_DRAG, FusionStatus, WindEkf
+from firmware_py.estimator.ekf import RESET_DRAG, FusionStatus, WindEkf, weighed_variance
 from firmware_py.estimator.model import ADDED_MASS_COEFFICIENT, BalloonModel, Forces, accelerations
 from firmware_py.estimator.params import (
     ACC_MAX,
@@ -469,7 +469,9 @@ class Estimator:
         # what the scale's random walk has added since the cap (its variance then: the prior and the data at the
         # weight the cap left it)
         capped = max(self._ascent_var, DRAG_ASCENT_SIGMA * DRAG_ASCENT_SIGMA)
-        walked = max(0.0, float(ekf.P[DRAG, DRAG]) - 1.0 / (1.0 / prior_var + 1.0 / capped))
+        conflict = DRAG_CONFLICT_SIGMA if self._ascent_var < capped else 0.0  # as the cap weighed it
+        walked = max(0.0, float(ekf.P[DRAG, DRAG]) - weighed_variance(prior_var, capped, self._ascent_data - prior,
+                                                                      conflict))
         k = float(ekf.x[DRAG])
         ekf.weigh_information(DRAG, prior, prior_var, self._ascent_data, var, walked, RESET_DRAG, DRAG_CONFLICT_SIGMA)
         ekf.x[DRAG] = max(float(ekf.x[DRAG]), DRAG_SCALE_MIN)
@@ -681,7 +683,7 @@ class Estimator:
                 self._drag_prior = (float(ekf.x[DRAG]), float(ekf.P[DRAG, DRAG]))
             else:
                 self._ascent_data, self._ascent_var = ekf.cap_information(
-                    DRAG, *self._drag_prior, DRAG_ASCENT_SIGMA**2, RESET_DRAG
+                    DRAG, *self._drag_prior, DRAG_ASCENT_SIGMA**2, RESET_DRAG, DRAG_CONFLICT_SIGMA
                 )
         ekf.learn_drag = learning
         if ekf.mode == MODE_GROUND:

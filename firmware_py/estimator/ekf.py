@@ -84,6 +84,20 @@ RESET_NAMES = ("initialise", "taut_placement", "height", "drag_scale")
 SLOW_STATES = (ATT_N, ATT_E, ATT_D, GB_X, GB_Y, GB_Z)
 
 
+
+def in_conflict(prior_var: float, data_var: float, d: float, conflict_sigma: float) -> bool:
+    """A prior and a datum ``d`` from it do not both hold: more than ``conflict_sigma`` (> 0) sigma of their
+    difference apart (``WindEkf.weigh_information``)."""
+    return conflict_sigma > 0.0 and d * d > conflict_sigma * conflict_sigma * (prior_var + data_var)
+
+
+def weighed_variance(prior_var: float, data_var: float, d: float, conflict_sigma: float) -> float:
+    """The variance of a prior weighed with one datum ``d`` from it (both variances > 0): their combination, or in
+    conflict (``in_conflict``) their equal mixture's, the two's mean and the square of half their difference."""
+    if in_conflict(prior_var, data_var, d, conflict_sigma):
+        return 0.5 * (prior_var + data_var) + 0.25 * d * d
+    return 1.0 / (1.0 / prior_var + 1.0 / data_var)
+
 class WindEkf:
     def __init__(self, model: BalloonModel, cfg: FilterConfig, sensors) -> None:
         self.model = model
@@ -548,11 +562,12 @@ class WindEkf:
         return finite and math.isfinite(float(self._r))
 
     def cap_information(
-        self, i: int, prior: float, prior_var: float, data_var_min: float, kind: int
+        self, i: int, prior: float, prior_var: float, data_var_min: float, kind: int, conflict_sigma: float = 0.0
     ) -> tuple[float, float]:
         """What the data told state i since it was ``prior`` +- sqrt(``prior_var``) is worth at most a
         measurement of variance ``data_var_min``: a model error (not noise) that the fusions took for
-        information is given back (``weigh_information``, a reset of ``kind``). The data's own estimate,
+        information is given back (``weigh_information``, a reset of ``kind``, with ``conflict_sigma``: a capped
+        datum that contradicts its prior makes their mixture at once). The data's own estimate,
         (x / P - prior / P0) / (1 / P - 1 / P0), and the variance it claimed (0, 0: it told nothing)."""
         var = float(self.P[i, i])
         info = 1.0 / var - 1.0 / prior_var if var > 0.0 and prior_var > 0.0 else 0.0
@@ -560,7 +575,7 @@ class WindEkf:
             return 0.0, 0.0
         data = (float(self.x[i]) / var - prior / prior_var) / info
         if info > 1.0 / data_var_min:
-            self.weigh_information(i, prior, prior_var, data, data_var_min, 0.0, kind)
+            self.weigh_information(i, prior, prior_var, data, data_var_min, 0.0, kind, conflict_sigma)
         return data, 1.0 / info
 
     def weigh_information(
@@ -575,15 +590,12 @@ class WindEkf:
         if not (prior_var > 0.0 and data_var > 0.0):
             return
         d = data - prior
-        conflict = conflict_sigma > 0.0 and d * d > conflict_sigma * conflict_sigma * (prior_var + data_var)
         self.inhibit(i)
-        if conflict:
+        v = weighed_variance(prior_var, data_var, d, conflict_sigma)
+        if in_conflict(prior_var, data_var, d, conflict_sigma):
             self.x[i] = prior + 0.5 * d
-            v = 0.5 * (prior_var + data_var) + 0.25 * d * d
         else:
-            w = 1.0 / data_var
-            v = 1.0 / (1.0 / prior_var + w)
-            self.x[i] = v * (prior / prior_var + w * data)
+            self.x[i] = v * (prior / prior_var + data / data_var)
         self.P[i, i] = v + walked_var
         self.reset(kind)
 

@@ -623,19 +623,32 @@ def test_a_sphere_through_its_drag_crisis_says_its_drag_is_unknown():
     combined with the design's as one C_d, it read the tethered wind 36 % fast, stated five times too confidently
     (error/accuracy 5.3, most estimates beyond 3 sigma). The ascent and the design now disagree beyond
     DRAG_CONFLICT_SIGMA, so the drag scale is their mixture (WindEkf.weigh_information): 17 % fast, and said
-    (error/accuracy within 0.5-1.5: 0.84, none beyond 3 sigma). What this holds is that the error is stated, not that
-    the wind is followed: with its 17 % the flight has no band skill (-0.12), and against the same stated accuracy the
-    constant true mean is within the band too (0.76) and fails only the tail (3.6 % beyond 3 sigma); the truth
-    delayed by 4 s falls below the band (0.33)."""
+    (error/accuracy 0.82, none beyond 3 sigma). What this holds is that the error is stated, not that the wind is
+    followed: with its 17 % the flight has no band skill (-0.12), and its stated accuracy covers the wind's spread
+    about its mean (the constant true mean 0.75, none beyond 3 sigma, since the cap states the conflict too: the
+    test below)."""
     sc = SCENARIOS["drag-crisis"]
     m = judged(scenario_sections(sc), 1, be.FULL_DURATION_S, 120.0)
-    est = m["estimate"]
+    honest_or_says_it_has_no_skill(m)
+    assert m["estimate"]["speed"] < 25.0, m["estimate"]
 
-    def honest(x: dict[str, float]) -> bool:
-        return 0.5 <= x["err_acc"] <= 1.5 and x["beyond_3sigma"] <= 0.03
 
-    assert honest(est) and est["speed"] < 25.0, est
-    assert not honest(m["constant"]) and not honest(m["delayed"]), (m["constant"], m["delayed"])
+@pytest.mark.parametrize(("seed", "from_deg"), [(1, None), (2, 70.0)])
+def test_a_sphere_through_its_drag_crisis_says_so_from_its_taut_entry(seed, from_deg):
+    """``drag-crisis`` as the stop's check scores a flight: from 60 s, here to 130 s, before the taut flight's
+    turbulence has been measured and the ascent weighed again (TURBULENCE_TO_S after the entry). The ascent's drag
+    scale (0.46: the climb's C_d is half the tether's) and the design's (1 +- 0.1) are 3.8 sigma apart even at the
+    cap's weight; the cap combined them as one C_d, 0.73 +- 0.07, and the wind, 15-19 % fast, was stated at a third
+    of its error until the weighing two minutes later found the conflict (error/accuracy 2.4-2.7, 10-49 % of the
+    estimates beyond 3 sigma in a minute). The cap now finds it (WindEkf.cap_information): the same estimate, stated
+    as the mixture it is (0.64-0.80, none beyond 3 sigma). The estimate has no skill there (band skill -1.8 and -3.8):
+    its stated accuracy covers the wind's spread about its mean (the constant true mean 0.25-0.28)."""
+    sections = scenario_sections(SCENARIOS["drag-crisis"])
+    if from_deg is not None:
+        sections["wind"]["from_deg"] = from_deg
+    m = judged(sections, seed, 130.0, 60.0)
+    honest_or_says_it_has_no_skill(m)
+    assert m["estimate"]["speed"] < 25.0, m["estimate"]
 
 
 @pytest.mark.parametrize("from_deg", [0.0, 270.0])
