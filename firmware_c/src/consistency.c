@@ -53,12 +53,12 @@ bw_real bw_gyro_heading_wind(bw_real speed, bw_real gyro_bias_rad_s, bw_real sec
 }
 
 /* consistency.py placement_settling_wind: the wind error still to settle seconds after a taut placement, the
- * placement's 1-sigma falling by e every ENTRY_SETTLE_S; 0 before one */
-bw_real bw_placement_settling_wind(bw_real seconds)
+ * placement's 1-sigma and the wind's own speed in quadrature, falling by e every ENTRY_SETTLE_S; 0 before one */
+bw_real bw_placement_settling_wind(bw_real seconds, bw_real speed)
 {
     if (!(seconds >= BW_R(0.0)))
         return BW_R(0.0);
-    return (bw_real)BW_TAUT_WIND_SIGMA_MPS * BW_EXP(-seconds / (bw_real)BW_ENTRY_SETTLE_S);
+    return BW_HYPOT((bw_real)BW_TAUT_WIND_SIGMA_MPS, speed) * BW_EXP(-seconds / (bw_real)BW_ENTRY_SETTLE_S);
 }
 
 /* consistency.py lean_misfit_wind: the wind error of a lean the body and the taut model disagree on, persistently

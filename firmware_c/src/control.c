@@ -756,7 +756,8 @@ bw_real bw_wind_accuracy(const bw_estimator_t *est)
     if (e->mode == BW_MODE_TAUT) { /* not scaled by the monitor's factor, which measures the same misfit (control.py) */
         acc = BW_HYPOT(acc, bw_lean_misfit_wind(speed, est->consistency.lean_tilt, est->consistency.lean_misfit));
         if (e->time_taut_us >= 0) /* the snap still settling */
-            acc = BW_HYPOT(acc, bw_placement_settling_wind((bw_real)(e->time_us - e->time_taut_us) * BW_R(1e-6)));
+            acc = BW_HYPOT(acc, bw_placement_settling_wind((bw_real)(e->time_us - e->time_taut_us) * BW_R(1e-6),
+                                                           speed));
     }
     if (est->unconfirmed)
         acc = BW_MAX(acc, BW_SQRT(wn * wn + we * we + BW_R(1.0)));

@@ -80,7 +80,7 @@ void bw_consistency_evaluate(bw_consistency_t *m);
 bw_real bw_heading_misfit_variance(const bw_consistency_t *m);
 void bw_consistency_add_lean(bw_consistency_t *m, bw_real tilt, bw_real misfit, bw_real alpha);
 bw_real bw_lean_misfit_wind(bw_real speed, bw_real tilt, bw_real misfit);
-bw_real bw_placement_settling_wind(bw_real seconds);
+bw_real bw_placement_settling_wind(bw_real seconds, bw_real speed);
 bw_real bw_gyro_heading_wind(bw_real speed, bw_real gyro_bias_rad_s, bw_real seconds);
 bw_real bw_field_variance(const bw_ekf_t *e, const bw_real field_ned[3]);
 bw_real bw_attitude_variance(const bw_ekf_t *e, bw_real g0, bw_real g1, bw_real g2);

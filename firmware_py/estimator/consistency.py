@@ -213,18 +213,20 @@ def gyro_heading_wind(speed_mps: float, gyro_bias_rad_s: float, seconds: float) 
     return 2.0 * speed_mps * math.sin(0.5 * theta)
 
 
-def placement_settling_wind(seconds: float) -> float:
+def placement_settling_wind(seconds: float, speed_mps: float) -> float:
     """The wind error (m/s) still to settle ``seconds`` after a taut placement (``WindEkf.time_taut_us``): the
-    placement's own 1-sigma, TAUT_WIND_SIGMA_MPS, falling by e every ENTRY_SETTLE_S. The placement puts the balloon at
-    rest on the rod's sphere, but the snap is not the rod's: on a real rope the balloon climbs on for seconds as the
-    sag is taken up (its radial speed 3-7 m/s at the entry, gone in 3-8 s), on a stiff one it bounces; the rigid model
-    can climb only by swinging towards the vertical, and the wind follows the swing (docs/estimator.md, "Mode
-    switching"). Every row is taken as consistent meanwhile, and P fell from the placement's 1.5 m/s to 0.8 in five
+    placement's own 1-sigma, TAUT_WIND_SIGMA_MPS, and the wind's own speed ``speed_mps`` in quadrature, falling by e
+    every ENTRY_SETTLE_S. The placement puts the balloon at rest on the rod's sphere, but the snap is not the rod's: on
+    a real rope the balloon climbs on for seconds as the sag is taken up (its radial speed 3-7 m/s at the entry, gone
+    in 3-8 s), on a stiff one it bounces; the rigid model can climb only by swinging towards the vertical, and the
+    wind follows the swing, as far as to calm (docs/estimator.md, "Mode switching"): the swing's share of the error
+    is the wind's own size (a steady 8 m/s blown 72 deg down: 2.5-3.4 m/s RMS off in the first 10 s from every
+    direction). Every row is taken as consistent meanwhile, and P fell from the placement's 1.5 m/s to 0.8 in five
     seconds where the error was 0.7-1.5 m/s (p50-p90 over the envelope's first entries, params.ENTRY_SETTLE_S) and 4-5
     m/s in the worst. Before the placement (negative ``seconds``, or none yet): 0."""
     if not seconds >= 0.0:
         return 0.0
-    return TAUT_WIND_SIGMA_MPS * math.exp(-seconds / ENTRY_SETTLE_S)
+    return math.hypot(TAUT_WIND_SIGMA_MPS, speed_mps) * math.exp(-seconds / ENTRY_SETTLE_S)
 
 
 def lean_misfit_wind(speed_mps: float, tilt_rad: float, misfit_rad: float) -> float:

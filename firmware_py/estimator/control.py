@@ -748,7 +748,7 @@ class Estimator:
             c = self.consistency
             acc = math.hypot(acc, lean_misfit_wind(speed, c.lean_tilt, c.lean_misfit))
             if ekf.time_taut_us >= 0:  # the snap still settling (consistency.placement_settling_wind)
-                acc = math.hypot(acc, placement_settling_wind((ekf.time_us - ekf.time_taut_us) * 1e-6))
+                acc = math.hypot(acc, placement_settling_wind((ekf.time_us - ekf.time_taut_us) * 1e-6, speed))
         if self.unconfirmed:
             acc = max(acc, math.sqrt(wn * wn + we * we + 1.0))
         if ekf.mode != MODE_GROUND:  # no magnetometer for HEADING_LOST_S: the heading is the gyro's alone since then

@@ -191,7 +191,8 @@ ALIGN_PULL_DOWN_MIN = 0.05  # the rope's pull on the balloon taken at least this
 TAUT_POS_SIGMA_M = 5.0  # after a placement: wide enough for the alignment row to move it where the tilt says
 TAUT_VEL_SIGMA_MPS = 1.0  # the balloon still swings after the snap
 TAUT_WIND_SIGMA_MPS = 1.5  # the static balance's wind at the snap (the balloon is not yet in balance)
-# after a taut placement the stated accuracy falls from TAUT_WIND_SIGMA_MPS no faster than by e in this long
+# after a taut placement the stated accuracy falls from TAUT_WIND_SIGMA_MPS and the wind's own speed in quadrature no
+# faster than by e in this long
 # (consistency.placement_settling_wind): the snap is not the rod's (the balloon climbs on as the rope's sag is taken
 # up, or bounces on a stiff one), its rows pull the state for seconds, and P, which takes them as consistent, fell
 # from the placement's 1.5 m/s to 0.8 in five. Over the envelope's 200 first entries (a script over the flights of

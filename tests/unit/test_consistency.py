@@ -353,15 +353,17 @@ def test_the_wind_of_a_heading_the_gyro_alone_has_held():
 
 
 def test_what_a_taut_placement_has_still_to_settle():
-    """The placement's own 1-sigma at the placement, falling by e every ENTRY_SETTLE_S; nothing before one (or with
-    no time)."""
+    """The placement's own 1-sigma and the wind's speed in quadrature at the placement, falling by e every
+    ENTRY_SETTLE_S; nothing before one (or with no time)."""
     from firmware_py.estimator.consistency import placement_settling_wind
     from firmware_py.estimator.params import ENTRY_SETTLE_S, TAUT_WIND_SIGMA_MPS
 
-    assert placement_settling_wind(0.0) == TAUT_WIND_SIGMA_MPS
-    assert math.isclose(placement_settling_wind(ENTRY_SETTLE_S), TAUT_WIND_SIGMA_MPS / math.e, rel_tol=1e-12)
-    assert placement_settling_wind(10.0 * ENTRY_SETTLE_S) < 1e-4 * TAUT_WIND_SIGMA_MPS
-    assert placement_settling_wind(-1.0) == 0.0 and placement_settling_wind(math.nan) == 0.0
+    assert placement_settling_wind(0.0, 0.0) == TAUT_WIND_SIGMA_MPS
+    assert math.isclose(placement_settling_wind(0.0, 8.0), math.hypot(TAUT_WIND_SIGMA_MPS, 8.0), rel_tol=1e-12)
+    assert math.isclose(placement_settling_wind(ENTRY_SETTLE_S, 2.0), math.hypot(TAUT_WIND_SIGMA_MPS, 2.0) / math.e,
+                        rel_tol=1e-12)  # fmt: skip
+    assert placement_settling_wind(10.0 * ENTRY_SETTLE_S, 0.0) < 1e-4 * TAUT_WIND_SIGMA_MPS
+    assert placement_settling_wind(-1.0, 3.0) == 0.0 and placement_settling_wind(math.nan, 3.0) == 0.0
 
 
 def test_a_flag_is_set_above_flag_nis_and_cleared_only_below_flag_nis_clear():

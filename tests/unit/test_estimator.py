@@ -241,23 +241,23 @@ def test_the_force_balance_is_judged_once_the_taut_entrys_settling_is_over(core)
 @pytest.mark.parametrize("core", ["py", "c"])
 def test_the_stated_accuracy_follows_the_snap_as_it_settles(core):
     """From the taut placement on, the stated accuracy is at least what the placement has still to settle
-    (consistency.placement_settling_wind, from the filter's time of the placement): the placement's 1-sigma at the
-    entry, falling by e every ENTRY_SETTLE_S (both cores)."""
+    (consistency.placement_settling_wind, from the filter's time of the placement): the placement's 1-sigma and the
+    wind's speed at the entry, falling by e every ENTRY_SETTLE_S (both cores)."""
     from firmware_py.estimator.consistency import placement_settling_wind
 
     samples, _ = stream("paper-reference", 60.0, 11)
     est = Estimator(Design(), replace(FilterConfig(), core=core))
     seen: list[tuple[float, float]] = []
 
-    def watch(s) -> None:  # taut: the time, the stated accuracy
+    def watch(s) -> None:  # taut: the time, the stated accuracy, the wind's speed
         if est.ekf.mode == MODE_TAUT:
-            seen.append((s.time_usec * 1e-6, est.wind_accuracy()))
+            seen.append((s.time_usec * 1e-6, est.wind_accuracy(), math.hypot(*est.wind())))
 
     feed(est, samples, each=watch)
     assert len(seen) > 1000, len(seen)
     entry = seen[0][0]
-    for t, acc in seen:
-        assert acc >= placement_settling_wind(t - entry) * (1.0 - 1e-9), (t - entry, acc)
+    for t, acc, speed in seen:
+        assert acc >= placement_settling_wind(t - entry, speed) * (1.0 - 1e-9), (t - entry, acc, speed)
 
 
 @pytest.mark.parametrize("core", ["py", "c"])
@@ -273,7 +273,7 @@ def test_a_join_in_flight_is_a_placement_at_its_first_sample(core):
     first = samples[15000]
     feed(est, samples[15000:15100])
     assert est.ekf.mode == MODE_TAUT and est.ekf.time_taut_us == first.time_usec, (est.ekf.time_taut_us, first)
-    assert est.wind_accuracy() >= placement_settling_wind(1.0)
+    assert est.wind_accuracy() >= placement_settling_wind(1.0, math.hypot(*est.wind()))
 
 
 @pytest.mark.slow
