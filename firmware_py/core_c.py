@@ -172,6 +172,7 @@ def _structs(real):
         ("winch_t_us", i64), ("accel_hbias", real * 2),
         ("ground_samples", i64), ("ground_t_us", i64), ("ground_p_pa", real), ("ground_p0_pa", real),
         ("p_ref0_pa", real), ("accel_hbias_var", real), ("level_mean", real * 2), ("level_var", real),
+        ("wind_taut_mps", real),
         ("winch_rejected", i64), ("ground_rejected", i64), ("winch_reject_reason", i32),
         ("ground_reject_reason", i32),
     ]  # fmt: skip
@@ -421,6 +422,7 @@ class CEstimator:
     level_mean = _Field(_floats, "The horizontal specific force in NED, north and east, its mean over LEVEL_MEAN_S "
                         "(accel.level_noise).")
     level_var = _Field(float, "Its variance about that mean, per axis, (m/s^2)^2 (accel.level_noise).")
+    wind_taut_mps = _Field(float, "The wind's speed the last taut placement put, m/s (tether.enter_taut).")
     rho = _Field(float, "The air density the filter takes, kg/m^3 (the site's until the barometer reads it).")
     _accel_radial_innov2 = _Field(float, "The accelerometer's innovations along the tether's radius, their mean "
                                   "square (accel.radial_noise).")

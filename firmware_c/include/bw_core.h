@@ -209,6 +209,8 @@ typedef struct {
     bw_real accel_hbias_var;     /* the followed horizontal bias's error variance (aid_accel.c) */
     bw_real level_mean[2], level_var; /* the specific force in NED, north and east: its mean, its variance about it
                                        * per axis (aid_accel.c level rows; level_var 0: nothing followed yet) */
+    bw_real wind_taut_mps;       /* the wind's speed the last taut placement put (aid_tether.c bw_enter_taut; in the
+                                  * hole before the int64s) */
     /* implausible WINCH_STATUS and ground references, rejected and counted; why the last one was */
     int64_t winch_rejected, ground_rejected;
     int32_t winch_reject_reason, ground_reject_reason;

@@ -94,7 +94,7 @@ void bw_control_baro(bw_estimator_t *est)
             est->baro_outside = 0;
             if (est->ekf.mode == BW_MODE_TAUT) {
                 est->counters.taut_resets += 1;
-                bw_enter_taut(&est->ekf, bw_height_for_taut(est), est->rho, 1);
+                bw_enter_taut(est, bw_height_for_taut(est), 1);
             } else {
                 est->counters.baro_resets += 1;
                 bw_reset_height(&est->ekf, est->ref_pos_d - est->height_baro, est->baro_var);

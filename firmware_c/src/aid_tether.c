@@ -4,8 +4,10 @@
 
 #include "internal.h"
 
-void bw_enter_taut(bw_ekf_t *e, bw_real height_m, bw_real rho, int from_tilt)
+void bw_enter_taut(bw_estimator_t *est, bw_real height_m, int from_tilt)
 {
+    bw_ekf_t *e = &est->ekf;
+    bw_real rho = est->rho;
     static const int reset_rows[10] = {BW_POS_N, BW_POS_E, BW_POS_D, BW_VEL_N, BW_VEL_E,
                                        BW_VEL_D, BW_WIND_N, BW_WIND_E, BW_WRATE_N, BW_WRATE_E};
     const bw_model_t *m = &e->m;
@@ -49,6 +51,7 @@ void bw_enter_taut(bw_ekf_t *e, bw_real height_m, bw_real rho, int from_tilt)
     e->P[BW_WIND_N][BW_WIND_N] = e->P[BW_WIND_E][BW_WIND_E] = (bw_real)(BW_TAUT_WIND_SIGMA_MPS * BW_TAUT_WIND_SIGMA_MPS);
     e->P[BW_WRATE_N][BW_WRATE_N] = e->P[BW_WRATE_E][BW_WRATE_E] = e->sigma_rate * e->sigma_rate;
     bw_ekf_reset(e, BW_RESET_TAUT);
+    est->wind_taut_mps = BW_HYPOT(x[BW_WIND_N], x[BW_WIND_E]); /* the wind the placement put (the settling's scale) */
 }
 
 
@@ -199,7 +202,7 @@ void bw_control_tether(bw_estimator_t *est)
         if (BW_MAX(an->consecutive_rejects, ae->consecutive_rejects) >= est->sched.align_reset) {
             est->counters.taut_resets += 1;
             an->consecutive_rejects = ae->consecutive_rejects = 0;
-            bw_enter_taut(e, bw_height_for_taut(est), est->rho, 1);
+            bw_enter_taut(est, bw_height_for_taut(est), 1);
         }
     }
 }

@@ -271,7 +271,7 @@ static void join_in_flight(bw_estimator_t *est, const bw_real q[4])
     est->confirm_count = 0;
     est->acc_var = BW_R(-1.0);
     est->counters.mode_switches += 1;
-    bw_enter_taut(e, height, est->rho, 1);
+    bw_enter_taut(est, height, 1);
     if (est->zeroing)
         est->join_height = height - m->radius_m;
 }
@@ -494,7 +494,7 @@ static void update_mode(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
         need = est->was_slack ? est->n_taut_pull : 1;
         if (dwell_ok && est->pulling >= need) {
             switch_mode(est, BW_MODE_TAUT);
-            bw_enter_taut(e, bw_height_for_taut(est), est->rho, 0);
+            bw_enter_taut(est, bw_height_for_taut(est), 0);
             est->consistency.lean_tilt = est->consistency.lean_misfit = BW_R(0.0); /* a new taut stretch's own lean */
         }
     } else {
@@ -757,7 +757,7 @@ bw_real bw_wind_accuracy(const bw_estimator_t *est)
         acc = BW_HYPOT(acc, bw_lean_misfit_wind(speed, est->consistency.lean_tilt, est->consistency.lean_misfit));
         if (e->time_taut_us >= 0) /* the snap still settling */
             acc = BW_HYPOT(acc, bw_placement_settling_wind((bw_real)(e->time_us - e->time_taut_us) * BW_R(1e-6),
-                                                           speed));
+                                                           BW_MAX(speed, est->wind_taut_mps)));
     }
     if (est->unconfirmed)
         acc = BW_MAX(acc, BW_SQRT(wn * wn + we * we + BW_R(1.0)));

@@ -134,7 +134,7 @@ void bw_control_baro(bw_estimator_t *est);
 void bw_reset_height(bw_ekf_t *e, bw_real pos_d, bw_real var);
 void bw_control_mag(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az, bw_real mx, bw_real my, bw_real mz);
 void bw_control_tether(bw_estimator_t *est);
-void bw_enter_taut(bw_ekf_t *e, bw_real height_m, bw_real rho, int from_tilt);
+void bw_enter_taut(bw_estimator_t *est, bw_real height_m, int from_tilt);
 
 /* aid_sources/winch.py, aid_sources/ground_ref.py */
 void bw_init_winch(bw_estimator_t *est);

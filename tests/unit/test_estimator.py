@@ -242,22 +242,26 @@ def test_the_force_balance_is_judged_once_the_taut_entrys_settling_is_over(core)
 def test_the_stated_accuracy_follows_the_snap_as_it_settles(core):
     """From the taut placement on, the stated accuracy is at least what the placement has still to settle
     (consistency.placement_settling_wind, from the filter's time of the placement): the placement's 1-sigma and the
-    wind's speed at the entry, falling by e every ENTRY_SETTLE_S (both cores)."""
+    wind's speed (the larger of the placement's and the estimate's: a swing that takes the estimate towards calm does
+    not take the statement with it) at the entry, falling by e every ENTRY_SETTLE_S (both cores)."""
     from firmware_py.estimator.consistency import placement_settling_wind
 
     samples, _ = stream("paper-reference", 60.0, 11)
     est = Estimator(Design(), replace(FilterConfig(), core=core))
     seen: list[tuple[float, float]] = []
 
-    def watch(s) -> None:  # taut: the time, the stated accuracy, the wind's speed
+    def watch(s) -> None:  # taut: the time, the stated accuracy, the wind's speed, the placement's
         if est.ekf.mode == MODE_TAUT:
-            seen.append((s.time_usec * 1e-6, est.wind_accuracy(), math.hypot(*est.wind())))
+            seen.append((s.time_usec * 1e-6, est.wind_accuracy(), math.hypot(*est.wind()), est.wind_taut_mps))
 
     feed(est, samples, each=watch)
     assert len(seen) > 1000, len(seen)
     entry = seen[0][0]
-    for t, acc, speed in seen:
-        assert acc >= placement_settling_wind(t - entry, speed) * (1.0 - 1e-9), (t - entry, acc, speed)
+    placed = seen[0][3]
+    assert placed > 1.0 and placed == pytest.approx(seen[0][2], rel=0.2), seen[0]  # the static balance's wind
+    for t, acc, speed, placement in seen:
+        assert placement == placed  # one placement
+        assert acc >= placement_settling_wind(t - entry, max(speed, placed)) * (1.0 - 1e-9), (t - entry, acc, speed)
 
 
 @pytest.mark.parametrize("core", ["py", "c"])

@@ -106,7 +106,7 @@ def control_baro(est: Estimator) -> None:
             st.consecutive_rejects = est.baro_outside = 0
             if ekf.mode == MODE_TAUT:
                 est.counters.taut_resets += 1
-                enter_taut(ekf, est._height_for_taut(), est.rho, from_tilt=True)
+                enter_taut(est, est._height_for_taut(), from_tilt=True)
             else:
                 est.counters.baro_resets += 1
                 reset_height(ekf, est.ref_pos_d - est.height_baro, est.baro_var)

@@ -47,7 +47,7 @@ if TYPE_CHECKING:
     from firmware_py.estimator.control import Estimator
 
 
-def enter_taut(ekf: WindEkf, height_m: float, rho: float, from_tilt: bool = False) -> None:
+def enter_taut(est: Estimator, height_m: float, from_tilt: bool = False) -> None:
     """Put the state on the taut configuration's sphere |p| = L_c + r (L_c the rope's chord).
     - the chord's polar angle from the barometric height, cos(theta) = h / (L + r);
     - its azimuth: at the end of the free ascent (``from_tilt`` False) from the ascent's horizontal
@@ -59,7 +59,10 @@ def enter_taut(ekf: WindEkf, height_m: float, rho: float, from_tilt: bool = Fals
     - the wind from the static balance drag = (N_b - W_eff) tan(theta) along it (W_eff the rope's
       weight on the rod, catenary.py), velocity zero;
     - position, velocity and wind covariances reset (decorrelated), wide enough for the alignment
-      row and the accelerometer to move them where the tilt and the dynamics say."""
+      row and the accelerometer to move them where the tilt and the dynamics say;
+    - the wind's speed it put kept (``Estimator.wind_taut_mps``): the scale of what it has still to settle
+      (consistency.placement_settling_wind)."""
+    ekf, rho = est.ekf, est.rho
     m = ekf.model
     x = ekf.x
     ell = ekf.rope.chord_m + m.radius_m
@@ -103,6 +106,7 @@ def enter_taut(ekf: WindEkf, height_m: float, rho: float, from_tilt: bool = Fals
     P[WIND_N, WIND_N] = P[WIND_E, WIND_E] = TAUT_WIND_SIGMA_MPS**2
     P[WRATE_N, WRATE_N] = P[WRATE_E, WRATE_E] = ekf.wind_process.sigma_rate_mps2**2
     ekf.reset(RESET_TAUT)
+    est.wind_taut_mps = math.hypot(float(x[WIND_N]), float(x[WIND_E]))
 
 
 def lean_variance(P, cn: float, ce: float, zn: float, ze: float, zd: float) -> float:
@@ -286,4 +290,4 @@ def control_tether(est: Estimator) -> None:
         if max(along.consecutive_rejects, cross.consecutive_rejects) >= est.schedule.align_reset:
             est.counters.taut_resets += 1
             along.consecutive_rejects = cross.consecutive_rejects = 0
-            enter_taut(ekf, est._height_for_taut(), est.rho, from_tilt=True)
+            enter_taut(est, est._height_for_taut(), from_tilt=True)
