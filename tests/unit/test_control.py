@@ -124,6 +124,20 @@ def test_a_barometer_outside_its_gate_on_the_taut_tether_re_places_the_state(cor
     assert est.ekf.reset_counts[RESET_HEIGHT] == est.counters.baro_resets + est.counters.false_releases
 
 
+def after_an_ascent(prior: float, prior_var: float, data: float, data_var: float) -> Estimator:
+    """An estimator whose ascent learnt the drag scale from ``prior`` (its variance ``prior_var``) with data that told
+    ``data`` at ``data_var``: the state their combination, the prior kept for the cap."""
+    from firmware_py.estimator.state import DRAG
+
+    est = Estimator(Design(), FilterConfig())
+    ekf = est.ekf
+    ekf.initialise((1.0, 0.0, 0.0, 0.0), 0.0)
+    v = 1.0 / (1.0 / prior_var + 1.0 / data_var)
+    ekf.x[DRAG], ekf.P[DRAG, DRAG] = v * (prior / prior_var + data / data_var), v
+    est._drag_prior = (prior, prior_var)
+    return est
+
+
 def test_the_ascent_is_weighed_from_what_it_told_however_long_ago():
     """The drag scale an ascent told (0.8 claiming a variance of 0.004 against the design's 1 +- 0.1), capped
     at the ascent's end, then weighed again in still air however long the scale has walked since: from what
@@ -132,13 +146,10 @@ def test_the_ascent_is_weighed_from_what_it_told_however_long_ago():
     from firmware_py.estimator.ekf import RESET_DRAG
     from firmware_py.estimator.state import DRAG
 
-    est = Estimator(Design(), FilterConfig())
-    ekf = est.ekf
-    ekf.initialise((1.0, 0.0, 0.0, 0.0), 0.0)
     prior, prior_var, data, data_var = 1.0, 0.01, 0.8, 0.004
+    est = after_an_ascent(prior, prior_var, data, data_var)
+    ekf = est.ekf
     v = 1.0 / (1.0 / prior_var + 1.0 / data_var)
-    ekf.x[DRAG], ekf.P[DRAG, DRAG] = v * (prior / prior_var + data / data_var), v
-    est._drag_prior = (prior, prior_var)
     est._ascent_data, est._ascent_var = ekf.cap_information(DRAG, prior, prior_var, 0.1**2, RESET_DRAG)
     assert (est._ascent_data, est._ascent_var) == (pytest.approx(data), pytest.approx(data_var))
     assert ekf.x[DRAG] == pytest.approx(0.9)  # half way back: the cap's weight is the prior's
@@ -197,13 +208,9 @@ def test_an_ascent_that_contradicts_the_design_is_said_from_its_cap():
     from firmware_py.estimator.params import DRAG_ASCENT_SIGMA, DRAG_CONFLICT_SIGMA
     from firmware_py.estimator.state import DRAG
 
-    est = Estimator(Design(), FilterConfig())
-    ekf = est.ekf
-    ekf.initialise((1.0, 0.0, 0.0, 0.0), 0.0)
     prior, prior_var, data, data_var = 1.0, 0.01, 0.45, 0.004
-    v = 1.0 / (1.0 / prior_var + 1.0 / data_var)
-    ekf.x[DRAG], ekf.P[DRAG, DRAG] = v * (prior / prior_var + data / data_var), v
-    est._drag_prior = (prior, prior_var)
+    est = after_an_ascent(prior, prior_var, data, data_var)
+    ekf = est.ekf
     d = data - prior
     assert d * d > DRAG_CONFLICT_SIGMA**2 * (prior_var + DRAG_ASCENT_SIGMA**2)
     est._ascent_data, est._ascent_var = ekf.cap_information(
