@@ -92,6 +92,7 @@ static void init_clock(bw_estimator_t *est)
     est->field_n = 0;
     memset(est->field_sum, 0, sizeof est->field_sum);
     est->joined = 0;
+    est->wind_taut_mps = BW_R(0.0);
     est->unconfirmed = 0;
     est->acc_mean[0] = est->acc_mean[1] = est->acc_mean[2] = BW_R(0.0);
     est->acc_var = BW_R(0.0);
@@ -416,8 +417,7 @@ static void weigh_ascent(bw_estimator_t *est, bw_real speed)
     capped = BW_MAX(est->ascent_var, (bw_real)(BW_DRAG_ASCENT_SIGMA * BW_DRAG_ASCENT_SIGMA));
     walked = BW_MAX(BW_R(0.0), e->P[BW_DRAG][BW_DRAG] -
                                    bw_weighed_variance(prior_var, capped, est->ascent_data - prior,
-                                                       est->ascent_var < capped ? (bw_real)BW_DRAG_CONFLICT_SIGMA
-                                                                                : BW_R(0.0))); /* as the cap weighed */
+                                                       (bw_real)BW_DRAG_CONFLICT_SIGMA)); /* as the cap weighed */
     k = e->x[BW_DRAG];
     bw_ekf_weigh_information(e, BW_DRAG, prior, prior_var, est->ascent_data, var, walked, BW_RESET_DRAG,
                              (bw_real)BW_DRAG_CONFLICT_SIGMA);

@@ -639,20 +639,21 @@ void bw_ekf_weigh_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_v
 }
 
 /* ekf.py cap_information: what the data told state i since the prior is worth at most a measurement of
- * variance data_var_min (a model error taken for information is given back; a capped datum that contradicts its
- * prior beyond conflict_sigma makes their mixture at once); the data's own estimate in *data and the variance it
- * claimed returned (0, 0: it told nothing) */
+ * variance data_var_min (a model error taken for information is given back; a datum that contradicts its prior
+ * beyond conflict_sigma at that weight makes their mixture at once, capped or not); the data's own estimate in *data
+ * and the variance it claimed returned (0, 0: it told nothing) */
 bw_real bw_ekf_cap_information(bw_ekf_t *e, int i, bw_real prior, bw_real prior_var, bw_real data_var_min, int kind,
                                bw_real conflict_sigma, bw_real *data)
 {
-    bw_real var = e->P[i][i], info;
+    bw_real var = e->P[i][i], info, weight;
     info = var > BW_R(0.0) && prior_var > BW_R(0.0) ? BW_R(1.0) / var - BW_R(1.0) / prior_var : BW_R(0.0);
     *data = BW_R(0.0);
     if (!(info > BW_R(0.0)))
         return BW_R(0.0);
     *data = (e->x[i] / var - prior / prior_var) / info;
-    if (info > BW_R(1.0) / data_var_min)
-        bw_ekf_weigh_information(e, i, prior, prior_var, *data, data_var_min, BW_R(0.0), kind, conflict_sigma);
+    weight = BW_MAX(BW_R(1.0) / info, data_var_min); /* the cap's: what the data claimed, at most data_var_min's */
+    if (info > BW_R(1.0) / data_var_min || in_conflict(prior_var, weight, *data - prior, conflict_sigma))
+        bw_ekf_weigh_information(e, i, prior, prior_var, *data, weight, BW_R(0.0), kind, conflict_sigma);
     return BW_R(1.0) / info;
 }
 

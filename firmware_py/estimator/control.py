@@ -469,10 +469,9 @@ class Estimator:
         prior, prior_var = self._drag_prior
         # what the scale's random walk has added since the cap (its variance then: the prior and the data at the
         # weight the cap left it)
-        capped = max(self._ascent_var, DRAG_ASCENT_SIGMA * DRAG_ASCENT_SIGMA)
-        conflict = DRAG_CONFLICT_SIGMA if self._ascent_var < capped else 0.0  # as the cap weighed it
+        capped = max(self._ascent_var, DRAG_ASCENT_SIGMA * DRAG_ASCENT_SIGMA)  # as the cap weighed it
         walked = max(0.0, float(ekf.P[DRAG, DRAG]) - weighed_variance(prior_var, capped, self._ascent_data - prior,
-                                                                      conflict))
+                                                                      DRAG_CONFLICT_SIGMA))
         k = float(ekf.x[DRAG])
         ekf.weigh_information(DRAG, prior, prior_var, self._ascent_data, var, walked, RESET_DRAG, DRAG_CONFLICT_SIGMA)
         ekf.x[DRAG] = max(float(ekf.x[DRAG]), DRAG_SCALE_MIN)

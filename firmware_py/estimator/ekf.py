@@ -84,7 +84,6 @@ RESET_NAMES = ("initialise", "taut_placement", "height", "drag_scale")
 SLOW_STATES = (ATT_N, ATT_E, ATT_D, GB_X, GB_Y, GB_Z)
 
 
-
 def in_conflict(prior_var: float, data_var: float, d: float, conflict_sigma: float) -> bool:
     """A prior and a datum ``d`` from it do not both hold: more than ``conflict_sigma`` (> 0) sigma of their
     difference apart (``WindEkf.weigh_information``)."""
@@ -97,6 +96,7 @@ def weighed_variance(prior_var: float, data_var: float, d: float, conflict_sigma
     if in_conflict(prior_var, data_var, d, conflict_sigma):
         return 0.5 * (prior_var + data_var) + 0.25 * d * d
     return 1.0 / (1.0 / prior_var + 1.0 / data_var)
+
 
 class WindEkf:
     def __init__(self, model: BalloonModel, cfg: FilterConfig, sensors) -> None:
@@ -566,16 +566,17 @@ class WindEkf:
     ) -> tuple[float, float]:
         """What the data told state i since it was ``prior`` +- sqrt(``prior_var``) is worth at most a
         measurement of variance ``data_var_min``: a model error (not noise) that the fusions took for
-        information is given back (``weigh_information``, a reset of ``kind``, with ``conflict_sigma``: a capped
-        datum that contradicts its prior makes their mixture at once). The data's own estimate,
+        information is given back (``weigh_information``, a reset of ``kind``, with ``conflict_sigma``: a datum that
+        contradicts its prior at that weight makes their mixture at once, capped or not). The data's own estimate,
         (x / P - prior / P0) / (1 / P - 1 / P0), and the variance it claimed (0, 0: it told nothing)."""
         var = float(self.P[i, i])
         info = 1.0 / var - 1.0 / prior_var if var > 0.0 and prior_var > 0.0 else 0.0
         if not info > 0.0:
             return 0.0, 0.0
         data = (float(self.x[i]) / var - prior / prior_var) / info
-        if info > 1.0 / data_var_min:
-            self.weigh_information(i, prior, prior_var, data, data_var_min, 0.0, kind, conflict_sigma)
+        weight = max(1.0 / info, data_var_min)  # the cap's: what the data claimed, at most data_var_min's worth
+        if info > 1.0 / data_var_min or in_conflict(prior_var, weight, data - prior, conflict_sigma):
+            self.weigh_information(i, prior, prior_var, data, weight, 0.0, kind, conflict_sigma)
         return data, 1.0 / info
 
     def weigh_information(

@@ -144,13 +144,16 @@ def test_the_ascent_is_weighed_from_what_it_told_however_long_ago():
     the ascent told and its claimed variance (the still-air floor is smaller), the walk since kept on top.
     Recovered from the walked P instead, a weighing 20 minutes after the cap read the walk as lost data (k < 0)."""
     from firmware_py.estimator.ekf import RESET_DRAG
+    from firmware_py.estimator.params import DRAG_CONFLICT_SIGMA
     from firmware_py.estimator.state import DRAG
 
     prior, prior_var, data, data_var = 1.0, 0.01, 0.8, 0.004
     est = after_an_ascent(prior, prior_var, data, data_var)
     ekf = est.ekf
     v = 1.0 / (1.0 / prior_var + 1.0 / data_var)
-    est._ascent_data, est._ascent_var = ekf.cap_information(DRAG, prior, prior_var, 0.1**2, RESET_DRAG)
+    est._ascent_data, est._ascent_var = ekf.cap_information(
+        DRAG, prior, prior_var, 0.1**2, RESET_DRAG, DRAG_CONFLICT_SIGMA
+    )
     assert (est._ascent_data, est._ascent_var) == (pytest.approx(data), pytest.approx(data_var))
     assert ekf.x[DRAG] == pytest.approx(0.9)  # half way back: the cap's weight is the prior's
     walked = 0.02
@@ -174,15 +177,14 @@ def test_an_ascent_that_contradicts_the_design_is_weighed_as_either():
     from firmware_py.estimator.params import DRAG_ASCENT_FLOOR, DRAG_CONFLICT_SIGMA
     from firmware_py.estimator.state import DRAG
 
-    est = Estimator(Design(), FilterConfig())
-    ekf = est.ekf
-    ekf.initialise((1.0, 0.0, 0.0, 0.0), 0.0)
     prior, prior_var, data, data_var = 1.0, 0.02, 0.5, DRAG_ASCENT_FLOOR**2  # unlike the cap's 0.01: k moves
     assert (data - prior) ** 2 > DRAG_CONFLICT_SIGMA**2 * (prior_var + data_var)
-    v = 1.0 / (1.0 / prior_var + 1.0 / data_var)
-    ekf.x[DRAG], ekf.P[DRAG, DRAG] = v * (prior / prior_var + data / data_var), v
-    est._drag_prior = (prior, prior_var)
-    est._ascent_data, est._ascent_var = ekf.cap_information(DRAG, prior, prior_var, 0.1**2, RESET_DRAG)
+    est = after_an_ascent(prior, prior_var, data, data_var)
+    ekf = est.ekf
+    # within the gate at the cap's weight (0.25 against 9 x 0.03): the cap combines them
+    est._ascent_data, est._ascent_var = ekf.cap_information(
+        DRAG, prior, prior_var, 0.1**2, RESET_DRAG, DRAG_CONFLICT_SIGMA
+    )
     walked = 0.001
     ekf.P[DRAG, DRAG] += walked
     ekf.x[WIND_N], ekf.x[WIND_E] = 3.0, 4.0
@@ -199,16 +201,17 @@ def test_an_ascent_that_contradicts_the_design_is_weighed_as_either():
 
 
 def test_an_ascent_that_contradicts_the_design_is_said_from_its_cap():
-    """An ascent that told 0.45 (claiming 0.004) against the design's 1 +- 0.1, capped at the ascent's end: beyond
-    DRAG_CONFLICT_SIGMA of their difference even at the cap's weight, so the cap makes their mixture at once (its
-    variance the two's mean and the square of half their difference), not the 0.73 +- 0.07 a combination claims for
-    the two minutes until the taut flight's turbulence is measured (``drag-crisis``: 15-19 % fast, stated at a third
-    of its error there). The weighing after it still finds the walk since the cap, and only that, on top."""
+    """An ascent that told 0.4 (claiming 0.004) against a prior of 1 +- 0.14, capped at the ascent's end: beyond
+    DRAG_CONFLICT_SIGMA of their difference even at the cap's weight, so the cap makes their mixture at once (half way,
+    its variance the two's mean and the square of half their difference), not the 0.6 +- 0.08 a combination claims
+    for the two minutes until the taut flight's turbulence is measured (``drag-crisis``: 15-19 % fast, stated at a
+    third of its error there). The weighing after it still finds the walk since the cap, and only that, on top. An
+    ascent that claimed less than the cap allows is judged at its own claim the same way."""
     from firmware_py.estimator.ekf import RESET_DRAG
     from firmware_py.estimator.params import DRAG_ASCENT_SIGMA, DRAG_CONFLICT_SIGMA
     from firmware_py.estimator.state import DRAG
 
-    prior, prior_var, data, data_var = 1.0, 0.01, 0.45, 0.004
+    prior, prior_var, data, data_var = 1.0, 0.02, 0.4, 0.004
     est = after_an_ascent(prior, prior_var, data, data_var)
     ekf = est.ekf
     d = data - prior
@@ -227,6 +230,25 @@ def test_an_ascent_that_contradicts_the_design_is_said_from_its_cap():
     assert ekf.reset_counts[RESET_DRAG] == 2
     assert ekf.x[DRAG] == pytest.approx(prior + 0.5 * d)
     assert ekf.P[DRAG, DRAG] == pytest.approx(0.5 * (prior_var + data_var) + 0.25 * d * d + walked)
+
+
+def test_a_weak_ascent_that_contradicts_the_design_is_said_from_its_cap():
+    """An ascent that claimed only 0.02 (less than the cap's 0.01 allows, so nothing is given back) and told 0.3
+    against a prior of 1 +- 0.1: 4.0 sigma of their difference at its own claim, so the cap makes their mixture too."""
+    from firmware_py.estimator.ekf import RESET_DRAG
+    from firmware_py.estimator.params import DRAG_ASCENT_SIGMA, DRAG_CONFLICT_SIGMA
+    from firmware_py.estimator.state import DRAG
+
+    prior, prior_var, data, data_var = 1.0, 0.01, 0.3, 0.02
+    assert data_var > DRAG_ASCENT_SIGMA**2
+    est = after_an_ascent(prior, prior_var, data, data_var)
+    ekf = est.ekf
+    d = data - prior
+    assert d * d > DRAG_CONFLICT_SIGMA**2 * (prior_var + data_var)
+    ekf.cap_information(DRAG, prior, prior_var, DRAG_ASCENT_SIGMA**2, RESET_DRAG, DRAG_CONFLICT_SIGMA)
+    assert ekf.x[DRAG] == pytest.approx(prior + 0.5 * d)
+    assert ekf.P[DRAG, DRAG] == pytest.approx(0.5 * (prior_var + data_var) + 0.25 * d * d)
+    assert ekf.reset_counts[RESET_DRAG] == 1
 
 
 def test_what_p_does_not_hold_about_the_field_is_kept_beside_it_and_stated():

@@ -277,7 +277,36 @@ def test_a_join_in_flight_is_a_placement_at_its_first_sample(core):
     first = samples[15000]
     feed(est, samples[15000:15100])
     assert est.ekf.mode == MODE_TAUT and est.ekf.time_taut_us == first.time_usec, (est.ekf.time_taut_us, first)
-    assert est.wind_accuracy() >= placement_settling_wind(1.0, math.hypot(*est.wind()))
+    assert est.wind_taut_mps > 0.5  # the join's static balance put a wind (paper-reference: 3 m/s)
+    assert est.wind_accuracy() >= placement_settling_wind(1.0, max(math.hypot(*est.wind()), est.wind_taut_mps))
+
+
+@pytest.mark.parametrize("core", ["py", "c"])
+def test_a_swing_towards_calm_does_not_take_the_settling_with_it(core):
+    """A second after the taut entry the estimate swung to calm (the wind state set to 0): what the placement has
+    still to settle keeps the scale of the wind the placement put (both cores), not the estimate's 0."""
+    from firmware_py.estimator.consistency import placement_settling_wind
+
+    samples, _ = stream("paper-reference", 60.0, 11)
+    est = Estimator(Design(), replace(FilterConfig(), core=core))
+    entry = []
+
+    def watch(s) -> None:
+        if est.ekf.mode == MODE_TAUT and not entry:
+            entry.append(s.time_usec)
+
+    feed(est, samples, each=watch)
+    assert entry, "never taut"
+    i = next(k for k, s in enumerate(samples) if s.time_usec >= entry[0] + 1_000_000)
+    est = Estimator(Design(), replace(FilterConfig(), core=core))
+    feed(est, samples[: i + 1])
+    placed = est.wind_taut_mps
+    assert placed > 1.0, placed
+    est.ekf.x[WIND_N] = est.ekf.x[WIND_E] = 0.0
+    since = (samples[i].time_usec - est.ekf.time_taut_us) * 1e-6
+    assert 0.9 < since < 1.2, since
+    assert est.wind_accuracy() >= placement_settling_wind(since, placed) * (1.0 - 1e-9)
+    assert placement_settling_wind(since, placed) > 1.5 * placement_settling_wind(since, 0.0)
 
 
 @pytest.mark.slow
