@@ -66,7 +66,8 @@ DRAG_ASCENT_FLOOR = 0.02
 # ... unless the ascent and its prior (the design's) disagree beyond this many sigma of their difference (a chance
 # of 0.3 % where both hold): a sphere's C_d depends on its Reynolds number, and through the drag crisis the ascent's
 # airspeed (4-5 m/s) and the tether's differ by half; either may hold, so their mixture is taken
-# (WindEkf.weigh_information), at the ascent's cap already (at DRAG_ASCENT_SIGMA) and again at the weighing
+# (WindEkf.weigh_information), at the ascent's cap already (at DRAG_ASCENT_SIGMA, or the ascent's claim where less)
+# and again at the weighing
 DRAG_CONFLICT_SIGMA = 3.0
 TURBULENCE_FROM_S = 60.0
 TURBULENCE_TO_S = 120.0
