@@ -148,7 +148,7 @@ def _structs(real):
         ]
 
     rest = [
-        ("accel_var", real), ("accel_static_var", real), ("accel_confirm_var", real), ("accel_taut_var", real),
+        ("accel_var", real), ("accel_static_var", real), ("accel_taut_var", real),
         ("vertical_gust_var", real), ("align_var", real), ("baro_var", real), ("mag_sigma", real), ("mag_var", real),
         ("declination", real), ("catenary", u8), ("mount", u8),
         ("n_dwell", i32), ("n_learn_drag", i32), ("n_false_release", i32), ("n_taut_pull", i32), ("n_confirm", i32),

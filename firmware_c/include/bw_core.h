@@ -162,7 +162,7 @@ typedef struct {
     bw_status_t accel_status[3], baro_status, heading_status, mag_status[3], taut_status[4];
     bw_windcov_out_t out;
     /* noise */
-    bw_real accel_var, accel_static_var, accel_confirm_var, accel_taut_var, vertical_gust_var, align_var, baro_var,
+    bw_real accel_var, accel_static_var, accel_taut_var, vertical_gust_var, align_var, baro_var,
         mag_sigma, mag_var, declination;
     uint8_t catenary, mount;     /* the rope's real shape; an IMU mounting declared (cfg imu_roll/pitch_deg) */
     /* the times of control.py as step counts (n >= ceil(t * rate)) and the monitor's weights, set at init */

@@ -188,8 +188,8 @@ int bw_init(bw_estimator_t *est, const bw_config_t *cfg)
     est->accel_static_var = (bw_real)(s_acc + cfg->accel_static_mps2 * cfg->accel_static_mps2);
     /* a rope with mass moves on its own and moves the balloon with it: the rod model's errors grow with it */
     share = est->catenary ? cfg->rope_kg_m * cfg->tether_length_m / (cfg->mass_kg + 1e-9) : 0.0;
-    est->accel_confirm_var = (bw_real)(s_acc + cfg->accel_taut_mps2 * cfg->accel_taut_mps2);
-    est->accel_taut_var = (bw_real)((double)est->accel_confirm_var + (BW_ROPE_WAVE_ACCEL_MPS2 * share) * (BW_ROPE_WAVE_ACCEL_MPS2 * share));
+    est->accel_taut_var = (bw_real)((double)(bw_real)(s_acc + cfg->accel_taut_mps2 * cfg->accel_taut_mps2) +
+                                    (BW_ROPE_WAVE_ACCEL_MPS2 * share) * (BW_ROPE_WAVE_ACCEL_MPS2 * share));
     est->vertical_gust_var = vertical_gust_var(est, cfg->expected_wind_mps, (bw_real)bw_site_air_density(cfg));
     est->align_var = (bw_real)(cfg->align_rad * cfg->align_rad + (BW_ROPE_WAVE_ALIGN_RAD * share) * (BW_ROPE_WAVE_ALIGN_RAD * share));
     est->baro_var = (bw_real)(cfg->baro_m * cfg->baro_m + BW_BARO_MODEL_M * BW_BARO_MODEL_M);
@@ -289,22 +289,42 @@ static void initialise(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay
         join_in_flight(est, q);
 }
 
-static void confirm(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
+static BW_NOINLINE void confirm(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az)
 {
-    bw_real *m = est->acc_mean, a, dx, dy, dz;
-    int moving, explained;
+    /* control.py _confirm: the balloon's acceleration across its rope (the specific force turned into NED) and the
+     * model's innovations there; along the rope the rope's breathing and the vertical air */
+    const bw_ekf_t *e = &est->ekf;
+    const bw_real pn = e->x[BW_POS_N], pe = e->x[BW_POS_E], pd = e->x[BW_POS_D];
+    bw_real *m = est->acc_mean, r[9], a, fn, fe, fd, dn, de, dd, d2, f2, innov2;
+    int64_t since;
+    int moving, explained, settled;
+    bw_rotation(e->q, r);
+    fn = r[0] * ax + r[1] * ay + r[2] * az;
+    fe = r[3] * ax + r[4] * ay + r[5] * az;
+    fd = r[6] * ax + r[7] * ay + r[8] * az;
     if (est->acc_var < BW_R(0.0))
-        m[0] = ax, m[1] = ay, m[2] = az, est->acc_var = BW_R(0.0);
-    a = est->a_confirm;
-    dx = ax - m[0], dy = ay - m[1], dz = az - m[2];
-    m[0] += a * dx;
-    m[1] += a * dy;
-    m[2] += a * dz;
-    est->acc_var += est->innov_alpha * ((dx * dx + dy * dy + dz * dz) / BW_R(3.0) - est->acc_var);
+        m[0] = fn, m[1] = fe, m[2] = fd, est->acc_var = BW_R(0.0);
+    /* the running mean; until its window fills, the mean of the samples since the placement */
+    since = e->time_us - e->time_taut_us;
+    a = BW_MAX(BW_R(1.0) / (bw_real)(since / est->dt_us + 1), est->a_confirm);
+    dn = fn - m[0], de = fe - m[1], dd = fd - m[2];
+    m[0] += a * dn;
+    m[1] += a * de;
+    m[2] += a * dd;
+    d2 = pn * pn + pe * pe + pd * pd;
+    f2 = dn * dn + de * de + dd * dd;
+    innov2 = est->accel_innov2;
+    if (d2 > BW_R(1.0)) { /* per axis across the rope: the two axes' share of the three's, less the radius's */
+        const bw_real along = dn * pn + de * pe + dd * pd;
+        f2 = BW_R(1.5) * (f2 - along * along / d2);
+        innov2 = BW_MAX(BW_R(0.0), BW_R(1.5) * innov2 - BW_R(0.5) * est->accel_radial_innov2);
+    }
+    est->acc_var += est->innov_alpha * (f2 / BW_R(3.0) - est->acc_var);
     moving = est->acc_var > (bw_real)(BW_CONFIRM_MOTION_MPS2 * BW_CONFIRM_MOTION_MPS2);
-    explained = est->accel_innov2 < (bw_real)BW_CONFIRM_EXPLAINED * est->acc_var &&
-                est->accel_innov2 <= est->accel_taut_var;
-    est->confirm_count = moving && explained ? count_up(est->confirm_count) : 0;
+    explained = innov2 < (bw_real)BW_CONFIRM_EXPLAINED * est->acc_var;
+    /* counted once the placement has settled, when the force balance starts to judge the state */
+    settled = since >= (int64_t)(BW_BALANCE_FROM_S * 1e6);
+    est->confirm_count = moving && explained && settled ? count_up(est->confirm_count) : 0;
     if (est->confirm_count >= est->n_confirm)
         est->unconfirmed = 0;
 }

@@ -456,11 +456,13 @@ def test_a_reboot_is_still_a_reboot(capture, capsys, tmp_path):
     assert summary_count(err, "off the IMU's clock") == 0
 
 
-def field_flight(path: Path, seconds: float, seed: int, change=lambda s: s) -> Simulation:
-    """A ``field-rope`` flight of ``seconds`` written to the tlog ``path``, each sensor sample through ``change`` (its
-    time, its readings); the simulation (its truth)."""
-    sc = SCENARIOS["field-rope"]
-    sim = Simulation(sc.design, sc.wind, sc.truth, seconds, seed)
+def field_flight(path: Path, seconds: float, seed: int, change=lambda s: s, scenario: str = "field-rope",
+                 mean_mps: float | None = None) -> Simulation:
+    """A ``scenario`` flight (its wind's mean ``mean_mps`` where given) of ``seconds`` written to the tlog ``path``,
+    each sensor sample through ``change`` (its time, its readings); the simulation (its truth)."""
+    sc = SCENARIOS[scenario]
+    wind = sc.wind if mean_mps is None else dataclasses.replace(sc.wind, mean_mps=mean_mps)
+    sim = Simulation(sc.design, wind, sc.truth, seconds, seed)
     enc = SensorPacketEncoder()
     with open(path, "wb") as fh:
         w = TlogWriter(fh)
@@ -501,6 +503,28 @@ def test_a_reboot_in_flight_on_a_real_rope_is_confirmed_and_its_accuracy_comes_b
     acc_rms = np.sqrt(np.mean(late[:, 3] ** 2))
     speed = np.hypot(*sim.truth[-1, 1:3])
     assert acc_rms < 0.3 * speed and 0.3 < err_rms / acc_rms < 2.0, (err_rms, acc_rms, speed)
+
+
+@pytest.mark.parametrize("scenario, mean_mps", [("field-rope", 1.2), ("field-gusty-6", None)])
+def test_a_reboot_in_light_air_or_in_gusts_is_confirmed_across_the_rope(scenario, mean_mps, tmp_path, capsys):
+    """A reboot on a real rope in light air (1.2 m/s) or in IEC class B gusts (6 m/s), the vertical air with them. The
+    join is confirmed by the balloon's motion across its rope (control._confirm): along it the vertical air and the
+    rope's breathing move the balloon where the taut model holds it still. Judged on all three axes (and the
+    innovations within the rod's allowance) neither was ever confirmed: the accuracy 1.55 and 6.0 m/s for the rest of
+    the flight where the wind was right to 0.07 and 0.6 m/s (error/accuracy 0.05 and 0.1)."""
+    tlog = tmp_path / "reboot.tlog"
+    sim = field_flight(tlog, 240.0, 1, lambda s: s if s.time_usec < 60_000_000 else  # the clock from 0.1 s again
+                       dataclasses.replace(s, time_usec=s.time_usec - 59_900_000), scenario, mean_mps)  # fmt: skip
+    capsys.readouterr()
+    assert bounded(fw_cli.main, ["--in", str(tlog), "--out", str(tmp_path / "o.tlog"), "--quiet"]) == 0
+    assert summary_count(capsys.readouterr().err, "reboot") == 1
+    w = wind_covs(tmp_path / "o.tlog")
+    after = w[np.flatnonzero(np.diff(w[:, 0]) < 0)[0] + 1 :]
+    late = after[after[:, 0] >= after[0, 0] + 90e6]  # 90 s after the reboot (confirmed at the earliest 44 s after)
+    err_rms = np.sqrt(np.mean(wind_errors(sim, late, 59.9) ** 2))
+    acc_rms = np.sqrt(np.mean(late[:, 3] ** 2))
+    unconfirmed = np.sqrt(np.mean(np.hypot(late[:, 1], late[:, 2]) ** 2 + 1.0))  # what an unconfirmed join states
+    assert acc_rms < 0.5 * unconfirmed and 0.2 < err_rms / acc_rms < 1.5, (err_rms, acc_rms, unconfirmed)
 
 
 def test_readings_that_are_not_numbers_are_counted_not_dropped_silently(capture, capsys, tmp_path):
