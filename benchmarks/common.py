@@ -9,10 +9,11 @@ from study.case import attitude_errors  # noqa: F401 - re-exported for the bench
 from study.case import fly as fly_design
 
 
-def fly(name: str, duration_s: float, seed: int, scenario=None):
-    """A named scenario (or ``scenario``) through ``study.case.fly``: rows, truth by column, the estimator."""
+def fly(name: str, duration_s: float, seed: int, scenario=None, join_s: float = 0.0):
+    """A named scenario (or ``scenario``) through ``study.case.fly`` (the firmware joining the flight at ``join_s``
+    where > 0): rows, truth by column, the estimator."""
     sc = scenario or SCENARIOS[name]
-    return fly_design(sc.design, sc.wind, sc.truth, sc.filter, duration_s, seed)
+    return fly_design(sc.design, sc.wind, sc.truth, sc.filter, duration_s, seed, join_s)
 
 
 def score_flight(rows, truth, start_s: float = 120.0) -> Score:

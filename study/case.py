@@ -21,17 +21,23 @@ from sim_hil.wind import WindConfig
 from study.metrics import FACTOR_SHOWN, H_BAND_HZ, h_column
 
 
-def fly(design: Design, wind: WindConfig, truth: TruthConfig, filt: FilterConfig, duration_s: float, seed: int):
+def fly(design: Design, wind: WindConfig, truth: TruthConfig, filt: FilterConfig, duration_s: float, seed: int,
+        join_s: float = 0.0):
     """Rows (time s, wind N, wind E, horiz accuracy, roll, pitch, yaw rad, the stated tilt's 1-sigma rad, the
     consistency monitor's factor on the accuracy, the index in ``SOURCES`` of the source whose windowed NIS set it or
     -1 where it is 1, the filter's mode) per IMU sample, the truth table by column, and the estimator (its
-    counters)."""
+    counters). ``join_s`` > 0: the firmware starts that far into the flight (a restart in flight: it joins the
+    balloon on its tether), its rows before then NaN but their time."""
     sim = Simulation(design, wind, truth, duration_s, seed)
     est, _ = new_core(design, filt)
     rows = np.zeros((sim.n_imu, 11))
     ekf = est.ekf  # its P is updated in place
     mon = est.consistency
     for i, s in enumerate(sim.samples()):
+        if s.time_usec < join_s * 1e6:
+            rows[i] = np.nan
+            rows[i, 0] = s.time_usec * 1e-6
+            continue
         if s.baro:
             est.on_baro(s.time_usec, *s.baro)
         est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)

@@ -3,6 +3,7 @@
     python tools/entry_windows.py                                   # every scenario of bench_accuracy, 9 directions
     python tools/entry_windows.py --seeds 2 --duration 300          # seeds 1 and 2, 300 s flights
     python tools/entry_windows.py --scenarios steady-8 gusty-6 --directions 4
+    python tools/entry_windows.py --join-at 200 --duration 500 --start 260   # a restart 200 s into each flight
 
 Flies each scenario of ``benchmarks.bench_accuracy`` (its default list, or ``--scenarios``) from ``--directions``
 directions 360/N apart (``NAME@DEG``) with seeds 1..``--seeds`` on the study engine's core (``benchmarks.common.fly``)
@@ -10,7 +11,9 @@ and scores the wind against the truth in windows after the first taut entry (0-1
 ``bench_accuracy`` (from 120 s) and ``bench_envelope`` (its scored part) leave out, and from ``--start`` s of the
 flight, as the stop's check scores: error / stated accuracy (RMS over RMS) and the share of estimates beyond 3 x their
 stated accuracy. Prints, per window, how many flights have more than 5 % and 20 % of their estimates beyond 3 sigma,
-the error / accuracy percentiles, and the worst flights."""
+the error / accuracy percentiles, and the worst flights. ``--join-at S``: the firmware starts S s into each flight (a
+restart in flight, ``control._join_in_flight``): its entry is the join, and each flight's line says when the join was
+confirmed (``control._confirm``)."""
 
 from __future__ import annotations
 
@@ -40,10 +43,11 @@ def judge(err: np.ndarray, acc: np.ndarray) -> tuple[float, float] | None:
     return float(np.sqrt(np.mean(err**2) / np.mean(acc**2))), float(np.mean(~(err <= 3.0 * acc)))
 
 
-def one(job: tuple[str, int, float, float]) -> dict:
+def one(job: tuple[str, int, float, float, float]) -> dict:
     """One flight: the estimate's error and stated accuracy in each window (None where it was not flown)."""
-    name, seed, duration_s, start_s = job
-    rows, truth, _ = fly(name, duration_s, seed, lookup(name))
+    name, seed, duration_s, start_s, join_s = job
+    rows, truth, _ = fly(name, duration_s, seed, lookup(name), join_s)
+    rows = rows[np.isfinite(rows[:, 3])]  # the firmware's (from the join)
     t = rows[:, 0]
     err = np.hypot(rows[:, 1] - np.interp(t, truth["time_s"], truth["wind_n"]),
                    rows[:, 2] - np.interp(t, truth["time_s"], truth["wind_e"]))  # fmt: skip
@@ -51,6 +55,9 @@ def one(job: tuple[str, int, float, float]) -> dict:
     taut = np.flatnonzero(rows[:, 10] == MODE_TAUT)
     entry = t[taut[0]] if len(taut) else math.inf
     out = {"name": name, "seed": seed, "from start": judge(err[t >= start_s], acc[t >= start_s])}
+    if join_s > 0.0:  # confirmed where the accuracy first falls below what an unconfirmed join states, sqrt(|w|^2 + 1)
+        below = np.flatnonzero(acc < np.sqrt(rows[:, 1] ** 2 + rows[:, 2] ** 2 + 1.0) - 1e-9)
+        out["confirmed"] = t[below[0]] - t[0] if len(below) else None
     for a, b in WINDOWS_S:
         w = (t >= entry + a) & (t < entry + b)
         out[f"{a:g}-{b:g} s after the entry"] = judge(err[w], acc[w])
@@ -59,6 +66,12 @@ def one(job: tuple[str, int, float, float]) -> dict:
 
 def report(flights: list[dict], start_s: float) -> str:
     lines = []
+    if any("confirmed" in f for f in flights):
+        never = [f for f in flights if f["confirmed"] is None]
+        seconds = np.array([f["confirmed"] for f in flights if f["confirmed"] is not None])
+        when = f"p50 {np.median(seconds):.0f} s, worst {seconds.max():.0f} s after the join" if len(seconds) else ""
+        lines.append(f"joins confirmed: {len(seconds)} of {len(flights)} ({when}); never: "
+                     + (", ".join(f"{f['name']} seed {f['seed']}" for f in never) or "none"))  # fmt: skip
     for key in [f"{a:g}-{b:g} s after the entry" for a, b in WINDOWS_S] + ["from start"]:
         got = [(f[key], f) for f in flights if f[key] is not None]
         if not got:
@@ -83,6 +96,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=2, help="seeds 1..N (default 2)")
     ap.add_argument("--duration", type=float, default=300.0, help="flight length, s (default 300)")
     ap.add_argument("--start", type=float, default=60.0, help="the whole flight scored from here, s (default 60)")
+    ap.add_argument("--join-at", type=float, default=0.0, metavar="S",
+                    help="the firmware starts S s into each flight: a restart in flight (default 0: from the boot)")
     ap.add_argument("--jobs", type=int, default=2)
     try:
         return run(ap.parse_args(argv))
@@ -97,11 +112,13 @@ def run(args: argparse.Namespace) -> int:
         raise userargs.UserError(f"--duration {args.duration}: give 30 to 86400 s")
     if not (math.isfinite(args.start) and 0.0 <= args.start < args.duration):
         raise userargs.UserError(f"--start {args.start}: give 0 up to the flight's duration")
+    if not (math.isfinite(args.join_at) and 0.0 <= args.join_at <= args.start):
+        raise userargs.UserError(f"--join-at {args.join_at}: give 0 up to --start")
     names = directions(args.scenarios, args.directions)
     unknown = [n for n in names if lookup(n) is None]
     if unknown:
         raise userargs.UserError(f"unknown scenario {unknown[0]!r} (balloon-sim --list-scenarios)")
-    jobs = [(n, s, args.duration, args.start) for n in names for s in range(1, args.seeds + 1)]
+    jobs = [(n, s, args.duration, args.start, args.join_at) for n in names for s in range(1, args.seeds + 1)]
     with Pool(args.jobs) as pool:
         flights = pool.map(one, jobs)
     print(report(flights, args.start))

@@ -571,7 +571,7 @@ class Estimator:
         tether obeys; along it the rope's breathing and the vertical air move the balloon (``accel.radial_noise``),
         which the model leaves out: judged on all three axes, a real rope in light air with its vertical air (1.2 m/s)
         never confirmed, its accuracy 1.3-1.7 m/s for the rest of the flight where the wind was right to 0.1 m/s
-        (docs/estimator.md, "Joining in flight")."""
+        (docs/estimator.md, "Mode switching and resets", joining in flight)."""
         ekf = self.ekf
         rt, p = ekf.rt, ekf.x  # R^T as the accelerometer's rows took it; the state's position, NED
         fn = float(rt[0, 0] * ax + rt[1, 0] * ay + rt[2, 0] * az)

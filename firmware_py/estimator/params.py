@@ -85,13 +85,14 @@ ALIGN_RESET_S = 2.0  # rejected alignment this long re-places the taut state
 JOIN_IN_FLIGHT_US = 10_000_000  # a first sample this long after the sender's boot: we restarted in flight
 # After a join in flight the balloon hypothesis is unconfirmed: the wind read from the tilt through the
 # static balance is only as good as the assumption that this is a balloon on its tether. The motion
-# confirms it: a tethered balloon in a real (turbulent) wind accelerates, and the force model explains
-# that acceleration. Until then the reported accuracy (``wind_accuracy``) is at least the wind's own
-# magnitude (and 1 m/s): the estimate cannot be told from calm. The filter itself runs on unchanged.
-CONFIRM_MOTION_MPS2 = 0.03  # RMS of the measured acceleration's fluctuation (a resting sensor: noise only)
-CONFIRM_EXPLAINED = 0.5  # the model's innovations below this share of that fluctuation's variance
-CONFIRM_S = 20.0  # both, for this long without a break (turbulent forcing persists; a bump dies away)
-CONFIRM_WINDOW_S = 10.0  # time constant of the measured acceleration's running mean
+# confirms it: a tethered balloon in a real (turbulent) wind accelerates across its rope, and the force
+# model explains that acceleration (control._confirm; along the rope the vertical air and the rope's
+# breathing, which the model leaves out). Until then the reported accuracy (``wind_accuracy``) is at least
+# the wind's own magnitude (and 1 m/s): the estimate cannot be told from calm. The filter runs on unchanged.
+CONFIRM_MOTION_MPS2 = 0.03  # RMS of the acceleration's fluctuation across the rope (a resting sensor: noise only)
+CONFIRM_EXPLAINED = 0.5  # the model's innovations there below this share of that fluctuation's variance
+CONFIRM_S = 20.0  # both, for this long without a break once the placement has settled (BALANCE_FROM_S)
+CONFIRM_WINDOW_S = 10.0  # time constant of the acceleration's running mean (NED)
 BARO_RESET_S = 2.0  # rejected barometer this long: reset the height to it
 BARO_NOMINAL_HZ = 20.0  # the barometer's rate its counts are taken at (its samples are fused as they come)
 FALSE_RELEASE_S = 3.0  # free ascent that stays below the release height this long was a bump
