@@ -25,12 +25,12 @@ def fly(design: Design, wind: WindConfig, truth: TruthConfig, filt: FilterConfig
         join_s: float = 0.0):
     """Rows (time s, wind N, wind E, horiz accuracy, roll, pitch, yaw rad, the stated tilt's 1-sigma rad, the
     consistency monitor's factor on the accuracy, the index in ``SOURCES`` of the source whose windowed NIS set it or
-    -1 where it is 1, the filter's mode) per IMU sample, the truth table by column, and the estimator (its
-    counters). ``join_s`` > 0: the firmware starts that far into the flight (a restart in flight: it joins the
-    balloon on its tether), its rows before then NaN but their time."""
+    -1 where it is 1, the filter's mode, 1 while a join in flight is unconfirmed) per IMU sample, the truth table by
+    column, and the estimator (its counters). ``join_s`` > 0: the firmware starts that far into the flight (a restart
+    in flight: it joins the balloon on its tether), its rows before then NaN but their time."""
     sim = Simulation(design, wind, truth, duration_s, seed)
     est, _ = new_core(design, filt)
-    rows = np.zeros((sim.n_imu, 11))
+    rows = np.zeros((sim.n_imu, 12))
     ekf = est.ekf  # its P is updated in place
     mon = est.consistency
     for i, s in enumerate(sim.samples()):
@@ -48,7 +48,8 @@ def fly(design: Design, wind: WindConfig, truth: TruthConfig, filt: FilterConfig
             stated = [stated_nis(k, v) for k, v in enumerate(mon.nis)]
             source = float(stated.index(max(stated)))
         rows[i] = (s.time_usec * 1e-6, wn, we, est.wind_accuracy(), *euler_from_quat(*ekf.q.tolist()),
-                   math.sqrt(ekf.P[ATT_N, ATT_N] + ekf.P[ATT_E, ATT_E]), factor, source, ekf.mode)  # fmt: skip
+                   math.sqrt(ekf.P[ATT_N, ATT_N] + ekf.P[ATT_E, ATT_E]), factor, source, ekf.mode,
+                   est.unconfirmed)  # fmt: skip
     truth_cols = {c: sim.truth[:, k] for k, c in enumerate(TRUTH_COLUMNS)}
     return rows, truth_cols, est
 

@@ -30,10 +30,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from balloon_core import userargs  # noqa: E402
 from benchmarks.bench_accuracy import DEFAULT_SCENARIOS, directions, lookup  # noqa: E402
 from benchmarks.common import fly  # noqa: E402
+from firmware_py.estimator.params import JOIN_IN_FLIGHT_US  # noqa: E402
 from firmware_py.estimator.state import MODE_TAUT  # noqa: E402
 
 WINDOWS_S = ((0.0, 10.0), (10.0, 30.0), (30.0, 90.0), (90.0, 180.0))  # after the first taut entry
 SHARES = (0.05, 0.2)  # a flight counted where more than this share of its estimates is beyond 3 sigma
+JOIN_S = JOIN_IN_FLIGHT_US * 1e-6  # a first sample later than this after the sender's boot joins in flight
 
 
 def judge(err: np.ndarray, acc: np.ndarray) -> tuple[float, float] | None:
@@ -55,9 +57,9 @@ def one(job: tuple[str, int, float, float, float]) -> dict:
     taut = np.flatnonzero(rows[:, 10] == MODE_TAUT)
     entry = t[taut[0]] if len(taut) else math.inf
     out = {"name": name, "seed": seed, "from start": judge(err[t >= start_s], acc[t >= start_s])}
-    if join_s > 0.0:  # confirmed where the accuracy first falls below what an unconfirmed join states, sqrt(|w|^2 + 1)
-        below = np.flatnonzero(acc < np.sqrt(rows[:, 1] ** 2 + rows[:, 2] ** 2 + 1.0) - 1e-9)
-        out["confirmed"] = t[below[0]] - t[0] if len(below) else None
+    if join_s > 0.0:  # when the join was confirmed, from its first sample
+        confirmed = np.flatnonzero(rows[:, 11] == 0.0)
+        out["confirmed"] = t[confirmed[0]] - t[0] if len(confirmed) else None
     for a, b in WINDOWS_S:
         w = (t >= entry + a) & (t < entry + b)
         out[f"{a:g}-{b:g} s after the entry"] = judge(err[w], acc[w])
@@ -69,8 +71,8 @@ def report(flights: list[dict], start_s: float) -> str:
     if any("confirmed" in f for f in flights):
         never = [f for f in flights if f["confirmed"] is None]
         seconds = np.array([f["confirmed"] for f in flights if f["confirmed"] is not None])
-        when = f"p50 {np.median(seconds):.0f} s, worst {seconds.max():.0f} s after the join" if len(seconds) else ""
-        lines.append(f"joins confirmed: {len(seconds)} of {len(flights)} ({when}); never: "
+        when = f" (p50 {np.median(seconds):.0f} s, worst {seconds.max():.0f} s after the join)" if len(seconds) else ""
+        lines.append(f"joins confirmed: {len(seconds)} of {len(flights)}{when}; never: "
                      + (", ".join(f"{f['name']} seed {f['seed']}" for f in never) or "none"))  # fmt: skip
     for key in [f"{a:g}-{b:g} s after the entry" for a, b in WINDOWS_S] + ["from start"]:
         got = [(f[key], f) for f in flights if f[key] is not None]
@@ -112,8 +114,9 @@ def run(args: argparse.Namespace) -> int:
         raise userargs.UserError(f"--duration {args.duration}: give 30 to 86400 s")
     if not (math.isfinite(args.start) and 0.0 <= args.start < args.duration):
         raise userargs.UserError(f"--start {args.start}: give 0 up to the flight's duration")
-    if not (math.isfinite(args.join_at) and 0.0 <= args.join_at <= args.start):
-        raise userargs.UserError(f"--join-at {args.join_at}: give 0 up to --start")
+    if not (math.isfinite(args.join_at) and (args.join_at == 0.0 or JOIN_S < args.join_at <= args.start)):
+        raise userargs.UserError(f"--join-at {args.join_at}: give 0, or more than {JOIN_S:g} s (sooner the firmware "
+                                 "starts as after a boot) up to --start")  # fmt: skip
     names = directions(args.scenarios, args.directions)
     unknown = [n for n in names if lookup(n) is None]
     if unknown:

@@ -317,7 +317,7 @@ static BW_NOINLINE void confirm(bw_estimator_t *est, bw_real ax, bw_real ay, bw_
     if (d2 > BW_R(1.0)) { /* per axis across the rope: the two axes' share of the three's, less the radius's */
         const bw_real along = dn * pn + de * pe + dd * pd;
         f2 = BW_R(1.5) * (f2 - along * along / d2);
-        innov2 = BW_MAX(BW_R(0.0), BW_R(1.5) * innov2 - BW_R(0.5) * est->accel_radial_innov2);
+        innov2 = BW_R(1.5) * innov2 - BW_R(0.5) * est->accel_radial_innov2; /* < 0: none across; NaN: not explained */
     }
     est->acc_var += est->innov_alpha * (f2 / BW_R(3.0) - est->acc_var);
     moving = est->acc_var > (bw_real)(BW_CONFIRM_MOTION_MPS2 * BW_CONFIRM_MOTION_MPS2);

@@ -570,7 +570,7 @@ class Estimator:
         confirmed once both have held for CONFIRM_S. Across the rope the taut model's pendulum is what a balloon on its
         tether obeys; along it the rope's breathing and the vertical air move the balloon (``accel.radial_noise``),
         which the model leaves out: judged on all three axes, a real rope in light air with its vertical air (1.2 m/s)
-        never confirmed, its accuracy 1.3-1.7 m/s for the rest of the flight where the wind was right to 0.1 m/s
+        never confirmed, its accuracy 1.3-1.6 m/s for the rest of the flight where the wind was right to 0.08 m/s
         (docs/estimator.md, "Mode switching and resets", joining in flight)."""
         ekf = self.ekf
         rt, p = ekf.rt, ekf.x  # R^T as the accelerometer's rows took it; the state's position, NED
@@ -596,7 +596,7 @@ class Estimator:
         if d2 > 1.0:  # the two axes' share of the three's, less the radius's
             along = dn * pn + de * pe + dd * pd
             f2 = 1.5 * (f2 - along * along / d2)
-            innov2 = max(0.0, 1.5 * innov2 - 0.5 * self._accel_radial_innov2)
+            innov2 = 1.5 * innov2 - 0.5 * self._accel_radial_innov2  # below 0: none across; NaN: not explained
         self._acc_var += self._innov_alpha * (f2 / 3.0 - self._acc_var)
         moving = self._acc_var > CONFIRM_MOTION_MPS2**2
         explained = innov2 < CONFIRM_EXPLAINED * self._acc_var

@@ -510,8 +510,8 @@ def test_a_reboot_in_light_air_or_in_gusts_is_confirmed_across_the_rope(scenario
     """A reboot on a real rope in light air (1.2 m/s) or in IEC class B gusts (6 m/s), the vertical air with them. The
     join is confirmed by the balloon's motion across its rope (control._confirm): along it the vertical air and the
     rope's breathing move the balloon where the taut model holds it still. Judged on all three axes (and the
-    innovations within the rod's allowance) neither was ever confirmed: the accuracy 1.55 and 6.0 m/s for the rest of
-    the flight where the wind was right to 0.07 and 0.6 m/s (error/accuracy 0.05 and 0.1)."""
+    innovations within the taut model's allowance) neither was ever confirmed: the accuracy 1.55 and 6.0 m/s for the
+    rest of the flight where the wind was right to 0.07 and 0.6 m/s (error/accuracy 0.05 and 0.1)."""
     tlog = tmp_path / "reboot.tlog"
     sim = field_flight(tlog, 240.0, 1, lambda s: s if s.time_usec < 60_000_000 else  # the clock from 0.1 s again
                        dataclasses.replace(s, time_usec=s.time_usec - 59_900_000), scenario, mean_mps)  # fmt: skip

@@ -37,8 +37,9 @@ def test_a_steady_flight_is_scored_in_every_window_after_its_entry():
 
 def test_a_restart_in_flight_is_scored_from_the_join_and_says_when_it_was_confirmed():
     """``--join-at``: the firmware starts 60 s into the flight. ``field-rope`` (3 m/s, turbulent) is confirmed once its
-    placement has settled and the motion across the rope has been explained for 20 s (44-80 s after the join);
-    ``steady-8`` never (nothing moves). The windows are after the join, the report says both."""
+    placement has settled and the motion across the rope has been explained for 20 s (44-80 s after the join; the
+    rule before confirmed it at 20 s, while the placement settled); ``steady-8`` never (nothing moves). The windows are
+    after the join, the report says both."""
     moving, still = one(("field-rope", 1, 200.0, 120.0, 60.0)), one(("steady-8", 1, 200.0, 120.0, 60.0))
     assert 43.0 <= moving["confirmed"] <= 80.0 and still["confirmed"] is None, (moving["confirmed"], still["confirmed"])
     ratio, share = moving["30-90 s after the entry"]
@@ -49,7 +50,7 @@ def test_a_restart_in_flight_is_scored_from_the_join_and_says_when_it_was_confir
 
 def test_user_errors_are_one_line_and_exit_2():
     for args in (["--directions", "0"], ["--scenarios", "no-such"], ["--duration", "10"],
-                 ["--join-at", "100", "--start", "60"]):  # fmt: skip
+                 ["--join-at", "100", "--start", "60"], ["--join-at", "5"]):  # fmt: skip
         p = subprocess.run([sys.executable, str(ROOT / "tools" / "entry_windows.py"), *args], capture_output=True,
                            text=True, timeout=60)  # fmt: skip
         assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1 and "Traceback" not in p.stderr, p
