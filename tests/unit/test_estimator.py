@@ -281,6 +281,43 @@ def test_a_join_in_flight_is_a_placement_at_its_first_sample(core):
     assert est.wind_accuracy() >= placement_settling_wind(1.0, max(math.hypot(*est.wind()), est.wind_taut_mps))
 
 
+def rocking_in_place(seconds: float, t0_s: float = 150.0):
+    """A sender that only turns, at rest where it stands (no acceleration): 7 deg of pitch with 5 deg of rocking at
+    0.2 Hz and 4 deg of roll at 0.13 Hz, 100 Hz, its readings exact (the specific force gravity's reaction, the rates
+    the rotation's, the field's 0.2 G north and 0.45 G down in the body's axes); its first sample ``t0_s`` after the
+    sender's boot (a join in flight). Yields (t_us, ax, ay, az, gx, gy, gz, mx, my, mz)."""
+    g, field = np.array([0.0, 0.0, -9.80665]), np.array([0.2, 0.0, 0.45])
+    for k in range(int(seconds * 100)):
+        t = k / 100.0
+        w1, w2 = 2.0 * math.pi * 0.2, 2.0 * math.pi * 0.13
+        th, th_d = math.radians(7.0 + 5.0 * math.sin(w1 * t)), math.radians(5.0 * w1 * math.cos(w1 * t))
+        ph, ph_d = math.radians(4.0 * math.sin(w2 * t)), math.radians(4.0 * w2 * math.cos(w2 * t))
+        cp, sp, ct, st = math.cos(ph), math.sin(ph), math.cos(th), math.sin(th)
+        r = np.array([[ct, st * sp, st * cp], [0.0, cp, -sp], [-st, ct * sp, ct * cp]])  # body -> NED, yaw 0
+        f, m = r.T @ g, r.T @ field
+        yield (int((t0_s + t) * 1e6), *f, ph_d, th_d * cp, -th_d * sp, *m)
+
+
+@pytest.mark.parametrize("core", ["py", "c"])
+def test_a_sender_that_only_turns_is_not_confirmed_as_a_balloon(core):
+    """A join in flight is confirmed by the balloon's acceleration across its rope, in NED (control._confirm). A sender
+    rocking in place (a drone on the ground, a board in the hand) moves its specific force in its own axes by 0.6-0.9
+    m/s^2, all of it the gyro's rotation, which the filter's attitude explains: judged in the body's axes it was
+    confirmed within the two minutes, a balloon on its tether stated where there is none. In NED its
+    specific force is gravity's alone: it stays unconfirmed, and the accuracy says the wind is not known (both
+    cores)."""
+    est = Estimator(Design(), replace(FilterConfig(), core=core))
+    body = []
+    for k, s in enumerate(rocking_in_place(120.0)):
+        if k % 5 == 0:
+            est.on_baro(s[0], 1000.0, 20.0)
+        est.on_imu(*s)
+        body.append(s[1:3])
+    assert est.ekf.mode == MODE_TAUT and est.unconfirmed
+    assert np.std(np.array(body), axis=0).max() > 0.5  # the body's axes move: the rule in them would be fooled
+    assert est.wind_accuracy() ** 2 >= np.hypot(*est.wind()) ** 2 + 1.0 - 1e-9
+
+
 @pytest.mark.parametrize("core", ["py", "c"])
 def test_a_swing_towards_calm_does_not_take_the_settling_with_it(core):
     """A second after the taut entry the estimate swung to calm (the wind state set to 0): what the placement has
