@@ -31,13 +31,6 @@ static void fuse_bias_magnitude(bw_ekf_t *e, bw_real fx, bw_real fy, bw_real fz,
     bw_ekf_fuse(e, (nx * px + ny * py + nz * pz) * inv, var, &bias, BW_R(0.0), 0);
 }
 
-/* accel.py horizontal_ned: a body-frame vector's north and east parts (r: R) */
-static void horizontal_ned(const bw_real r[9], bw_real x, bw_real y, bw_real z, bw_real *n, bw_real *e)
-{
-    *n = r[0] * x + r[1] * y + r[2] * z;
-    *e = r[3] * x + r[4] * y + r[5] * z;
-}
-
 /* accel.py fuse_level: a tethered balloon does not accelerate on average, so the horizontal specific force in NED
  * (fn, fe) is gravity's tilt alone, g d_E and -g d_N (d the attitude's error); no force model enters. Its status is
  * the call's own (Python keeps one for diagnosis) */
@@ -129,8 +122,8 @@ static void fuse_accel(bw_estimator_t *est, bw_real fx, bw_real fy, bw_real fz, 
             /* accel.py level_noise: the specific force in NED (its biases out), its mean and its variance about it
              * over BW_LEVEL_MEAN_S, per axis; the level rows' noise from it (fuse_level, on the tether) */
             const bw_real a = step_s / (bw_real)BW_LEVEL_MEAN_S;
-            horizontal_ned(r, st[0].innov, st[1].innov, st[2].innov, &in, &ie);
-            horizontal_ned(r, fx, fy, fz - e->x[BW_ABIAS_Z], &fn, &fe);
+            bw_horizontal_ned(r, st[0].innov, st[1].innov, st[2].innov, &in, &ie);
+            bw_horizontal_ned(r, fx, fy, fz - e->x[BW_ABIAS_Z], &fn, &fe);
             if (est->level_var == BW_R(0.0)) { /* nothing followed yet: from this sample and the nominal noise */
                 est->level_mean[0] = fn, est->level_mean[1] = fe;
                 est->level_var = nominal;

@@ -299,8 +299,7 @@ static BW_NOINLINE void confirm(bw_estimator_t *est, bw_real ax, bw_real ay, bw_
     int64_t since;
     int moving, explained, settled;
     bw_rotation(e->q, r);
-    fn = r[0] * ax + r[1] * ay + r[2] * az;
-    fe = r[3] * ax + r[4] * ay + r[5] * az;
+    bw_horizontal_ned(r, ax, ay, az, &fn, &fe);
     fd = r[6] * ax + r[7] * ay + r[8] * az;
     if (est->acc_var < BW_R(0.0))
         m[0] = fn, m[1] = fe, m[2] = fd, est->acc_var = BW_R(0.0);

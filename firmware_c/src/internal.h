@@ -27,6 +27,13 @@ extern const int BW_MODEL_COLS[BW_NCOL];
 
 /* balloon_core: rotation.py, atmosphere.py */
 void bw_rotation(const bw_real q[4], bw_real r[9]);
+/* accel.py horizontal_ned: a body-frame vector's north and east parts (r: R; the accelerometer's rows and a join's
+ * confirmation) */
+static inline void bw_horizontal_ned(const bw_real r[9], bw_real x, bw_real y, bw_real z, bw_real *n, bw_real *e)
+{
+    *n = r[0] * x + r[1] * y + r[2] * z;
+    *e = r[3] * x + r[4] * y + r[5] * z;
+}
 bw_real bw_air_density(bw_real pressure_pa, bw_real temperature_k);
 double bw_site_air_density(const bw_config_t *c);
 double bw_round_half_even(double v);

@@ -9,7 +9,7 @@ import math
 from balloon_core.atmosphere import G0
 from balloon_core.config import Design
 from balloon_core.rotation import imu_mount, imu_to_body, quat_from_euler, rotation
-from firmware_py.estimator.aid_sources.accel import accel_nominal_var, control_accel
+from firmware_py.estimator.aid_sources.accel import accel_nominal_var, control_accel, horizontal_ned
 from firmware_py.estimator.aid_sources.baro import baro_sample, control_baro, reset_height
 from firmware_py.estimator.aid_sources.ground_ref import ground_baro_sample, init_ground_ref
 from firmware_py.estimator.aid_sources.magnetometer import control_mag
@@ -574,9 +574,8 @@ class Estimator:
         (docs/estimator.md, "Mode switching and resets", joining in flight)."""
         ekf = self.ekf
         rt, p = ekf.rt, ekf.x  # R^T as the accelerometer's rows took it; the state's position, NED
-        fn = float(rt[0, 0] * ax + rt[1, 0] * ay + rt[2, 0] * az)
-        fe = float(rt[0, 1] * ax + rt[1, 1] * ay + rt[2, 1] * az)
-        fd = float(rt[0, 2] * ax + rt[1, 2] * ay + rt[2, 2] * az)
+        fn, fe = horizontal_ned(rt, ax, ay, az)
+        fd = float(rt[0, 2]) * ax + float(rt[1, 2]) * ay + float(rt[2, 2]) * az
         m = self._acc_mean
         if self._acc_var < 0.0:
             m[0], m[1], m[2], self._acc_var = fn, fe, fd, 0.0
