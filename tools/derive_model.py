@@ -226,8 +226,8 @@ def generate_params() -> str:
     put(
         "BW_",
         consistency,
-        {"ACCEL", "ALIGN", "RADIUS", "BARO", "MAG", "FORCE", "CONSISTENCY_S", "NIS_CLIP", "FLAG_NIS", "FLAG_NIS_CLEAR",
-         "SLOW_INNOV_S", "HEADING_MISFIT_RATIO"},
+        {"ACCEL", "ALIGN", "RADIUS", "BARO", "MAG", "FORCE", "CONSISTENCY_S", "NIS_CLIP", "FORCE_NIS_CLIP", "FLAG_NIS",
+         "FLAG_NIS_CLEAR", "SLOW_INNOV_S", "HEADING_MISFIT_RATIO"},
     )
     lines[-1:-1] = [f"#define BW_N_SOURCES {len(consistency.SOURCES)}"]
     put("BW_", ekf, {"RESET_INITIALISE", "RESET_TAUT", "RESET_HEIGHT", "RESET_DRAG"})

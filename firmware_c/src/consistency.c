@@ -20,10 +20,15 @@ bw_real bw_heading_misfit_variance(const bw_consistency_t *m)
     return (bw_real)BW_HEADING_MISFIT_RATIO * (bw_real)BW_HEADING_MISFIT_RATIO * m->slow_tilt_var;
 }
 
-void bw_consistency_add(bw_consistency_t *m, int source, bw_real nis, bw_real alpha)
+void bw_consistency_add_clipped(bw_consistency_t *m, int source, bw_real nis, bw_real alpha, bw_real clip)
 {
     if (nis == nis)
-        m->nis[source] += alpha * (BW_MIN(nis, (bw_real)BW_NIS_CLIP) - m->nis[source]);
+        m->nis[source] += alpha * (BW_MIN(nis, clip) - m->nis[source]);
+}
+
+void bw_consistency_add(bw_consistency_t *m, int source, bw_real nis, bw_real alpha)
+{
+    bw_consistency_add_clipped(m, source, nis, alpha, (bw_real)BW_NIS_CLIP);
 }
 
 /* consistency.py balance_nis: the window's mean update of the velocity over the variance a consistent filter's

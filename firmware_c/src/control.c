@@ -705,7 +705,7 @@ static int on_imu_body(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay
             if (e->time_us - e->time_taut_us < (int64_t)(BW_BALANCE_FROM_S * 1e6))
                 m->balance_n = m->balance_e = m->balance_var = BW_R(0.0);
             else
-                bw_consistency_add(m, BW_FORCE, bw_balance_nis(m), est->a_taut);
+                bw_consistency_add_clipped(m, BW_FORCE, bw_balance_nis(m), est->a_taut, (bw_real)BW_FORCE_NIS_CLIP);
         }
     }
     if (e->mode != BW_MODE_GROUND) {

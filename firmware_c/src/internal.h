@@ -81,6 +81,7 @@ void bw_status_init(bw_status_t *st, int32_t recover_after);
 
 /* consistency.py */
 void bw_consistency_reset(bw_consistency_t *m);
+void bw_consistency_add_clipped(bw_consistency_t *m, int source, bw_real nis, bw_real alpha, bw_real clip);
 void bw_consistency_add(bw_consistency_t *m, int source, bw_real nis, bw_real alpha);
 bw_real bw_balance_nis(const bw_consistency_t *m);
 void bw_consistency_evaluate(bw_consistency_t *m);

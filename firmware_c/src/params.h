@@ -130,6 +130,7 @@
 #define BW_FORCE 5
 #define BW_CONSISTENCY_S 20.0
 #define BW_NIS_CLIP 25.0
+#define BW_FORCE_NIS_CLIP 400.0
 #define BW_FLAG_NIS 2.0
 #define BW_FLAG_NIS_CLEAR 1.5
 #define BW_SLOW_INNOV_S 10.0

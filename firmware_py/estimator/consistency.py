@@ -61,6 +61,10 @@ SOURCES = ("accel", "align", "radius", "baro", "mag", "force")
 ACCEL, ALIGN, RADIUS, BARO, MAG, FORCE = range(len(SOURCES))
 CONSISTENCY_S = 20.0  # averaging time of each source's NIS
 NIS_CLIP = 25.0  # one innovation counts at most as a 5-sigma one: a transient does not rule the window
+# ... but the force balance's NIS is a window's mean already (add_balance), not one innovation: clipped at 25 its factor
+# stated at most 5 times P's where the forces were unbalanced by 30 sigma for a minute (field-turning-hard-iron
+# before the field is learnt again in flight: the wind 6 m/s off at 1.7 stated, 65-86 % beyond 3 sigma)
+FORCE_NIS_CLIP = 400.0
 FLAG_NIS = 2.0  # a windowed NIS above this flags the source: its innovations are 1.4x their expectation
 # a flagged source is cleared once its windowed NIS is below this (1.2x): a NIS that hovers about FLAG_NIS does not
 # flip the flag, and its STATUSTEXT, every few seconds (a four-hour field-all through balloon-fw: 119 STATUSTEXT
@@ -126,10 +130,11 @@ class Consistency:
         self.balance_n = self.balance_e = self.balance_var = 0.0
         self.lean_tilt = self.lean_misfit = 0.0
 
-    def add(self, source: int, nis: float, alpha: float) -> None:
-        """One normalised innovation squared of ``source``, weight ``alpha`` (its interval / window)."""
+    def add(self, source: int, nis: float, alpha: float, clip: float = NIS_CLIP) -> None:
+        """One normalised innovation squared of ``source``, weight ``alpha`` (its interval / window), at most
+        ``clip``."""
         if nis == nis:  # NaN: not evaluated
-            self.nis[source] += alpha * (min(nis, NIS_CLIP) - self.nis[source])
+            self.nis[source] += alpha * (min(nis, clip) - self.nis[source])
 
     def add_slow_tilt(self, reading: float, alpha: float) -> None:
         """One ``field_tilt_reading`` (rad, with the share that counts: aid_sources/accel.py), weight ``alpha`` (its
@@ -154,7 +159,7 @@ class Consistency:
         keep = 1.0 - alpha
         self.balance_var = keep * keep * self.balance_var + alpha * alpha * max(var_taken, 0.0)
         if judge_alpha > 0.0:
-            self.add(FORCE, balance_nis(self.balance_n, self.balance_e, self.balance_var), judge_alpha)
+            self.add(FORCE, balance_nis(self.balance_n, self.balance_e, self.balance_var), judge_alpha, FORCE_NIS_CLIP)
 
     def add_lean(self, tilt_rad: float, misfit_rad: float, alpha: float) -> None:
         """One taut alignment: the body's tilt from the vertical and the along innovation (the tilt less the lean of
