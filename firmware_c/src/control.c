@@ -188,7 +188,7 @@ int bw_init(bw_estimator_t *est, const bw_config_t *cfg)
     est->accel_static_var = (bw_real)(s_acc + cfg->accel_static_mps2 * cfg->accel_static_mps2);
     /* a rope with mass moves on its own and moves the balloon with it: the rod model's errors grow with it */
     share = est->catenary ? cfg->rope_kg_m * cfg->tether_length_m / (cfg->mass_kg + 1e-9) : 0.0;
-    est->accel_taut_var = (bw_real)((double)(bw_real)(s_acc + cfg->accel_taut_mps2 * cfg->accel_taut_mps2) +
+    est->accel_taut_var = (bw_real)(s_acc + cfg->accel_taut_mps2 * cfg->accel_taut_mps2 +
                                     (BW_ROPE_WAVE_ACCEL_MPS2 * share) * (BW_ROPE_WAVE_ACCEL_MPS2 * share));
     est->vertical_gust_var = vertical_gust_var(est, cfg->expected_wind_mps, (bw_real)bw_site_air_density(cfg));
     est->align_var = (bw_real)(cfg->align_rad * cfg->align_rad + (BW_ROPE_WAVE_ALIGN_RAD * share) * (BW_ROPE_WAVE_ALIGN_RAD * share));
