@@ -105,6 +105,7 @@ static void fuse_taut(bw_estimator_t *est, bw_real along_var, bw_real cross_var)
     {
         const bw_real s[BW_NCOL] = {pn, pe, pd, vn, ve, vd, x[12], x[13], x[14], x[15], x[16]};
         bw_real n[BW_ROPE_DIRECTION_SIZE], r[9], zn, ze, zd, horiz, lean, an, ae, c[2][3], var[2], share, n_d;
+        bw_real misfit, att_gain;
         if (e->m.rope_drag_m2 > BW_R(0.0)) /* the paper's rod carries rope drag */
             bw_rope_direction(s, f->params, n);
         else
@@ -129,7 +130,12 @@ static void fuse_taut(bw_estimator_t *est, bw_real along_var, bw_real cross_var)
             var[0] = BW_MAX(along_var, est->align_var / (cz * cz)), var[1] = cross_var;
         }
         ncol = BW_NCOL - (e->learn_drag ? 0 : 1);
-        share = (bw_real)BW_ALIGN_FIELD_AXIS_SHARE * (BW_R(1.0) - bw_accel_misfit(est->consistency.nis[BW_ACCEL]));
+        misfit = bw_accel_misfit(est->consistency.nis[BW_ACCEL]);
+        share = (bw_real)BW_ALIGN_FIELD_AXIS_SHARE * (BW_R(1.0) - misfit);
+        /* where the force model does not explain the accelerometer the alignment's misfit is correlated too: the
+         * attitude takes no more of its gain than a correlated misfit allows (tether.py control_tether) */
+        att_gain = BW_R(1.0) - misfit * (BW_R(1.0) - BW_MIN(BW_R(1.0), BW_SQRT((bw_real)est->sched.taut_every * e->dt
+                                                                               / (bw_real)BW_ALIGN_MODEL_CORR_S)));
         for (cc = 0; cc < 2; cc++) {
             /* the attitude (tether.py fuse_taut): a column about the magnetic field's axis, weighed by how well
              * the models fit; the rest a parameter whose variance (c . d z / d att P_att (..)^T less the
@@ -147,8 +153,8 @@ static void fuse_taut(bw_estimator_t *est, bw_real along_var, bw_real cross_var)
             for (j = 0; j < ncol; j++)
                 e->h[BW_MODEL_COLS[j]] = -(kn * n[2 + j] + ke * n[2 + BW_NCOL + j]); /* residual c . (z - n(x)) */
             e->h[BW_ATT_N] = hb[0], e->h[BW_ATT_E] = hb[1], e->h[BW_ATT_D] = hb[2];
-            bw_ekf_fuse(e, cn * (n[0] - zn) + ce * (n[1] - ze) + cd * (n_d - zd), var[cc] + var_att,
-                        &est->taut_status[2 + cc], BW_R(0.0), 0);
+            bw_ekf_fuse_gain(e, cn * (n[0] - zn) + ce * (n[1] - ze) + cd * (n_d - zd), var[cc] + var_att,
+                             &est->taut_status[2 + cc], BW_R(0.0), 0, att_gain);
         }
     }
 }

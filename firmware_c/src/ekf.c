@@ -378,7 +378,8 @@ void bw_ekf_begin_update(bw_ekf_t *e)
     memset(e->dx, 0, sizeof e->dx);
 }
 
-int bw_ekf_fuse(bw_ekf_t *e, bw_real innov, bw_real r, bw_status_t *st, bw_real gate, int recover)
+int bw_ekf_fuse_gain(bw_ekf_t *e, bw_real innov, bw_real r, bw_status_t *st, bw_real gate, int recover,
+                     bw_real att_gain)
 {
     int nz[N], nn = 0, i, j, k;
     bw_real hdx = BW_R(0.0), s = BW_R(0.0), ratio, kv[N];
@@ -420,20 +421,35 @@ int bw_ekf_fuse(bw_ekf_t *e, bw_real innov, bw_real r, bw_status_t *st, bw_real 
     }
     {
         bw_real inv = BW_R(1.0) / s;
-        for (i = 0; i < N; i++) {
+        for (i = 0; i < N; i++)
             kv[i] = e->ph[i] * inv;
-            e->dx[i] += kv[i] * innov;
-        }
     }
-#ifdef BW_HOST_RECORDER
-    if (REC(e))
-        rec_update(REC(e), e->h, 1.0 / (double)s, (double)innov, kv);
-#endif
     for (i = 0; i < N; i++) {
         const bw_real ki = kv[i];
         for (j = i; j < N; j++)
             e->P[i][j] = e->P[j][i] = e->P[i][j] - ki * e->ph[j];
     }
+    if (att_gain < BW_R(1.0)) {
+        /* K' = D K: P for the gain used (Joseph form) differs from P - K H P only in the attitude's block, by
+         * (1 - g)^2 K H P (ekf.py fuse) */
+        const bw_real c = (BW_R(1.0) - att_gain) * (BW_R(1.0) - att_gain);
+        for (i = BW_ATT_N; i <= BW_ATT_D; i++) {
+            for (j = i; j <= BW_ATT_D; j++) {
+                bw_real v = c * kv[i] * e->ph[j];
+                e->P[i][j] += v;
+                if (j != i)
+                    e->P[j][i] += v;
+            }
+        }
+        for (i = BW_ATT_N; i <= BW_ATT_D; i++)
+            kv[i] *= att_gain;
+    }
+#ifdef BW_HOST_RECORDER
+    if (REC(e))
+        rec_update(REC(e), e->h, 1.0 / (double)s, (double)innov, kv);
+#endif
+    for (i = 0; i < N; i++)
+        e->dx[i] += kv[i] * innov;
     st->fused += 1;
     st->consecutive_rejects = 0;
     st->time_last_fuse_us = e->time_us;

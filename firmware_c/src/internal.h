@@ -66,7 +66,13 @@ void bw_ekf_adapt_wind_noise(bw_ekf_t *e, bw_real mean_speed_mps, bw_real excess
 void bw_ekf_inflate(bw_ekf_t *e, bw_real steps);
 void bw_ekf_begin_update(bw_ekf_t *e);
 bw_real bw_lean_variance(const bw_ekf_t *e, bw_real cn, bw_real ce, bw_real zn, bw_real ze, bw_real zd);
-int bw_ekf_fuse(bw_ekf_t *e, bw_real innov, bw_real r, bw_status_t *st, bw_real gate, int recover);
+/* ekf.py fuse: a scalar row; the attitude's rows of the gain take att_gain of it (the alignment's, aid_tether.c) */
+int bw_ekf_fuse_gain(bw_ekf_t *e, bw_real innov, bw_real r, bw_status_t *st, bw_real gate, int recover,
+                     bw_real att_gain);
+static inline int bw_ekf_fuse(bw_ekf_t *e, bw_real innov, bw_real r, bw_status_t *st, bw_real gate, int recover)
+{
+    return bw_ekf_fuse_gain(e, innov, r, st, gate, recover, BW_R(1.0));
+}
 int bw_ekf_fuse3(bw_ekf_t *e, bw_real i0, bw_real i1, bw_real i2, bw_real r, bw_status_t st[3],
                  bw_real r2_extra, bw_real tilt_gain, bw_real heading_gain, const bw_real axis[3], bw_real axis_var);
 int bw_ekf_end_update(bw_ekf_t *e);

@@ -388,10 +388,13 @@ class WindEkf:
         self.dx.fill(0.0)
 
     def fuse(
-        self, innov: float, r: float, status: FusionStatus, gate_sigma: float | None = None, recover: bool = True
+        self, innov: float, r: float, status: FusionStatus, gate_sigma: float | None = None, recover: bool = True,
+        att_gain: float = 1.0,
     ) -> bool:
         """Sequential scalar update with the row in ``self.h`` (all rows of one step share the same
-        linearisation point, so a sequence equals one batch update with diagonal R)."""
+        linearisation point, so a sequence equals one batch update with diagonal R). The attitude takes
+        ``att_gain`` of its optimal gain (a row whose misfit is correlated, as ``fuse3``'s tilt), the covariance the
+        one for the gain used (Joseph form)."""
         np.dot(self.h, self.dx, out=self._r)
         innov -= float(self._r)
         np.dot(self.P, self.h, out=self._ph)
@@ -419,13 +422,21 @@ class WindEkf:
             status.fused -= 1
         self._s[()] = 1.0 / s
         np.multiply(self._ph, self._s, out=self._k)
+        np.multiply(self._k_col, self._ph_row, out=self._t1)
+        np.subtract(self.P, self._t1, out=self.P)
+        if att_gain < 1.0:
+            # K' = D K: P for the gain used, P - K'HP - PH^T K'^T + K' S K'^T, differs from P - KHP only in the
+            # attitude's block, by (1 - g)^2 KHP (as fuse3's)
+            d2 = (1.0 - att_gain) * (1.0 - att_gain)
+            for i in range(ATT_N, ATT_D + 1):
+                for j in range(ATT_N, ATT_D + 1):
+                    self.P[i, j] += d2 * self._t1[i, j]
+                self._k[i] *= att_gain
         if self.recorder is not None:
             self.recorder.update(self.h, 1.0 / s, innov, self._k)
         self._s[()] = innov
         np.multiply(self._k, self._s, out=self._v)
         np.add(self.dx, self._v, out=self.dx)
-        np.multiply(self._k_col, self._ph_row, out=self._t1)
-        np.subtract(self.P, self._t1, out=self.P)
         status.fused += 1
         status.consecutive_rejects = 0
         status.time_last_fuse_us = self.time_us

@@ -129,6 +129,14 @@ ACCEL_INNOV_S = 2.0  # averaging time of the accelerometer's innovations that se
 # the accelerometer's and the alignment's information worth dt / (NIS ACCEL_MODEL_CORR_S) of what they fused, NIS
 # against the noise fused (dt / ACCEL_MODEL_CORR_S for a consistent source; consistency.field_attitude_extra)
 ACCEL_MODEL_CORR_S = 1.0
+# the alignment's misfit (the balloon's rocking, the rope's waves) is correlated over this long where the force model
+# has stopped explaining the accelerometer: its along and cross innovations' autocorrelation falls by e in 0.25-0.45 s
+# in class B gusts and on the real rope (from 120 s, seed 1; a script, not in a command of the repo). There the
+# attitude takes sqrt(interval / this) of the alignment's gain (aid_sources/tether.py control_tether). The attitude's
+# extra variance (consistency.field_attitude_extra) keeps counting the alignment's information over
+# ACCEL_MODEL_CORR_S: where the model fits, its innovations are the state's own slow error (0.75-0.95 s, the paper's
+# multisine)
+ALIGN_MODEL_CORR_S = 0.4
 # ... but a tethered balloon does not accelerate on average: its velocity is bounded, so the mean of its acceleration
 # over T falls as 1 / T, and the mean of its specific force is gravity's, whatever the force model says
 # (aid_sources/accel.py fuse_level). The balloon's horizontal acceleration (NED) has no power at zero frequency: over

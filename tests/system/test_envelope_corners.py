@@ -496,7 +496,9 @@ def test_the_snap_says_the_wind_is_still_settling(flight):
 def honest_or_says_it_has_no_skill(m: dict[str, dict[str, float]]) -> None:
     """The estimate honest (error / accuracy 0.4-1.5, at most 3 % beyond 3 sigma); where it has no skill in the band,
     its stated accuracy covers the wind's whole spread about its mean (the constant true mean's error within it, at
-    most the envelope band's 1.33: no reference can be dishonest against it); where it has, both references fail.
+    most the envelope band's 1.33: no reference can be dishonest against it); where it has, both references fail, or,
+    where the stated accuracy is cautious enough to call a reference honest too, their RMS error is at least 1.25
+    times the estimate's (judged with the same stated accuracy, error / accuracy compares the errors).
     At least 0.4, not 0.5: a force balance that found the forces out of balance states it for its window after
     (consistency.FORCE_NIS_CLIP: flight 52 of the first minutes below, 1.9 m/s off at 55-60 s, reads 0.43 over 60-150 s;
     the hard iron from the south-east 0.48 over ten minutes)."""
@@ -506,7 +508,8 @@ def honest_or_says_it_has_no_skill(m: dict[str, dict[str, float]]) -> None:
         assert m["constant"]["err_acc"] <= 1.33, (est, m["constant"])
     else:
         for ref in ("constant", "delayed"):
-            assert not (0.5 <= m[ref]["err_acc"] <= 1.5 and m[ref]["beyond_3sigma"] <= 0.05), (ref, m[ref])
+            honest = 0.5 <= m[ref]["err_acc"] <= 1.5 and m[ref]["beyond_3sigma"] <= 0.05
+            assert not honest or m[ref]["err_acc"] > 1.25 * est["err_acc"], (ref, m[ref], est)
 
 
 AFTER_THE_ENTRY = {  # name: (sample seed, flight): a sample's flights (None: the benchmark's own)
@@ -523,8 +526,10 @@ def test_the_first_minutes_after_the_entry_are_honest(name):
     neither in time: 14 and 3.8 % beyond 3 sigma, error / accuracy 1.58 and 1.42. Judged from BALANCE_FROM_S after the
     placement, its mean from zero once the placement has settled: none, error / accuracy 0.80 and 0.55 (0.57 and 0.43
     since its window is clipped at FORCE_NIS_CLIP, not at 25). Neither
-    estimate has skill in the band there, and says so: the constant true mean's error is within the stated accuracy
-    (as in the unseen rotation's corners)."""
+    estimate had skill in the band there, and said so: the constant true mean's error is within the stated accuracy
+    (as in the unseen rotation's corners). Since the alignment's attitude gain follows the accelerometer's misfit
+    (params.ALIGN_MODEL_CORR_S) flight 96 no longer swings: band skill 0.53, error / accuracy 0.63, where the constant
+    true mean reads 1.31 and the truth 4 s late 1.11 with the same stated accuracy."""
     sample_seed, flight = AFTER_THE_ENTRY[name]
     p = (be.sample(200) if sample_seed is None else be.sample(200, seed=sample_seed))[flight]
     m = judged(be.sections_of(p), p["seed"], 150.0, 60.0)
@@ -738,6 +743,34 @@ def test_a_long_tether_blown_towards_magnetic_north_does_not_swing_across_its_ro
     assert good(m["estimate"]), m["estimate"]
     assert not good(m["constant"]), m["constant"]
 
+
+
+@pytest.mark.parametrize(("seed", "from_deg"), [(1, 180.0), (2, 200.0)])
+def test_class_b_gusts_blown_towards_magnetic_north_do_not_swing_after_the_entry(seed, from_deg):
+    """``gusty-6`` (6 m/s, IEC class B, the paper's rope) blown towards magnetic north, 10-40 s after the taut entry,
+    where a user who starts to read the wind at once reads it. The state swung across the rope (+-20 m on 100 m, a
+    period of about 25 s), its wind with its velocity: 2.0-2.7 m/s RMS off, worse than the constant true mean
+    (1.05-1.26) and the truth 4 s late (1.25-1.53), 13 % beyond 3 sigma from 160 and 180 deg. The alignment's rows,
+    fused at 20 Hz as if their misfit were white where the accelerometer's says the balloon rocks, had turned the
+    attitude about the field's axis with the position's azimuth at 1-2 deg/s (params.ALIGN_MODEL_CORR_S); at the
+    gain a correlated misfit allows, 0.45-1.1 m/s from 160, 180 and 200 deg, seeds 1-3, none beyond 3 sigma. Held:
+    the estimate nearer the truth than either reference (three quarters of the better one's RMS error, which no
+    reference can be of itself), and honest (error/accuracy at most 1.5, at most 5 % beyond 3 sigma)."""
+    sections = scenario_sections(SCENARIOS["gusty-6"])
+    sections["wind"]["from_deg"] = from_deg
+    design, wind, truth_cfg, filt = build(sections)
+    rows, truth, _ = fly(design, wind, truth_cfg, filt, 60.0, seed)
+    taut = np.flatnonzero(rows[:, 10] == MODE_TAUT)
+    assert len(taut), "never taut"
+    a, b = rows[taut[0], 0] + 10.0, rows[taut[0], 0] + 40.0
+    m = {}
+    for name, (tt, en, ee) in candidates(rows, truth, a, b).items():
+        w = tt <= b
+        acc = np.interp(tt[w], rows[:, 0], rows[:, 3])
+        m[name] = score(tt[w], en[w], ee[w], acc, truth["time_s"], truth["wind_n"], truth["wind_e"], a)
+    est, best = m["estimate"], min(m["constant"].raw_rmse_mps, m["delayed"].raw_rmse_mps)
+    assert est.raw_rmse_mps <= 0.75 * best, (est, best)
+    assert est.error_ratio <= 1.5 and est.beyond_3sigma <= 0.05, est
 
 
 @pytest.mark.parametrize("seed", [1, 3])

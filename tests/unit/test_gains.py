@@ -1,6 +1,7 @@
-"""The attitude's and the gyro bias's reduced gains (ekf.fuse3, aid_sources/accel.py) and the free ascent's rope
-pick-up (model.rope_pickup_n): the covariance is the one of the gain used, the heading's gain follows the
-accelerometer's misfit, the pick-up is there only while the rope is being lifted (its Jacobian: test_model.py)."""
+"""The attitude's and the gyro bias's reduced gains (ekf.fuse3, aid_sources/accel.py; ekf.fuse, the alignment's
+rows in aid_sources/tether.py) and the free ascent's rope pick-up (model.rope_pickup_n): the covariance is the one of
+the gain used, the heading's gain and the alignment's attitude gain follow the accelerometer's misfit, the pick-up is
+there only while the rope is being lifted (its Jacobian: test_model.py)."""
 
 import math
 
@@ -9,13 +10,14 @@ import pytest
 
 from balloon_core.config import Design
 from benchmarks.bench_envelope import sample
+from firmware_py.estimator.aid_sources import tether
 from firmware_py.estimator.aid_sources.accel import control_accel, radial_noise
 from firmware_py.estimator.consistency import ACCEL, FLAG_NIS
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.ekf import SLOW_STATES, FusionStatus
 from firmware_py.estimator.model import BalloonModel, rope_pickup_n
-from firmware_py.estimator.params import ACCEL_HEADING_GAIN_MIN, ACCEL_MODEL_CORR_S
-from firmware_py.estimator.state import ATT_E, ATT_N, MODE_TAUT, N_STATES
+from firmware_py.estimator.params import ACCEL_HEADING_GAIN_MIN, ACCEL_MODEL_CORR_S, ALIGN_MODEL_CORR_S, UNGATED
+from firmware_py.estimator.state import ATT_D, ATT_E, ATT_N, MODE_TAUT, N_STATES
 from tools.ascent_scale import ascent_error
 
 MODEL = BalloonModel.from_design(Design())
@@ -56,6 +58,46 @@ def test_the_reduced_gains_keep_the_covariance_of_the_gain_used(tilt, heading):
     assert np.allclose(ekf.P, joseph, rtol=1e-9, atol=1e-12)
     if tilt < 1.0 or heading < 1.0:
         assert not np.allclose(ekf.P, p0 - k @ h @ p0, rtol=1e-6, atol=1e-9)
+
+
+@pytest.mark.parametrize("gain", [0.35, 1.0])
+def test_a_scalar_rows_reduced_attitude_gain_keeps_the_covariance_of_the_gain_used(gain):
+    """ekf.fuse's ``att_gain`` (the alignment's rows, aid_sources/tether.py): K' = D K with D the gain on the
+    attitude's three rows, 1 elsewhere (the gyro bias's too); the update is K' times the innovation and P the Joseph
+    form, not the optimal gain's P - KHP where the gain is reduced."""
+    ekf = _ekf(11)
+    rng = np.random.default_rng(3)
+    ekf.h[:] = rng.normal(size=N_STATES)
+    p0, h, r, innov = ekf.P.copy(), ekf.h.copy(), 0.02, 0.013
+    ekf.begin_update()
+    assert ekf.fuse(innov, r, FusionStatus("row"), UNGATED, recover=False, att_gain=gain)
+    k = p0 @ h / (h @ p0 @ h + r)
+    d = np.ones(N_STATES)
+    d[ATT_N : ATT_D + 1] = gain
+    kp = d * k
+    ikh = np.eye(N_STATES) - np.outer(kp, h)
+    joseph = ikh @ p0 @ ikh.T + r * np.outer(kp, kp)
+    assert np.allclose(ekf.dx, kp * innov, rtol=1e-9, atol=1e-12)
+    assert np.allclose(ekf.P, joseph, rtol=1e-9, atol=1e-12)
+    assert np.allclose(ekf.P, p0 - np.outer(k, h @ p0), rtol=1e-9, atol=1e-12) == (gain == 1.0)
+
+
+@pytest.mark.parametrize("nis", [0.5, FLAG_NIS, 1.5 * FLAG_NIS, 2.0 * FLAG_NIS, 5.0 * FLAG_NIS])
+def test_the_alignments_attitude_gain_follows_the_accelerometers_misfit(monkeypatch, nis):
+    """Where the force model explains the accelerometer, the alignment's rows move the attitude at their whole gain;
+    from twice FLAG_NIS at sqrt(interval / ALIGN_MODEL_CORR_S) of it (the rocking balloon's correlated misfit),
+    linearly between; the position and the gyro bias always at the whole (ekf.fuse's att_gain)."""
+    est = Estimator(Design())
+    est.on_imu(0, 0.0, 0.0, -9.81, 0.0, 0.0, 0.0, 0.2, 0.0, 0.45)
+    est.ekf.mode = MODE_TAUT
+    seen = []
+    monkeypatch.setattr(tether, "fuse_taut", lambda *a: seen.append(a[-1]))
+    est.consistency.nis[ACCEL] = nis
+    tether.control_tether(est)
+    least = math.sqrt(est.schedule.taut_every * est.ekf.dt / ALIGN_MODEL_CORR_S)
+    misfit = min(1.0, max(0.0, nis / FLAG_NIS - 1.0))
+    assert seen == [pytest.approx(1.0 - misfit * (1.0 - least))]
+    assert 0.3 < least < 0.4
 
 
 @pytest.mark.parametrize("nis", [0.5, FLAG_NIS, 1.5 * FLAG_NIS, 2.0 * FLAG_NIS, 5.0 * FLAG_NIS])

@@ -43,7 +43,7 @@ def _innovations(ekf, fn):
     _refresh(e)
     out = []
 
-    def spy(innov, r, status, gate_sigma=None, recover=True):
+    def spy(innov, r, status, gate_sigma=None, recover=True, att_gain=1.0):
         out.append((innov, e.h.copy()))
         return True
 
@@ -105,7 +105,7 @@ def _alignment_rows(ekf, fn):
     _refresh(e)
     out = []
 
-    def spy(innov, r, status, gate_sigma=None, recover=True):
+    def spy(innov, r, status, gate_sigma=None, recover=True, att_gain=1.0):
         out.append((innov, e.h.copy(), r))
         return True
 

@@ -15,6 +15,7 @@ from firmware_py.estimator.model import N_COLUMNS, ROPE_JAC
 from firmware_py.estimator.params import (
     ALIGN_CROSS_VAR_MAX,
     ALIGN_FIELD_AXIS_SHARE,
+    ALIGN_MODEL_CORR_S,
     ALIGN_PULL_DOWN_MIN,
     LEAN_COS_MIN,
     TAUT_AZIMUTH_MIN_M,
@@ -144,6 +145,7 @@ def field_axis_row(
 def fuse_taut(
     ekf: WindEkf, radial_var: float, radial_rate_var: float, along_var: float, cross_var: float,
     status: list[FusionStatus], field_ned: tuple[float, float, float], nominal_var: float, share: float,
+    att_gain: float = 1.0,
 ) -> None:  # fmt: skip
     """Restricted radial motion (paper Sec. 2.3): the attachment point at the bottom of the sphere
     (Eq. 7; ``ekf.forces.attach_ned`` from the attitude) at |p_a| = L_c (the rope's chord) from the anchor, no radial
@@ -157,7 +159,7 @@ def fuse_taut(
     (how far it leans: the angle in the lean's vertical plane, which the rope's shape, its weight on the balloon
     and the rocking in the gusts all move) and ``cross`` (where it leans: the horizontal azimuth, which no rope
     model changes). Each has its own noise (``control_tether``): a rope unlike the model must not cost the
-    azimuth."""
+    azimuth. The attitude takes ``att_gain`` of the alignment's gain (``control_tether``)."""
     x = ekf.x
     pn, pe, pd, vn, ve, vd = x[:6].tolist()
     on, oe, od = ekf.forces.attach_ned
@@ -228,7 +230,8 @@ def fuse_taut(
         for j in range(ncol):
             h[MODEL_COLUMNS[j]] = -(kn * n[jn + j] + ke * n[je + j])  # residual c . (z - n(x))
         h[ATT_N], h[ATT_E], h[ATT_D] = hb
-        ekf.fuse(cn * (n[0] - zn) + ce * (n[1] - ze) + cd * (n_d - zd), var + var_att, st, recover=False)
+        ekf.fuse(cn * (n[0] - zn) + ce * (n[1] - ze) + cd * (n_d - zd), var + var_att, st, recover=False,
+                 att_gain=att_gain)
 
 
 def update_rope_shape(ekf: WindEkf, rho: float, alpha: float) -> None:
@@ -276,8 +279,18 @@ def control_tether(est: Estimator) -> None:
         # stays within 0.05 rad)
         along_var = max(est.align_var, mean2[0] - est._align_mean**2)
         cross_var = max(est.align_var, min(mean2[1], ALIGN_CROSS_VAR_MAX))
+        # where the force model has stopped explaining the accelerometer (class B gusts, the rope's waves: its
+        # windowed NIS, accel_misfit) the balloon rocks and the rope waves under it, and the alignment's misfit is
+        # correlated too, over a few tenths of a second (ALIGN_MODEL_CORR_S). Fused at 20 Hz as if white, its rows
+        # took the attitude about the magnetic field's axis with the position's azimuth (through P's correlation of
+        # the two), 1-2 deg a second for seconds where P allowed a tenth of that, and the pair swung across the rope
+        # after the taut entry (docs/estimator.md, "The swing after the taut entry"). There the attitude takes no
+        # more of the gain than a correlated misfit allows, sqrt(interval / ALIGN_MODEL_CORR_S), as the
+        # accelerometer's tilt does; where the model fits, all of it; the position and the gyro bias always all of it
+        misfit = accel_misfit(est.consistency.nis[ACCEL])
+        least = min(1.0, math.sqrt(est.schedule.taut_every * ekf.dt / ALIGN_MODEL_CORR_S))
         fuse_taut(ekf, cfg.radial_m**2, cfg.radial_rate_mps**2, along_var, cross_var, est.taut_status, est.field_ned,
-                  est.align_var, ALIGN_FIELD_AXIS_SHARE * (1.0 - accel_misfit(est.consistency.nis[ACCEL])))  # fmt: skip
+                  est.align_var, ALIGN_FIELD_AXIS_SHARE * (1.0 - misfit), 1.0 - misfit * (1.0 - least))  # fmt: skip
         along, cross = est.taut_status[2], est.taut_status[3]
         if along.time_test_us == ekf.time_us:
             mean2[0] += est._align_alpha * (along.innov**2 - mean2[0])
