@@ -292,3 +292,20 @@ def test_the_ropes_breathing_is_the_same_in_both_cores():
         above += a > py._accel_innov2
     assert worst < 1.0, worst
     assert above > 0.3 * len(samples), above
+
+
+@pytest.mark.parametrize(("nis", "flip"), [(1.50002, True), (2.0001, True), (1.6, False), (2.3, False)])
+def test_a_float32_flag_flip_is_forgiven_only_at_its_threshold(nis, flip):
+    """The float build's consistency flag one sample apart from the Python core's where the windowed NIS lies within
+    float32's rounding of a threshold (FLAG_NIS_CLEAR 1.5, FLAG_NIS 2: 1.50002 against 1.49999 on the winch profile);
+    anywhere else a flag that differs is a mismatch, and so is any other field that differs with it."""
+    from firmware_py.estimator.consistency import Consistency
+
+    class Core:
+        consistency = Consistency()
+
+    Core.consistency.nis[0] = nis
+    a = (2, 3, (1, 1, 0, 1), (5, 0), 1, False)
+    b = (2, 3, (1, 1, 0, 1), (5, 0), 0, False)
+    assert lockstep._threshold_flip(Core, a, b) == flip
+    assert not lockstep._threshold_flip(Core, a, (2, 4, (1, 1, 0, 1), (5, 0), 0, False))
