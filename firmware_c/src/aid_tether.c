@@ -133,7 +133,8 @@ static void fuse_taut(bw_estimator_t *est, bw_real along_var, bw_real cross_var)
         misfit = bw_accel_misfit(est->consistency.nis[BW_ACCEL]);
         share = (bw_real)BW_ALIGN_FIELD_AXIS_SHARE * (BW_R(1.0) - misfit);
         /* where the force model does not explain the accelerometer the alignment's misfit is correlated too: the
-         * attitude takes no more of its gain than a correlated misfit allows (tether.py control_tether) */
+         * attitude takes no more of the cross component's gain than a correlated misfit allows (its noise stops at a
+         * rocking balloon's), the along one's all of it (tether.py control_tether) */
         att_gain = BW_R(1.0) - misfit * (BW_R(1.0) - BW_MIN(BW_R(1.0), BW_SQRT((bw_real)est->sched.taut_every * e->dt
                                                                                / (bw_real)BW_ALIGN_MODEL_CORR_S)));
         for (cc = 0; cc < 2; cc++) {
@@ -154,7 +155,7 @@ static void fuse_taut(bw_estimator_t *est, bw_real along_var, bw_real cross_var)
                 e->h[BW_MODEL_COLS[j]] = -(kn * n[2 + j] + ke * n[2 + BW_NCOL + j]); /* residual c . (z - n(x)) */
             e->h[BW_ATT_N] = hb[0], e->h[BW_ATT_E] = hb[1], e->h[BW_ATT_D] = hb[2];
             bw_ekf_fuse_gain(e, cn * (n[0] - zn) + ce * (n[1] - ze) + cd * (n_d - zd), var[cc] + var_att,
-                             &est->taut_status[2 + cc], BW_R(0.0), 0, att_gain);
+                             &est->taut_status[2 + cc], BW_R(0.0), 0, cc ? att_gain : BW_R(1.0));
         }
     }
 }

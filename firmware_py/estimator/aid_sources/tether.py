@@ -159,7 +159,7 @@ def fuse_taut(
     (how far it leans: the angle in the lean's vertical plane, which the rope's shape, its weight on the balloon
     and the rocking in the gusts all move) and ``cross`` (where it leans: the horizontal azimuth, which no rope
     model changes). Each has its own noise (``control_tether``): a rope unlike the model must not cost the
-    azimuth. The attitude takes ``att_gain`` of the alignment's gain (``control_tether``)."""
+    azimuth. The attitude takes ``att_gain`` of the cross component's gain (``control_tether``)."""
     x = ekf.x
     pn, pe, pd, vn, ve, vd = x[:6].tolist()
     on, oe, od = ekf.forces.attach_ned
@@ -221,7 +221,8 @@ def fuse_taut(
     n_d = math.sqrt(max(1.0 - n[0] * n[0] - n[1] * n[1], ALIGN_PULL_DOWN_MIN * ALIGN_PULL_DOWN_MIN))
     cz = max(zd, LEAN_COS_MIN)
     along_var = max(along_var, nominal_var / (cz * cz))
-    for cn, ce, cd, var, st in ((an * zd, ae * zd, lean, along_var, status[2]), (-ae, an, 0.0, cross_var, status[3])):
+    rows = ((an * zd, ae * zd, lean, along_var, status[2], 1.0), (-ae, an, 0.0, cross_var, status[3], att_gain))
+    for cn, ce, cd, var, st, gain in rows:
         g = lean_jacobian(cn, ce, zn, ze, zd, cd)
         hb = field_axis_row(g, field_ned, share * nominal_var / var if var > 0.0 else 0.0)
         var_att = max(0.0, attitude_variance(ekf.P, *g) - attitude_variance(ekf.P, *hb))
@@ -231,7 +232,7 @@ def fuse_taut(
             h[MODEL_COLUMNS[j]] = -(kn * n[jn + j] + ke * n[je + j])  # residual c . (z - n(x))
         h[ATT_N], h[ATT_E], h[ATT_D] = hb
         ekf.fuse(cn * (n[0] - zn) + ce * (n[1] - ze) + cd * (n_d - zd), var + var_att, st, recover=False,
-                 att_gain=att_gain)
+                 att_gain=gain)
 
 
 def update_rope_shape(ekf: WindEkf, rho: float, alpha: float) -> None:
@@ -281,12 +282,14 @@ def control_tether(est: Estimator) -> None:
         cross_var = max(est.align_var, min(mean2[1], ALIGN_CROSS_VAR_MAX))
         # where the force model has stopped explaining the accelerometer (class B gusts, the rope's waves: its
         # windowed NIS, accel_misfit) the balloon rocks and the rope waves under it, and the alignment's misfit is
-        # correlated too, over a few tenths of a second (ALIGN_MODEL_CORR_S). Fused at 20 Hz as if white, its rows
-        # took the attitude about the magnetic field's axis with the position's azimuth (through P's correlation of
-        # the two), 1-2 deg a second for seconds where P allowed a tenth of that, and the pair swung across the rope
-        # after the taut entry (docs/estimator.md, "The swing after the taut entry"). There the attitude takes no
-        # more of the gain than a correlated misfit allows, sqrt(interval / ALIGN_MODEL_CORR_S), as the
-        # accelerometer's tilt does; where the model fits, all of it; the position and the gyro bias always all of it
+        # correlated too, over a few tenths of a second (ALIGN_MODEL_CORR_S). The cross component's noise stops at a
+        # rocking balloon's (ALIGN_CROSS_VAR_MAX, above), so fused at 20 Hz as if white its row took the attitude
+        # about the magnetic field's axis with the position's azimuth (through P's correlation of the two), 1-2 deg a
+        # second for seconds where P allowed a tenth of that, and the pair swung across the rope after the taut entry
+        # (docs/estimator.md, "The swing after the taut entry"). There the attitude takes no more of that row's gain
+        # than a correlated misfit allows, sqrt(interval / ALIGN_MODEL_CORR_S), as the accelerometer's tilt does;
+        # where the model fits, all of it; the position and the gyro bias always all of it, and the along component
+        # (its noise follows its innovations' spread without a bound) all of its gain
         misfit = accel_misfit(est.consistency.nis[ACCEL])
         least = min(1.0, math.sqrt(est.schedule.taut_every * ekf.dt / ALIGN_MODEL_CORR_S))
         fuse_taut(ekf, cfg.radial_m**2, cfg.radial_rate_mps**2, along_var, cross_var, est.taut_status, est.field_ned,
