@@ -84,9 +84,9 @@ def test_a_scalar_rows_reduced_attitude_gain_keeps_the_covariance_of_the_gain_us
 
 @pytest.mark.parametrize("nis", [0.5, FLAG_NIS, 1.5 * FLAG_NIS, 2.0 * FLAG_NIS, 5.0 * FLAG_NIS])
 def test_the_alignments_attitude_gain_follows_the_accelerometers_misfit(monkeypatch, nis):
-    """Where the force model explains the accelerometer, the alignment's rows move the attitude at their whole gain;
-    from twice FLAG_NIS at sqrt(interval / ALIGN_MODEL_CORR_S) of it (the rocking balloon's correlated misfit),
-    linearly between; the position and the gyro bias always at the whole (ekf.fuse's att_gain)."""
+    """Where the force model explains the accelerometer, the alignment's cross row moves the attitude at its whole
+    gain; from twice FLAG_NIS at sqrt(interval / ALIGN_MODEL_CORR_S) of it (the rocking balloon's correlated misfit),
+    linearly between; the position, the gyro bias and the along row always at the whole (ekf.fuse's att_gain)."""
     est = Estimator(Design())
     est.on_imu(0, 0.0, 0.0, -9.81, 0.0, 0.0, 0.0, 0.2, 0.0, 0.45)
     est.ekf.mode = MODE_TAUT
