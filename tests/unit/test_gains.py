@@ -3,7 +3,6 @@ rows in aid_sources/tether.py) and the free ascent's rope pick-up (model.rope_pi
 the gain used, the heading's gain and the alignment's attitude gain follow the accelerometer's misfit, the pick-up is
 there only while the rope is being lifted (its Jacobian: test_model.py)."""
 
-import copy
 import math
 
 import numpy as np
@@ -19,8 +18,7 @@ from firmware_py.estimator.ekf import SLOW_STATES, FusionStatus
 from firmware_py.estimator.model import BalloonModel, rope_pickup_n
 from firmware_py.estimator.params import ACCEL_HEADING_GAIN_MIN, ACCEL_MODEL_CORR_S, ALIGN_MODEL_CORR_S, UNGATED
 from firmware_py.estimator.state import ATT_D, ATT_E, ATT_N, MODE_TAUT, N_STATES
-from tests.unit.test_rows import _refresh
-from tests.unit.test_rows import taut_ekf as taut_state  # noqa: F401 (a fixture: test_rows.py's taut state)
+from tests.unit.test_rows import _refresh, taut_state
 from tools.ascent_scale import ascent_error
 
 MODEL = BalloonModel.from_design(Design())
@@ -201,10 +199,10 @@ def test_the_first_taut_spell_counts_a_speed_above_the_mean_as_one_of_its_own_sa
     assert mean == pytest.approx(10.0)
 
 
-def test_only_the_cross_row_of_the_alignment_takes_the_reduced_attitude_gain(taut_state):
+def test_only_the_cross_row_of_the_alignment_takes_the_reduced_attitude_gain():
     """fuse_taut hands ``att_gain`` to the cross row alone; the along row (its noise follows its innovations' spread
     without a bound) and the radius rows fuse at the whole gain."""
-    e = copy.deepcopy(taut_state)
+    e = taut_state()
     _refresh(e)
     seen = []
     e.fuse = lambda innov, r, status, gate_sigma=None, recover=True, att_gain=1.0: seen.append((status, att_gain))

@@ -23,6 +23,11 @@ from tests.unit.test_model import rotate_ned
 
 @pytest.fixture
 def taut_ekf():
+    return taut_state()
+
+
+def taut_state():
+    """A taut filter at a state with every column non-zero (the drag scale's included)."""
     est = Estimator(Design())
     est.on_imu(0, 1.5, -2.0, -9.5, 0.01, -0.02, 0.03, 0.15, 0.1, 0.45)
     ekf = est.ekf
