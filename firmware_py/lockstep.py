@@ -152,7 +152,7 @@ def run(design: Design, cfg: FilterConfig, samples: Iterable[Sample], coast_ever
             c.coast(0.1)
         if not rep.mismatch:
             da, db = _discrete(py), _discrete(c)
-            if a != b or (da != db and not (tol_x is not None and _threshold_flip(py, da, db))):
+            if a != b or (da != db and not (c.real == "float" and _threshold_flip(py, da, db))):
                 rep.mismatch = f"sample {k} (t = {s.t_us} us): Python {a, *da} / C {b, *db}"
         xp, xc = np.asarray(py.ekf.x, np.float64), np.asarray(c.ekf.x, np.float64)
         sp = np.sqrt(np.maximum(np.diag(np.asarray(py.ekf.P, np.float64)), 0.0))

@@ -427,11 +427,9 @@ class WindEkf:
         if att_gain < 1.0:
             # K' = D K: P for the gain used, P - K'HP - PH^T K'^T + K' S K'^T, differs from P - KHP only in the
             # attitude's block, by (1 - g)^2 KHP (as fuse3's)
-            d2 = (1.0 - att_gain) * (1.0 - att_gain)
-            for i in range(ATT_N, ATT_D + 1):
-                for j in range(ATT_N, ATT_D + 1):
-                    self.P[i, j] += d2 * self._t1[i, j]
-                self._k[i] *= att_gain
+            att = slice(ATT_N, ATT_D + 1)
+            self.P[att, att] += (1.0 - att_gain) * (1.0 - att_gain) * self._t1[att, att]
+            self._k[att] *= att_gain
         if self.recorder is not None:
             self.recorder.update(self.h, 1.0 / s, innov, self._k)
         self._s[()] = innov
