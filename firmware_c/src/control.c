@@ -50,6 +50,22 @@ static void schedule_at(bw_schedule_t *s, double rate, double recover_after_s)
     s->rope_shape_alpha = (bw_real)(a < 1.0 ? a : 1.0);
 }
 
+/* the attitude's variance (rad^2, each axis) a gap of held_s costs (ekf.gap_attitude_var): a rate that changed
+ * linearly from the held one to the new one turned the balloon by |dw| held_s / 2 more; beyond max_gap_s (lost) the
+ * held rate may be wrong by all of itself */
+static bw_real gap_attitude_var(const bw_real *last, bw_real gx, bw_real gy, bw_real gz, bw_real held_s, int lost)
+{
+    const bw_real dx = last[0] - gx, dy = last[1] - gy, dz = last[2] - gz;
+    bw_real d2 = BW_R(0.25) * (dx * dx + dy * dy + dz * dz), a;
+    if (lost) {
+        a = last[0] * last[0] + last[1] * last[1] + last[2] * last[2];
+        d2 = d2 > a ? d2 : a;
+        a = gx * gx + gy * gy + gz * gz;
+        d2 = d2 > a ? d2 : a;
+    }
+    return d2 * held_s * held_s;
+}
+
 static bw_real vertical_gust_var(const bw_estimator_t *est, bw_real mean_speed_mps, bw_real rho)
 {
     const bw_model_t *m = &est->ekf.m;
@@ -596,7 +612,8 @@ static int on_imu_body(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay
     bw_ekf_t *e = &est->ekf;
     int mag_ok;
     int64_t d, steps, i;
-    bw_real r[9], rad, v_pred, v_accel, v_aids, vn, ve, pv;
+    bw_real r[9], rad, v_pred, v_accel, v_aids, vn, ve, pv, held_s = BW_R(0.0);
+    int lost = 0;
     int32_t resets;
     if (!(finite3(ax, ay, az, (bw_real)BW_ACC_MAX) && finite3(gx, gy, gz, (bw_real)BW_GYRO_MAX))) {
         c->rejected += 1;
@@ -641,7 +658,9 @@ static int on_imu_body(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay
         c->jitter += 1;
     } else if (steps > 1) {
         c->gaps += 1;
-        if (steps > est->max_gap_steps) {
+        held_s = (bw_real)((steps - 1) * est->dt_us) * BW_R(1e-6);
+        lost = steps > est->max_gap_steps;
+        if (lost) {
             c->long_gaps += 1;
             /* predict the last max_gap_s; the covariance grows by the process noise of the rest */
             bw_ekf_inflate(e, (bw_real)(steps - est->max_gap_steps));
@@ -669,6 +688,8 @@ static int on_imu_body(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay
         if (++e->noise_phase == est->sched.wind_noise_every)
             e->noise_phase = 0;
     }
+    if (held_s > BW_R(0.0)) /* what the held rate cannot know: its change across the gap (Python's gap_attitude_var) */
+        bw_ekf_inflate_attitude(e, gap_attitude_var(est->last_gyro, gx, gy, gz, held_s, lost));
     est->last_gyro[0] = gx, est->last_gyro[1] = gy, est->last_gyro[2] = gz;
     e->time_us = est->t_filter_us;
     vn = e->x[BW_VEL_N], ve = e->x[BW_VEL_E]; /* the velocity predicted and its variance (the balance) */

@@ -373,6 +373,14 @@ void bw_ekf_inflate(bw_ekf_t *e, bw_real steps)
     bw_ekf_fix_covariance(e);
 }
 
+void bw_ekf_inflate_attitude(bw_ekf_t *e, bw_real var)
+{
+    e->P[BW_ATT_N][BW_ATT_N] += var;
+    e->P[BW_ATT_E][BW_ATT_E] += var;
+    e->P[BW_ATT_D][BW_ATT_D] += var;
+    bw_ekf_fix_covariance(e);
+}
+
 void bw_ekf_begin_update(bw_ekf_t *e)
 {
     memset(e->dx, 0, sizeof e->dx);

@@ -37,7 +37,7 @@ from firmware_py.estimator.consistency import (
     placement_settling_wind,
     systematic_variance,
 )
-from firmware_py.estimator.ekf import RESET_DRAG, FusionStatus, WindEkf, weighed_variance
+from firmware_py.estimator.ekf import RESET_DRAG, FusionStatus, WindEkf, gap_attitude_var, weighed_variance
 from firmware_py.estimator.model import ADDED_MASS_COEFFICIENT, BalloonModel, Forces, accelerations
 from firmware_py.estimator.params import (
     ACC_MAX,
@@ -321,11 +321,14 @@ class Estimator:
         c.imu_samples += 1
         self.t_last_us = t_us
         steps = (t_us - self.t_filter_us + self.dt_us // 2) // self.dt_us
+        held_s, lost = 0.0, False  # how long the attitude is predicted on a rate held from before a gap (or not at all)
         if steps <= 0:
             c.jitter += 1
         elif steps > 1:
             c.gaps += 1
-            if steps > self.max_gap_steps:
+            held_s = (steps - 1) * self.dt_us * 1e-6
+            lost = steps > self.max_gap_steps
+            if lost:
                 c.long_gaps += 1
                 # predict the last max_gap_s; the covariance grows by the process noise of the rest
                 self.ekf.inflate(steps - self.max_gap_steps)
@@ -343,6 +346,8 @@ class Estimator:
             ekf.predict(g[0], g[1], g[2], self.rho)
             self.t_filter_us += self.dt_us
             self.step += 1
+        if held_s > 0.0:  # what the held rate cannot know: the rate's change across the gap (linear within it)
+            ekf.inflate_attitude(gap_attitude_var(self._last_gyro, (gx, gy, gz), held_s, lost))
         self._last_gyro = (gx, gy, gz)
         ekf.time_us = self.t_filter_us
         vn, ve = float(ekf.x[VEL_N]), float(ekf.x[VEL_E])  # the velocity predicted and its variance (the balance)
