@@ -72,27 +72,40 @@ static void learn_field(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az,
     est->field_ned[2] = down;
 }
 
-/* magnetometer.py learn_field_in_flight: the earth field learnt again on the taut tether once a spell (ekf.field_window:
- * 0 armed, 1 summing the specific force in NED, m . f, |m|^2 and the samples into field_sum, 2 done); at the first
- * sample past the window, the field (beyond BW_FIELD_CHANGE_GAUSS of the boot's), the sums then the kept field's */
+#define FIELD_WINDOW_STATE 7     /* ekf.field_window: its state ... (magnetometer.py) */
+#define FIELD_REPLACED_EARLY 16  /* ... and this bit: the first window replaced the field */
+
+/* magnetometer.py learn_field_in_flight: the earth field learnt again on the taut tether twice after a placement
+ * (ekf.field_window: 2k armed for window k, 2k + 1 summing the specific force in NED, m . f, |m|^2 and the samples
+ * into field_sum, 4 done; and whether the first replaced the field); at the first sample past each window, the field
+ * (beyond BW_FIELD_CHANGE_GAUSS of the one held, scaled to the window's samples), the sums then the kept field's */
 static void learn_field_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az, bw_real mx, bw_real my,
                                   bw_real mz)
 {
     bw_ekf_t *e = &est->ekf;
     bw_real *s = est->field_sum, r[9], f, c, down, h, h_old, h_new, change2, bn = est->field_ned[0],
             be = est->field_ned[1], bd = est->field_ned[2];
-    const int32_t start = (int32_t)((bw_real)BW_FIELD_RELEARN_FROM_S * e->m.imu_rate_hz);
-    if (est->dwell < start) {
+    /* from the last taut placement: a re-placement starts them again; two windows (magnetometer.py
+     * FIELD_RELEARN_WINDOWS_US), field_window even armed, odd summing */
+    const int64_t placed = e->time_us - e->time_taut_us, spell = (int64_t)est->dwell * est->dt_us;
+    const int64_t since = placed < spell ? placed : spell;
+    const int k = (e->field_window & FIELD_WINDOW_STATE) / 2;
+    int64_t start, length;
+    if (since < (int64_t)(BW_FIELD_RELEARN_FROM_S * 1e6)) {
         e->field_window = 0;
         return;
     }
-    if (e->field_window == 0) {
-        s[0] = s[1] = s[2] = s[3] = s[4] = s[5] = BW_R(0.0);
-        e->field_window = 1;
-    }
-    if (e->field_window != 1)
+    if (k >= 2)
         return;
-    if (est->dwell < start + est->sched.field_flight) {
+    start = k == 0 ? (int64_t)(BW_FIELD_RELEARN_FROM_S * 1e6) : (int64_t)(BW_FIELD_RELEARN_AGAIN_FROM_S * 1e6);
+    length = k == 0 ? (int64_t)(BW_FIELD_RELEARN_S * 1e6) : (int64_t)(BW_FIELD_FLIGHT_S * 1e6);
+    if (since < start)
+        return;
+    if ((e->field_window & 1) == 0) {
+        s[0] = s[1] = s[2] = s[3] = s[4] = s[5] = BW_R(0.0);
+        e->field_window += 1;
+    }
+    if (since < start + length) {
         bw_rotation(e->q, r);
         s[0] += r[0] * ax + r[1] * ay + r[2] * az;
         s[1] += r[3] * ax + r[4] * ay + r[5] * az;
@@ -102,7 +115,7 @@ static void learn_field_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, b
         s[5] += BW_R(1.0);
         return;
     }
-    e->field_window = 2;
+    e->field_window += 1;
     c = s[5];
     f = BW_SQRT(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]);
     if (!(f > BW_R(0.5) * (bw_real)BW_G0 * c)) /* no gravity to read the field's down component against */
@@ -112,7 +125,9 @@ static void learn_field_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, b
     h_new = BW_SQRT(BW_MAX(BW_R(0.0), s[4] / c - BW_R(3.0) * est->mag_sigma * est->mag_sigma - down * down));
     change2 = (h_new - h_old) * (h_new - h_old) + (down - bd) * (down - bd);
     if (h_old > BW_R(0.0) && h_new > (bw_real)BW_FIELD_CHANGE_GAUSS &&
-        change2 > (bw_real)BW_FIELD_CHANGE_GAUSS * (bw_real)BW_FIELD_CHANGE_GAUSS) {
+        (change2 > (bw_real)BW_FIELD_CHANGE_GAUSS * (bw_real)BW_FIELD_CHANGE_GAUSS *
+                       (bw_real)(int64_t)(BW_FIELD_FLIGHT_S * 1e6) / (bw_real)length || /* a shorter window's scatter */
+         (e->field_window & FIELD_REPLACED_EARLY))) { /* the second takes the place of the first's */
         est->field_ned[0] = bn * h_new / h_old;
         est->field_ned[1] = be * h_new / h_old;
         est->field_ned[2] = down;
@@ -120,6 +135,8 @@ static void learn_field_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, b
         e->field_heading_var = BW_MIN(e->field_heading_var + change2 / (h_new * h_new),
                                       (bw_real)BW_FIELD_HEADING_VAR_MAX); /* each replacement adds (magnetometer.py) */
         h = h_new, bd = down;
+        if (k == 0)
+            e->field_window |= FIELD_REPLACED_EARLY;
     }
     /* the sums learn_field would have taken of the field at rest, level, from as many samples as it had */
     f = (bw_real)est->field_n;

@@ -107,10 +107,15 @@ LEARN_DRAG_AFTER_S = 0.5
 # to learn: in Kaimal turbulence a 2 s spell there read the drag scale 24 % low, claimed to 4 % (docs/estimator.md,
 # "A held-out sample")
 ASCENT_AIRFLOW_RATIO = 1.0
-FIELD_FLIGHT_S = 60.0  # magnetometer averaged this long in flight: no rest on the ground, and again on the tether
-# the earth field learnt again on the taut tether from this long after its entry (the entry's transient over), over
-# FIELD_FLIGHT_S (aid_sources/magnetometer.learn_field_in_flight): the boot's holds at the boot's heading and tilt only
-FIELD_RELEARN_FROM_S = 30.0
+FIELD_FLIGHT_S = 60.0  # magnetometer averaged this long after a restart in flight: no rest on the ground
+# the earth field learnt again on the taut tether from this long after its entry (the rope's catch damped: the mean
+# specific force is gravity's), over FIELD_RELEARN_S (aid_sources/magnetometer.learn_field_in_flight): the boot's holds
+# at the boot's heading and tilt only, and until it is replaced a hard-iron offset tilted with the balloon pulls the
+# attitude (docs/estimator.md, "The field learnt again on the tether")
+FIELD_RELEARN_FROM_S = 5.0
+FIELD_RELEARN_S = 15.0
+# ... and again over FIELD_FLIGHT_S from this long after it, once the released balloon has turned to the wind
+FIELD_RELEARN_AGAIN_FROM_S = 30.0
 ACCEL_INNOV_S = 2.0  # averaging time of the accelerometer's innovations that set its noise floor
 # the specific force's model error (the rope's waves, the drag's lag behind a gust) is correlated over about this
 # long, and the accelerometer is fused every sample as if it were white: for the tilt, which the gyro holds and the

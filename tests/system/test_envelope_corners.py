@@ -796,6 +796,28 @@ def test_a_balloon_that_turns_once_released_with_a_hard_iron_offset(seed):
     assert sc.error_ratio <= 1.6, sc
 
 
+@pytest.mark.parametrize("from_deg", [10.0, 190.0])
+def test_a_large_hard_iron_is_learnt_again_in_the_minute_after_the_entry(from_deg):
+    """An uncalibrated magnetometer beside the avionics' battery: a hard-iron offset of 0.14 G, a third of the
+    field, fixed in the body. Leaning 25 deg on its tether (blown north or south: the lean turns the offset in the
+    plane of the field) the balloon measures a field 0.03 G from the boot's, and the field vector fused against the
+    boot's pulled the attitude and the wind with it: 3.7-4.0 m/s RMS from 30 to 100 s after the entry, 6-14 % beyond
+    3 sigma (seeds 1-2), until the field learnt again 30-90 s after the entry replaced it. Learnt first 5-20 s after
+    the entry (magnetometer.FIELD_RELEARN_WINDOWS_US): 0.27-0.42 m/s, none beyond 3 sigma. A regression guard on the
+    failure, not a target: the references are no filters that learn a field (the constant true mean of this light
+    turbulence reads 0.24 m/s)."""
+    sections = scenario_sections(SCENARIOS["hard-iron"])
+    sections["wind"]["from_deg"] = from_deg
+    sections["truth"]["mag_hard_iron_gauss"] = [0.1, -0.08, 0.05]
+    design, wind, truth_cfg, filt = build(sections)
+    rows, truth, _ = fly(design, wind, truth_cfg, filt, 130.0, 1)
+    taut = np.flatnonzero(rows[:, 10] == MODE_TAUT)
+    a = rows[taut[0], 0] + 30.0
+    w = (rows[:, 0] >= a) & (rows[:, 0] <= a + 70.0)
+    sc = score(rows[w, 0], rows[w, 1], rows[w, 2], rows[w, 3], truth["time_s"], truth["wind_n"], truth["wind_e"], a)
+    assert sc.raw_rmse_mps <= 1.0 and sc.beyond_3sigma <= 0.03, sc
+
+
 @pytest.mark.parametrize("from_deg", [90.0, 120.0])
 def test_a_turned_balloon_with_a_hard_iron_offset_says_so_before_it_learns_its_field_again(from_deg):
     """The same balloon from 60 to 110 s, before the field is learnt again on the tether (30-90 s after the entry):

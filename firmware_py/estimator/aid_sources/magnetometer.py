@@ -8,7 +8,14 @@ from typing import TYPE_CHECKING
 from balloon_core.atmosphere import G0
 from balloon_core.rotation import rotation
 from firmware_py.estimator.ekf import FusionStatus, WindEkf
-from firmware_py.estimator.params import FIELD_CHANGE_GAUSS, FIELD_HEADING_VAR_MAX, FIELD_RELEARN_FROM_S
+from firmware_py.estimator.params import (
+    FIELD_CHANGE_GAUSS,
+    FIELD_FLIGHT_S,
+    FIELD_HEADING_VAR_MAX,
+    FIELD_RELEARN_AGAIN_FROM_S,
+    FIELD_RELEARN_FROM_S,
+    FIELD_RELEARN_S,
+)
 from firmware_py.estimator.state import (
     ATT_D,
     ATT_E,
@@ -19,6 +26,16 @@ from firmware_py.estimator.state import (
 
 if TYPE_CHECKING:
     from firmware_py.estimator.control import Estimator
+
+# the windows after a taut placement (from, length; us, as the C core casts): a short one once the rope's catch is
+# damped, a long one once the balloon has turned to the wind
+FIELD_FLIGHT_US = int(FIELD_FLIGHT_S * 1e6)
+FIELD_WINDOW_STATE = 7  # Estimator._field_window: its state (2k armed for window k, 2k + 1 summing, 4 done) ...
+FIELD_REPLACED_EARLY = 16  # ... and this bit: the first window replaced the field
+FIELD_RELEARN_WINDOWS_US = (
+    (int(FIELD_RELEARN_FROM_S * 1e6), int(FIELD_RELEARN_S * 1e6)),
+    (int(FIELD_RELEARN_AGAIN_FROM_S * 1e6), FIELD_FLIGHT_US),
+)
 
 
 def fuse_heading(
@@ -89,10 +106,18 @@ def learn_field(est: Estimator, ax: float, ay: float, az: float, mx: float, my: 
 
 
 def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: float, my: float, mz: float) -> None:
-    """The earth field learnt again on the taut tether, at its rate, once a spell (``_field_window``: 0 armed while
-    the entry settles, 1 while its window of FIELD_FLIGHT_S from FIELD_RELEARN_FROM_S after the entry sums, 2 done):
-    into ``_field_sum`` the specific force in NED through the filter's attitude ([0:3]), ``m . f`` ([3]), ``|m|^2``
-    ([4]) and the samples ([5]: the link may lose any of them); at the first sample past the window, the field. On a
+    """The earth field learnt again on the taut tether, at its rate, twice after each taut placement (the windows of
+    ``FIELD_RELEARN_WINDOWS_US``; ``_field_window`` 2k armed for window k, 2k + 1 summing, 4 done, and whether the
+    first replaced the field): into
+    ``_field_sum`` the specific force in NED through the filter's attitude ([0:3]), ``m . f`` ([3]), ``|m|^2`` ([4])
+    and the samples ([5]: the link may lose any of them); at the first sample past each window, the field. The first
+    window, FIELD_RELEARN_S from FIELD_RELEARN_FROM_S after the placement, once the rope's catch is damped: until the
+    field is replaced a hard-iron offset tilted with the balloon pulls the attitude and the wind with it (a stale
+    field's residual of 0.03 G at a 25 deg lean: the wind 3-4 m/s off for the minute and a half the second window alone
+    took); it replaces the field only beyond twice FIELD_CHANGE_GAUSS, the scatter of a quarter of the samples (class B
+    gusts move its means by up to 0.011 G). The second, FIELD_FLIGHT_S from FIELD_RELEARN_AGAIN_FROM_S, once a
+    released balloon has turned to the wind and with four times the first's samples: it takes the place of a field
+    the first replaced whatever it differs by (a balloon released into a wind may still turn in the first). On a
     tether that does not accelerate on average the mean specific force is gravity's, so the field's down component
     is ``-mean(m . f) / |mean(R f)|``: ``m . f`` does not change as the balloon turns or rocks, and the attitude's
     error turns the mean in NED without shortening it (a body-frame mean is shortened by the rocking, a per-sample
@@ -109,7 +134,7 @@ def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: f
     learnt again). Only a field beyond FIELD_CHANGE_GAUSS of the boot's replaces it: at rest and level the boot's is
     the better measurement, where in flight the accelerometer's bias reads differently at the lean and gusts shake
     the means (a turned balloon's accelerometer bias alone moves it 0.002 G, within that: `field-turning` is not
-    helped). Once a spell, not followed: an accelerometer bias that walks after it must stay the tilt the field
+    helped). Twice a placement, not followed: an accelerometer bias that walks after it must stay the tilt the field
     contradicts, which the bias's own loop follows (accel.follow_horizontal_bias); a field that followed it would
     take it as a tilt (a continuous mean over FIELD_FLIGHT_S held a 0.2 m/s^2 step to a fifth of it).
 
@@ -123,18 +148,22 @@ def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: f
     horizontal part is gone (within FIELD_CHANGE_GAUSS of none: a design whose magnetometer noise leaves none of it
     after the noise's share) replaces nothing. A field replaced because the boot's was disturbed (a steel vehicle
     beside the ground station) costs the same, cautiously: the window cannot tell the two apart."""
-    sched = est.schedule
-    start = int(FIELD_RELEARN_FROM_S * est.cfg.imu_rate_hz)
+    # from the taut spell's start or its last placement, the later: a re-placement starts the windows again
+    since_us = min(est.ekf.time_us - est.ekf.time_taut_us, est._dwell * est.dt_us)
     s = est._field_sum
-    if est._dwell < start:
+    if since_us < FIELD_RELEARN_WINDOWS_US[0][0]:
         est._field_window = 0
         return
-    if est._field_window == 0:
-        s[0] = s[1] = s[2] = s[3] = s[4] = s[5] = 0.0
-        est._field_window = 1
-    if est._field_window != 1:
+    k = (est._field_window & FIELD_WINDOW_STATE) // 2  # the window: even armed, odd summing
+    if k >= len(FIELD_RELEARN_WINDOWS_US):
         return
-    if est._dwell < start + sched.field_flight:
+    start_us, length_us = FIELD_RELEARN_WINDOWS_US[k]
+    if since_us < start_us:
+        return
+    if est._field_window & 1 == 0:
+        s[0] = s[1] = s[2] = s[3] = s[4] = s[5] = 0.0
+        est._field_window += 1
+    if since_us < start_us + length_us:
         r = rotation(*est.ekf.q.tolist())
         s[0] += r[0] * ax + r[1] * ay + r[2] * az
         s[1] += r[3] * ax + r[4] * ay + r[5] * az
@@ -143,7 +172,7 @@ def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: f
         s[4] += mx * mx + my * my + mz * mz
         s[5] += 1.0
         return
-    est._field_window = 2
+    est._field_window += 1
     c = s[5]
     f = math.sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2])
     if not f > 0.5 * G0 * c:  # no gravity to read the field's down component against (nor any sample)
@@ -153,11 +182,16 @@ def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: f
     h = h_old = math.sqrt(bn * bn + be * be)
     h_new = math.sqrt(max(0.0, s[4] / c - 3.0 * est.mag_sigma * est.mag_sigma - down * down))
     change2 = (h_new - h_old) ** 2 + (down - bd) ** 2
-    if h_old > 0.0 and h_new > FIELD_CHANGE_GAUSS and change2 > FIELD_CHANGE_GAUSS * FIELD_CHANGE_GAUSS:
+    # a shorter window's scatter is larger; the second window, four times the first's samples, takes the place of a
+    # field the first replaced whatever it differs by
+    gate2 = FIELD_CHANGE_GAUSS * FIELD_CHANGE_GAUSS * FIELD_FLIGHT_US / length_us
+    if h_old > 0.0 and h_new > FIELD_CHANGE_GAUSS and (change2 > gate2 or est._field_window & FIELD_REPLACED_EARLY):
         est.field_ned = (bn * h_new / h_old, be * h_new / h_old, down)
         # each replacement's unseen part adds to the last's (each against the field before it), to a radian's at most
         est.field_heading_var = min(est.field_heading_var + change2 / (h_new * h_new), FIELD_HEADING_VAR_MAX)
         h, bd = h_new, down
+        if k == 0:
+            est._field_window |= FIELD_REPLACED_EARLY
     # the sums learn_field would have taken of the field at rest, level, from as many samples as it had: a balloon
     # back on the ground station adds its own to them
     n = float(est._field_n)
@@ -168,7 +202,7 @@ def control_mag(est: Estimator, ax: float, ay: float, az: float, mx: float, my: 
     """Every sample with a valid field: learn the earth field from rotation-invariant averages (|m| and
     m . f: at rest on the ground, or after a restart in flight on the quasi-static balloon, whose mean
     acceleration is 0), then fuse the whole field vector once it is known in flight, else the heading; on the taut
-    tether learn it again once a spell, from FIELD_RELEARN_FROM_S after the entry (``learn_field_in_flight``; a
+    tether learn it again twice after each taut placement (``learn_field_in_flight``; a
     sender joined in flight learnt it there already)."""
     ekf = est.ekf
     sched = est.schedule
