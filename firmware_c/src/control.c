@@ -53,7 +53,8 @@ static void schedule_at(bw_schedule_t *s, double rate, double recover_after_s)
 /* the attitude's variance (rad^2, each axis) a gap of held_s costs (ekf.gap_attitude_var): a rate that changed
  * linearly from the held one to the new one turned the balloon by |dw| held_s / 2 more; beyond max_gap_s (lost) the
  * held rate may be wrong by all of itself */
-static bw_real gap_attitude_var(const bw_real *last, bw_real gx, bw_real gy, bw_real gz, bw_real held_s, int lost)
+BW_NOINLINE static bw_real gap_attitude_var(const bw_real *last, bw_real gx, bw_real gy, bw_real gz, bw_real held_s,
+                                              int lost)
 {
     const bw_real dx = last[0] - gx, dy = last[1] - gy, dz = last[2] - gz;
     bw_real d2 = BW_R(0.25) * (dx * dx + dy * dy + dz * dz), a;
@@ -612,8 +613,8 @@ static int on_imu_body(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay
     bw_ekf_t *e = &est->ekf;
     int mag_ok;
     int64_t d, steps, i;
-    bw_real r[9], rad, v_pred, v_accel, v_aids, vn, ve, pv, held_s = BW_R(0.0);
-    int lost = 0;
+    bw_real r[9], rad, v_pred, v_accel, v_aids, vn, ve, pv, var;
+    int lost;
     int32_t resets;
     if (!(finite3(ax, ay, az, (bw_real)BW_ACC_MAX) && finite3(gx, gy, gz, (bw_real)BW_GYRO_MAX))) {
         c->rejected += 1;
@@ -658,8 +659,10 @@ static int on_imu_body(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay
         c->jitter += 1;
     } else if (steps > 1) {
         c->gaps += 1;
-        held_s = (bw_real)((steps - 1) * est->dt_us) * BW_R(1e-6);
+        /* the attitude, predicted on a rate held from before the gap (or not at all beyond max_gap_s), grows by what
+         * that rate cannot know: its change across the gap (ekf.gap_attitude_var) */
         lost = steps > est->max_gap_steps;
+        var = gap_attitude_var(est->last_gyro, gx, gy, gz, (bw_real)((steps - 1) * est->dt_us) * BW_R(1e-6), lost);
         if (lost) {
             c->long_gaps += 1;
             /* predict the last max_gap_s; the covariance grows by the process noise of the rest */
@@ -667,6 +670,7 @@ static int on_imu_body(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay
             est->t_filter_us = t_us - est->max_gap_steps * est->dt_us;
             steps = est->max_gap_steps;
         }
+        bw_ekf_inflate_attitude(e, var);
     }
     /* the tether pulls at the bottom of the sphere: where that is depends on the attitude */
     bw_rotation(e->q, r);
@@ -688,8 +692,6 @@ static int on_imu_body(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay
         if (++e->noise_phase == est->sched.wind_noise_every)
             e->noise_phase = 0;
     }
-    if (held_s > BW_R(0.0)) /* what the held rate cannot know: its change across the gap (Python's gap_attitude_var) */
-        bw_ekf_inflate_attitude(e, gap_attitude_var(est->last_gyro, gx, gy, gz, held_s, lost));
     est->last_gyro[0] = gx, est->last_gyro[1] = gy, est->last_gyro[2] = gz;
     e->time_us = est->t_filter_us;
     vn = e->x[BW_VEL_N], ve = e->x[BW_VEL_E]; /* the velocity predicted and its variance (the balance) */

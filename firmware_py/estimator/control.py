@@ -321,19 +321,21 @@ class Estimator:
         c.imu_samples += 1
         self.t_last_us = t_us
         steps = (t_us - self.t_filter_us + self.dt_us // 2) // self.dt_us
-        held_s, lost = 0.0, False  # how long the attitude is predicted on a rate held from before a gap (or not at all)
         if steps <= 0:
             c.jitter += 1
         elif steps > 1:
             c.gaps += 1
-            held_s = (steps - 1) * self.dt_us * 1e-6
+            # the attitude, predicted on a rate held from before the gap (or not at all beyond max_gap_s), grows by
+            # what that rate cannot know: its change across the gap (ekf.gap_attitude_var)
             lost = steps > self.max_gap_steps
+            var = gap_attitude_var(self._last_gyro, (gx, gy, gz), (steps - 1) * self.dt_us * 1e-6, lost)
             if lost:
                 c.long_gaps += 1
                 # predict the last max_gap_s; the covariance grows by the process noise of the rest
                 self.ekf.inflate(steps - self.max_gap_steps)
                 self.t_filter_us = t_us - self.max_gap_steps * self.dt_us
                 steps = self.max_gap_steps
+            self.ekf.inflate_attitude(var)
         ekf = self.ekf
         # the tether pulls at the bottom of the sphere: where that is depends on the attitude
         r = rotation(*ekf.q.tolist())
@@ -346,8 +348,6 @@ class Estimator:
             ekf.predict(g[0], g[1], g[2], self.rho)
             self.t_filter_us += self.dt_us
             self.step += 1
-        if held_s > 0.0:  # what the held rate cannot know: the rate's change across the gap (linear within it)
-            ekf.inflate_attitude(gap_attitude_var(self._last_gyro, (gx, gy, gz), held_s, lost))
         self._last_gyro = (gx, gy, gz)
         ekf.time_us = self.t_filter_us
         vn, ve = float(ekf.x[VEL_N]), float(ekf.x[VEL_E])  # the velocity predicted and its variance (the balance)
