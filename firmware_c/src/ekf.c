@@ -375,9 +375,9 @@ void bw_ekf_inflate(bw_ekf_t *e, bw_real steps)
 
 void bw_ekf_inflate_attitude(bw_ekf_t *e, bw_real var)
 {
-    e->P[BW_ATT_N][BW_ATT_N] += var;
-    e->P[BW_ATT_E][BW_ATT_E] += var;
-    e->P[BW_ATT_D][BW_ATT_D] += var;
+    int i;
+    for (i = BW_ATT_N; i <= BW_ATT_D; i++) /* to its bound at most (ekf.py inflate_attitude) */
+        e->P[i][i] = BW_MIN(e->P[i][i] + var, e->var_max[i]);
     bw_ekf_fix_covariance(e);
 }
 
@@ -728,9 +728,12 @@ void bw_ekf_fix_covariance(bw_ekf_t *e)
     if (mn < BW_R(1.0)) {
         for (i = 0; i < N; i++)
             scale[i] = BW_SQRT(BW_MIN(scale[i], BW_R(1.0)));
-        for (i = 0; i < N; i++)
+        for (i = 0; i < N; i++) {
             for (j = i; j < N; j++)
                 e->P[i][j] = e->P[j][i] = e->P[i][j] * scale[i] * scale[j];
+            if (e->P[i][i] > e->var_max[i]) /* float rounds d^2 P an ulp past the bound */
+                e->P[i][i] = e->var_max[i];
+        }
     }
     for (i = 0; i < N; i++)
         if (e->P[i][i] < (bw_real)BW_VAR_MIN)

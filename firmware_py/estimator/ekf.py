@@ -397,9 +397,11 @@ class WindEkf:
         self.fix_covariance()
 
     def inflate_attitude(self, var: float) -> None:
-        """The attitude's variance grown by ``var`` (rad², each NED axis): a turn the prediction could not follow."""
+        """The attitude's variance grown by ``var`` (rad², each NED axis): a turn the prediction could not follow; to
+        its bound at most (a diagonal grown by less stays positive semi-definite, where one scaled down by the bound
+        lands on it only to float32's rounding)."""
         for i in (ATT_N, ATT_E, ATT_D):
-            self.P[i, i] += var
+            self.P[i, i] = min(self.P[i, i] + var, self.var_max[i])
         self.fix_covariance()
 
     # ------------------------------------------------------------------ fusion
@@ -657,6 +659,7 @@ class WindEkf:
             np.sqrt(self._scale, out=self._scale)
             np.multiply(self.P, self._scale_col, out=self.P)
             np.multiply(self.P, self._scale_row, out=self.P)
+            np.minimum(self.P_diag, self.var_max, out=self.P_diag)  # float32 rounds d² P an ulp past the bound
         np.maximum(self.P_diag, self.var_min, out=self.P_diag)
 
     # ------------------------------------------------------------------ outputs
