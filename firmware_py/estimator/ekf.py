@@ -58,19 +58,19 @@ from firmware_py.estimator.tuning import wind_process
 N = N_STATES
 
 
-
 def gap_attitude_var(
     last_rate: tuple[float, float, float], rate: tuple[float, float, float], held_s: float, lost: bool
 ) -> float:
     """What a gap in the IMU's samples costs the attitude (rad², each axis). Across it the prediction holds the rate
     of the sample before (the new one for its last step): a rate that changed linearly from that to the new one turned
-    the balloon by ``|Δω| held_s / 2`` more. Beyond ``max_gap_s`` (``lost``) the rate may have swung and back within the
-    gap, and the balloon rocks at tens of degrees a second after the rope's catch: the held rate may be wrong by all of
-    itself, ``max(|ω|) held_s``."""
+    the balloon by ``|Δω| held_s / 2`` more. Beyond ``max_gap_s`` (``lost``) the rate may have swung and back within
+    the gap, and the balloon rocks at tens of degrees a second after the rope's catch: the held rate may be wrong by
+    all of itself, ``max(|ω|) held_s``."""
     d2 = 0.25 * sum((a - b) * (a - b) for a, b in zip(last_rate, rate, strict=True))
     if lost:
         d2 = max(d2, sum(a * a for a in last_rate), sum(b * b for b in rate))
     return d2 * held_s * held_s
+
 
 class FusionStatus:
     """Per-fusion bookkeeping, as PX4's estimator_innovations / test ratios."""

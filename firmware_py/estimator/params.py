@@ -107,7 +107,8 @@ LEARN_DRAG_AFTER_S = 0.5
 # to learn: in Kaimal turbulence a 2 s spell there read the drag scale 24 % low, claimed to 4 % (docs/estimator.md,
 # "A held-out sample")
 ASCENT_AIRFLOW_RATIO = 1.0
-FIELD_FLIGHT_S = 60.0  # magnetometer averaged this long after a restart in flight: no rest on the ground
+# the magnetometer averaged this long after a restart in flight (no rest on the ground), and on the tether
+FIELD_FLIGHT_S = 60.0
 # the earth field learnt again on the taut tether from this long after its entry (the rope's catch damped: the mean
 # specific force is gravity's), over FIELD_RELEARN_S (aid_sources/magnetometer.learn_field_in_flight): the boot's holds
 # at the boot's heading and tilt only, and until it is replaced a hard-iron offset tilted with the balloon pulls the

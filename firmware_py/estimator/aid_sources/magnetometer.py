@@ -108,9 +108,9 @@ def learn_field(est: Estimator, ax: float, ay: float, az: float, mx: float, my: 
 def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: float, my: float, mz: float) -> None:
     """The earth field learnt again on the taut tether, at its rate, twice after each taut placement (the windows of
     ``FIELD_RELEARN_WINDOWS_US``; ``_field_window`` 2k armed for window k, 2k + 1 summing, 4 done, and whether the
-    first replaced the field): into
-    ``_field_sum`` the specific force in NED through the filter's attitude ([0:3]), ``m . f`` ([3]), ``|m|^2`` ([4])
-    and the samples ([5]: the link may lose any of them); at the first sample past each window, the field. The first
+    first replaced the field): into ``_field_sum`` the specific force in NED through the filter's attitude ([0:3]),
+    ``m . f`` ([3]), ``|m|^2`` ([4]) and the samples ([5]: the link may lose any of them); at the first sample past
+    each window, the field. The first
     window, FIELD_RELEARN_S from FIELD_RELEARN_FROM_S after the placement, once the rope's catch is damped: until the
     field is replaced a hard-iron offset tilted with the balloon pulls the attitude and the wind with it (a stale
     field's residual of 0.03 G at a 25 deg lean: the wind 3-4 m/s off for the minute and a half the second window alone
