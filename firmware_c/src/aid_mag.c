@@ -85,8 +85,8 @@ static void learn_field_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, b
     bw_ekf_t *e = &est->ekf;
     bw_real *s = est->field_sum, r[9], f, c, down, h, h_old, h_new, change2, bn = est->field_ned[0],
             be = est->field_ned[1], bd = est->field_ned[2];
-    /* from the last taut placement: a re-placement starts them again; two windows (magnetometer.py
-     * FIELD_RELEARN_WINDOWS_US), field_window even armed, odd summing */
+    /* from the later of the taut spell's start and its last placement: a re-placement starts them again; two
+     * windows (magnetometer.py FIELD_RELEARN_WINDOWS_US), field_window even armed, odd summing */
     const int64_t placed = e->time_us - e->time_taut_us, spell = (int64_t)est->dwell * est->dt_us;
     const int64_t since = placed < spell ? placed : spell;
     const int k = (e->field_window & FIELD_WINDOW_STATE) / 2;
