@@ -50,23 +50,6 @@ static void schedule_at(bw_schedule_t *s, double rate, double recover_after_s)
     s->rope_shape_alpha = (bw_real)(a < 1.0 ? a : 1.0);
 }
 
-/* the attitude's variance (rad^2, each axis) a gap of held_s costs (ekf.gap_attitude_var): a rate that changed
- * linearly from the held one to the new one turned the balloon by |dw| held_s / 2 more; beyond max_gap_s (lost) the
- * held rate may be wrong by all of itself */
-BW_NOINLINE static bw_real gap_attitude_var(const bw_real *last, bw_real gx, bw_real gy, bw_real gz, bw_real held_s,
-                                              int lost)
-{
-    const bw_real dx = last[0] - gx, dy = last[1] - gy, dz = last[2] - gz;
-    bw_real d2 = BW_R(0.25) * (dx * dx + dy * dy + dz * dz), a;
-    if (lost) {
-        a = last[0] * last[0] + last[1] * last[1] + last[2] * last[2];
-        d2 = d2 > a ? d2 : a;
-        a = gx * gx + gy * gy + gz * gz;
-        d2 = d2 > a ? d2 : a;
-    }
-    return d2 * held_s * held_s;
-}
-
 static bw_real vertical_gust_var(const bw_estimator_t *est, bw_real mean_speed_mps, bw_real rho)
 {
     const bw_model_t *m = &est->ekf.m;
@@ -660,9 +643,9 @@ static int on_imu_body(bw_estimator_t *est, int64_t t_us, bw_real ax, bw_real ay
     } else if (steps > 1) {
         c->gaps += 1;
         /* the attitude, predicted on a rate held from before the gap (or not at all beyond max_gap_s), grows by what
-         * that rate cannot know: its change across the gap (ekf.gap_attitude_var) */
+         * that rate cannot know: its change across the gap (bw_gap_attitude_var) */
         lost = steps > est->max_gap_steps;
-        var = gap_attitude_var(est->last_gyro, gx, gy, gz, (bw_real)((steps - 1) * est->dt_us) * BW_R(1e-6), lost);
+        var = bw_gap_attitude_var(est->last_gyro, gx, gy, gz, (bw_real)((steps - 1) * est->dt_us) * BW_R(1e-6), lost);
         if (lost) {
             c->long_gaps += 1;
             /* predict the last max_gap_s; the covariance grows by the process noise of the rest */

@@ -373,6 +373,19 @@ void bw_ekf_inflate(bw_ekf_t *e, bw_real steps)
     bw_ekf_fix_covariance(e);
 }
 
+/* ekf.py gap_attitude_var: the attitude's variance (rad^2, each axis) a gap of held_s costs: a rate that changed
+ * linearly from the held one to the new one turned the balloon by |dw| held_s / 2 more; beyond max_gap_s (lost) the
+ * held rate may be wrong by all of itself. Out of line: inlined into the step it cost the median 40 instructions */
+BW_NOINLINE bw_real bw_gap_attitude_var(const bw_real *last, bw_real gx, bw_real gy, bw_real gz, bw_real held_s,
+                                        int lost)
+{
+    const bw_real dx = last[0] - gx, dy = last[1] - gy, dz = last[2] - gz;
+    bw_real d2 = BW_R(0.25) * (dx * dx + dy * dy + dz * dz);
+    if (lost)
+        d2 = BW_MAX(d2, BW_MAX(last[0] * last[0] + last[1] * last[1] + last[2] * last[2], gx * gx + gy * gy + gz * gz));
+    return d2 * held_s * held_s;
+}
+
 void bw_ekf_inflate_attitude(bw_ekf_t *e, bw_real var)
 {
     int i;

@@ -64,6 +64,7 @@ void bw_ekf_reset(bw_ekf_t *e, int kind);
 void bw_ekf_predict(bw_ekf_t *e, bw_real gx, bw_real gy, bw_real gz, bw_real rho);
 void bw_ekf_adapt_wind_noise(bw_ekf_t *e, bw_real mean_speed_mps, bw_real excess);
 void bw_ekf_inflate(bw_ekf_t *e, bw_real steps);
+bw_real bw_gap_attitude_var(const bw_real *last, bw_real gx, bw_real gy, bw_real gz, bw_real held_s, int lost);
 void bw_ekf_inflate_attitude(bw_ekf_t *e, bw_real var);
 void bw_ekf_begin_update(bw_ekf_t *e);
 bw_real bw_lean_variance(const bw_ekf_t *e, bw_real cn, bw_real ce, bw_real zn, bw_real ze, bw_real zd);
