@@ -25,7 +25,7 @@ N = N_STATES
 NCOL = 11
 COUNTER_NAMES = (
     "imu_samples", "baro_samples", "rejected", "duplicates", "reordered", "jitter", "gaps", "long_gaps",
-    "time_resets", "numeric_resets", "taut_resets", "mode_switches", "baro_resets", "false_releases",
+    "time_resets", "numeric_resets", "taut_resets", "mode_switches", "baro_resets", "false_releases", "field_jumps",
 )  # fmt: skip
 CONFIG_FIELDS = (
     "radius_m", "volume_m3", "mass_kg", "half_cd_area_m2", "tether_length_m", "rope_kg_m", "rope_drag_m2",
@@ -157,6 +157,7 @@ def _structs(real):
         ("initialised", u8), ("joined", u8), ("unconfirmed", u8), ("was_slack", u8), ("t_filter_us", i64),
         ("t_last_us", i64), ("t_boot_us", i64), ("step", i64),
         ("last_gyro", real * 3), ("release_count", i32), ("field_n", i32), ("field_sum", real * 6),
+        ("field_strength", real * 2),
         ("acc_mean", real * 3), ("acc_var", real), ("confirm_count", i32),
         ("field_ned", real * 3), ("dwell", i32), ("accel_innov2", real), ("innov_alpha", real), ("mean_speed", real),
         ("speed_alpha", real), ("speed_var", real), ("slack", i32), ("pulling", i32),

@@ -83,6 +83,7 @@ class Report:
     worst_ratio: float = 0.0  # the largest difference over its tolerance (<= 1: equal)
     mismatch: str = ""  # the first discrete difference (mode, resets, counters, flags, return value)
     reset_counts: tuple[int, ...] = ()  # the Python core's at the end, per kind (what the run went through)
+    counters: dict[str, int] = dataclasses.field(default_factory=dict)  # the Python core's at the end
 
     @property
     def equal(self) -> bool:
@@ -179,6 +180,7 @@ def run(design: Design, cfg: FilterConfig, samples: Iterable[Sample], coast_ever
             ratio = math.inf
         rep.worst_ratio = max(rep.worst_ratio, ratio)
     rep.reset_counts = tuple(int(n) for n in py.ekf.reset_counts)
+    rep.counters = py.counters.as_dict()
     return rep
 
 

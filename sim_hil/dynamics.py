@@ -78,6 +78,11 @@ class TruthConfig:
     baro_offset_m: float = 0.0  # 1-sigma constant barometer offset
     mag_bias_gauss: float = 0.0  # 1-sigma hard-iron offset per axis (drawn from the seed)
     mag_hard_iron_gauss: tuple[float, float, float] = (0.0, 0.0, 0.0)  # fixed hard-iron offset, the IMU's FRD axes
+    # a current switched beside the magnetometer (a heater, a radio, a servo): this field, the IMU's FRD axes, added
+    # from mag_switched_on_s after the boot until mag_switched_off_s (0: on to the end)
+    mag_switched_gauss: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    mag_switched_on_s: float = 0.0
+    mag_switched_off_s: float = 0.0
     # the IMU board mounted askew on the balloon: its axes the body's (the tether's axis z) turned by roll about x,
     # then pitch about the new y; every inertial and magnetic reading in its own axes (sensors.py)
     imu_roll_deg: float = 0.0
@@ -121,7 +126,7 @@ class TruthConfig:
             raise ConfigError("truth.drag_crisis_reynolds and truth.drag_crisis_exponent must be > 0")
         if self.avionics_offset_m < 0.0 or self.avionics_kg < 0.0:
             raise ConfigError("truth.avionics_offset_m and truth.avionics_kg must be >= 0")
-        for name in ("mag_hard_iron_gauss", "ground_field_gauss"):
+        for name in ("mag_hard_iron_gauss", "ground_field_gauss", "mag_switched_gauss"):
             hi = getattr(self, name)
             if (
                 not isinstance(hi, tuple)
@@ -131,10 +136,12 @@ class TruthConfig:
                 raise ConfigError(f"truth.{name} must be three finite numbers, got {hi!r}")
         if not self.ground_field_scale_m > 0.0:
             raise ConfigError("truth.ground_field_scale_m must be > 0")
+        if not (self.mag_switched_on_s >= 0.0 and self.mag_switched_off_s >= 0.0):
+            raise ConfigError("truth.mag_switched_on_s and truth.mag_switched_off_s must be >= 0")
 
     @classmethod
     def from_dict(cls, values: dict) -> TruthConfig:
-        for name in ("mag_hard_iron_gauss", "ground_field_gauss"):
+        for name in ("mag_hard_iron_gauss", "ground_field_gauss", "mag_switched_gauss"):
             hi = values.get(name)
             if isinstance(hi, (list, tuple)):
                 if not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in hi):

@@ -58,6 +58,9 @@ class SensorSuite:
         if any(truth.mag_hard_iron_gauss):  # fixed hard iron (body frame) on top of the seeded draw
             self.mag_bias = [b + h for b, h in zip(self.mag_bias, truth.mag_hard_iron_gauss)]
         self.baro_offset_m = float(r.normal(0.0, truth.baro_offset_m)) if truth.baro_offset_m else 0.0
+        # a current switched beside the magnetometer: its field, and when it is on (off 0: to the end)
+        self._switched = truth.mag_switched_gauss if any(truth.mag_switched_gauss) else None
+        self._switched_s = (truth.mag_switched_on_s, truth.mag_switched_off_s or math.inf)
         self._mount = imu_mount(truth.imu_roll_deg, truth.imu_pitch_deg)
         self._ground_field = truth.ground_field_gauss if any(truth.ground_field_gauss) else None
         self._ground_field_m = truth.ground_field_scale_m
@@ -84,11 +87,13 @@ class SensorSuite:
         q: list[float],
         lever_b: tuple[float, float, float] | None = None,
         height_m: float = 0.0,
+        time_s: float = 0.0,
     ) -> tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]:
         """Accelerometer (specific force f = a - g, FRD, m/s^2), gyro (rad/s), magnetometer (gauss).
         ``f_ned`` is the centre's specific force; ``lever_b`` the sensor's acceleration relative to the
         centre in body axes (dw/dt x rho + w x (w x rho)), when it is not at the centre; ``height_m`` the
-        magnetometer's above the ground (the ground station's own field, ``field_at``)."""
+        magnetometer's above the ground (the ground station's own field, ``field_at``); ``time_s`` since the boot (a
+        current switched beside the magnetometer, [truth] mag_switched_*)."""
         n = self._draw()
         q0, q1, q2, q3 = q
         # R^T (NED -> body) rows: the rotation's columns
@@ -105,6 +110,8 @@ class SensorSuite:
             f, w, m = body_to_imu(mount, *f), body_to_imu(mount, *w), body_to_imu(mount, *m)
         sa, sg, sm = self._sig
         ab, gb, mb = self.accel_bias, self.gyro_bias, self.mag_bias
+        if self._switched is not None and self._switched_s[0] <= time_s < self._switched_s[1]:
+            mb = [b + x for b, x in zip(mb, self._switched, strict=True)]
         acc = (f[0] + ab[0] + sa * n[0], f[1] + ab[1] + sa * n[1], f[2] + ab[2] + sa * n[2])
         gyro = (w[0] + gb[0] + sg * n[3], w[1] + gb[1] + sg * n[4], w[2] + gb[2] + sg * n[5])
         mag = (m[0] + mb[0] + sm * n[6], m[1] + mb[1] + sm * n[7], m[2] + mb[2] + sm * n[8])

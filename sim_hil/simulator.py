@@ -249,10 +249,12 @@ class Simulation:
                         lever = lever_arm_accel_b(s[10], s[11], s[12], k1[10], k1[11], k1[12], 0.0, 0.0, d)
                         q0, q1, q2, q3 = s[6:10]
                         sensor_height = height - d * (q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3)
-                        acc, gyro, mag = self.sensors.imu(f_ned, (s[10], s[11], s[12]), s[6:10], lever, sensor_height)
+                        acc, gyro, mag = self.sensors.imu(f_ned, (s[10], s[11], s[12]), s[6:10], lever, sensor_height,
+                                                            step * h)
                     else:
                         sensor_height = height
-                        acc, gyro, mag = self.sensors.imu(f_ned, (s[10], s[11], s[12]), s[6:10], None, sensor_height)
+                        acc, gyro, mag = self.sensors.imu(f_ned, (s[10], s[11], s[12]), s[6:10], None, sensor_height,
+                                                            step * h)
                     baro = self.sensors.baro(sensor_height, step * h) if i % baro_every == 0 else None
                     roll, pitch, yaw = euler_from_quat(*s[6:10])
                     if ph.veer_rad_m:

@@ -67,7 +67,7 @@ typedef struct {
 typedef struct {
     /* 32 bits, unsigned (they wrap, never overflow): 497 days of samples at 100 Hz (the RAM's budget, docs/porting.md) */
     uint32_t imu_samples, baro_samples, rejected, duplicates, reordered, jitter, gaps, long_gaps, time_resets,
-        numeric_resets, taut_resets, mode_switches, baro_resets, false_releases;
+        numeric_resets, taut_resets, mode_switches, baro_resets, false_releases, field_jumps;
 } bw_counters_t;
 
 /* the balloon model at one state (model.py Forces) */
@@ -176,6 +176,7 @@ typedef struct {
     bw_real last_gyro[3];
     int32_t release_count, field_n;
     bw_real field_sum[6];
+    bw_real field_strength[2];   /* |m|^2 on the taut tether, its short and long means (aid_mag.c watch_field) */
     bw_real acc_mean[3], acc_var;
     int32_t confirm_count;
     bw_real field_ned[3];

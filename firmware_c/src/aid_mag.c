@@ -74,6 +74,98 @@ static void learn_field(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az,
 
 #define FIELD_WINDOW_STATE 7     /* ekf.field_window: its state ... (magnetometer.py) */
 #define FIELD_REPLACED_EARLY 16  /* ... and this bit: the first window replaced the field */
+#define FIELD_JUMPED 32          /* ... and this one: the magnetometer's own field jumped, a window learns it since */
+
+/* magnetometer.py follow_field_strength: |m|^2, its means over FIELD_JUMP_SHORT_S and FIELD_JUMP_LONG_S at the
+ * tether's rate; while a placement settles both the short one */
+static void follow_field_strength(bw_estimator_t *est, bw_real mx, bw_real my, bw_real mz, int settling)
+{
+    bw_real *st = est->field_strength;
+    const bw_real m2 = mx * mx + my * my + mz * mz,
+                  step_s = (bw_real)(est->sched.taut_every * est->dt_us) * BW_R(1e-6);
+    if (st[0] == BW_R(0.0))
+        st[0] = m2;
+    st[0] += step_s / (bw_real)BW_FIELD_JUMP_SHORT_S * (m2 - st[0]);
+    st[1] = settling ? st[0] : st[1] + step_s / (bw_real)BW_FIELD_JUMP_LONG_S * (m2 - st[1]);
+}
+
+/* magnetometer.py field_jump: counted, the field vector no longer fused, learnt again from now; the attitude's
+ * variance grown by what the rows may have turned it by before the jump was seen */
+static void field_jump(bw_estimator_t *est, bw_real tilt_var)
+{
+    bw_real *s = est->field_sum;
+    est->counters.field_jumps += 1;
+    est->ekf.field_window = FIELD_JUMPED;
+    s[0] = s[1] = s[2] = s[3] = s[4] = s[5] = BW_R(0.0);
+    est->mag_status[0].consecutive_rejects = est->mag_status[1].consecutive_rejects =
+        est->mag_status[2].consecutive_rejects = 0;
+    if (tilt_var > BW_R(0.0))
+        bw_ekf_inflate_attitude(&est->ekf, tilt_var);
+}
+
+/* magnetometer.py watch_field: the field's strength off its own mean, or the field vector rejected for
+ * FIELD_JUMP_REJECTED_S (never fused at the gate meanwhile): the magnetometer's own field jumped (field_jump); 1 if
+ * it did */
+static int watch_field(bw_estimator_t *est, bw_real mx, bw_real my, bw_real mz)
+{
+    const bw_real *st = est->field_strength;
+    bw_status_t *status = est->mag_status;
+    bw_real jump;
+    int rejected = 0;
+    const int32_t run = est->sched.mag_recover - est->sched.taut_every;
+    if (status[0].consecutive_rejects == 0) {
+        follow_field_strength(est, mx, my, mz, 0);
+    } else {
+        rejected = est->ekf.time_us - status[0].time_last_fuse_us >= (int64_t)(BW_FIELD_JUMP_REJECTED_S * 1e6);
+        if (status[0].consecutive_rejects >= (run > 1 ? run : 1))
+            status[0].consecutive_rejects = status[1].consecutive_rejects = status[2].consecutive_rejects = 0;
+    }
+    jump = BW_FABS(BW_SQRT(st[0]) - BW_SQRT(st[1]));
+    if (!(jump > (bw_real)BW_FIELD_JUMP_GAUSS || rejected))
+        return 0;
+    field_jump(est, jump > (bw_real)BW_FIELD_JUMP_GAUSS ? jump * jump / st[0] : BW_R(0.0));
+    return 1;
+}
+
+/* magnetometer.py learn_jumped_field: the whole field learnt again after a jump over FIELD_RELEARN_S of the tether's
+ * samples ((R m) north and east, (R f) down, m . f, |m|^2 and the samples into field_sum), its horizontal direction
+ * through the attitude the gyro held; the heading's variance then kept as the reference's */
+static void learn_jumped_field(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az, bw_real mx, bw_real my,
+                               bw_real mz)
+{
+    bw_ekf_t *e = &est->ekf;
+    bw_real *s = est->field_sum, r[9], c, f, down, h_new, psi, h, bd = est->field_ned[2];
+    if (s[5] * (bw_real)(est->sched.taut_every * est->dt_us) < (bw_real)(int64_t)(BW_FIELD_RELEARN_S * 1e6)) {
+        bw_rotation(e->q, r);
+        s[0] += r[0] * mx + r[1] * my + r[2] * mz;
+        s[1] += r[3] * mx + r[4] * my + r[5] * mz;
+        s[2] += r[6] * ax + r[7] * ay + r[8] * az;
+        s[3] += ax * mx + ay * my + az * mz;
+        s[4] += mx * mx + my * my + mz * mz;
+        s[5] += BW_R(1.0);
+        return;
+    }
+    e->field_window = 4; /* done */
+    c = s[5];
+    f = -s[2]; /* at rest the specific force points up */
+    est->field_strength[0] = est->field_strength[1] = s[4] / c;
+    h = BW_SQRT(est->field_ned[0] * est->field_ned[0] + est->field_ned[1] * est->field_ned[1]);
+    if (f > BW_R(0.5) * (bw_real)BW_G0 * c) {
+        down = -s[3] / f;
+        h_new = BW_SQRT(BW_MAX(BW_R(0.0), s[4] / c - BW_R(3.0) * est->mag_sigma * est->mag_sigma - down * down));
+        if (h_new > (bw_real)BW_FIELD_CHANGE_GAUSS) {
+            psi = BW_ATAN2(s[1], s[0]);
+            est->field_ned[0] = h_new * BW_COS(psi);
+            est->field_ned[1] = h_new * BW_SIN(psi);
+            est->field_ned[2] = down;
+            e->field_heading_var = BW_MIN(e->field_heading_var + e->P[BW_ATT_D][BW_ATT_D],
+                                          (bw_real)BW_FIELD_HEADING_VAR_MAX);
+            h = h_new, bd = down;
+        }
+    }
+    f = (bw_real)est->field_n; /* the sums learn_field would have taken (learn_field_in_flight) */
+    s[0] = BW_R(0.0), s[1] = BW_R(0.0), s[2] = -(bw_real)BW_G0 * f, s[3] = h * f, s[4] = BW_R(0.0), s[5] = bd * f;
+}
 
 /* magnetometer.py learn_field_in_flight: the earth field learnt again on the taut tether twice after a placement
  * (ekf.field_window: 2k armed for window k, 2k + 1 summing the specific force in NED, m . f, |m|^2 and the samples
@@ -93,8 +185,15 @@ static void learn_field_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, b
     int64_t start, length;
     if (since < (int64_t)(BW_FIELD_RELEARN_FROM_S * 1e6)) {
         e->field_window = 0;
+        follow_field_strength(est, mx, my, mz, 1);
         return;
     }
+    if (e->field_window & FIELD_JUMPED) {
+        learn_jumped_field(est, ax, ay, az, mx, my, mz);
+        return;
+    }
+    if (watch_field(est, mx, my, mz))
+        return;
     if (k >= 2)
         return;
     start = k == 0 ? (int64_t)(BW_FIELD_RELEARN_FROM_S * 1e6) : (int64_t)(BW_FIELD_RELEARN_AGAIN_FROM_S * 1e6);
@@ -106,6 +205,8 @@ static void learn_field_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, b
         e->field_window += 1;
     }
     if (since < start + length) {
+        if (est->mag_status[0].consecutive_rejects) /* a field the rows reject (a burst beside the magnetometer) */
+            return;
         bw_rotation(e->q, r);
         s[0] += r[0] * ax + r[1] * ay + r[2] * az;
         s[1] += r[3] * ax + r[4] * ay + r[5] * az;
@@ -150,8 +251,9 @@ void bw_control_mag(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az, bw_
         learn_field(est, ax, ay, az, mx, my, mz);
     else if (e->mode == BW_MODE_TAUT && !est->joined && est->field_n >= est->sched.field_learn && e->taut_phase == 0)
         learn_field_in_flight(est, ax, ay, az, mx, my, mz);
-    if (est->field_n >= est->sched.field_learn && e->mode != BW_MODE_GROUND)
-        fuse_mag_field(est, mx, my, mz);
-    else
+    if (est->field_n >= est->sched.field_learn && e->mode != BW_MODE_GROUND) {
+        if (!(e->field_window & FIELD_JUMPED)) /* a jumped field is learnt again before it is fused */
+            fuse_mag_field(est, mx, my, mz);
+    } else
         fuse_heading(est, mx, my, mz);
 }

@@ -91,6 +91,7 @@ static void init_clock(bw_estimator_t *est)
     est->release_count = 0;
     est->field_n = 0;
     memset(est->field_sum, 0, sizeof est->field_sum);
+    est->field_strength[0] = est->field_strength[1] = BW_R(0.0);
     est->joined = 0;
     est->wind_taut_mps = BW_R(0.0);
     est->unconfirmed = 0;

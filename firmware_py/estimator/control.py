@@ -96,7 +96,7 @@ class Counters:
     __slots__ = (
         "imu_samples", "baro_samples", "rejected", "duplicates", "reordered", "jitter", "gaps",
         "long_gaps", "time_resets", "numeric_resets", "taut_resets", "mode_switches", "baro_resets",
-        "false_releases",
+        "false_releases", "field_jumps",
     )  # fmt: skip
 
     def __init__(self) -> None:
@@ -197,6 +197,9 @@ class Estimator:
         self._field_n = 0
         self._field_window = 0  # the field learnt again on the tether: 0 armed, 1 summing, 2 done (magnetometer.py)
         self._field_sum = [0.0] * 6
+        # the field's strength squared on the taut tether, its means over FIELD_JUMP_SHORT_S and FIELD_JUMP_LONG_S
+        # (magnetometer.watch_field; the long one 0: not followed yet)
+        self.field_strength = [0.0, 0.0]
         self._joined = False
         self.wind_taut_mps = 0.0  # the wind's speed the last taut placement put (tether.enter_taut)
         self.unconfirmed = False  # joined in flight and not yet confirmed by the motion (see CONFIRM_*)

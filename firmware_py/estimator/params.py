@@ -175,6 +175,17 @@ MAG_MODEL_GAUSS = 0.004  # field direction model error (~0.5 deg of a 0.5 G fiel
 # a hard-iron offset turned with the balloon, 0.014-0.016 G in field-turning-hard-iron; the means' own scatter in
 # class B gusts and an accelerometer's bias read at the lean, 0.002-0.004 G
 FIELD_CHANGE_GAUSS = 2.0 * MAG_MODEL_GAUSS
+# the magnetometer's own field may jump in flight: a heater, a radio or a servo switched on a few centimetres from it
+# (0.3 A at 5 cm: 0.012 G), which a field learnt at the boot cannot know. Its strength |m| no rotation changes: its
+# mean over FIELD_JUMP_SHORT_S leaving its mean over FIELD_JUMP_LONG_S by more than FIELD_JUMP_GAUSS (the field's
+# model error; 5 sigma of the short mean's noise at the paper's 0.005 G, sampled at the tether's 20 Hz) is a jump
+# (magnetometer.watch_field)
+FIELD_JUMP_GAUSS = MAG_MODEL_GAUSS
+FIELD_JUMP_SHORT_S = 1.0
+FIELD_JUMP_LONG_S = 10.0
+# ... or the field vector rejected this long in a row: a burst (a radio's transmission, tenths of a second) is not
+# a jump, its samples only rejected
+FIELD_JUMP_REJECTED_S = 1.0
 # the heading's variance the replaced fields' unseen parts may add up to, rad^2: a heading known to a radian is not
 # known (magnetometer.learn_field_in_flight)
 FIELD_HEADING_VAR_MAX = 1.0

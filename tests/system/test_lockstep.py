@@ -85,6 +85,20 @@ def test_the_field_learnt_again_in_flight_double():
 
 
 @pytest.mark.parametrize("float32", [False, True])
+@pytest.mark.parametrize("field", [(0.02, 0.0, 0.0), (0.0, 0.05, 0.0)])
+def test_a_jump_of_the_magnetometers_own_field_is_learnt_the_same_in_both_cores(float32, field):
+    """A current switched beside the magnetometer ([truth] mag_switched_gauss) 30 s after the taut entry, along the
+    body's x (seen in the field's strength) and along its y (across the field: the rows rejected for a second):
+    the jump, the window without the magnetometer and the field learnt again with its direction, in both cores."""
+    sc = SCENARIOS["field-rope"]
+    truth = dataclasses.replace(sc.truth, mag_switched_gauss=field, mag_switched_on_s=52.0)
+    sim = Simulation(sc.design, sc.wind, truth, 80.0, 2)
+    rep = lockstep.run(sc.design, dataclasses.replace(sc.filter, float32=float32), samples_of(sim.samples()))
+    check(rep)
+    assert rep.counters["field_jumps"] == 1, rep.counters
+
+
+@pytest.mark.parametrize("float32", [False, True])
 def test_an_imu_mounted_askew_is_turned_back_the_same_in_both_cores(float32):
     """The truth's IMU rolled 1.5 and pitched -2 deg against the balloon ([truth] imu_roll_deg, imu_pitch_deg), the
     design declaring that mounting and 0.5 deg of it unknown ([sensors] the same keys, imu_alignment_deg): the

@@ -90,6 +90,23 @@ def test_bad_truth_options_are_rejected(tmp_path):
         resolve("paper-reference", str(cfg))
 
 
+def test_a_switched_field_shifts_the_magnetometer_while_it_is_on():
+    """A current switched beside the magnetometer ([truth] mag_switched_*): its field added to every reading from
+    its time on to its time off, in body axes, and nothing else of the flight changed."""
+    sc = SCENARIOS["field-rope"]
+    on = replace(sc.truth, mag_switched_gauss=(0.02, -0.01, 0.005), mag_switched_on_s=10.0, mag_switched_off_s=20.0)
+    clean = Simulation(sc.design, sc.wind, sc.truth, 30.0, seed=4)
+    switched = Simulation(sc.design, sc.wind, on, 30.0, seed=4)
+    rows = [(smp.time_usec * 1e-6, *smp.mag) for smp in clean.samples()]
+    t, a = np.array(rows)[:, 0], np.array(rows)[:, 1:]
+    b = np.array([smp.mag for smp in switched.samples()])
+    inside = (t >= 10.0) & (t < 20.0)
+    assert 900 <= inside.sum() <= 1100
+    np.testing.assert_allclose(b[inside] - a[inside], np.tile(on.mag_switched_gauss, (inside.sum(), 1)), atol=1e-12)
+    np.testing.assert_array_equal(b[~inside], a[~inside])
+    assert np.array_equal(clean.truth, switched.truth)
+
+
 def test_hard_iron_shifts_every_magnetometer_reading_by_the_offset():
     sc = SCENARIOS["hard-iron"]
     clean = Simulation(sc.design, sc.wind, replace(sc.truth, mag_hard_iron_gauss=(0.0, 0.0, 0.0)), 30.0, seed=4)

@@ -12,6 +12,10 @@ from firmware_py.estimator.params import (
     FIELD_CHANGE_GAUSS,
     FIELD_FLIGHT_S,
     FIELD_HEADING_VAR_MAX,
+    FIELD_JUMP_GAUSS,
+    FIELD_JUMP_LONG_S,
+    FIELD_JUMP_REJECTED_S,
+    FIELD_JUMP_SHORT_S,
     FIELD_RELEARN_AGAIN_FROM_S,
     FIELD_RELEARN_FROM_S,
     FIELD_RELEARN_S,
@@ -32,6 +36,8 @@ if TYPE_CHECKING:
 FIELD_FLIGHT_US = int(FIELD_FLIGHT_S * 1e6)
 FIELD_WINDOW_STATE = 7  # Estimator._field_window: its state (2k armed for window k, 2k + 1 summing, 4 done) ...
 FIELD_REPLACED_EARLY = 16  # ... and this bit: the first window replaced the field
+FIELD_JUMPED = 32  # ... and this one: the magnetometer's own field jumped, and a window learns it since (field_jump)
+FIELD_JUMP_REJECTED_US = int(FIELD_JUMP_REJECTED_S * 1e6)
 FIELD_RELEARN_WINDOWS_US = (
     (int(FIELD_RELEARN_FROM_S * 1e6), int(FIELD_RELEARN_S * 1e6)),
     (int(FIELD_RELEARN_AGAIN_FROM_S * 1e6), FIELD_FLIGHT_US),
@@ -153,6 +159,12 @@ def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: f
     s = est._field_sum
     if since_us < FIELD_RELEARN_WINDOWS_US[0][0]:
         est._field_window = 0
+        follow_field_strength(est, mx, my, mz, True)
+        return
+    if est._field_window & FIELD_JUMPED:
+        learn_jumped_field(est, ax, ay, az, mx, my, mz)
+        return
+    if watch_field(est, mx, my, mz):
         return
     k = (est._field_window & FIELD_WINDOW_STATE) // 2  # the window: even armed, odd summing
     if k >= len(FIELD_RELEARN_WINDOWS_US):
@@ -164,6 +176,8 @@ def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: f
         s[0] = s[1] = s[2] = s[3] = s[4] = s[5] = 0.0
         est._field_window += 1
     if since_us < start_us + length_us:
+        if est.mag_status[0].consecutive_rejects:  # a field the rows reject (a burst beside the magnetometer)
+            return
         r = rotation(*est.ekf.q.tolist())
         s[0] += r[0] * ax + r[1] * ay + r[2] * az
         s[1] += r[3] * ax + r[4] * ay + r[5] * az
@@ -198,6 +212,98 @@ def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: f
     s[0], s[1], s[2], s[3], s[4], s[5] = 0.0, 0.0, -G0 * n, h * n, 0.0, bd * n
 
 
+def watch_field(est: Estimator, mx: float, my: float, mz: float) -> bool:
+    """Whether the magnetometer's own field jumped (then ``field_jump``), at the tether's rate on the taut tether once
+    the rope's catch is damped. A heater, a radio or a servo switched beside the magnetometer adds a field fixed in the
+    body, which the field learnt at the boot (or again on the tether) cannot hold: fused against it, the field vector
+    turns the attitude to fit, the tilt most, and the tilt is the wind's (0.02 G along the body's x, 4 % of the
+    field: the attitude 1.5 deg off in a second, the wind 2.3 m/s off at error/accuracy 1.0 for a minute and a half,
+    `field-rope`). Two signs of it that no turn of the balloon makes: the field's strength |m| leaving its own mean
+    (``field_strength``: over FIELD_JUMP_SHORT_S against FIELD_JUMP_LONG_S, by FIELD_JUMP_GAUSS), and the field vector
+    rejected sample after sample (a change across the field and the gravity: a rotation would explain it, but the
+    gyro says the balloon did not turn; ``mag_recover`` less a tether step in a row, before the rows would be fused
+    at the gate and walk the attitude to it). A filter whose attitude has lost track of the gyro has its variance
+    grown (a gap's, a placement's), and its field is not rejected."""
+    st, status = est.field_strength, est.mag_status[0]
+    rejected = False
+    if status.consecutive_rejects == 0:  # (a rejected sample, a burst's or a jump's, is not the field's strength)
+        follow_field_strength(est, mx, my, mz, False)
+    else:
+        rejected = est.ekf.time_us - status.time_last_fuse_us >= FIELD_JUMP_REJECTED_US
+        if status.consecutive_rejects >= max(1, est.schedule.mag_recover - est.schedule.taut_every):
+            for s in est.mag_status:  # not fused at the gate: here a field rejected is the magnetometer's
+                s.consecutive_rejects = 0
+    jump = abs(math.sqrt(st[0]) - math.sqrt(st[1]))
+    if not (jump > FIELD_JUMP_GAUSS or rejected):
+        return False
+    field_jump(est, jump * jump / st[0] if jump > FIELD_JUMP_GAUSS else 0.0)
+    return True
+
+
+def follow_field_strength(est: Estimator, mx: float, my: float, mz: float, settling: bool) -> None:
+    """The field's strength squared, its means over FIELD_JUMP_SHORT_S and FIELD_JUMP_LONG_S (``field_strength``),
+    at the tether's rate. While a taut placement ``settling`` (the rope's catch) both are the short one: the long one
+    starts from a second's mean, not from one sample's noise (which its ten seconds take to forget: 0.005 G against
+    a gate of 0.004 G)."""
+    st = est.field_strength
+    m2 = mx * mx + my * my + mz * mz
+    if st[0] == 0.0:
+        st[0] = m2
+    step_s = est.schedule.taut_every * est.dt_us * 1e-6
+    st[0] += step_s / FIELD_JUMP_SHORT_S * (m2 - st[0])
+    st[1] = st[0] if settling else st[1] + step_s / FIELD_JUMP_LONG_S * (m2 - st[1])
+
+
+def field_jump(est: Estimator, tilt_var: float) -> None:
+    """The magnetometer's own field jumped (``watch_field``): counted, the field vector no longer fused, and learnt
+    again over FIELD_RELEARN_S from now (``learn_jumped_field``); the attitude's variance grown by ``tilt_var``
+    (rad^2, the jump's share of the field: what the rows may have turned it by before the jump was seen)."""
+    est.counters.field_jumps += 1
+    est._field_window = FIELD_JUMPED
+    s = est._field_sum
+    s[0] = s[1] = s[2] = s[3] = s[4] = s[5] = 0.0
+    for st in est.mag_status:
+        st.consecutive_rejects = 0
+    if tilt_var > 0.0:
+        est.ekf.inflate_attitude(tilt_var)
+
+
+def learn_jumped_field(est: Estimator, ax: float, ay: float, az: float, mx: float, my: float, mz: float) -> None:
+    """The field learnt again after a jump (``field_jump``), over FIELD_RELEARN_S of the tether's samples, the whole
+    vector: its down component and strength as ``learn_field_in_flight`` takes them, and its horizontal direction
+    from the field turned into NED by the attitude (into ``_field_sum``: (R m) north and east [0:2], (R f) down [2],
+    ``m . f`` [3], ``|m|^2`` [4], the samples [5]). Without the magnetometer the gyro holds the heading across the
+    window (to its noise and bias: P's heading), so the field it reads is the balloon's new one where the balloon is;
+    what the heading had wrong when the window closed stays in the reference: ``field_heading_var`` takes P's
+    heading variance. No more windows in this taut spell."""
+    s = est._field_sum
+    if s[5] * est.schedule.taut_every * est.dt_us < FIELD_RELEARN_WINDOWS_US[0][1]:
+        r = rotation(*est.ekf.q.tolist())
+        s[0] += r[0] * mx + r[1] * my + r[2] * mz
+        s[1] += r[3] * mx + r[4] * my + r[5] * mz
+        s[2] += r[6] * ax + r[7] * ay + r[8] * az
+        s[3] += ax * mx + ay * my + az * mz
+        s[4] += mx * mx + my * my + mz * mz
+        s[5] += 1.0
+        return
+    est._field_window = 2 * len(FIELD_RELEARN_WINDOWS_US)  # done
+    c = s[5]
+    est.field_strength[0] = est.field_strength[1] = s[4] / c  # the strength's means from the window's
+    f = -s[2]  # at rest the specific force points up
+    bn, be, bd = est.field_ned
+    h = math.sqrt(bn * bn + be * be)
+    if f > 0.5 * G0 * c:
+        down = -s[3] / f
+        h_new = math.sqrt(max(0.0, s[4] / c - 3.0 * est.mag_sigma * est.mag_sigma - down * down))
+        if h_new > FIELD_CHANGE_GAUSS:
+            psi = math.atan2(s[1], s[0])
+            est.field_ned = (h_new * math.cos(psi), h_new * math.sin(psi), down)
+            est.field_heading_var = min(est.field_heading_var + float(est.ekf.P[ATT_D, ATT_D]), FIELD_HEADING_VAR_MAX)
+            h, bd = h_new, down
+    n = float(est._field_n)  # the sums learn_field would have taken (learn_field_in_flight)
+    s[0], s[1], s[2], s[3], s[4], s[5] = 0.0, 0.0, -G0 * n, h * n, 0.0, bd * n
+
+
 def control_mag(est: Estimator, ax: float, ay: float, az: float, mx: float, my: float, mz: float) -> None:
     """Every sample with a valid field: learn the earth field from rotation-invariant averages (|m| and
     m . f: at rest on the ground, or after a restart in flight on the quasi-static balloon, whose mean
@@ -212,6 +318,7 @@ def control_mag(est: Estimator, ax: float, ay: float, az: float, mx: float, my: 
           and est.step % sched.taut_every == 0):
         learn_field_in_flight(est, ax, ay, az, mx, my, mz)
     if est._field_n >= sched.field_learn and ekf.mode != MODE_GROUND:
-        fuse_mag_field(ekf, mx, my, mz, est.field_ned, est.mag_var, est.mag_status)
+        if not est._field_window & FIELD_JUMPED:  # a jumped field is learnt again before it is fused (field_jump)
+            fuse_mag_field(ekf, mx, my, mz, est.field_ned, est.mag_var, est.mag_status)
     else:
         fuse_heading(ekf, mx, my, mz, est.declination, est.mag_sigma, est.heading_status)
