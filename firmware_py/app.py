@@ -639,6 +639,7 @@ class Firmware:
             f"{c.reordered + self.pipe.reordered} reordered, {c.gaps} gaps, {c.long_gaps} long gaps, "
             f"resets: {c.time_resets} reboot, {c.numeric_resets} numeric, {c.taut_resets} taut, "
             f"{c.baro_resets} baro, {c.false_releases} false release, {c.mode_switches} mode switches, "
+            f"{c.field_jumps} jumps of the magnetometer's own field, "
             f"{self.wind_cov_sent} WIND_COV sent, {self.wind_sent} WIND sent, final mode {self.est.mode_name}"
             f"{'' if self.est.initialised or not c.rejected else NEVER_STARTED}, "
             f"filter at {self.est.cfg.imu_rate_hz:g} Hz{self._rate_note()} on the {self._core_name()}, "
