@@ -285,6 +285,7 @@ def extra_metrics(rows, truth, est, start_s: float, duration_s: float) -> dict[s
     out["beyond_3sigma"] = float(np.mean(err > 3.0 * ac))
     out.update(entry_metrics(rows, truth))
     out["taut_resets"] = float(est.counters.taut_resets)
+    out["field_jumps"] = float(est.counters.field_jumps)
     out["replacements_per_h"] = float(est.counters.taut_resets) / (duration_s / 3600.0)
     k = np.clip(np.digitize(ac, CAL_EDGES) - 1, 0, len(CAL_EDGES) - 2)
     for b in range(len(CAL_EDGES) - 1):
@@ -400,7 +401,7 @@ def summary(df) -> tuple[str, list[tuple[str, bool]]]:
     ]  # fmt: skip
     lines += ["", "| target | result |", "|---|---|"]
     lines += [f"| {t} | {'PASS' if p else 'FAIL'} |" for t, p in targets]
-    for note in (speed_causes(ok), ratio_spread(ok), caution_causes(ok), entry_note(ok)):
+    for note in (speed_causes(ok), ratio_spread(ok), caution_causes(ok), entry_note(ok), jumps_note(ok)):
         if note:
             lines += ["", note]
     if "from_deg" in ok:
@@ -425,6 +426,17 @@ def skill_bar(ok):
 
 
 SECTORS = ("N", "E", "S", "W")  # where the wind comes from: 90 deg sectors centred on these
+
+
+def jumps_note(ok) -> str:
+    """Not a target: the flights whose magnetometer's own field the estimator took to have jumped (none has a current
+    switched beside it: each would be a false alarm, the field not fused for 15 s and learnt again)."""
+    if "field_jumps" not in ok:
+        return ""
+    j = ok["field_jumps"].fillna(0.0).to_numpy(float)
+    flights = ", ".join(str(int(f)) for f in ok["flight"][j > 0])
+    return (f"jumps of the magnetometer's own field (not a target; no flight has one): {int(j.sum())} in "
+            f"{int((j > 0).sum())} of {len(ok)} flights" + (f" ({flights})" if flights else ""))
 
 
 def entry_note(ok) -> str:

@@ -89,8 +89,8 @@ static void follow_field_strength(bw_estimator_t *est, bw_real mx, bw_real my, b
     st[1] = settling ? st[0] : st[1] + step_s / (bw_real)BW_FIELD_JUMP_LONG_S * (m2 - st[1]);
 }
 
-/* magnetometer.py field_jump: counted, the field vector no longer fused, learnt again from now; the attitude's
- * variance grown by what the rows may have turned it by before the jump was seen */
+/* magnetometer.py field_jump: counted, the field vector no longer fused, learnt again from now (learn_field_in_flight);
+ * the attitude's variance grown by what the rows may have turned it by before the jump was seen */
 static void field_jump(bw_estimator_t *est, bw_real tilt_var)
 {
     bw_real *s = est->field_sum;
@@ -127,46 +127,6 @@ static int watch_field(bw_estimator_t *est, bw_real mx, bw_real my, bw_real mz)
     return 1;
 }
 
-/* magnetometer.py learn_jumped_field: the whole field learnt again after a jump over FIELD_RELEARN_S of the tether's
- * samples ((R m) north and east, (R f) down, m . f, |m|^2 and the samples into field_sum), its horizontal direction
- * through the attitude the gyro held; the heading's variance then kept as the reference's */
-static void learn_jumped_field(bw_estimator_t *est, bw_real ax, bw_real ay, bw_real az, bw_real mx, bw_real my,
-                               bw_real mz)
-{
-    bw_ekf_t *e = &est->ekf;
-    bw_real *s = est->field_sum, r[9], c, f, down, h_new, psi, h, bd = est->field_ned[2];
-    if (s[5] * (bw_real)(est->sched.taut_every * est->dt_us) < (bw_real)(int64_t)(BW_FIELD_RELEARN_S * 1e6)) {
-        bw_rotation(e->q, r);
-        s[0] += r[0] * mx + r[1] * my + r[2] * mz;
-        s[1] += r[3] * mx + r[4] * my + r[5] * mz;
-        s[2] += r[6] * ax + r[7] * ay + r[8] * az;
-        s[3] += ax * mx + ay * my + az * mz;
-        s[4] += mx * mx + my * my + mz * mz;
-        s[5] += BW_R(1.0);
-        return;
-    }
-    e->field_window = 4; /* done */
-    c = s[5];
-    f = -s[2]; /* at rest the specific force points up */
-    est->field_strength[0] = est->field_strength[1] = s[4] / c;
-    h = BW_SQRT(est->field_ned[0] * est->field_ned[0] + est->field_ned[1] * est->field_ned[1]);
-    if (f > BW_R(0.5) * (bw_real)BW_G0 * c) {
-        down = -s[3] / f;
-        h_new = BW_SQRT(BW_MAX(BW_R(0.0), s[4] / c - BW_R(3.0) * est->mag_sigma * est->mag_sigma - down * down));
-        if (h_new > (bw_real)BW_FIELD_CHANGE_GAUSS) {
-            psi = BW_ATAN2(s[1], s[0]);
-            est->field_ned[0] = h_new * BW_COS(psi);
-            est->field_ned[1] = h_new * BW_SIN(psi);
-            est->field_ned[2] = down;
-            e->field_heading_var = BW_MIN(e->field_heading_var + e->P[BW_ATT_D][BW_ATT_D],
-                                          (bw_real)BW_FIELD_HEADING_VAR_MAX);
-            h = h_new, bd = down;
-        }
-    }
-    f = (bw_real)est->field_n; /* the sums learn_field would have taken (learn_field_in_flight) */
-    s[0] = BW_R(0.0), s[1] = BW_R(0.0), s[2] = -(bw_real)BW_G0 * f, s[3] = h * f, s[4] = BW_R(0.0), s[5] = bd * f;
-}
-
 /* magnetometer.py learn_field_in_flight: the earth field learnt again on the taut tether twice after a placement
  * (ekf.field_window: 2k armed for window k, 2k + 1 summing the specific force in NED, m . f, |m|^2 and the samples
  * into field_sum, 4 done; and whether the first replaced the field); at the first sample past each window, the field
@@ -175,60 +135,74 @@ static void learn_field_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, b
                                   bw_real mz)
 {
     bw_ekf_t *e = &est->ekf;
-    bw_real *s = est->field_sum, r[9], f, c, down, h, h_old, h_new, change2, bn = est->field_ned[0],
+    bw_real *s = est->field_sum, r[9], f, c, down, h, h_old, h_new, change2, hx, hy, hz, bn = est->field_ned[0],
             be = est->field_ned[1], bd = est->field_ned[2];
     /* from the later of the taut spell's start and its last placement: a re-placement starts them again; two
-     * windows (magnetometer.py FIELD_RELEARN_WINDOWS_US), field_window even armed, odd summing */
+     * windows (magnetometer.py FIELD_RELEARN_WINDOWS_US), field_window even armed, odd summing; after a jump of the
+     * magnetometer's own field one, at once, timed by its samples, that learns the field's direction too */
     const int64_t placed = e->time_us - e->time_taut_us, spell = (int64_t)est->dwell * est->dt_us;
     const int64_t since = placed < spell ? placed : spell;
-    const int k = (e->field_window & FIELD_WINDOW_STATE) / 2;
+    const int k = (e->field_window & FIELD_WINDOW_STATE) / 2, jumped = e->field_window & FIELD_JUMPED;
     int64_t start, length;
+    int summing;
     if (since < (int64_t)(BW_FIELD_RELEARN_FROM_S * 1e6)) {
         e->field_window = 0;
         follow_field_strength(est, mx, my, mz, 1);
         return;
     }
-    if (e->field_window & FIELD_JUMPED) {
-        learn_jumped_field(est, ax, ay, az, mx, my, mz);
-        return;
+    if (jumped) {
+        length = (int64_t)(BW_FIELD_RELEARN_S * 1e6);
+        summing = s[5] * (bw_real)(est->sched.taut_every * est->dt_us) < (bw_real)length;
+    } else {
+        if (watch_field(est, mx, my, mz) || k >= 2)
+            return;
+        start = k == 0 ? (int64_t)(BW_FIELD_RELEARN_FROM_S * 1e6) : (int64_t)(BW_FIELD_RELEARN_AGAIN_FROM_S * 1e6);
+        length = k == 0 ? (int64_t)(BW_FIELD_RELEARN_S * 1e6) : (int64_t)(BW_FIELD_FLIGHT_S * 1e6);
+        if (since < start)
+            return;
+        if ((e->field_window & 1) == 0) {
+            s[0] = s[1] = s[2] = s[3] = s[4] = s[5] = BW_R(0.0);
+            e->field_window += 1;
+        }
+        summing = since < start + length;
     }
-    if (watch_field(est, mx, my, mz))
-        return;
-    if (k >= 2)
-        return;
-    start = k == 0 ? (int64_t)(BW_FIELD_RELEARN_FROM_S * 1e6) : (int64_t)(BW_FIELD_RELEARN_AGAIN_FROM_S * 1e6);
-    length = k == 0 ? (int64_t)(BW_FIELD_RELEARN_S * 1e6) : (int64_t)(BW_FIELD_FLIGHT_S * 1e6);
-    if (since < start)
-        return;
-    if ((e->field_window & 1) == 0) {
-        s[0] = s[1] = s[2] = s[3] = s[4] = s[5] = BW_R(0.0);
-        e->field_window += 1;
-    }
-    if (since < start + length) {
+    if (summing) {
         if (est->mag_status[0].consecutive_rejects) /* a field the rows reject (a burst beside the magnetometer) */
             return;
         bw_rotation(e->q, r);
-        s[0] += r[0] * ax + r[1] * ay + r[2] * az;
-        s[1] += r[3] * ax + r[4] * ay + r[5] * az;
+        hx = jumped ? mx : ax, hy = jumped ? my : ay, hz = jumped ? mz : az; /* after a jump the field's direction */
+        s[0] += r[0] * hx + r[1] * hy + r[2] * hz;
+        s[1] += r[3] * hx + r[4] * hy + r[5] * hz;
         s[2] += r[6] * ax + r[7] * ay + r[8] * az;
         s[3] += ax * mx + ay * my + az * mz;
         s[4] += mx * mx + my * my + mz * mz;
         s[5] += BW_R(1.0);
         return;
     }
-    e->field_window += 1;
+    e->field_window = jumped ? 4 : e->field_window + 1;
     c = s[5];
-    f = BW_SQRT(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]);
+    f = jumped ? -s[2] : BW_SQRT(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]);
     if (!(f > BW_R(0.5) * (bw_real)BW_G0 * c)) /* no gravity to read the field's down component against */
         return;
     down = -s[3] / f; /* at rest the specific force points up */
     h = h_old = BW_SQRT(bn * bn + be * be);
     h_new = BW_SQRT(BW_MAX(BW_R(0.0), s[4] / c - BW_R(3.0) * est->mag_sigma * est->mag_sigma - down * down));
     change2 = (h_new - h_old) * (h_new - h_old) + (down - bd) * (down - bd);
-    if (h_old > BW_R(0.0) && h_new > (bw_real)BW_FIELD_CHANGE_GAUSS &&
-        (change2 > (bw_real)BW_FIELD_CHANGE_GAUSS * (bw_real)BW_FIELD_CHANGE_GAUSS *
-                       (bw_real)(int64_t)(BW_FIELD_FLIGHT_S * 1e6) / (bw_real)length || /* a shorter window's scatter */
-         (e->field_window & FIELD_REPLACED_EARLY))) { /* the second takes the place of the first's */
+    if (jumped) { /* the whole field, its direction through the heading the gyro held; the strength's means */
+        est->field_strength[0] = est->field_strength[1] = s[4] / c;
+        if (h_new > (bw_real)BW_FIELD_CHANGE_GAUSS) {
+            f = BW_ATAN2(s[1], s[0]);
+            est->field_ned[0] = h_new * BW_COS(f);
+            est->field_ned[1] = h_new * BW_SIN(f);
+            est->field_ned[2] = down;
+            e->field_heading_var = BW_MIN(e->field_heading_var + e->P[BW_ATT_D][BW_ATT_D],
+                                          (bw_real)BW_FIELD_HEADING_VAR_MAX);
+            h = h_new, bd = down;
+        }
+    } else if (h_old > BW_R(0.0) && h_new > (bw_real)BW_FIELD_CHANGE_GAUSS &&
+               (change2 > (bw_real)BW_FIELD_CHANGE_GAUSS * (bw_real)BW_FIELD_CHANGE_GAUSS *
+                              (bw_real)(int64_t)(BW_FIELD_FLIGHT_S * 1e6) / (bw_real)length || /* a shorter window */
+                (e->field_window & FIELD_REPLACED_EARLY))) { /* the second takes the place of the first's */
         est->field_ned[0] = bn * h_new / h_old;
         est->field_ned[1] = be * h_new / h_old;
         est->field_ned[2] = down;

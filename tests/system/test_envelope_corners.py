@@ -828,7 +828,7 @@ def test_a_current_switched_beside_the_magnetometer_is_learnt_as_the_fields_jump
     the field; seen in its strength) read 1.6-1.9 m/s RMS over the next 90 s, 17-18 % beyond 3 sigma; 0.05 G along
     its y (across the field and the gravity: no strength changes, the rows rejected and then fused at the gate) 2.4-2.9
     m/s, 10-12 %. Seen as a jump (magnetometer.watch_field) and the field learnt again, its direction through the
-    attitude the gyro held (learn_jumped_field): 0.15-0.27 m/s, at most 0.2 % beyond 3 sigma. A regression guard on
+    attitude the gyro held (learn_field_in_flight): 0.15-0.27 m/s, at most 0.2 % beyond 3 sigma. A regression guard on
     the failure, not a target: the references are no filters that learn a field (the constant true mean of this light
     turbulence reads 0.22-0.25 m/s)."""
     sections = scenario_sections(SCENARIOS["field-rope"])

@@ -153,7 +153,16 @@ def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: f
     spells; at most FIELD_HEADING_VAR_MAX). A field whose
     horizontal part is gone (within FIELD_CHANGE_GAUSS of none: a design whose magnetometer noise leaves none of it
     after the noise's share) replaces nothing. A field replaced because the boot's was disturbed (a steel vehicle
-    beside the ground station) costs the same, cautiously: the window cannot tell the two apart."""
+    beside the ground station) costs the same, cautiously: the window cannot tell the two apart.
+
+    After a jump of the magnetometer's own field (``field_jump``) one window of FIELD_RELEARN_S starts at once, timed
+    by its samples, and learns the whole vector: its down component and strength as above, and its horizontal
+    direction from the field turned into NED by the attitude ([0:2] north and east of R m instead of R f, the down
+    part's magnitude then (R f) down's). Without the magnetometer the gyro holds the heading across the window (to
+    its noise and bias: P's heading), so the field it reads is the new one where the balloon is; what the heading had
+    wrong when the window closed stays in the reference, and ``field_heading_var`` takes P's heading variance. No
+    more windows in that taut spell. The windows skip samples the field's rows reject (a burst beside the
+    magnetometer: summed, 0.2 s of 0.1 G in every 2 s made a field 0.01 G off)."""
     # from the taut spell's start or its last placement, the later: a re-placement starts the windows again
     since_us = min(est.ekf.time_us - est.ekf.time_taut_us, est._dwell * est.dt_us)
     s = est._field_sum
@@ -161,34 +170,37 @@ def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: f
         est._field_window = 0
         follow_field_strength(est, mx, my, mz, True)
         return
-    if est._field_window & FIELD_JUMPED:
-        learn_jumped_field(est, ax, ay, az, mx, my, mz)
-        return
-    if watch_field(est, mx, my, mz):
-        return
+    jumped = est._field_window & FIELD_JUMPED
     k = (est._field_window & FIELD_WINDOW_STATE) // 2  # the window: even armed, odd summing
-    if k >= len(FIELD_RELEARN_WINDOWS_US):
-        return
-    start_us, length_us = FIELD_RELEARN_WINDOWS_US[k]
-    if since_us < start_us:
-        return
-    if est._field_window & 1 == 0:
-        s[0] = s[1] = s[2] = s[3] = s[4] = s[5] = 0.0
-        est._field_window += 1
-    if since_us < start_us + length_us:
+    if jumped:  # a jump's window starts at once and is timed by its samples (field_jump)
+        length_us = FIELD_RELEARN_WINDOWS_US[0][1]
+        summing = s[5] * est.schedule.taut_every * est.dt_us < length_us
+    else:
+        if watch_field(est, mx, my, mz) or k >= len(FIELD_RELEARN_WINDOWS_US):
+            return
+        start_us, length_us = FIELD_RELEARN_WINDOWS_US[k]
+        if since_us < start_us:
+            return
+        if est._field_window & 1 == 0:
+            s[0] = s[1] = s[2] = s[3] = s[4] = s[5] = 0.0
+            est._field_window += 1
+        summing = since_us < start_us + length_us
+    if summing:
         if est.mag_status[0].consecutive_rejects:  # a field the rows reject (a burst beside the magnetometer)
             return
         r = rotation(*est.ekf.q.tolist())
-        s[0] += r[0] * ax + r[1] * ay + r[2] * az
-        s[1] += r[3] * ax + r[4] * ay + r[5] * az
+        # [0:2] north and east of the specific force turned into NED, after a jump of the field (its direction)
+        hx, hy, hz = (mx, my, mz) if jumped else (ax, ay, az)
+        s[0] += r[0] * hx + r[1] * hy + r[2] * hz
+        s[1] += r[3] * hx + r[4] * hy + r[5] * hz
         s[2] += r[6] * ax + r[7] * ay + r[8] * az
         s[3] += ax * mx + ay * my + az * mz
         s[4] += mx * mx + my * my + mz * mz
         s[5] += 1.0
         return
-    est._field_window += 1
+    est._field_window = 2 * len(FIELD_RELEARN_WINDOWS_US) if jumped else est._field_window + 1
     c = s[5]
-    f = math.sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2])
+    f = -s[2] if jumped else math.sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2])
     if not f > 0.5 * G0 * c:  # no gravity to read the field's down component against (nor any sample)
         return
     down = -s[3] / f  # at rest the specific force points up
@@ -199,7 +211,14 @@ def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: f
     # a shorter window's scatter is larger; the second window, four times the first's samples, takes the place of a
     # field the first replaced whatever it differs by
     gate2 = FIELD_CHANGE_GAUSS * FIELD_CHANGE_GAUSS * FIELD_FLIGHT_US / length_us
-    if h_old > 0.0 and h_new > FIELD_CHANGE_GAUSS and (change2 > gate2 or est._field_window & FIELD_REPLACED_EARLY):
+    if jumped:  # the whole field, its direction through the heading the gyro held; the strength's means from here
+        est.field_strength[0] = est.field_strength[1] = s[4] / c
+        if h_new > FIELD_CHANGE_GAUSS:
+            psi = math.atan2(s[1], s[0])
+            est.field_ned = (h_new * math.cos(psi), h_new * math.sin(psi), down)
+            est.field_heading_var = min(est.field_heading_var + float(est.ekf.P[ATT_D, ATT_D]), FIELD_HEADING_VAR_MAX)
+            h, bd = h_new, down
+    elif h_old > 0.0 and h_new > FIELD_CHANGE_GAUSS and (change2 > gate2 or est._field_window & FIELD_REPLACED_EARLY):
         est.field_ned = (bn * h_new / h_old, be * h_new / h_old, down)
         # each replacement's unseen part adds to the last's (each against the field before it), to a radian's at most
         est.field_heading_var = min(est.field_heading_var + change2 / (h_new * h_new), FIELD_HEADING_VAR_MAX)
@@ -256,7 +275,7 @@ def follow_field_strength(est: Estimator, mx: float, my: float, mz: float, settl
 
 def field_jump(est: Estimator, tilt_var: float) -> None:
     """The magnetometer's own field jumped (``watch_field``): counted, the field vector no longer fused, and learnt
-    again over FIELD_RELEARN_S from now (``learn_jumped_field``); the attitude's variance grown by ``tilt_var``
+    again over FIELD_RELEARN_S from now (``learn_field_in_flight``); the attitude's variance grown by ``tilt_var``
     (rad^2, the jump's share of the field: what the rows may have turned it by before the jump was seen)."""
     est.counters.field_jumps += 1
     est._field_window = FIELD_JUMPED
@@ -266,42 +285,6 @@ def field_jump(est: Estimator, tilt_var: float) -> None:
         st.consecutive_rejects = 0
     if tilt_var > 0.0:
         est.ekf.inflate_attitude(tilt_var)
-
-
-def learn_jumped_field(est: Estimator, ax: float, ay: float, az: float, mx: float, my: float, mz: float) -> None:
-    """The field learnt again after a jump (``field_jump``), over FIELD_RELEARN_S of the tether's samples, the whole
-    vector: its down component and strength as ``learn_field_in_flight`` takes them, and its horizontal direction
-    from the field turned into NED by the attitude (into ``_field_sum``: (R m) north and east [0:2], (R f) down [2],
-    ``m . f`` [3], ``|m|^2`` [4], the samples [5]). Without the magnetometer the gyro holds the heading across the
-    window (to its noise and bias: P's heading), so the field it reads is the balloon's new one where the balloon is;
-    what the heading had wrong when the window closed stays in the reference: ``field_heading_var`` takes P's
-    heading variance. No more windows in this taut spell."""
-    s = est._field_sum
-    if s[5] * est.schedule.taut_every * est.dt_us < FIELD_RELEARN_WINDOWS_US[0][1]:
-        r = rotation(*est.ekf.q.tolist())
-        s[0] += r[0] * mx + r[1] * my + r[2] * mz
-        s[1] += r[3] * mx + r[4] * my + r[5] * mz
-        s[2] += r[6] * ax + r[7] * ay + r[8] * az
-        s[3] += ax * mx + ay * my + az * mz
-        s[4] += mx * mx + my * my + mz * mz
-        s[5] += 1.0
-        return
-    est._field_window = 2 * len(FIELD_RELEARN_WINDOWS_US)  # done
-    c = s[5]
-    est.field_strength[0] = est.field_strength[1] = s[4] / c  # the strength's means from the window's
-    f = -s[2]  # at rest the specific force points up
-    bn, be, bd = est.field_ned
-    h = math.sqrt(bn * bn + be * be)
-    if f > 0.5 * G0 * c:
-        down = -s[3] / f
-        h_new = math.sqrt(max(0.0, s[4] / c - 3.0 * est.mag_sigma * est.mag_sigma - down * down))
-        if h_new > FIELD_CHANGE_GAUSS:
-            psi = math.atan2(s[1], s[0])
-            est.field_ned = (h_new * math.cos(psi), h_new * math.sin(psi), down)
-            est.field_heading_var = min(est.field_heading_var + float(est.ekf.P[ATT_D, ATT_D]), FIELD_HEADING_VAR_MAX)
-            h, bd = h_new, down
-    n = float(est._field_n)  # the sums learn_field would have taken (learn_field_in_flight)
-    s[0], s[1], s[2], s[3], s[4], s[5] = 0.0, 0.0, -G0 * n, h * n, 0.0, bd * n
 
 
 def control_mag(est: Estimator, ax: float, ay: float, az: float, mx: float, my: float, mz: float) -> None:
