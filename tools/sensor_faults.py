@@ -11,7 +11,9 @@ Faults (the readings changed between the simulator and the estimator, not the tr
 - ``disturbed``: 0.1 G along x for 10 s, then gone;
 - ``burst``: 0.2 s of 0.1 G along x and 0.05 G along y in every 2 s (a radio's transmissions);
 - ``mag-lost``: no magnetometer for 60 s;
-- ``imu-lost``: no IMU sample for 3 s (the samples a stuck sensor's watch drops, balloon_core.samples.STUCK_US).
+- ``imu-lost``: no IMU sample for 3 s (the samples a stuck sensor's watch drops, balloon_core.samples.STUCK_US);
+- ``accel-warm``, ``gyro-warm``: the sun on the IMU, its bias moving with the temperature over a minute and staying:
+  the accelerometer's 5 mg along x, the gyro's 0.1 deg/s about x.
 Not in the test suite: a study. The C core by default (``--core py`` the Python one)."""
 
 from __future__ import annotations
@@ -28,7 +30,8 @@ from firmware_py.estimator.state import MODE_TAUT
 from sim_hil.scenarios import SCENARIOS
 from sim_hil.simulator import Simulation
 
-FAULTS = ("switched-x", "switched-y", "switched-z", "disturbed", "burst", "mag-lost", "imu-lost")
+FAULTS = ("switched-x", "switched-y", "switched-z", "disturbed", "burst", "mag-lost", "imu-lost", "accel-warm",
+          "gyro-warm")
 SWITCHED = {"switched-x": (0, 0.02), "switched-y": (1, 0.05), "switched-z": (2, 0.05)}
 
 
@@ -49,6 +52,10 @@ def faulty(fault: str, since_s: float | None, accel, gyro, mag) -> tuple | None:
         m = [math.nan] * 3
     elif fault == "imu-lost" and since_s < 3.0:
         return None
+    elif fault == "accel-warm":
+        accel = (accel[0] + 0.05 * min(since_s / 60.0, 1.0), accel[1], accel[2])
+    elif fault == "gyro-warm":
+        gyro = (gyro[0] + math.radians(0.1) * min(since_s / 60.0, 1.0), gyro[1], gyro[2])
     return accel, gyro, tuple(m)
 
 
