@@ -104,8 +104,8 @@ static void field_jump(bw_estimator_t *est, bw_real tilt_var)
 }
 
 /* magnetometer.py watch_field: the field's strength off its own mean, or the field vector rejected for
- * FIELD_JUMP_REJECTED_S (never fused at the gate meanwhile): the magnetometer's own field jumped (field_jump); 1 if
- * it did */
+ * FIELD_JUMP_REJECTED_S (its run of rejections set back before the rows' recover at the gate): the magnetometer's
+ * own field jumped (field_jump); 1 if it did */
 static int watch_field(bw_estimator_t *est, bw_real mx, bw_real my, bw_real mz)
 {
     const bw_real *st = est->field_strength;
@@ -142,7 +142,8 @@ static void learn_field_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, b
      * magnetometer's own field one, at once, timed by its samples, that learns the field's direction too */
     const int64_t placed = e->time_us - e->time_taut_us, spell = (int64_t)est->dwell * est->dt_us;
     const int64_t since = placed < spell ? placed : spell;
-    const int k = (e->field_window & FIELD_WINDOW_STATE) / 2, jumped = e->field_window & FIELD_JUMPED;
+    const int k = (e->field_window & FIELD_WINDOW_STATE) / 2, jumped = e->field_window & FIELD_JUMPED,
+              rejected = est->mag_status[0].consecutive_rejects > 0; /* (before watch_field holds the recover) */
     int64_t start, length;
     int summing;
     if (since < (int64_t)(BW_FIELD_RELEARN_FROM_S * 1e6)) {
@@ -167,7 +168,7 @@ static void learn_field_in_flight(bw_estimator_t *est, bw_real ax, bw_real ay, b
         summing = since < start + length;
     }
     if (summing) {
-        if (est->mag_status[0].consecutive_rejects) /* a field the rows reject (a burst beside the magnetometer) */
+        if (rejected) /* a field the rows reject (a burst beside the magnetometer) */
             return;
         bw_rotation(e->q, r);
         hx = jumped ? mx : ax, hy = jumped ? my : ay, hz = jumped ? mz : az; /* after a jump the field's direction */

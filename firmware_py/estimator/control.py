@@ -198,7 +198,7 @@ class Estimator:
         self._field_window = 0  # the field learnt again on the tether: 0 armed, 1 summing, 2 done (magnetometer.py)
         self._field_sum = [0.0] * 6
         # the field's strength squared on the taut tether, its means over FIELD_JUMP_SHORT_S and FIELD_JUMP_LONG_S
-        # (magnetometer.watch_field; the long one 0: not followed yet)
+        # (magnetometer.follow_field_strength; 0: none yet)
         self.field_strength = [0.0, 0.0]
         self._joined = False
         self.wind_taut_mps = 0.0  # the wind's speed the last taut placement put (tether.enter_taut)

@@ -172,6 +172,7 @@ def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: f
         return
     jumped = est._field_window & FIELD_JUMPED
     k = (est._field_window & FIELD_WINDOW_STATE) // 2  # the window: even armed, odd summing
+    rejected = est.mag_status[0].consecutive_rejects > 0  # (before watch_field holds the rows' recover)
     if jumped:  # a jump's window starts at once and is timed by its samples (field_jump)
         length_us = FIELD_RELEARN_WINDOWS_US[0][1]
         summing = s[5] * est.schedule.taut_every * est.dt_us < length_us
@@ -186,7 +187,7 @@ def learn_field_in_flight(est: Estimator, ax: float, ay: float, az: float, mx: f
             est._field_window += 1
         summing = since_us < start_us + length_us
     if summing:
-        if est.mag_status[0].consecutive_rejects:  # a field the rows reject (a burst beside the magnetometer)
+        if rejected:  # a field the rows reject (a burst beside the magnetometer)
             return
         r = rotation(*est.ekf.q.tolist())
         # [0:2] north and east of the specific force turned into NED, after a jump of the field (its direction)
@@ -236,13 +237,14 @@ def watch_field(est: Estimator, mx: float, my: float, mz: float) -> bool:
     the rope's catch is damped. A heater, a radio or a servo switched beside the magnetometer adds a field fixed in the
     body, which the field learnt at the boot (or again on the tether) cannot hold: fused against it, the field vector
     turns the attitude to fit, the tilt most, and the tilt is the wind's (0.02 G along the body's x, 4 % of the
-    field: the attitude 1.5 deg off in a second, the wind 2.3 m/s off at error/accuracy 1.0 for a minute and a half,
-    `field-rope`). Two signs of it that no turn of the balloon makes: the field's strength |m| leaving its own mean
-    (``field_strength``: over FIELD_JUMP_SHORT_S against FIELD_JUMP_LONG_S, by FIELD_JUMP_GAUSS), and the field vector
-    rejected sample after sample (a change across the field and the gravity: a rotation would explain it, but the
-    gyro says the balloon did not turn; ``mag_recover`` less a tether step in a row, before the rows would be fused
-    at the gate and walk the attitude to it). A filter whose attitude has lost track of the gyro has its variance
-    grown (a gap's, a placement's), and its field is not rejected."""
+    field: the attitude 1.5 deg off in a second, the wind 1.6-2.3 m/s off at error/accuracy 0.9-1.0 for a minute and a
+    half, `field-rope`). Two signs of it that no turn of the balloon makes: the field's strength |m| leaving its own
+    mean (``field_strength``: over FIELD_JUMP_SHORT_S against FIELD_JUMP_LONG_S, by FIELD_JUMP_GAUSS), and the field
+    vector rejected for FIELD_JUMP_REJECTED_S in a row (a change across the field and the gravity: a rotation would
+    explain it, but the gyro says the balloon did not turn). Meanwhile the rows' recover at the gate (``mag_recover``,
+    which walks the attitude to the field) is held: its run of rejections set back before it gets there. A filter
+    whose attitude has lost the gyro's track has its variance grown (a gap's, a placement's), and its field is not
+    rejected; a burst (a radio's transmission, tenths of a second) is rejected and is neither."""
     st, status = est.field_strength, est.mag_status[0]
     rejected = False
     if status.consecutive_rejects == 0:  # (a rejected sample, a burst's or a jump's, is not the field's strength)
@@ -250,8 +252,8 @@ def watch_field(est: Estimator, mx: float, my: float, mz: float) -> bool:
     else:
         rejected = est.ekf.time_us - status.time_last_fuse_us >= FIELD_JUMP_REJECTED_US
         if status.consecutive_rejects >= max(1, est.schedule.mag_recover - est.schedule.taut_every):
-            for s in est.mag_status:  # not fused at the gate: here a field rejected is the magnetometer's
-                s.consecutive_rejects = 0
+            for m in est.mag_status:  # not fused at the gate: here a field rejected is the magnetometer's
+                m.consecutive_rejects = 0
     jump = abs(math.sqrt(st[0]) - math.sqrt(st[1]))
     if not (jump > FIELD_JUMP_GAUSS or rejected):
         return False
