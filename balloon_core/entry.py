@@ -10,12 +10,17 @@ import sys
 
 
 def run(prog: str, target: str) -> int:
-    """Import ``target`` (``module:function``) and call it; a Ctrl-C during the import is exit 130 with one line."""
+    """Import ``target`` (``module:function``) and call it; a Ctrl-C during the import, or one the program has not
+    handled yet (its options still parsing, its --help still printing), is exit 130 with one line."""
     module, _, function = target.partition(":")
     try:
         main = getattr(importlib.import_module(module), function)
     except KeyboardInterrupt:
         print(f"{prog}: interrupted (Ctrl-C) while starting", file=sys.stderr)
         return 130
-    return main()
+    try:
+        return main()
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted (Ctrl-C)", file=sys.stderr)
+        return 130
 

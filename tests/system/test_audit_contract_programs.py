@@ -162,6 +162,22 @@ def test_listen_refuses_a_duration_beyond_a_week_as_balloon_fw_does(capsys):
         one_line_naming(err, "--duration")
 
 
+def test_a_ctrl_c_the_program_has_not_handled_yet_is_one_line(capsys, monkeypatch):
+    """A Ctrl-C after the imports but before the program's own handler (its options parsing, its --help printing:
+    `sil --help` interrupted in argparse's import of textwrap) was Python's traceback: one line and exit 130."""
+    import types
+
+    from balloon_core.entry import run
+
+    def interrupted() -> int:
+        raise KeyboardInterrupt
+
+    monkeypatch.setitem(sys.modules, "fake_program", types.SimpleNamespace(main=interrupted))
+    assert run("balloon-fake", "fake_program:main") == 130
+    err = capsys.readouterr().err
+    assert err.strip() == "balloon-fake: interrupted (Ctrl-C)", err
+
+
 @pytest.mark.parametrize("module", ["sim_hil", "firmware_py", "ground_station", "sil", "study"])
 def test_ctrl_c_while_a_program_is_still_starting_is_one_line(module: str):
     """A Ctrl-C in a program's first fraction of a second, while its modules import (numpy, pymavlink), was Python's

@@ -157,6 +157,7 @@ def test_extra_metrics_on_a_known_error():
     class Est:
         class counters:  # noqa: N801
             taut_resets = 1
+            field_jumps = 0
 
     m = be.extra_metrics(rows, truth, Est, 120.0, 300.0)
     assert math.isclose(m["worst_60s_dir_err_deg"], math.degrees(math.atan2(0.4, 3.0)), rel_tol=1e-9)
@@ -209,6 +210,7 @@ def test_a_calm_minute_is_judged_by_its_vectors():
     class Est:
         class counters:  # noqa: N801
             taut_resets = 0
+            field_jumps = 0
 
     for speed, stated, z in ((0.5, 0.8, 0.5 / (0.8 / math.sqrt(2.0))), (1.5, 0.3, 1.5 / (0.3 / math.sqrt(2.0)))):
         rows = np.column_stack([t, np.full_like(t, -speed), np.zeros_like(t), np.full_like(t, stated)])
