@@ -12,6 +12,7 @@ Faults (the readings changed between the simulator and the estimator, not the tr
 - ``burst``: 0.2 s of 0.1 G along x and 0.05 G along y in every 2 s (a radio's transmissions);
 - ``mag-lost``: no magnetometer for 60 s;
 - ``imu-lost``: no IMU sample for 3 s (the samples a stuck sensor's watch drops, balloon_core.samples.STUCK_US);
+- ``imu-gap``: none for 0.6 s (a link's, beyond ``max_gap_s``);
 - ``accel-warm``, ``gyro-warm``: the sun on the IMU, its bias moving with the temperature over a minute and staying:
   the accelerometer's 5 mg along x, the gyro's 0.1 deg/s about x.
 Not in the test suite: a study. The C core by default (``--core py`` the Python one)."""
@@ -30,8 +31,8 @@ from firmware_py.estimator.state import MODE_TAUT
 from sim_hil.scenarios import SCENARIOS
 from sim_hil.simulator import Simulation
 
-FAULTS = ("switched-x", "switched-y", "switched-z", "disturbed", "burst", "mag-lost", "imu-lost", "accel-warm",
-          "gyro-warm")
+FAULTS = ("switched-x", "switched-y", "switched-z", "disturbed", "burst", "mag-lost", "imu-lost", "imu-gap",
+          "accel-warm", "gyro-warm")
 SWITCHED = {"switched-x": (0, 0.02), "switched-y": (1, 0.05), "switched-z": (2, 0.05)}
 
 
@@ -50,7 +51,7 @@ def faulty(fault: str, since_s: float | None, accel, gyro, mag) -> tuple | None:
         m[1] += 0.05
     elif fault == "mag-lost" and since_s < 60.0:
         m = [math.nan] * 3
-    elif fault == "imu-lost" and since_s < 3.0:
+    elif (fault == "imu-lost" and since_s < 3.0) or (fault == "imu-gap" and since_s < 0.6):
         return None
     elif fault == "accel-warm":
         accel = (accel[0] + 0.05 * min(since_s / 60.0, 1.0), accel[1], accel[2])
@@ -59,11 +60,16 @@ def faulty(fault: str, since_s: float | None, accel, gyro, mag) -> tuple | None:
     return accel, gyro, tuple(m)
 
 
-def fly(name: str, seed: int, fault: str, at_s: float, window_s: float, core: str) -> tuple[float, float, float, int]:
-    """RMS error (m/s), error / accuracy, share beyond 3 sigma over ``window_s`` from ``at_s`` after the taut entry,
-    and the field jumps counted."""
+def fly(
+    name: str, seed: int, fault: str, at_s: float, window_s: float, core: str, skip_s: float = 0.0,
+    duration_s: float | None = None,
+) -> tuple[float, float, float, int]:
+    """RMS error (m/s), error / accuracy (RMS over RMS), share beyond 3 sigma over ``window_s`` from ``skip_s`` after
+    the fault's start ``at_s`` after the taut entry, and the field jumps counted. The flight lasts ``duration_s`` from
+    the boot (the wind drawn for it), by default 80 s more than the fault's window."""
     sc = SCENARIOS[name]
-    sim = Simulation(sc.design, sc.wind, sc.truth, at_s + window_s + 80.0, seed)
+    duration_s = at_s + skip_s + window_s + 80.0 if duration_s is None else duration_s
+    sim = Simulation(sc.design, sc.wind, sc.truth, duration_s, seed)
     est = Estimator(sc.design, replace(sc.filter, core=core))
     rows, entry = [], None
     for s in sim.samples():
@@ -76,7 +82,7 @@ def fly(name: str, seed: int, fault: str, at_s: float, window_s: float, core: st
         readings = faulty(fault, since, s.accel, s.gyro, s.mag)
         if readings is not None:
             est.on_imu(t, *readings[0], *readings[1], *readings[2])
-        if since is not None and since < window_s:
+        if since is not None and skip_s <= since < skip_s + window_s:
             rows.append((t * 1e-6, *est.wind(), est.wind_accuracy()))
     if not rows:
         raise SystemExit(f"{name} seed {seed}: the balloon never flew taut long enough")

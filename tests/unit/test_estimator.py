@@ -13,8 +13,8 @@ from firmware_py.estimator.aid_sources.accel import accel_nominal_var
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.state import MODE_TAUT, WIND_E, WIND_N, FilterConfig
 from sim_hil.scenarios import SCENARIOS
-from sim_hil.simulator import Simulation
 from tests.helpers.flights import feed, stream
+from tools import sensor_faults
 
 # the paper's world says so in its design file: the paper's rope, no rope drag (sim_hil/scenarios.py)
 PAPER_FILTER = SCENARIOS["paper-reference"].filter
@@ -147,30 +147,6 @@ def test_duplicates_reordering_gaps_and_time_going_back(flying):
 
 
 
-def after_a_gap(name: str, seed: int, gap_at_s: float, gap_s: float = 0.6) -> tuple[float, float]:
-    """A flight on the Python core whose IMU samples are lost for ``gap_s`` from ``gap_at_s`` after the taut entry:
-    the wind's error over its stated accuracy (RMS over RMS) and the share beyond 3 sigma in the 20 s after."""
-    sc = SCENARIOS[name]
-    sim = Simulation(sc.design, sc.wind, sc.truth, gap_at_s + 45.0, seed)
-    est = Estimator(sc.design, replace(sc.filter, core="py"))
-    rows, entry = [], None
-    for s in sim.samples():
-        t = s.time_usec
-        if s.baro:
-            est.on_baro(t, *s.baro)
-        if entry is None and est.ekf.mode == MODE_TAUT:
-            entry = t
-        lost = entry is not None and entry + gap_at_s * 1e6 <= t < entry + (gap_at_s + gap_s) * 1e6
-        if not lost:
-            est.on_imu(t, *s.accel, *s.gyro, *s.mag)
-            if entry is not None and 0.0 < t - entry - (gap_at_s + gap_s) * 1e6 < 20e6:
-                rows.append((t * 1e-6, *est.wind(), est.wind_accuracy()))
-    r, truth = np.array(rows), sim.truth
-    err = np.hypot(r[:, 1] - np.interp(r[:, 0], truth[:, 0], truth[:, 1]),
-                   r[:, 2] - np.interp(r[:, 0], truth[:, 0], truth[:, 2]))  # fmt: skip
-    return float(np.sqrt(np.mean(err**2) / np.mean(r[:, 3] ** 2))), float(np.mean(err > 3.0 * r[:, 3]))
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [1, 2])
 def test_a_lost_second_of_imu_in_gusts_leaves_the_wind_honest(seed):
@@ -179,9 +155,10 @@ def test_a_lost_second_of_imu_in_gusts_leaves_the_wind_honest(seed):
     of degrees a second, turned otherwise. Before the gap's attitude variance (ekf.gap_attitude_var) the filter held
     its attitude to a degree where it was tens off: 16-17 % of the next 20 s beyond 3 sigma, the wind 1.7-2.0 m/s off
     at error/accuracy up to 4.7 (0 % in the same flights without the gap)."""
-    ratio, beyond = after_a_gap("gusty-6", seed, 15.0)
+    _, ratio, beyond, _ = sensor_faults.fly("gusty-6", seed, "imu-gap", 15.0, 20.0, "py", skip_s=0.6, duration_s=60.0)
     assert beyond <= 0.03, (ratio, beyond)
     assert ratio <= 1.0, (ratio, beyond)
+
 
 def perturb_wind(est, dn, de):
     """A wind error the filter knows it may have: its wind variance back at the initial value."""
