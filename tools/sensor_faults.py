@@ -14,7 +14,9 @@ Faults (the readings changed between the simulator and the estimator, not the tr
 - ``imu-lost``: no IMU sample for 3 s (the samples a stuck sensor's watch drops, balloon_core.samples.STUCK_US);
 - ``imu-gap``: none for 0.6 s (a link's, beyond ``max_gap_s``);
 - ``accel-warm``, ``gyro-warm``: the sun on the IMU, its bias moving with the temperature over a minute and staying:
-  the accelerometer's 5 mg along x, the gyro's 0.1 deg/s about x.
+  the accelerometer's 5 mg along x, the gyro's 0.1 deg/s about x;
+- ``baro-warm``, ``thermo-sun``: the barometer's offset 0.5 hPa (4 m) over a minute, the thermometer 10 K warm over
+  a minute (in the sun, unshaded), both left so.
 Not in the test suite: a study. The C core by default (``--core py`` the Python one)."""
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ from sim_hil.scenarios import SCENARIOS
 from sim_hil.simulator import Simulation
 
 FAULTS = ("switched-x", "switched-y", "switched-z", "disturbed", "burst", "mag-lost", "imu-lost", "imu-gap",
-          "accel-warm", "gyro-warm")
+          "accel-warm", "gyro-warm", "baro-warm", "thermo-sun")
 SWITCHED = {"switched-x": (0, 0.02), "switched-y": (1, 0.05), "switched-z": (2, 0.05)}
 
 
@@ -60,6 +62,18 @@ def faulty(fault: str, since_s: float | None, accel, gyro, mag) -> tuple | None:
     return accel, gyro, tuple(m)
 
 
+def faulty_baro(fault: str, since_s: float | None, baro: tuple[float, float]) -> tuple[float, float]:
+    """The barometer's and thermometer's sample (hPa, degrees C) ``since_s`` after the fault's start (None before)."""
+    if since_s is None:
+        return baro
+    ramp = min(since_s / 60.0, 1.0)
+    if fault == "baro-warm":
+        return baro[0] + 0.5 * ramp, baro[1]
+    if fault == "thermo-sun":
+        return baro[0], baro[1] + 10.0 * ramp
+    return baro
+
+
 def fly(
     name: str, seed: int, fault: str, at_s: float, window_s: float, core: str, skip_s: float = 0.0,
     duration_s: float | None = None,
@@ -74,11 +88,11 @@ def fly(
     rows, entry = [], None
     for s in sim.samples():
         t = s.time_usec
+        since = None if entry is None or t * 1e-6 < entry + at_s else t * 1e-6 - entry - at_s
         if s.baro:
-            est.on_baro(t, *s.baro)
+            est.on_baro(t, *faulty_baro(fault, since, s.baro))
         if entry is None and est.ekf.mode == MODE_TAUT:
             entry = t * 1e-6
-        since = None if entry is None or t * 1e-6 < entry + at_s else t * 1e-6 - entry - at_s
         readings = faulty(fault, since, s.accel, s.gyro, s.mag)
         if readings is not None:
             est.on_imu(t, *readings[0], *readings[1], *readings[2])
