@@ -104,20 +104,23 @@ static void field_jump(bw_estimator_t *est, bw_real tilt_var)
 }
 
 /* magnetometer.py watch_field: the field's strength off its own mean, or the field vector rejected for
- * FIELD_JUMP_REJECTED_S (its run of rejections set back before the rows' recover at the gate): the magnetometer's
- * own field jumped (field_jump); 1 if it did */
+ * FIELD_JUMP_REJECTED_S from a sample it was fused (its run of rejections set back before the rows' recover at the
+ * gate): the magnetometer's own field jumped (field_jump); 1 if it did */
 static int watch_field(bw_estimator_t *est, bw_real mx, bw_real my, bw_real mz)
 {
     const bw_real *st = est->field_strength;
     bw_status_t *status = est->mag_status;
     bw_real jump;
-    int rejected = 0;
+    int rejected = 0, young;
+    int64_t unfused;
     const int32_t run = est->sched.mag_recover - est->sched.taut_every;
     if (status[0].consecutive_rejects == 0) {
         follow_field_strength(est, mx, my, mz, 0);
-    } else {
-        rejected = est->ekf.time_us - status[0].time_last_fuse_us >= (int64_t)(BW_FIELD_JUMP_REJECTED_S * 1e6);
-        if (status[0].consecutive_rejects >= (run > 1 ? run : 1))
+    } else { /* a run that began as the field was fused: a jump once it lasts, the recover held until then */
+        unfused = est->ekf.time_us - status[0].time_last_fuse_us;
+        young = unfused < (int64_t)(BW_FIELD_JUMP_REJECTED_S * 1e6) + est->sched.taut_every * est->dt_us;
+        rejected = young && unfused >= (int64_t)(BW_FIELD_JUMP_REJECTED_S * 1e6);
+        if (young && status[0].consecutive_rejects >= (run > 1 ? run : 1))
             status[0].consecutive_rejects = status[1].consecutive_rejects = status[2].consecutive_rejects = 0;
     }
     jump = BW_FABS(BW_SQRT(st[0]) - BW_SQRT(st[1]));

@@ -6,12 +6,14 @@ cannot see."""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 
 import numpy as np
 from pytest import approx
 
+from firmware_py.estimator.aid_sources import magnetometer
 from firmware_py.estimator.control import Estimator
 from firmware_py.estimator.params import FIELD_CHANGE_GAUSS
 from sim_hil.scenarios import SCENARIOS
@@ -80,3 +82,28 @@ def test_a_replaced_field_states_the_heading_it_cannot_see():
     assert math.degrees(math.sqrt(out["heading_var"])) > 2.0  # the 0.04 G offset turned 60 deg
     across = out["speed"] * math.sqrt(out["heading_var"])
     assert out["accuracy"] == approx(math.hypot(out["accuracy_without"], across))
+
+
+def test_a_field_rejected_from_a_sample_it_was_fused_is_a_jump_and_after_a_silence_the_attitudes():
+    """magnetometer.watch_field on a settled taut flight: a run of rejections that began as the field was fused holds
+    the rows' recover at the gate (its run set back) until it has lasted FIELD_JUMP_REJECTED_S, then is a jump; one
+    that began after the magnetometer fell silent for longer (a heading the gyro alone held, which may have drifted
+    past the gate) is left to the recover, which walks the attitude back to the field: no jump, nothing held."""
+    sc = SCENARIOS["field-rope"]
+    sim = Simulation(sc.design, sc.wind, sc.truth, 60.0, 3)
+    est = Estimator(sc.design, dataclasses.replace(sc.filter, core="py"))
+    for s in sim.samples():
+        if s.baro:
+            est.on_baro(s.time_usec, *s.baro)
+        est.on_imu(s.time_usec, *s.accel, *s.gyro, *s.mag)
+    assert est._field_window & magnetometer.FIELD_WINDOW_STATE and est.counters.field_jumps == 0  # settled, armed
+    m = s.mag
+    now = est.ekf.time_us
+    for unfused_us, jumps, held in ((600_000, 0, True), (1_000_000, 1, True), (5_000_000, 0, False)):
+        trial = copy.deepcopy(est)
+        status = trial.mag_status[0]
+        status.consecutive_rejects = trial.schedule.mag_recover - 1
+        status.time_last_fuse_us = now - unfused_us
+        assert magnetometer.watch_field(trial, *m) == bool(jumps), unfused_us
+        assert trial.counters.field_jumps == jumps, unfused_us
+        assert (status.consecutive_rejects == 0) == held, unfused_us  # the run set back: the recover held

@@ -240,18 +240,25 @@ def watch_field(est: Estimator, mx: float, my: float, mz: float) -> bool:
     field: the attitude 1.5 deg off in a second, the wind 1.6-2.3 m/s off at error/accuracy 0.9-1.0 for a minute and a
     half, `field-rope`). Two signs of it that no turn of the balloon makes: the field's strength |m| leaving its own
     mean (``field_strength``: over FIELD_JUMP_SHORT_S against FIELD_JUMP_LONG_S, by FIELD_JUMP_GAUSS), and the field
-    vector rejected for FIELD_JUMP_REJECTED_S in a row (a change across the field and the gravity: a rotation would
-    explain it, but the gyro says the balloon did not turn). Meanwhile the rows' recover at the gate (``mag_recover``,
-    which walks the attitude to the field) is held: its run of rejections set back before it gets there. A filter
-    whose attitude has lost the gyro's track has its variance grown (a gap's, a placement's), and its field is not
-    rejected; a burst (a radio's transmission, tenths of a second) is rejected and is neither."""
+    vector rejected for FIELD_JUMP_REJECTED_S in a row from a sample it was fused (a change across the field and the
+    gravity: a rotation would explain it, but the gyro says the balloon did not turn). Meanwhile the rows' recover at
+    the gate (``mag_recover``, which walks the attitude to the field) is held: its run of rejections set back before
+    it gets there. A filter whose attitude has lost the gyro's track has its variance grown (a gap's, a placement's),
+    and its field is not rejected; a magnetometer silent for longer than that before its field is rejected is the
+    heading the gyro alone held (the recover walks it back); a burst (a radio's transmission, tenths of a second) is
+    rejected and is neither."""
     st, status = est.field_strength, est.mag_status[0]
     rejected = False
     if status.consecutive_rejects == 0:  # (a rejected sample, a burst's or a jump's, is not the field's strength)
         follow_field_strength(est, mx, my, mz, False)
     else:
-        rejected = est.ekf.time_us - status.time_last_fuse_us >= FIELD_JUMP_REJECTED_US
-        if status.consecutive_rejects >= max(1, est.schedule.mag_recover - est.schedule.taut_every):
+        # a run of rejections that began as the field was being fused: a jump once it lasts FIELD_JUMP_REJECTED_S
+        # (seen at the one tether step that crosses it), the recover held until then. One that began after the
+        # magnetometer fell silent for longer (its heading the gyro's since) is the attitude's: the recover walks it
+        unfused_us = est.ekf.time_us - status.time_last_fuse_us
+        young = unfused_us < FIELD_JUMP_REJECTED_US + est.schedule.taut_every * est.dt_us
+        rejected = young and unfused_us >= FIELD_JUMP_REJECTED_US
+        if young and status.consecutive_rejects >= max(1, est.schedule.mag_recover - est.schedule.taut_every):
             for m in est.mag_status:  # not fused at the gate: here a field rejected is the magnetometer's
                 m.consecutive_rejects = 0
     jump = abs(math.sqrt(st[0]) - math.sqrt(st[1]))
